@@ -1,0 +1,3 @@
+"""mrswarm: mixed-reality drone-swarm experiments over cellular edge networks."""
+
+__version__ = "0.1.0"
