@@ -1,0 +1,126 @@
+"""How a node finds its peers: one small interface, several strategies.
+
+A :class:`Connectivity` produces the Zenoh configuration of a node's session and may run
+something beside the session (the discovery proxy of ``discovery/`` does). SwarmNode only
+talks to this interface, so strategies can be swapped without touching the data path.
+
+Multicast scouting is always **off** in the configs built here: cellular networks carry no
+multicast, and our test machines must not send any outside namespaces we create.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import zenoh
+
+
+@runtime_checkable
+class Connectivity(Protocol):
+    """Strategy that connects a node's Zenoh session to its swarm."""
+
+    name: str
+
+    def zenoh_config(self) -> dict[str, Any]:
+        """The session configuration (a JSON-able dict)."""
+        ...
+
+    def attach(self, session: zenoh.Session) -> None:
+        """Called right after the session opens (start helpers here)."""
+        ...
+
+    def detach(self) -> None:
+        """Called before the session closes."""
+        ...
+
+
+@dataclass(frozen=True)
+class TransportTuning:
+    """Transport knobs shared by every strategy."""
+
+    lease_ms: int = 3000  # a frozen/partitioned peer is declared gone after ~lease (liveliness drops)
+    open_timeout_ms: int = 2000  # per-locator connect timeout (zenoh default 10 s stalls discovery)
+    batch_size: int = 8192  # small messages; smaller batches keep per-link buffers small at 50 peers
+
+    def apply(self, cfg: dict[str, Any]) -> dict[str, Any]:
+        cfg.setdefault("transport", {})
+        cfg["transport"]["unicast"] = {"open_timeout": self.open_timeout_ms}
+        cfg["transport"]["link"] = {"tx": {"lease": self.lease_ms, "batch_size": self.batch_size}}
+        return cfg
+
+
+def base_config(mode: str, connect: tuple[str, ...], listen: tuple[str, ...], tuning: TransportTuning) -> dict[str, Any]:
+    cfg: dict[str, Any] = {
+        "mode": mode,
+        "scouting": {
+            "multicast": {"enabled": False},
+            "gossip": {
+                "enabled": True,
+                "multihop": False,
+                "autoconnect": {"peer": ["router", "peer"], "router": []},
+                "autoconnect_strategy": {"peer": {"to_router": "always", "to_peer": "greater-zid"}},
+            },
+        },
+        "connect": {"endpoints": list(connect)},
+        "listen": {"endpoints": list(listen)},
+    }
+    if mode == "client":
+        cfg["listen"] = {"endpoints": []}
+    return tuning.apply(cfg)
+
+
+def to_zenoh(cfg: dict[str, Any]) -> zenoh.Config:
+    return zenoh.Config.from_json5(json.dumps(cfg))
+
+
+@dataclass(frozen=True)
+class Rendezvous:
+    """Meet through a Zenoh router used as gossip rendezvous (research note zenoh.md §1.2).
+
+    ``mode="peer"``: the router tells each node the others' locators and the nodes form a
+    direct peer-to-peer mesh; data never goes through the router, which may even die.
+    ``mode="client"``: every node keeps one link to the router, which forwards all data
+    (for UAVs behind carrier NAT that cannot accept connections).
+    """
+
+    endpoints: tuple[str, ...]
+    mode: str = "peer"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    tuning: TransportTuning = field(default_factory=TransportTuning)
+    name: str = "rendezvous"
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("peer", "client"):
+            raise ValueError(f"mode must be 'peer' or 'client', not {self.mode!r}")
+        if not self.endpoints:
+            raise ValueError("a rendezvous needs at least one router endpoint")
+
+    def zenoh_config(self) -> dict[str, Any]:
+        return base_config(self.mode, self.endpoints, self.listen, self.tuning)
+
+    def attach(self, session: zenoh.Session) -> None:
+        return None
+
+    def detach(self) -> None:
+        return None
+
+
+@dataclass(frozen=True)
+class StaticPeers:
+    """Connect to a fixed list of endpoints (small labs, tests); gossip still meshes the rest."""
+
+    endpoints: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    tuning: TransportTuning = field(default_factory=TransportTuning)
+    name: str = "static"
+
+    def zenoh_config(self) -> dict[str, Any]:
+        return base_config("peer", self.endpoints, self.listen, self.tuning)
+
+    def attach(self, session: zenoh.Session) -> None:
+        return None
+
+    def detach(self) -> None:
+        return None

@@ -1,0 +1,115 @@
+"""The Zenoh key space of a swarm (documented in docs/keyspace.md).
+
+Every key starts with ``mrs/<swarm>/``, so two swarms on one network never receive each
+other's traffic unless a node subscribes across swarms on purpose (``mrs/*/...``): Zenoh
+routes data only towards matching subscribers.
+
+UAV ids are decimal integers (1..65535); the words below are reserved segment names and can
+never be mistaken for a UAV id.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ROOT = "mrs"
+SWARM_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
+
+
+def check_swarm(swarm: str) -> str:
+    if not isinstance(swarm, str) or not SWARM_RE.match(swarm):
+        raise ValueError(f"swarm name {swarm!r} must be 1-32 characters of [A-Za-z0-9_-]")
+    return swarm
+
+
+@dataclass(frozen=True)
+class SwarmKeys:
+    """Key builders for one swarm."""
+
+    swarm: str
+
+    def __post_init__(self) -> None:
+        check_swarm(self.swarm)
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.swarm}"
+
+    # per-UAV streams
+    def pose(self, uav: int | str) -> str:
+        return f"{self.prefix}/{uav}/pose"
+
+    def telemetry(self, uav: int | str) -> str:
+        return f"{self.prefix}/{uav}/telemetry"
+
+    def state(self, uav: int | str) -> str:
+        return f"{self.prefix}/{uav}/state"
+
+    def cmd(self, uav: int | str) -> str:
+        return f"{self.prefix}/{uav}/cmd"
+
+    def ack(self, uav: int | str) -> str:
+        return f"{self.prefix}/{uav}/ack"
+
+    def alive(self, role: str, node: int | str) -> str:
+        return f"{self.prefix}/alive/{role}/{node}"
+
+    # swarm-wide
+    @property
+    def swarm_cmd(self) -> str:
+        return f"{self.prefix}/cmd"
+
+    def broadcast(self, topic: str) -> str:
+        return f"{self.prefix}/msg/{topic}"
+
+    def unicast(self, uav: int, topic: str) -> str:
+        return f"{self.prefix}/{uav}/msg/{topic}"
+
+    # wildcards for subscribers
+    @property
+    def all_poses(self) -> str:
+        return f"{self.prefix}/*/pose"
+
+    @property
+    def all_telemetry(self) -> str:
+        return f"{self.prefix}/*/telemetry"
+
+    @property
+    def all_states(self) -> str:
+        return f"{self.prefix}/*/state"
+
+    @property
+    def all_acks(self) -> str:
+        return f"{self.prefix}/*/ack"
+
+    @property
+    def all_alive(self) -> str:
+        return f"{self.prefix}/alive/**"
+
+    @property
+    def all_broadcast(self) -> str:
+        return f"{self.prefix}/msg/**"
+
+    def all_unicast(self, uav: int) -> str:
+        return f"{self.prefix}/{uav}/msg/**"
+
+
+def uav_from_key(key: str) -> int | None:
+    """The UAV id in ``mrs/<swarm>/<uav>/...`` or None if that segment is not a UAV id."""
+    parts = key.split("/", 3)
+    if len(parts) < 3 or parts[0] != ROOT:
+        return None
+    seg = parts[2]
+    if seg.isdigit() and len(seg) <= 5:
+        uav = int(seg)
+        if 1 <= uav <= 65535:
+            return uav
+    return None
+
+
+def swarm_from_key(key: str) -> str | None:
+    parts = key.split("/", 2)
+    if len(parts) < 2 or parts[0] != ROOT:
+        return None
+    return parts[1]

@@ -1,0 +1,439 @@
+"""Swarm messages: dataclasses and their versioned msgpack wire format.
+
+Every message is a msgpack array whose first element is a one-byte *tag*:
+``tag = kind << 4 | version``. Decoding checks the tag, the array length, every field's
+type and range, and the payload size, and raises :class:`DecodeError` (with a short
+``reason`` used as a counter name) for anything else. Nothing here raises any other
+exception on bad input; :class:`swarmnet.node.SwarmNode` catches ``DecodeError``, counts
+it and logs it, so bad input never reaches the agent.
+
+The pose is the hot message (10 Hz from every UAV to every other UAV), so it is quantised
+to fixed-point integers, which msgpack stores in 1-5 bytes: at most **48 bytes** per pose
+for any value in range (the paper's ROS/swarmio pose was 399 B). Resolution: 1 cm, 1 cm/s,
+1e-4 rad, 1 ms of sim time, 1 us of wall time. The full layout is in docs/keyspace.md.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import msgpack
+
+
+class DecodeError(ValueError):
+    """A payload that is not a valid message; ``reason`` is a short counter name."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+        self.detail = detail
+
+
+class Kind(IntEnum):
+    POSE = 1
+    TELEMETRY = 2
+    STATE = 3
+    SWARM_MESSAGE = 4
+    COMMAND = 5
+    COMMAND_ACK = 6
+
+
+class Realm(IntEnum):
+    VIRTUAL = 0
+    PHYSICAL = 1
+
+    @classmethod
+    def parse(cls, value: str | int | Realm) -> Realm:
+        if isinstance(value, str):
+            try:
+                return cls[value.upper()]
+            except KeyError:
+                raise ValueError(f"realm must be 'virtual' or 'physical', not {value!r}") from None
+        return cls(value)
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+VERSION = 1
+
+
+def tag(kind: Kind, version: int = VERSION) -> int:
+    return (int(kind) << 4) | version
+
+
+# --- limits ----------------------------------------------------------------------------
+UAV_ID_MIN, UAV_ID_MAX = 1, 65535
+MAX_POSE_BYTES = 48
+MAX_TELEMETRY_BYTES = 256
+MAX_STATE_BYTES = 512
+MAX_COMMAND_BYTES = 1024
+DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024
+_INT16 = 32767
+_INT32 = 2**31 - 1
+_UINT32 = 2**32 - 1
+_UINT64 = 2**64 - 1
+XY_LIMIT_M = _INT32 / 100.0  # ~21,474 km, effectively unbounded; stored as int32 cm
+Z_LIMIT_M = _INT16 / 100.0  # +-327.67 m around the swarm origin's altitude, stored as int16 cm
+SPEED_LIMIT_MS = _INT16 / 100.0  # +-327.67 m/s per axis
+TOPIC_RE = re.compile(r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
+MAX_TOPIC_LEN = 64
+MAX_TEXT_LEN = 200
+
+
+def check_uav_id(uav: Any, field_name: str = "uav") -> int:
+    if type(uav) is not int or not (UAV_ID_MIN <= uav <= UAV_ID_MAX):
+        raise DecodeError("bad_field", f"{field_name} must be an integer in {UAV_ID_MIN}..{UAV_ID_MAX}, got {uav!r}")
+    return uav
+
+
+# --- dataclasses -------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """Where a UAV is, in the swarm's shared ENU frame (metres from the swarm origin)."""
+
+    uav: int
+    realm: Realm
+    seq: int  # 16-bit, wraps; receivers count gaps as losses
+    t_sim: float  # flight-controller (simulation) time, s since its boot
+    t_wall: float  # wall-clock time the pose was sampled, s since the Unix epoch
+    x: float
+    y: float
+    z: float
+    vx: float
+    vy: float
+    vz: float
+    yaw: float  # rad, ENU convention (0 = east, counter-clockwise)
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """Flight-controller status a ground station wants, at a low rate (1-2 Hz)."""
+
+    uav: int
+    realm: Realm
+    seq: int
+    t_wall: float
+    mode: str
+    armed: bool
+    battery: float  # remaining fraction 0..1, or -1 if unknown
+    voltage: float  # V, or -1 if unknown
+    lat: float
+    lon: float
+    alt: float  # AMSL, m
+    rtf: float  # real-time factor of the FCU (1.0 for a physical UAV)
+
+
+@dataclass(frozen=True, slots=True)
+class AgentState:
+    """The agent's own state machine: phase, behaviour, override and a short detail."""
+
+    uav: int
+    realm: Realm
+    seq: int
+    t_wall: float
+    phase: str  # e.g. idle, ready, takeoff, mission, hold, landing, landed, done, error
+    behaviour: str
+    override: str = ""  # non-empty while a human/GCS override suspends the behaviour
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class SwarmMessage:
+    """Application message between UAVs: broadcast (``dst`` 0) or unicast."""
+
+    src: int
+    dst: int  # 0 = broadcast to the swarm
+    topic: str
+    seq: int
+    t_wall: float
+    body: Any  # any msgpack-able value
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A command to one UAV or (``target`` 0) to the whole swarm."""
+
+    sender: str  # who sent it (e.g. "gcs", "runner")
+    cmd_id: int
+    target: int  # 0 = all UAVs of the swarm
+    verb: str
+    args: dict[str, Any] = field(default_factory=dict)
+    t_wall: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class CommandAck:
+    uav: int
+    cmd_id: int
+    ok: bool
+    message: str
+    t_wall: float
+
+
+Message = Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck
+
+
+# --- helpers -------------------------------------------------------------------------------
+def _unpack(data: bytes | bytearray | memoryview, limit: int) -> list[Any]:
+    if len(data) > limit:
+        raise DecodeError("oversized", f"{len(data)} bytes > {limit}")
+    if not data:
+        raise DecodeError("malformed", "empty payload")
+    try:
+        obj = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several types (ExtraData, FormatError, StackError, TypeError...)
+        raise DecodeError("malformed", f"not msgpack: {type(exc).__name__}") from None
+    if type(obj) is not list or not obj:
+        raise DecodeError("malformed", "expected a non-empty msgpack array")
+    return obj
+
+
+def _expect(obj: list[Any], kind: Kind, n: int) -> None:
+    t = obj[0]
+    if type(t) is not int:
+        raise DecodeError("malformed", "tag is not an integer")
+    if t >> 4 != kind:
+        raise DecodeError("wrong_type", f"expected {kind.name.lower()}, got kind {t >> 4}")
+    if t & 0xF != VERSION:
+        raise DecodeError("wrong_version", f"{kind.name.lower()} version {t & 0xF}, this node speaks {VERSION}")
+    if len(obj) != n:
+        raise DecodeError("malformed", f"{kind.name.lower()} has {len(obj)} fields, expected {n}")
+
+
+def _int(v: Any, lo: int, hi: int, name: str) -> int:
+    if type(v) is not int or not (lo <= v <= hi):
+        raise DecodeError("bad_field", f"{name}={v!r} outside {lo}..{hi}")
+    return v
+
+
+def _num(v: Any, lo: float, hi: float, name: str) -> float:
+    if type(v) not in (int, float) or not (lo <= v <= hi):  # NaN fails the comparison too
+        raise DecodeError("bad_field", f"{name}={v!r} outside {lo}..{hi}")
+    return float(v)
+
+
+def _str(v: Any, max_len: int, name: str, pattern: re.Pattern[str] | None = None) -> str:
+    if type(v) is not str or len(v) > max_len or (pattern is not None and not pattern.match(v)):
+        raise DecodeError("bad_field", f"{name}={v!r:.60} is not a valid string")
+    return v
+
+
+def _realm(v: Any) -> Realm:
+    if v == 0 and type(v) is int:
+        return Realm.VIRTUAL
+    if v == 1 and type(v) is int:
+        return Realm.PHYSICAL
+    raise DecodeError("bad_field", f"realm={v!r}")
+
+
+def _us(t: float) -> int:
+    return int(round(t * 1e6))
+
+
+def _q(value: float, scale: float, limit: int, name: str) -> int:
+    """Quantise to a fixed-point integer, refusing values the wire format cannot hold."""
+    q = round(value * scale)  # raises on NaN/inf
+    if not -limit <= q <= limit:
+        raise ValueError(f"{name}={value} out of range +-{limit / scale}")
+    return q
+
+
+# --- pose ----------------------------------------------------------------------------------
+_POSE_TAG = tag(Kind.POSE)
+
+
+def encode_pose(p: Pose) -> bytes:
+    try:
+        fields = [
+            _POSE_TAG,
+            p.uav,
+            int(p.realm),
+            p.seq & 0xFFFF,
+            round(p.t_sim * 1000.0),
+            _us(p.t_wall),
+            _q(p.x, 100.0, _INT32, "x"),
+            _q(p.y, 100.0, _INT32, "y"),
+            _q(p.z, 100.0, _INT16, "z"),
+            _q(p.vx, 100.0, _INT16, "vx"),
+            _q(p.vy, 100.0, _INT16, "vy"),
+            _q(p.vz, 100.0, _INT16, "vz"),
+            _q(math.remainder(p.yaw, math.tau), 1e4, _INT16, "yaw"),
+        ]
+    except (ValueError, OverflowError) as exc:
+        raise ValueError(f"cannot encode pose of UAV {p.uav}: {exc}") from None
+    if not (UAV_ID_MIN <= p.uav <= UAV_ID_MAX) or not (0 <= fields[4] <= _UINT32) or not (0 <= fields[5] <= _UINT64):
+        raise ValueError(f"cannot encode pose of UAV {p.uav}: id or timestamps out of range")
+    return msgpack.packb(fields)
+
+
+def decode_pose(data: bytes) -> Pose:
+    o = _unpack(data, MAX_POSE_BYTES)
+    _expect(o, Kind.POSE, 13)
+    return Pose(
+        uav=check_uav_id(o[1]),
+        realm=_realm(o[2]),
+        seq=_int(o[3], 0, 0xFFFF, "seq"),
+        t_sim=_int(o[4], 0, _UINT32, "t_sim") / 1000.0,
+        t_wall=_int(o[5], 0, _UINT64, "t_wall") / 1e6,
+        x=_int(o[6], -_INT32, _INT32, "x") / 100.0,
+        y=_int(o[7], -_INT32, _INT32, "y") / 100.0,
+        z=_int(o[8], -_INT16, _INT16, "z") / 100.0,
+        vx=_int(o[9], -_INT16, _INT16, "vx") / 100.0,
+        vy=_int(o[10], -_INT16, _INT16, "vy") / 100.0,
+        vz=_int(o[11], -_INT16, _INT16, "vz") / 100.0,
+        yaw=_int(o[12], -31416, 31416, "yaw") / 1e4,
+    )
+
+
+# --- telemetry -----------------------------------------------------------------------------
+_TELEMETRY_TAG = tag(Kind.TELEMETRY)
+
+
+def encode_telemetry(t: Telemetry) -> bytes:
+    return msgpack.packb(
+        [
+            _TELEMETRY_TAG,
+            t.uav,
+            int(t.realm),
+            t.seq & 0xFFFFFFFF,
+            _us(t.t_wall),
+            t.mode[:32],
+            bool(t.armed),
+            float(t.battery),
+            float(t.voltage),
+            float(t.lat),
+            float(t.lon),
+            float(t.alt),
+            float(t.rtf),
+        ]
+    )
+
+
+def decode_telemetry(data: bytes) -> Telemetry:
+    o = _unpack(data, MAX_TELEMETRY_BYTES)
+    _expect(o, Kind.TELEMETRY, 13)
+    if type(o[6]) is not bool:
+        raise DecodeError("bad_field", f"armed={o[6]!r}")
+    return Telemetry(
+        uav=check_uav_id(o[1]),
+        realm=_realm(o[2]),
+        seq=_int(o[3], 0, _UINT32, "seq"),
+        t_wall=_int(o[4], 0, _UINT64, "t_wall") / 1e6,
+        mode=_str(o[5], 32, "mode"),
+        armed=o[6],
+        battery=_num(o[7], -1.0, 1.0, "battery"),
+        voltage=_num(o[8], -1.0, 1000.0, "voltage"),
+        lat=_num(o[9], -90.0, 90.0, "lat"),
+        lon=_num(o[10], -180.0, 180.0, "lon"),
+        alt=_num(o[11], -1000.0, 100000.0, "alt"),
+        rtf=_num(o[12], 0.0, 1000.0, "rtf"),
+    )
+
+
+# --- agent state -------------------------------------------------------------------------------
+_STATE_TAG = tag(Kind.STATE)
+
+
+def encode_state(s: AgentState) -> bytes:
+    return msgpack.packb(
+        [_STATE_TAG, s.uav, int(s.realm), s.seq & 0xFFFFFFFF, _us(s.t_wall), s.phase, s.behaviour, s.override, s.detail[:MAX_TEXT_LEN]]
+    )
+
+
+def decode_state(data: bytes) -> AgentState:
+    o = _unpack(data, MAX_STATE_BYTES)
+    _expect(o, Kind.STATE, 9)
+    return AgentState(
+        uav=check_uav_id(o[1]),
+        realm=_realm(o[2]),
+        seq=_int(o[3], 0, _UINT32, "seq"),
+        t_wall=_int(o[4], 0, _UINT64, "t_wall") / 1e6,
+        phase=_str(o[5], 32, "phase", NAME_RE),
+        behaviour=_str(o[6], 32, "behaviour"),
+        override=_str(o[7], 32, "override"),
+        detail=_str(o[8], MAX_TEXT_LEN, "detail"),
+    )
+
+
+# --- swarm messages ---------------------------------------------------------------------------
+_SWARM_MESSAGE_TAG = tag(Kind.SWARM_MESSAGE)
+
+
+def encode_swarm_message(m: SwarmMessage, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> bytes:
+    if not TOPIC_RE.match(m.topic) or len(m.topic) > MAX_TOPIC_LEN:
+        raise ValueError(f"invalid topic {m.topic!r}: use up to {MAX_TOPIC_LEN} chars of [A-Za-z0-9_-] separated by '/'")
+    data = msgpack.packb([_SWARM_MESSAGE_TAG, m.src, m.dst, m.topic, m.seq & 0xFFFFFFFF, _us(m.t_wall), m.body])
+    if len(data) > max_bytes:
+        raise ValueError(f"message on {m.topic!r} is {len(data)} bytes, over the {max_bytes}-byte limit")
+    return data
+
+
+def decode_swarm_message(data: bytes, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> SwarmMessage:
+    o = _unpack(data, max_bytes)
+    _expect(o, Kind.SWARM_MESSAGE, 7)
+    dst = o[2]
+    if dst != 0:
+        check_uav_id(dst, "dst")
+    return SwarmMessage(
+        src=check_uav_id(o[1], "src"),
+        dst=dst,
+        topic=_str(o[3], MAX_TOPIC_LEN, "topic", TOPIC_RE),
+        seq=_int(o[4], 0, _UINT32, "seq"),
+        t_wall=_int(o[5], 0, _UINT64, "t_wall") / 1e6,
+        body=o[6],
+    )
+
+
+# --- commands ---------------------------------------------------------------------------------
+_COMMAND_TAG = tag(Kind.COMMAND)
+_ACK_TAG = tag(Kind.COMMAND_ACK)
+
+
+def encode_command(c: Command) -> bytes:
+    data = msgpack.packb([_COMMAND_TAG, c.sender, c.cmd_id & 0xFFFFFFFF, c.target, c.verb, c.args, _us(c.t_wall)])
+    if len(data) > MAX_COMMAND_BYTES:
+        raise ValueError(f"command {c.verb!r} is {len(data)} bytes, over {MAX_COMMAND_BYTES}")
+    return data
+
+
+def decode_command(data: bytes) -> Command:
+    o = _unpack(data, MAX_COMMAND_BYTES)
+    _expect(o, Kind.COMMAND, 7)
+    target = o[3]
+    if target != 0:
+        check_uav_id(target, "target")
+    if type(o[5]) is not dict:
+        raise DecodeError("bad_field", "args must be a map")
+    return Command(
+        sender=_str(o[1], 32, "sender", NAME_RE),
+        cmd_id=_int(o[2], 0, _UINT32, "cmd_id"),
+        target=target,
+        verb=_str(o[4], 32, "verb", NAME_RE),
+        args=o[5],
+        t_wall=_int(o[6], 0, _UINT64, "t_wall") / 1e6,
+    )
+
+
+def encode_ack(a: CommandAck) -> bytes:
+    return msgpack.packb([_ACK_TAG, a.uav, a.cmd_id & 0xFFFFFFFF, bool(a.ok), a.message[:MAX_TEXT_LEN], _us(a.t_wall)])
+
+
+def decode_ack(data: bytes) -> CommandAck:
+    o = _unpack(data, MAX_COMMAND_BYTES)
+    _expect(o, Kind.COMMAND_ACK, 6)
+    if type(o[3]) is not bool:
+        raise DecodeError("bad_field", f"ok={o[3]!r}")
+    return CommandAck(
+        uav=check_uav_id(o[1]),
+        cmd_id=_int(o[2], 0, _UINT32, "cmd_id"),
+        ok=o[3],
+        message=_str(o[4], MAX_TEXT_LEN, "message"),
+        t_wall=_int(o[5], 0, _UINT64, "t_wall") / 1e6,
+    )
