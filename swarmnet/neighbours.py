@@ -21,7 +21,7 @@ class Neighbour:
     lost: int = 0  # poses missing from seq gaps
     duplicates: int = 0
     out_of_order: int = 0  # arrived after a newer one; not applied
-    interval: float = 0.0  # EWMA of inter-arrival time, s
+    interval: float = 0.0  # EWMA of the interval between received poses (sender clock), s
 
     @property
     def uav(self) -> int:
@@ -75,8 +75,11 @@ class NeighbourTable:
             diff = 1
         n.lost += diff - 1
         n.received += 1
-        gap = now - n.last_recv
-        n.interval = gap if n.interval == 0.0 else n.interval + _RATE_ALPHA * (gap - n.interval)
+        # Rate from the sender's sampling times: the poll loop drains in batches, so arrival
+        # times would say nothing; lost poses lengthen the interval, as they should.
+        gap = pose.t_wall - n.pose.t_wall
+        if gap > 0.0:
+            n.interval = gap if n.interval == 0.0 else n.interval + _RATE_ALPHA * (gap - n.interval)
         n.pose = pose
         n.last_recv = now
         return True
