@@ -1,0 +1,337 @@
+"""The agent: the same code on a real UAV's companion computer and in a virtual UAV.
+
+Data path, top to bottom, once per loop iteration (see :meth:`Agent.step`):
+
+    FCU (MAVLink) -> FcuLink.poll -> own ENU pose from the swarm origin -> SwarmNode.publish_pose
+    SwarmNode.poll -> neighbour table -> mission behaviour -> collision avoidance -> FcuLink setpoint
+
+The agent owns no thread: its owner calls :meth:`Agent.step` from a ``selectors`` loop
+(see :mod:`uav_stack.runtime`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarmnet.messages import Command, Realm
+from swarmnet.node import SwarmNode
+from uav_stack.behaviours.avoidance import CollisionAvoidance
+from uav_stack.behaviours.base import Area, Neighbour, SelfState
+from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
+from uav_stack.config import AgentConfig
+from uav_stack.fcu_link import CommandHandle, FcuLink
+from uav_stack.geo import LocalFrame
+from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
+
+log = logging.getLogger(__name__)
+
+ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * error)
+MAX_CLIMB = 2.0
+OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for OFFBOARD (PX4 needs > 1 s)
+RETRY_AFTER = 1.5
+
+
+class Phase:
+    INIT = "init"  # waiting for the FCU's heartbeat and position
+    READY = "ready"  # FCU up, waiting for the "start" command
+    ARMING = "arming"
+    TAKEOFF = "takeoff"
+    OFFBOARD = "offboard"  # streaming setpoints before switching to OFFBOARD/GUIDED
+    MISSION = "mission"
+    DONE = "done"  # mission complete, hovering
+    YIELDED = "yielded"  # someone else changed the FCU's mode: we stopped sending setpoints
+    LANDING = "landing"
+    LANDED = "landed"
+    ERROR = "error"
+
+
+@dataclass
+class Own:
+    """The UAV's own state in the swarm frame, derived from the FCU's telemetry."""
+
+    x: float = math.nan
+    y: float = math.nan
+    z: float = math.nan
+    vx: float = 0.0
+    vy: float = 0.0
+    vz: float = 0.0
+    yaw: float = 0.0  # ENU
+
+
+def make_mission(cfg: AgentConfig) -> Any:
+    m = cfg.mission
+    if m.type == "coverage":
+        area = Area(*m.area)
+        if m.strategy == "random":
+            rng = np.random.default_rng([cfg.seed, cfg.uav])
+            return RandomDirectionCoverage(area, cfg.speed, rng)
+        if m.strategy == "lawnmower":
+            return LawnmowerCoverage(area, cfg.speed, m.lane_spacing)
+        raise ValueError(f"unknown coverage strategy {m.strategy!r}")
+    if m.type == "goto":
+        if m.goal is None:
+            raise ValueError("a goto mission needs a goal")
+        return GoTo(m.goal, cfg.speed, m.goal_tolerance)
+    if m.type == "idle":
+        return None
+    raise ValueError(f"unknown mission type {m.type!r}")
+
+
+class Agent:
+    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink):
+        self.cfg = cfg
+        self.node = node
+        self.link = link
+        self.clock = node.clock
+        self.frame = LocalFrame(cfg.origin)
+        self.realm = Realm.parse(cfg.realm)
+        self.own = Own()
+        self.phase = Phase.INIT
+        self.override = ""
+        self.detail = ""
+        self.mission = make_mission(cfg)
+        a = cfg.avoidance
+        self.avoidance = (
+            CollisionAvoidance(a.safety_distance, max_speed=cfg.speed * 1.2, time_horizon=a.time_horizon, stale_after=a.stale_after)
+            if a.enabled
+            else None
+        )
+        self.started_at: float | None = None
+        self.mission_started_at: float | None = None
+        self._phase_since = self.clock()
+        self._handle: CommandHandle | None = None
+        self._next_control = 0.0
+        self._next_telemetry = 0.0
+        self._next_state = 0.0
+        self._next_stats = 0.0
+        self._offboard_stream_since: float | None = None
+        self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
+        self.closest_seen = math.inf
+        self.recorder: TrajectoryRecorder | None = None
+        if cfg.record_dir:
+            self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv")
+
+    # ---- helpers ------------------------------------------------------------------------
+    def _set_phase(self, phase: str, detail: str = "") -> None:
+        if phase != self.phase:
+            log.info("UAV %d: %s -> %s %s", self.cfg.uav, self.phase, phase, detail)
+            self.phase = phase
+            self._phase_since = self.clock()
+            self._next_state = 0.0  # publish the change now
+        self.detail = detail
+
+    def _update_own(self) -> bool:
+        st = self.link.state
+        if not st.has_position:
+            return False
+        o = self.own
+        o.x, o.y, o.z = self.frame.to_enu(st.lat, st.lon, st.alt)
+        o.vx, o.vy, o.vz = st.ve, st.vn, -st.vd
+        o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
+        return True
+
+    @property
+    def target_alt_amsl(self) -> float:
+        return self.cfg.origin.alt + self.cfg.altitude
+
+    # ---- the loop body --------------------------------------------------------------------
+    def step(self, now: float) -> None:
+        link, node = self.link, self.node
+        link.poll()
+        link.service()
+        have_pos = self._update_own()
+        inbox = node.poll(now)
+        for cmd in inbox.commands:
+            self._on_command(cmd, now)
+        if have_pos and node.pose_due(now):
+            st = link.state
+            o = self.own
+            node.publish_pose(
+                t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
+                t_wall=st.position_at,
+            )
+        if now >= self._next_control:
+            self._next_control = max(self._next_control + 1.0 / self.cfg.control_rate_hz, now)
+            self._control(now, have_pos)
+            if have_pos:
+                self._record(now)
+        if now >= self._next_telemetry and have_pos:
+            self._next_telemetry = now + 1.0 / self.cfg.telemetry_rate_hz
+            st = link.state
+            rtf = link.rtf.value
+            node.publish_telemetry(
+                mode=st.mode, armed=st.armed, battery=st.battery, voltage=st.voltage,
+                lat=st.lat, lon=st.lon, alt=st.alt, rtf=rtf if rtf == rtf else 0.0,
+            )
+        if now >= self._next_state:
+            self._next_state = now + 1.0
+            node.publish_state(self.phase, self.behaviour_name, self.override, self.detail)
+        if now >= self._next_stats:
+            self._next_stats = now + 1.0
+            self.write_stats(now)
+
+    @property
+    def behaviour_name(self) -> str:
+        m = self.cfg.mission
+        return f"{m.type}/{m.strategy}" if m.type == "coverage" else m.type
+
+    # ---- commands -------------------------------------------------------------------------
+    def _on_command(self, cmd: Command, now: float) -> None:
+        self.counters["commands"] += 1
+        verb = cmd.verb
+        ok, msg = True, ""
+        if verb == "start":
+            if self.phase in (Phase.INIT, Phase.READY):
+                self.started_at = now
+                if self.phase == Phase.READY:
+                    self._begin_flight()
+                msg = "starting" if self.phase != Phase.INIT else "will start once the FCU is up"
+            else:
+                msg = f"already {self.phase}"
+        elif verb in ("land", "stop"):
+            self._land()
+            msg = "landing"
+        else:
+            ok, msg = False, f"unknown command {verb!r}"
+            self.counters["rejected_commands"] += 1
+        self.node.ack(cmd.cmd_id, ok, msg)
+
+    def _begin_flight(self) -> None:
+        self._set_phase(Phase.ARMING)
+        self._handle = None
+
+    def _land(self) -> None:
+        if self.phase in (Phase.LANDING, Phase.LANDED):
+            return
+        self._handle = self.link.land()
+        self._set_phase(Phase.LANDING)
+
+    # ---- the state machine ------------------------------------------------------------------
+    def _control(self, now: float, have_pos: bool) -> None:
+        link = self.link
+        st = link.state
+        ph = self.phase
+        since = now - self._phase_since
+        if ph == Phase.INIT:
+            if link.connected and have_pos:
+                self._set_phase(Phase.READY)
+                if self.cfg.autostart or self.started_at is not None:
+                    self._begin_flight()
+            return
+        if not link.connected and ph not in (Phase.READY, Phase.LANDED, Phase.ERROR):
+            self.detail = "FCU link lost"
+        if ph == Phase.ARMING:
+            if st.armed:
+                self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
+                self._set_phase(Phase.TAKEOFF)
+            elif self._handle is None or (self._handle.done and since > RETRY_AFTER):
+                if self._handle is not None and self._handle.done and not self._handle.accepted:
+                    self.detail = f"arm {self._handle.status}"
+                self._handle = link.arm(True)
+                self._phase_since = now
+        elif ph == Phase.TAKEOFF:
+            if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
+                self._handle = link.takeoff(self.target_alt_amsl, self.cfg.altitude)
+                self._phase_since = now
+            if st.alt >= self.target_alt_amsl - 1.0:
+                self._offboard_stream_since = now
+                self._set_phase(Phase.OFFBOARD)
+        elif ph == Phase.OFFBOARD:
+            self._send_velocity(0.0, 0.0)
+            if link.in_offboard:
+                self.mission_started_at = now
+                self._set_phase(Phase.MISSION)
+            elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
+                self._handle = link.set_mode(link.offboard_mode)
+        elif ph in (Phase.MISSION, Phase.DONE):
+            if not link.in_offboard:
+                # a human (or a failsafe) took over: stop fighting them, say so
+                self.override = f"fcu:{st.mode}"
+                self._set_phase(Phase.YIELDED, f"FCU switched to {st.mode}; setpoints stopped")
+                return
+            self._fly(now)
+        elif ph == Phase.LANDING:
+            if not st.armed and st.relative_alt < 1.0:
+                self._set_phase(Phase.LANDED)
+            elif self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
+                self._handle = link.land()
+                self._phase_since = now
+
+    def _send_velocity(self, vx: float, vy: float) -> None:
+        err = self.target_alt_amsl - self.link.state.alt
+        vz = max(-MAX_CLIMB, min(MAX_CLIMB, ALT_GAIN * err)) if err == err else 0.0
+        self.link.send_velocity_ned(vy, vx, -vz)
+
+    def _fly(self, now: float) -> None:
+        o = self.own
+        me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
+        self.counters["control_ticks"] += 1
+        vx, vy = 0.0, 0.0
+        if self.mission is not None and self.phase == Phase.MISSION:
+            members = sorted(self.node.alive_uavs() | {self.cfg.uav})
+            vx, vy = self.mission.velocity(me, members)
+            if self.mission.done:
+                if self.cfg.mission.land_when_done:
+                    self._land()
+                    return
+                self._set_phase(Phase.DONE, "mission complete")
+                vx, vy = 0.0, 0.0
+        if self.avoidance is not None:
+            neigh = [
+                Neighbour(uav=n.uav, pos=(n.pose.x, n.pose.y), vel=(n.pose.vx, n.pose.vy), age=n.age(now))
+                for n in self.node.neighbours
+            ]
+            res = self.avoidance.adjust(me, (vx, vy), neigh)
+            if res.active:
+                self.counters["avoidance_active"] += 1
+            self.closest_seen = min(self.closest_seen, res.closest)
+            vx, vy = res.velocity
+        self._send_velocity(vx, vy)
+
+    def _record(self, now: float) -> None:
+        if self.recorder is None:
+            return
+        st, o = self.link.state, self.own
+        rtf = self.link.rtf.value
+        self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode, int(st.armed),
+                                  rtf if rtf == rtf else -1.0))
+
+    # ---- reporting ------------------------------------------------------------------------
+    def stats(self, now: float) -> dict[str, Any]:
+        return {
+            "uav": self.cfg.uav,
+            "realm": self.realm.label,
+            "phase": self.phase,
+            "started_at": self.started_at,
+            "mission_started_at": self.mission_started_at,
+            "rtf": self.link.rtf.value,
+            "rtf_total": self.link.rtf.total(),
+            "rtf_reported": self.link.state.rtf_reported,
+            "agent": dict(self.counters),
+            "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
+            "fcu_link": dict(self.link.counts),
+            "net": self.node.stats.to_dict(),
+            "neighbours": {
+                str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
+                             "rate": round(n.rate, 2)}
+                for n in self.node.neighbours
+            },
+            "written_at": now,
+        }
+
+    def write_stats(self, now: float) -> None:
+        if self.cfg.record_dir:
+            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now))
+        if self.recorder is not None:
+            self.recorder.flush(now)
+
+    def close(self, now: float) -> None:
+        self.write_stats(now)
+        if self.recorder is not None:
+            self.recorder.close()

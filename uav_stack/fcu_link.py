@@ -1,0 +1,354 @@
+"""The agent's MAVLink link to its flight controller, whatever it is.
+
+The agent reaches its FCU only through a pymavlink connection string, so one agent flies a
+real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:0.0.0.0:14540``)
+or our virtual FCU (``udpout:127.0.0.1:<port>``). Everything here is non-blocking: the
+agent's loop calls :meth:`FcuLink.poll` and :meth:`FcuLink.service`; commands return a
+:class:`CommandHandle` that resolves when the COMMAND_ACK arrives (retried like MAVSDK:
+0.5 s timeout, 3 retries).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from uav_stack.mav import mavlink, mavutil
+
+log = logging.getLogger(__name__)
+
+COMPANION_COMPONENT = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+HEARTBEAT_TIMEOUT = 3.0  # s without a heartbeat = link lost (MAVSDK's default)
+ACK_TIMEOUT = 0.5
+ACK_RETRIES = 3
+_RESULT_NAMES = {
+    mavlink.MAV_RESULT_ACCEPTED: "accepted",
+    mavlink.MAV_RESULT_TEMPORARILY_REJECTED: "temporarily_rejected",
+    mavlink.MAV_RESULT_DENIED: "denied",
+    mavlink.MAV_RESULT_UNSUPPORTED: "unsupported",
+    mavlink.MAV_RESULT_FAILED: "failed",
+    mavlink.MAV_RESULT_IN_PROGRESS: "in_progress",
+}
+# type_mask for a NED velocity setpoint: ignore position, acceleration, yaw and yaw rate
+VELOCITY_ONLY_MASK = (
+    mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+    | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+)
+
+
+@dataclass
+class CommandHandle:
+    command: int
+    params: tuple[float, ...]
+    sent_at: float
+    attempts: int = 1
+    result: int | None = None  # MAV_RESULT once acknowledged
+    timed_out: bool = False
+
+    @property
+    def done(self) -> bool:
+        return self.timed_out or (self.result is not None and self.result != mavlink.MAV_RESULT_IN_PROGRESS)
+
+    @property
+    def accepted(self) -> bool:
+        return self.result == mavlink.MAV_RESULT_ACCEPTED
+
+    @property
+    def status(self) -> str:
+        if self.timed_out:
+            return "timeout"
+        if self.result is None:
+            return "pending"
+        return _RESULT_NAMES.get(self.result, str(self.result))
+
+
+@dataclass
+class FcuState:
+    """The latest telemetry, in the FCU's own terms (geodetic position, NED velocity)."""
+
+    sysid: int = 0
+    autopilot: int = 0
+    heartbeat_at: float = -math.inf  # wall time of the last heartbeat
+    base_mode: int = 0
+    custom_mode: int = 0
+    mode: str = "UNKNOWN"
+    armed: bool = False
+    landed_state: int = mavlink.MAV_LANDED_STATE_UNDEFINED
+    lat: float = math.nan
+    lon: float = math.nan
+    alt: float = math.nan  # AMSL, m
+    relative_alt: float = math.nan
+    vn: float = 0.0
+    ve: float = 0.0
+    vd: float = 0.0
+    yaw: float = 0.0  # rad, NED (0 = north, clockwise)
+    position_at: float = -math.inf  # wall time the latest GLOBAL_POSITION_INT arrived
+    position_boot_s: float = 0.0  # its time_boot_ms, in s
+    home: tuple[float, float, float] | None = None
+    battery: float = -1.0  # remaining fraction
+    voltage: float = -1.0
+    rtf_reported: float = math.nan  # NAMED_VALUE_FLOAT "RTF" if the FCU publishes it
+    statustext: deque[str] = field(default_factory=lambda: deque(maxlen=20))
+
+    @property
+    def is_px4(self) -> bool:
+        return self.autopilot == mavlink.MAV_AUTOPILOT_PX4
+
+    @property
+    def has_position(self) -> bool:
+        return not math.isnan(self.lat)
+
+
+class RtfMeter:
+    """Real-time factor from the FCU's ``time_boot_ms`` against our wall clock (any FCU)."""
+
+    def __init__(self, window: float = 5.0):
+        self.window = window
+        self._samples: deque[tuple[float, float]] = deque()
+        self.first: tuple[float, float] | None = None
+
+    def add(self, wall: float, boot_s: float) -> None:
+        s = self._samples
+        if s and boot_s < s[-1][1] - 1.0:  # FCU rebooted
+            s.clear()
+            self.first = None
+        if s and wall - s[-1][0] < 0.2:
+            return
+        s.append((wall, boot_s))
+        if self.first is None:
+            self.first = (wall, boot_s)
+        while len(s) > 2 and wall - s[0][0] > self.window:
+            s.popleft()
+
+    @property
+    def value(self) -> float:
+        s = self._samples
+        if len(s) < 2 or s[-1][0] - s[0][0] < 0.5:
+            return math.nan
+        return (s[-1][1] - s[0][1]) / (s[-1][0] - s[0][0])
+
+    def total(self, now_wall: float | None = None) -> float:
+        if self.first is None or len(self._samples) < 2:
+            return math.nan
+        last = self._samples[-1]
+        dw = last[0] - self.first[0]
+        return (last[1] - self.first[1]) / dw if dw > 0.5 else math.nan
+
+
+class FcuLink:
+    """Non-blocking MAVLink connection from the companion (agent) to one FCU."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        source_system: int = 1,
+        source_component: int = COMPANION_COMPONENT,
+        target_system: int | None = None,
+        clock: Callable[[], float] = time.time,
+        on_message: Callable[[Any], None] | None = None,
+    ):
+        self.url = url
+        self.source_system = source_system
+        self.source_component = source_component
+        self.target_system = target_system  # None: learn from the first autopilot heartbeat
+        self.clock = clock
+        self.on_message = on_message
+        self.state = FcuState()
+        self.rtf = RtfMeter()
+        self.pending: dict[int, CommandHandle] = {}
+        self.counts: dict[str, int] = {"rx": 0, "tx_setpoints": 0, "commands": 0, "bad": 0}
+        self.conn: Any = None
+        self._next_heartbeat = 0.0
+
+    # ---- lifecycle ----------------------------------------------------------------------
+    def open(self) -> FcuLink:
+        self.conn = mavutil.mavlink_connection(
+            self.url, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
+        )
+        return self
+
+    def close(self) -> None:
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            finally:
+                self.conn = None
+
+    def fileno(self) -> int:
+        return self.conn.fd if getattr(self.conn, "fd", None) is not None else self.conn.port.fileno()
+
+    @property
+    def connected(self) -> bool:
+        return self.clock() - self.state.heartbeat_at < HEARTBEAT_TIMEOUT
+
+    @property
+    def target(self) -> int:
+        return self.target_system or self.state.sysid or 1
+
+    # ---- receive ------------------------------------------------------------------------
+    def poll(self, max_messages: int = 500) -> int:
+        """Read everything pending (bounded); return the number of messages handled."""
+        n = 0
+        conn = self.conn
+        while n < max_messages:
+            try:
+                msg = conn.recv_msg()
+            except (OSError, ValueError) as exc:  # a dead serial port, a garbled frame
+                self.counts["bad"] += 1
+                log.debug("fcu link: %s", exc)
+                break
+            if msg is None:
+                break
+            n += 1
+            self._handle(msg)
+        return n
+
+    def _handle(self, msg: Any) -> None:
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA":
+            self.counts["bad"] += 1
+            return
+        self.counts["rx"] += 1
+        st = self.state
+        src = msg.get_srcSystem()
+        if self.target_system is not None and src != self.target_system and mtype != "HEARTBEAT":
+            return
+        now = self.clock()
+        if mtype == "HEARTBEAT":
+            if msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                return  # a GCS or companion on the same link
+            if self.target_system is not None and src != self.target_system:
+                return
+            st.sysid = src
+            st.autopilot = msg.autopilot
+            st.heartbeat_at = now
+            st.base_mode = msg.base_mode
+            st.custom_mode = msg.custom_mode
+            st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            st.mode = mavutil.mode_string_v10(msg)
+        elif mtype == "GLOBAL_POSITION_INT":
+            st.lat, st.lon = msg.lat * 1e-7, msg.lon * 1e-7
+            st.alt, st.relative_alt = msg.alt * 1e-3, msg.relative_alt * 1e-3
+            st.vn, st.ve, st.vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
+            if msg.hdg != 65535:
+                st.yaw = math.radians(msg.hdg * 0.01)
+            st.position_at = now
+            st.position_boot_s = msg.time_boot_ms * 1e-3
+            self.rtf.add(now, st.position_boot_s)
+        elif mtype == "ATTITUDE":
+            st.yaw = msg.yaw
+        elif mtype == "EXTENDED_SYS_STATE":
+            st.landed_state = msg.landed_state
+        elif mtype == "HOME_POSITION":
+            st.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+        elif mtype == "SYS_STATUS":
+            if msg.battery_remaining >= 0:
+                st.battery = msg.battery_remaining / 100.0
+            if msg.voltage_battery != 65535:
+                st.voltage = msg.voltage_battery / 1000.0
+        elif mtype == "BATTERY_STATUS":
+            if msg.battery_remaining >= 0:
+                st.battery = msg.battery_remaining / 100.0
+        elif mtype == "NAMED_VALUE_FLOAT":
+            if msg.name.rstrip("\x00") == "RTF":
+                st.rtf_reported = msg.value
+        elif mtype == "COMMAND_ACK":
+            h = self.pending.get(msg.command)
+            if h is not None:
+                h.result = msg.result
+                if h.done:
+                    del self.pending[msg.command]
+        elif mtype == "STATUSTEXT":
+            st.statustext.append(msg.text)
+        if self.on_message is not None:
+            self.on_message(msg)
+
+    # ---- send ---------------------------------------------------------------------------
+    def service(self) -> None:
+        """Heartbeat at 1 Hz and command retries; call often (every loop iteration)."""
+        now = self.clock()
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + 1.0
+            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE)
+        for cmd, h in list(self.pending.items()):
+            if h.result == mavlink.MAV_RESULT_IN_PROGRESS:
+                timeout = 3.0
+            else:
+                timeout = ACK_TIMEOUT
+            if now - h.sent_at > timeout:
+                if h.attempts > ACK_RETRIES:
+                    h.timed_out = True
+                    del self.pending[cmd]
+                else:
+                    h.attempts += 1
+                    h.sent_at = now
+                    self._send_command_long(cmd, h.params, confirmation=h.attempts - 1)
+
+    def _send_command_long(self, command: int, params: tuple[float, ...], confirmation: int = 0) -> None:
+        p = list(params) + [math.nan] * (7 - len(params))
+        self.conn.mav.command_long_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, command, confirmation, *p)
+
+    def command(self, command: int, *params: float) -> CommandHandle:
+        """Send COMMAND_LONG; unused params go out as NaN (= unset). Replaces a pending one."""
+        h = CommandHandle(command, tuple(params), self.clock())
+        self.pending[command] = h
+        self.counts["commands"] += 1
+        self._send_command_long(command, h.params)
+        return h
+
+    def arm(self, arm: bool = True, force: bool = False) -> CommandHandle:
+        return self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if arm else 0.0, 21196.0 if force else 0.0)
+
+    def takeoff(self, alt_amsl: float, relative_alt: float) -> CommandHandle:
+        """PX4 wants p7 in metres AMSL, ArduPilot the altitude relative to home."""
+        if self.state.is_px4 or self.state.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, math.nan, 0, 0, math.nan, math.nan, math.nan, alt_amsl)
+        return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, relative_alt)
+
+    def land(self) -> CommandHandle:
+        return self.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+
+    def return_to_launch(self) -> CommandHandle:
+        return self.command(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+
+    def set_mode(self, name: str) -> CommandHandle:
+        """Mode by name in the FCU's own flavour (PX4: OFFBOARD, LOITER, ...; ArduPilot: GUIDED, ...)."""
+        name = name.upper()
+        if self.state.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            numbers = {v: k for k, v in mavutil.mode_mapping_acm.items()}
+            if name not in numbers:
+                raise ValueError(f"unknown ArduCopter mode {name!r}")
+            return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, numbers[name])
+        if name not in mavutil.px4_map:
+            raise ValueError(f"unknown PX4 mode {name!r}; known: {', '.join(mavutil.px4_map)}")
+        _, main, sub = mavutil.px4_map[name]
+        return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+
+    @property
+    def offboard_mode(self) -> str:
+        return "GUIDED" if self.state.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else "OFFBOARD"
+
+    @property
+    def in_offboard(self) -> bool:
+        return self.state.mode == self.offboard_mode
+
+    def send_velocity_ned(self, vn: float, ve: float, vd: float) -> None:
+        """Velocity setpoint (OFFBOARD/GUIDED); stream it at >= 2 Hz or the FCU fails safe."""
+        boot_ms = int(self.state.position_boot_s * 1000) & 0xFFFFFFFF
+        self.conn.mav.set_position_target_local_ned_send(
+            boot_ms, self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, mavlink.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY_MASK,
+            0, 0, 0, vn, ve, vd, 0, 0, 0, 0, 0,
+        )
+        self.counts["tx_setpoints"] += 1

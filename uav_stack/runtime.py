@@ -1,0 +1,208 @@
+"""Process entry points: a virtual UAV (virtual FCU + agent) and a standalone agent.
+
+One single-threaded ``selectors`` loop per process drives everything: the virtual FCU's
+physics and MAVLink socket (if any), the agent's MAVLink link, and the agent's step
+(which drains Zenoh's ring channels). No asyncio: it would cost ~10 MB per process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import logging
+import math
+import os
+import selectors
+import signal
+import sys
+import time
+from pathlib import Path
+from types import FrameType
+
+from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
+from swarmnet.messages import Realm
+from swarmnet.node import NodeIdentity, SwarmNode
+from uav_stack.agent import Agent
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.fcu_link import FcuLink
+from uav_stack.geo import GeoPoint
+
+log = logging.getLogger(__name__)
+
+AGENT_STEP_HZ = 50.0
+_PR_SET_PDEATHSIG = 1
+
+
+class StopFlag:
+    """Set by SIGTERM/SIGINT (and by the parent dying, via PR_SET_PDEATHSIG)."""
+
+    def __init__(self) -> None:
+        self.stopped = False
+
+    def set(self, *_: object) -> None:
+        self.stopped = True
+
+    def install(self) -> StopFlag:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, self._on_signal)
+        return self
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        self.stopped = True
+
+
+def die_with_parent() -> None:
+    """Ask Linux to SIGTERM us when the launching process dies (no orphans, even on SIGKILL)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+def make_connectivity(net: NetworkConfig) -> Connectivity:
+    if net.connectivity == "rendezvous":
+        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen))
+    if net.connectivity == "static":
+        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen))
+    raise ValueError(f"unknown connectivity {net.connectivity!r}")
+
+
+def make_node(cfg: AgentConfig) -> SwarmNode:
+    ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
+    return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after)
+
+
+def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None) -> None:
+    """Drive the FCU (optional) and the agent until stopped, the duration passes, or the parent dies."""
+    sel = selectors.DefaultSelector()
+    if fcu is not None:
+        for fd in fcu.fds():  # type: ignore[attr-defined]
+            sel.register(fd, selectors.EVENT_READ)
+    parent = os.getppid()
+    period = 1.0 / AGENT_STEP_HZ
+    t0 = time.monotonic()
+    end = math.inf if duration is None else t0 + duration
+    next_agent = t0
+    next_fcu = t0
+    try:
+        while not stop.stopped:
+            now_m = time.monotonic()
+            if now_m >= end:
+                break
+            timeout = max(0.0, min(next_agent, next_fcu, end) - now_m)
+            if sel.get_map():
+                sel.select(timeout)
+            else:
+                time.sleep(timeout)
+            if fcu is not None:
+                fcu.poll_io()  # type: ignore[attr-defined]
+                next_fcu = fcu.service()  # type: ignore[attr-defined]
+            else:
+                next_fcu = math.inf
+            now_m = time.monotonic()
+            if now_m >= next_agent:
+                next_agent = max(next_agent + period, now_m)
+                agent.step(time.time())
+                if os.getppid() != parent:  # re-parented: the launcher is gone
+                    break
+    finally:
+        sel.close()
+
+
+def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
+    from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
+
+    a = cfg.agent
+    fcu = VirtualFcu(
+        FcuConfig(
+            vehicles=[VehicleConfig(sysid=min(a.uav, 250), home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
+            physics_hz=cfg.physics_hz,
+            target_rtf=cfg.target_rtf,
+        )
+    )
+    (host, port), = fcu.open()
+    link = FcuLink(f"udpout:{host}:{port}", source_system=min(a.uav, 250)).open()
+    node = make_node(a).open()
+    agent = Agent(a, node, link)
+    try:
+        run_loop(agent, stop, fcu, cfg.duration)
+    finally:
+        agent.close(time.time())
+        node.close()
+        link.close()
+        fcu.close()
+    return 0
+
+
+def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
+    link = FcuLink(cfg.fcu, source_system=min(cfg.uav, 250)).open()
+    node = make_node(cfg).open()
+    agent = Agent(cfg, node, link)
+    try:
+        run_loop(agent, stop, None, duration)
+    finally:
+        agent.close(time.time())
+        node.close()
+        link.close()
+    return 0
+
+
+def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
+    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    if log_file:
+        handlers = [logging.FileHandler(log_file)]
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.WARNING), handlers=handlers,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def virtual_uav_main(argv: list[str] | None = None) -> int:
+    """``python -m uav_stack.virtual_uav --config uav3.json``: what the process runtime launches."""
+    ap = argparse.ArgumentParser(prog="mrswarm uav", description="one virtual UAV: virtual FCU + agent, in one process")
+    ap.add_argument("--config", required=True, help="JSON written by the runner (VirtualUavConfig)")
+    ap.add_argument("--log-level", default="INFO")
+    ap.add_argument("--log-file", default=None)
+    args = ap.parse_args(argv)
+    die_with_parent()
+    stop = StopFlag().install()
+    setup_logging(args.log_level, args.log_file)
+    cfg = VirtualUavConfig.load(args.config)
+    return run_virtual_uav(cfg, stop)
+
+
+def agent_main(argv: list[str] | None = None) -> int:
+    """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
+    ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
+    ap.add_argument("--fcu", required=True, help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
+    ap.add_argument("--swarm", required=True)
+    ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
+    ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
+    ap.add_argument("--realm", default="physical", choices=["physical", "virtual"])
+    ap.add_argument("--connect", action="append", default=[], help="Zenoh endpoint of the rendezvous/edge router (repeatable)")
+    ap.add_argument("--mode", default="peer", choices=["peer", "client"], help="client behind carrier NAT")
+    ap.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint (peer mode)")
+    ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
+    ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
+    ap.add_argument("--record-dir", default=None)
+    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--log-level", default="INFO")
+    args = ap.parse_args(argv)
+    stop = StopFlag().install()
+    setup_logging(args.log_level)
+    if args.config:
+        cfg = AgentConfig.from_dict(json.loads(Path(args.config).read_text()))
+    else:
+        try:
+            lat, lon, alt = (float(v) for v in args.origin.split(","))
+        except ValueError:
+            ap.error("--origin must be LAT,LON,ALT")
+        cfg = AgentConfig(
+            swarm=args.swarm, uav=args.uav, origin=GeoPoint(lat, lon, alt), fcu=args.fcu, realm=args.realm,
+            autostart=args.autostart, record_dir=args.record_dir,
+            network=NetworkConfig(endpoints=tuple(args.connect), mode=args.mode,
+                                  listen=tuple(args.listen or ["tcp/0.0.0.0:0"])),
+        )
+    return run_agent(cfg, stop, args.duration)
