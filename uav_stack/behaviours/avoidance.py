@@ -1,0 +1,234 @@
+"""Age-aware ORCA collision avoidance (van den Berg, Guy, Lin, Manocha, ISRR 2009), in 2-D.
+
+For me (A) and a neighbour (B) the agent gives B's pose as last received and its age ``a``.
+
+1. Extrapolate B to now: ``p_B = p + v * a``.
+2. Combined radius ``r = safety_distance + e`` with the age term
+   ``e = min(cap, |v_A - v_B| * a)`` while ``a <= stale_after``; beyond that the uncertainty keeps
+   growing at ``max(|v_rel|, max_speed)`` per second up to the same cap, and B is ignored once
+   ``a > forget_after``.  Stale neighbours are also treated as non-reciprocal (they may not be
+   hearing us either).
+3. Velocity obstacle for horizon ``tau``: with ``x = p_B - p_A``, ``v = v_A - v_B``,
+   ``w = v - x / tau``: if ``v`` is nearest to the cut-off disk (centre ``x/tau``, radius
+   ``r/tau``) the smallest change that leaves the VO is ``u = (r/tau - |w|) w/|w|`` with outward
+   normal ``w/|w|``; otherwise ``u`` is the projection of ``v`` onto the nearer leg of the cone
+   (the leg on the side of ``w``), normal perpendicular to that leg.  Already inside ``r``: the
+   same disk construction with ``tau`` replaced by ``time_step``, i.e. "be out within one step".
+4. ORCA half-plane: through ``v_A + s * u`` with that normal, ``s = 1/2`` for a reciprocal
+   neighbour and ``s = 1`` for one that will not do its share (physical UAV, stale link).
+5. New velocity: closest to the preferred one inside all half-planes and the speed disk
+   (:mod:`uav_stack.behaviours.lp`); if that is empty, the velocity minimising the largest
+   violation, which moves the UAV apart from whoever it is too close to.
+
+Symmetry: the leg is chosen by the sign of ``det(x, w)`` with ties going to the right leg; for
+the neighbour ``x`` and ``w`` are exactly negated, so both pick the same side and an exactly
+symmetric head-on resolves (see the tests).  Coincident positions are split by UAV id.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from uav_stack.behaviours.base import Neighbour, SelfState, Vec2, clip_norm, is_finite
+from uav_stack.behaviours.lp import HalfPlane, solve
+
+
+@dataclass(frozen=True, slots=True)
+class AvoidanceResult:
+    velocity: Vec2
+    active: bool  # some constraint changed the (speed-clipped) preferred velocity
+    closest: float  # predicted (extrapolated) distance to the closest neighbour, inf if none
+    inflation: float  # extra radius used for the closest neighbour (age term)
+    feasible: bool = True  # False if ORCA had no solution and the least-violation fallback ran
+    considered: int = 0  # neighbours that produced a constraint
+
+
+@dataclass(frozen=True, slots=True)
+class _Constraint:
+    dist: float
+    plane: HalfPlane
+
+
+class CollisionAvoidance:
+    """ORCA with message-age compensation.  Stateless: ``adjust`` depends only on its arguments."""
+
+    def __init__(
+        self,
+        safety_distance: float,
+        max_speed: float,
+        time_horizon: float = 4.0,
+        stale_after: float = 1.0,
+        max_neighbours: int = 10,
+        neighbour_range: float = 50.0,
+        forget_after: float = 5.0,
+        max_inflation: float | None = None,
+        time_step: float = 0.1,
+        bias_angle: float = 0.5 * math.pi,
+    ) -> None:
+        """
+        safety_distance: minimum centre-to-centre distance between two UAVs (body + position
+            error), metres.  This is the *combined* radius, not a per-UAV one.
+        max_speed: output speed limit, m/s.
+        time_horizon: ORCA tau, s: avoid collisions predicted within this time.
+        stale_after: age after which a neighbour's pose is "stale" (uncertainty grows faster,
+            full responsibility).
+        max_neighbours / neighbour_range: only the nearest ``max_neighbours`` within
+            ``neighbour_range`` metres (predicted distance) produce constraints.
+        forget_after: neighbours older than this are ignored altogether.
+        max_inflation: cap of the age term, metres (default: ``safety_distance``).
+        time_step: control period, s; an existing overlap is to be resolved within it.
+        bias_angle: keep-right rule, radians: when avoidance blocks progress along the preferred
+            velocity, that velocity is turned clockwise by up to this angle (in proportion to how
+            much progress is lost) and ORCA solved again.  Breaks the symmetric deadlock of ORCA's
+            cut-off disk; 0 disables it.
+        """
+        for name, val in (
+            ("safety_distance", safety_distance),
+            ("max_speed", max_speed),
+            ("time_horizon", time_horizon),
+            ("stale_after", stale_after),
+            ("neighbour_range", neighbour_range),
+            ("forget_after", forget_after),
+            ("time_step", time_step),
+        ):
+            if not (math.isfinite(val) and val > 0.0):
+                raise ValueError(f"{name} must be a positive finite number, got {val!r}")
+        if forget_after < stale_after:
+            raise ValueError("need stale_after <= forget_after")
+        if not (math.isfinite(bias_angle) and 0.0 <= bias_angle <= 0.5 * math.pi):
+            raise ValueError(f"bias_angle must be in [0, pi/2], got {bias_angle!r}")
+        if max_neighbours < 1:
+            raise ValueError("max_neighbours must be >= 1")
+        if max_inflation is None:
+            max_inflation = safety_distance
+        if not (math.isfinite(max_inflation) and max_inflation >= 0.0):
+            raise ValueError(f"max_inflation must be finite and >= 0, got {max_inflation!r}")
+        self.safety_distance = float(safety_distance)
+        self.max_speed = float(max_speed)
+        self.time_horizon = float(time_horizon)
+        self.stale_after = float(stale_after)
+        self.max_neighbours = int(max_neighbours)
+        self.neighbour_range = float(neighbour_range)
+        self.forget_after = float(forget_after)
+        self.max_inflation = float(max_inflation)
+        self.time_step = float(time_step)
+        self.bias_angle = float(bias_angle)
+
+    # -- the age term ------------------------------------------------------------------------
+    def inflation(self, age: float, rel_speed: float) -> float:
+        """Extra combined radius for a pose ``age`` seconds old at relative speed ``rel_speed``."""
+        a = max(age, 0.0)
+        if a <= self.stale_after:
+            e = rel_speed * a
+        else:
+            e = rel_speed * self.stale_after + max(rel_speed, self.max_speed) * (a - self.stale_after)
+        return min(e, self.max_inflation)
+
+    # -- one ORCA half-plane -----------------------------------------------------------------
+    def _half_plane(
+        self, me_uav: int, v_a: Vec2, x: Vec2, v: Vec2, r: float, share: float, other_uav: int
+    ) -> HalfPlane:
+        """ORCA half-plane for relative position ``x`` (B - A), relative velocity ``v`` (A - B)."""
+        xx, xy = x
+        vx, vy = v
+        d2 = xx * xx + xy * xy
+        r2 = r * r
+        if d2 > r2:
+            inv_tau = 1.0 / self.time_horizon
+            wx, wy = vx - xx * inv_tau, vy - xy * inv_tau
+            w2 = wx * wx + wy * wy
+            wdotx = wx * xx + wy * xy
+            if wdotx < 0.0 and wdotx * wdotx > r2 * w2:
+                # nearest to the cut-off disk
+                wl = math.sqrt(w2)
+                nx, ny = wx / wl, wy / wl
+                k = r * inv_tau - wl
+                ux, uy = nx * k, ny * k
+            else:
+                # nearest to a leg of the cone; legs are x rotated by +-asin(r/|x|)
+                leg = math.sqrt(d2 - r2)
+                if xx * wy - xy * wx > 0.0:  # w counter-clockwise of x: left leg
+                    dx, dy = (xx * leg - xy * r) / d2, (xx * r + xy * leg) / d2
+                    nx, ny = -dy, dx  # outward = leg direction turned left
+                else:
+                    dx, dy = (xx * leg + xy * r) / d2, (-xx * r + xy * leg) / d2
+                    nx, ny = dy, -dx  # outward = leg direction turned right
+                s = vx * dx + vy * dy
+                ux, uy = s * dx - vx, s * dy - vy
+        else:
+            # already closer than r: leave the disk of radius r/dt around x/dt within one step
+            inv_dt = 1.0 / self.time_step
+            wx, wy = vx - xx * inv_dt, vy - xy * inv_dt
+            wl = math.hypot(wx, wy)
+            if wl <= 1e-9:
+                # no relative motion information to go on: move straight away from B
+                dl = math.sqrt(d2)
+                if dl > 1e-9:
+                    wx, wy, wl = -xx / dl, -xy / dl, 1.0
+                else:  # coincident: split deterministically by id
+                    wx, wy, wl = (-1.0, 0.0, 1.0) if me_uav < other_uav else (1.0, 0.0, 1.0)
+            nx, ny = wx / wl, wy / wl
+            k = r * inv_dt - wl
+            ux, uy = nx * k, ny * k
+        return HalfPlane((v_a[0] + share * ux, v_a[1] + share * uy), (nx, ny))
+
+    # -- the public call ---------------------------------------------------------------------
+    def adjust(self, me: SelfState, preferred: Vec2, neighbours: Sequence[Neighbour]) -> AvoidanceResult:
+        """Safe velocity closest to ``preferred``; never faster than ``max_speed``."""
+        pref = preferred if is_finite(preferred) else (0.0, 0.0)
+        pref = clip_norm(pref, self.max_speed)
+        if not is_finite(me.pos):
+            # we do not know where we are: hovering is the only defensible answer
+            return AvoidanceResult((0.0, 0.0), True, math.inf, 0.0)
+        v_a = me.vel if is_finite(me.vel) else (0.0, 0.0)
+        px, py = me.pos
+
+        closest, closest_infl = math.inf, 0.0
+        cons: list[_Constraint] = []
+        for nb in neighbours:
+            if nb.uav == me.uav:
+                continue
+            age = nb.age if math.isfinite(nb.age) else math.inf
+            if age < 0.0:
+                age = 0.0  # clock skew: treat as fresh
+            if age > self.forget_after or not (is_finite(nb.pos) and is_finite(nb.vel)):
+                continue
+            bvx, bvy = nb.vel
+            xx = nb.pos[0] + bvx * age - px
+            xy = nb.pos[1] + bvy * age - py
+            d = math.hypot(xx, xy)
+            rvx, rvy = v_a[0] - bvx, v_a[1] - bvy
+            infl = self.inflation(age, math.hypot(rvx, rvy))
+            if d < closest:
+                closest, closest_infl = d, infl
+            if d > self.neighbour_range:
+                continue
+            share = 0.5 if (nb.reciprocal and age <= self.stale_after) else 1.0
+            plane = self._half_plane(
+                me.uav, v_a, (xx, xy), (rvx, rvy), self.safety_distance + infl, share, nb.uav
+            )
+            cons.append(_Constraint(d, plane))
+
+        if not cons:
+            return AvoidanceResult(pref, False, closest, closest_infl)
+        if len(cons) > self.max_neighbours:
+            cons.sort(key=lambda c: c.dist)
+            del cons[self.max_neighbours :]
+        else:
+            cons.sort(key=lambda c: c.dist)
+        planes = [c.plane for c in cons]
+        v, feasible = solve(planes, self.max_speed, pref)
+        sp = math.hypot(pref[0], pref[1])
+        if self.bias_angle > 0.0 and sp > 1e-9:
+            # keep-right: the more progress is blocked, the more the wish turns clockwise
+            blocked = 1.0 - (v[0] * pref[0] + v[1] * pref[1]) / (sp * sp)
+            if blocked > 1e-6:
+                phi = self.bias_angle * min(blocked, 1.0)
+                c, s = math.cos(phi), math.sin(phi)
+                biased = (c * pref[0] + s * pref[1], -s * pref[0] + c * pref[1])
+                v, feasible = solve(planes, self.max_speed, biased)
+        v = clip_norm(v, self.max_speed)
+        active = math.hypot(v[0] - pref[0], v[1] - pref[1]) > 1e-6
+        return AvoidanceResult(v, active, closest, closest_infl, feasible, len(cons))

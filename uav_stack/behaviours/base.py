@@ -1,0 +1,137 @@
+"""Shared types for the swarm behaviours: own state, neighbours, areas, the Mission protocol.
+
+Everything is in the swarm's shared ENU frame (x east, y north, metres) and 2-D: the agent
+holds altitude separately.  Vectors are plain ``tuple[float, float]`` (alias ``Vec2``) so the
+agent can pass what it already has without wrapping; the helpers below do the arithmetic on
+scalars with ``math``, which for 2-D is much cheaper than numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+Vec2 = tuple[float, float]
+
+
+# --- 2-D helpers (scalars, no allocation beyond the result tuple) ----------------------------
+def add(a: Vec2, b: Vec2) -> Vec2:
+    return (a[0] + b[0], a[1] + b[1])
+
+
+def sub(a: Vec2, b: Vec2) -> Vec2:
+    return (a[0] - b[0], a[1] - b[1])
+
+
+def scale(a: Vec2, k: float) -> Vec2:
+    return (a[0] * k, a[1] * k)
+
+
+def dot(a: Vec2, b: Vec2) -> float:
+    return a[0] * b[0] + a[1] * b[1]
+
+
+def cross(a: Vec2, b: Vec2) -> float:
+    """z component of a x b (positive if b is counter-clockwise of a)."""
+    return a[0] * b[1] - a[1] * b[0]
+
+
+def norm(a: Vec2) -> float:
+    return math.hypot(a[0], a[1])
+
+
+def dist(a: Vec2, b: Vec2) -> float:
+    return math.hypot(a[0] - b[0], a[1] - b[1])
+
+
+def clip_norm(a: Vec2, limit: float) -> Vec2:
+    """``a`` scaled down (never up) so that its length is at most ``limit``."""
+    n = math.hypot(a[0], a[1])
+    if n <= limit or n == 0.0:
+        return a
+    k = limit / n
+    return (a[0] * k, a[1] * k)
+
+
+def is_finite(a: Vec2) -> bool:
+    return math.isfinite(a[0]) and math.isfinite(a[1])
+
+
+# --- state --------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class SelfState:
+    uav: int
+    pos: Vec2  # ENU x (east), y (north), metres
+    vel: Vec2  # m/s, wall-clock (what the vehicle really does, not what a slowed simulator thinks)
+    t: float  # wall time, seconds
+
+
+@dataclass(frozen=True, slots=True)
+class Neighbour:
+    uav: int
+    pos: Vec2  # as last received
+    vel: Vec2
+    age: float  # seconds since that pose was sampled (network delay + staleness)
+    reciprocal: bool = True  # False for physical UAVs / agents that will not share avoidance effort
+
+
+@dataclass(frozen=True, slots=True)
+class Area:
+    """Axis-aligned rectangle in ENU metres."""
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+    def __post_init__(self) -> None:
+        vals = (self.x_min, self.x_max, self.y_min, self.y_max)
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"area bounds must be finite, got {vals}")
+        if not (self.x_min < self.x_max and self.y_min < self.y_max):
+            raise ValueError(f"need x_min < x_max and y_min < y_max, got {vals}")
+
+    @property
+    def width(self) -> float:
+        return self.x_max - self.x_min
+
+    @property
+    def height(self) -> float:
+        return self.y_max - self.y_min
+
+    @property
+    def size(self) -> float:
+        return self.width * self.height
+
+    @property
+    def centre(self) -> Vec2:
+        return (0.5 * (self.x_min + self.x_max), 0.5 * (self.y_min + self.y_max))
+
+    def contains(self, p: Vec2, tol: float = 0.0) -> bool:
+        return (
+            self.x_min - tol <= p[0] <= self.x_max + tol and self.y_min - tol <= p[1] <= self.y_max + tol
+        )
+
+    def clamp(self, p: Vec2) -> Vec2:
+        """Nearest point of the rectangle."""
+        return (min(max(p[0], self.x_min), self.x_max), min(max(p[1], self.y_min), self.y_max))
+
+    def shrunk(self, margin: float) -> Area:
+        """The rectangle inset by ``margin`` on every side (capped so it never inverts)."""
+        mx = min(margin, 0.49 * self.width)
+        my = min(margin, 0.49 * self.height)
+        return Area(self.x_min + mx, self.x_max - mx, self.y_min + my, self.y_max - my)
+
+
+@runtime_checkable
+class Mission(Protocol):
+    """Something that produces a preferred velocity at each control tick."""
+
+    def velocity(self, me: SelfState, members: Sequence[int]) -> Vec2:
+        """Preferred velocity (m/s). ``members`` = ids alive in the swarm, including ``me.uav``."""
+        ...
+
+    @property
+    def done(self) -> bool: ...
