@@ -1,0 +1,107 @@
+"""The process runtime: every virtual UAV is its own OS process on this machine.
+
+Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
+with its own Zenoh session and a real MAVLink/UDP link between the two. The runtime also
+starts what connectivity needs on 127.0.0.1 (a rendezvous router). Children get their own
+process group and ``PR_SET_PDEATHSIG``, and :meth:`ProcessRuntime.stop` escalates from
+SIGTERM to SIGKILL, so nothing outlives the run.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from uav_stack.config import NetworkConfig, VirtualUavConfig
+
+log = logging.getLogger(__name__)
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+
+
+class ProcessRuntime:
+    name = "process"
+
+    def __init__(self, run_dir: Path, python: str = sys.executable, log_level: str = "INFO"):
+        self.run_dir = run_dir
+        self.python = python
+        self.log_level = log_level
+        self.children: dict[str, Child] = {}
+        (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        (run_dir / "config").mkdir(parents=True, exist_ok=True)
+
+    # ---- connectivity ---------------------------------------------------------------------
+    def start_network(self, mode: str = "peer") -> NetworkConfig:
+        """Start a rendezvous router on 127.0.0.1 and return how nodes reach it."""
+        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        self._spawn("router", [self.python, "-m", "discovery.rendezvous", "--listen", endpoint])
+        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",))
+
+    # ---- UAVs ------------------------------------------------------------------------------
+    def start_uav(self, cfg: VirtualUavConfig) -> None:
+        path = self.run_dir / "config" / f"uav{cfg.agent.uav}.json"
+        path.write_text(cfg.to_json())
+        self._spawn(
+            f"uav{cfg.agent.uav}",
+            [self.python, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
+        )
+
+    def _spawn(self, name: str, argv: list[str]) -> None:
+        log_path = self.run_dir / "logs" / f"{name}.log"
+        out = open(log_path, "ab")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        try:
+            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                                    start_new_session=True, env=env)
+        finally:
+            out.close()
+        self.children[name] = Child(name, proc, log_path)
+
+    def exited(self) -> dict[str, int]:
+        """Children that have exited, with their return codes."""
+        return {n: c.proc.returncode for n, c in self.children.items() if c.proc.poll() is not None}
+
+    def pids(self) -> dict[str, int]:
+        return {n: c.proc.pid for n, c in self.children.items()}
+
+    def stop(self, grace: float = 5.0) -> dict[str, int]:
+        """SIGTERM every UAV, then the router; SIGKILL whatever is left after ``grace``."""
+        order = [n for n in self.children if n != "router"] + (["router"] if "router" in self.children else [])
+        for n in order:
+            c = self.children[n]
+            if c.proc.poll() is None:
+                try:
+                    os.killpg(c.proc.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace
+        for n in order:
+            c = self.children[n]
+            try:
+                c.proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not exit on SIGTERM; killing it", n)
+                try:
+                    os.killpg(c.proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                c.proc.wait(5)
+        return {n: c.proc.returncode for n, c in self.children.items()}

@@ -1,0 +1,5 @@
+import sys
+
+from mrswarm.cli import main
+
+sys.exit(main())

@@ -1,0 +1,80 @@
+"""The ``mrswarm`` command: one CLI, a subcommand per job.
+
+Heavy imports happen inside each subcommand, so ``mrswarm agent`` on a companion computer
+does not load matplotlib or pydantic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from mrswarm.experiment import Experiment, print_summary
+    from mrswarm.scenario import ScenarioError, load_scenario
+
+    console = Console()
+    try:
+        scn = load_scenario(args.scenario, args.set)
+    except ScenarioError as exc:
+        console.print(f"[red]error:[/] {exc}", highlight=False)
+        return 2
+    exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+    summary = exp.run()
+    print_summary(console, summary)
+    if exp.run_info.get("interrupted"):
+        return 130
+    if summary.get("aborted") or summary.get("error"):
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="mrswarm", description="Mixed-reality drone-swarm experiments over cellular edge networks.")
+    ap.add_argument("--version", action="version", version=f"mrswarm {_version()}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run a scenario (one process per virtual UAV) and write a results folder")
+    p.add_argument("scenario", help="scenario YAML, e.g. scenarios/coverage.yaml")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario field before validation, e.g. --set uavs.1.rtf=0.4 (repeatable)")
+    p.add_argument("--out", default="results", help="folder for run results (default: ./results)")
+    p.add_argument("--no-live", action="store_true", help="plain progress lines instead of the live display")
+    p.add_argument("--log-level", default="INFO", help="log level of the UAV processes (their logs go to <run>/logs)")
+    p.set_defaults(func=_run)
+
+    p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "agent_main", a.rest))
+    p = sub.add_parser("uav", help="one virtual UAV process (virtual FCU + agent); used by the runtimes", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "virtual_uav_main", a.rest))
+    p = sub.add_parser("fcu", help="a standalone virtual flight controller speaking MAVLink over UDP", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("uav_stack.fcu.__main__", "main", a.rest))
+    p = sub.add_parser("router", help="a Zenoh rendezvous/edge router", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("discovery.rendezvous", "main", a.rest))
+
+    args, rest = ap.parse_known_args(argv)
+    if args.command in ("agent", "uav", "fcu", "router"):
+        args.rest = rest
+    elif rest:
+        ap.error(f"unrecognized arguments: {' '.join(rest)}")
+    return int(args.func(args) or 0)
+
+
+def _delegate(module: str, func: str, argv: list[str]) -> int:
+    import importlib
+
+    return int(getattr(importlib.import_module(module), func)(argv) or 0)
+
+
+def _version() -> str:
+    from mrswarm import __version__
+
+    return __version__
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""A non-flying participant that watches a swarm and commands it (runner, ground station).
+
+It reads every UAV's pose, telemetry, agent state and command acks, and sends commands to
+one UAV or the whole swarm. Like SwarmNode it never runs Python on Zenoh's threads: all
+subscriptions are ring channels drained by :meth:`SwarmObserver.poll`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from swarmnet.connectivity import Connectivity
+from swarmnet.keyspace import uav_from_key
+from swarmnet.messages import (
+    AgentState,
+    Command,
+    CommandAck,
+    DecodeError,
+    Pose,
+    Telemetry,
+    decode_ack,
+    decode_pose,
+    decode_state,
+    decode_telemetry,
+    encode_command,
+)
+from swarmnet.node import NodeIdentity, SwarmNode
+
+
+@dataclass
+class UavView:
+    """Everything the observer knows about one UAV."""
+
+    uav: int
+    pose: Pose | None = None
+    pose_recv: float = 0.0
+    telemetry: Telemetry | None = None
+    state: AgentState | None = None
+    state_recv: float = 0.0
+    poses: int = 0
+
+
+@dataclass
+class PendingCommand:
+    cmd: Command
+    targets: set[int]
+    acks: dict[int, CommandAck] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return self.targets <= set(self.acks)
+
+
+class SwarmObserver:
+    def __init__(self, swarm: str, connectivity: Connectivity, *, node_id: int = 1, role: str = "observer",
+                 name: str = "observer", clock: Callable[[], float] = time.time):
+        self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock)
+        self.name = name
+        self.clock = clock
+        self.keys = self.node.keys
+        self.uavs: dict[int, UavView] = {}
+        self.pending: dict[int, PendingCommand] = {}
+        self._ids = itertools.count(int(clock() * 1000) % 1_000_000)
+        self._subs: dict[str, Any] = {}
+
+    @property
+    def stats(self):  # noqa: ANN201 - NodeStats
+        return self.node.stats
+
+    def open(self) -> SwarmObserver:
+        self.node.open()
+        s = self.node.session
+        assert s is not None
+        ring = zenoh.handlers.RingChannel
+        self._subs["telemetry"] = s.declare_subscriber(self.keys.all_telemetry, ring(1024))
+        self._subs["state"] = s.declare_subscriber(self.keys.all_states, ring(1024))
+        self._subs["ack"] = s.declare_subscriber(self.keys.all_acks, ring(4096))
+        return self
+
+    def close(self) -> None:
+        self._subs.clear()
+        self.node.close()
+
+    def __enter__(self) -> SwarmObserver:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def view(self, uav: int) -> UavView:
+        v = self.uavs.get(uav)
+        if v is None:
+            v = self.uavs[uav] = UavView(uav)
+        return v
+
+    def _drain(self, name: str, decode: Callable[[bytes], Any]) -> list[tuple[str, Any]]:
+        out = []
+        sub = self._subs[name]
+        while True:
+            sample = sub.try_recv()
+            if sample is None:
+                return out
+            key = str(sample.key_expr)
+            try:
+                msg = decode(sample.payload.to_bytes())
+            except DecodeError as exc:
+                self.stats.reject(exc.reason, key, exc.detail)
+                continue
+            if uav_from_key(key) != msg.uav:
+                self.stats.reject("key_mismatch", key, f"payload says UAV {msg.uav}")
+                continue
+            self.stats.received[name] += 1
+            out.append((key, msg))
+
+    def poll(self) -> list[Pose]:
+        """Drain everything; return the poses that arrived (newest per UAV is kept in ``uavs``)."""
+        now = self.clock()
+        before = {u: n.received for u, n in ((n.uav, n) for n in self.node.neighbours)}
+        self.node.poll(now)
+        fresh: list[Pose] = []
+        for n in self.node.neighbours:
+            if n.received != before.get(n.uav):
+                v = self.view(n.uav)
+                if v.pose is None or v.pose.t_wall != n.pose.t_wall:
+                    v.pose, v.pose_recv = n.pose, n.last_recv
+                    v.poses = n.received
+                    fresh.append(n.pose)
+        for _, t in self._drain("telemetry", decode_telemetry):
+            self.view(t.uav).telemetry = t
+        for _, st in self._drain("state", decode_state):
+            v = self.view(st.uav)
+            v.state, v.state_recv = st, now
+        for _, ack in self._drain("ack", decode_ack):
+            p = self.pending.get(ack.cmd_id)
+            if p is not None and ack.uav in p.targets:
+                p.acks[ack.uav] = ack
+        return fresh
+
+    def alive_uavs(self) -> set[int]:
+        return self.node.alive_uavs()
+
+    def phases(self) -> dict[int, str]:
+        return {u: v.state.phase for u, v in self.uavs.items() if v.state is not None}
+
+    def command(self, verb: str, targets: Iterable[int] | None = None, args: dict[str, Any] | None = None) -> PendingCommand:
+        """Send ``verb`` to the given UAVs (None: the whole swarm, acked by every alive UAV)."""
+        s = self.node.session
+        assert s is not None
+        cmd_id = next(self._ids) & 0xFFFFFFFF
+        tset = set(targets) if targets is not None else self.alive_uavs()
+        if targets is None:
+            cmd = Command(self.name, cmd_id, 0, verb, args or {}, self.clock())
+            s.put(self.keys.swarm_cmd, encode_command(cmd))
+        else:
+            cmd = Command(self.name, cmd_id, 0, verb, args or {}, self.clock())
+            for t in sorted(tset):
+                one = Command(self.name, cmd_id, t, verb, args or {}, cmd.t_wall)
+                s.put(self.keys.cmd(t), encode_command(one))
+        p = self.pending[cmd_id] = PendingCommand(cmd, tset)
+        self.stats.sent["cmd"] += 1
+        return p
