@@ -43,6 +43,7 @@ class Phase:
     ARMING = "arming"
     TAKEOFF = "takeoff"
     OFFBOARD = "offboard"  # streaming setpoints before switching to OFFBOARD/GUIDED
+    HOVER = "hover"  # airborne under our control, waiting for "start" (the swarm begins together)
     MISSION = "mission"
     DONE = "done"  # mission complete, hovering
     YIELDED = "yielded"  # someone else changed the FCU's mode: we stopped sending setpoints
@@ -103,6 +104,7 @@ class Agent:
             else None
         )
         self.started_at: float | None = None
+        self.go = cfg.autostart  # begin the mission as soon as airborne
         self.mission_started_at: float | None = None
         self._phase_since = self.clock()
         self._handle: CommandHandle | None = None
@@ -186,12 +188,17 @@ class Agent:
         self.counters["commands"] += 1
         verb = cmd.verb
         ok, msg = True, ""
-        if verb == "start":
+        if verb in ("takeoff", "start"):
+            # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
+            if verb == "start":
+                self.go = True
             if self.phase in (Phase.INIT, Phase.READY):
                 self.started_at = now
                 if self.phase == Phase.READY:
                     self._begin_flight()
-                msg = "starting" if self.phase != Phase.INIT else "will start once the FCU is up"
+                msg = "taking off" if self.phase != Phase.INIT else "will take off once the FCU is up"
+            elif self.phase == Phase.HOVER and self.go:
+                msg = "mission starting"
             else:
                 msg = f"already {self.phase}"
         elif verb in ("land", "stop"):
@@ -221,7 +228,7 @@ class Agent:
         if ph == Phase.INIT:
             if link.connected and have_pos:
                 self._set_phase(Phase.READY)
-                if self.cfg.autostart or self.started_at is not None:
+                if self.go or self.started_at is not None:
                     self._begin_flight()
             return
         if not link.connected and ph not in (Phase.READY, Phase.LANDED, Phase.ERROR):
@@ -245,11 +252,14 @@ class Agent:
         elif ph == Phase.OFFBOARD:
             self._send_velocity(0.0, 0.0)
             if link.in_offboard:
-                self.mission_started_at = now
-                self._set_phase(Phase.MISSION)
+                self._set_phase(Phase.HOVER)
             elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
                 self._handle = link.set_mode(link.offboard_mode)
-        elif ph in (Phase.MISSION, Phase.DONE):
+        elif ph == Phase.HOVER and self.go and link.in_offboard:
+            self.mission_started_at = now
+            self._set_phase(Phase.MISSION)
+            self._fly(now)
+        elif ph in (Phase.HOVER, Phase.MISSION, Phase.DONE):
             if not link.in_offboard:
                 # a human (or a failsafe) took over: stop fighting them, say so
                 self.override = f"fcu:{st.mode}"
