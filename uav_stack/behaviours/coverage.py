@@ -208,7 +208,7 @@ class LawnmowerCoverage:
         self.replans = 0
         self._swept: list[_Band] = []
         self._sweeping = False  # False: transit to plan[0].a; True: flying plan[0].a -> plan[0].b
-        self._sweep_from: Vec2 | None = None
+        self._min_piece = min(0.5, 0.5 * self.lane_spacing)  # shorter unswept pieces are dropped
 
     @property
     def done(self) -> bool:
@@ -227,34 +227,38 @@ class LawnmowerCoverage:
         inset = min(0.5 * self.lane_spacing, 0.5 * self.area.height)
         return self.area.y_min + inset, self.area.y_max - inset
 
-    def _swept_at(self, x: float, y: float) -> bool:
-        return any(b.contains(x, y) for b in self._swept)
+    def _band_swept(self, xl: float, xr: float, y: float) -> bool:
+        """Is the cross-section ``[xl, xr]`` at height ``y`` inside what this UAV swept?"""
+        spans = sorted((b.x0, b.x1) for b in self._swept if b.y0 <= y <= b.y1)
+        reach = xl
+        for x0, x1 in spans:
+            if x0 > reach + 1e-6:
+                break
+            reach = max(reach, x1)
+            if reach >= xr - 1e-6:
+                return True
+        return reach >= xr - 1e-6
 
     def _unswept_segments(self, strip: Area) -> list[_Segment]:
         n_lanes = max(1, math.ceil(strip.width / self.lane_spacing - 1e-9))
         s = strip.width / n_lanes
         ya, yb = self._lane_ends()
-        step = max(0.5, 0.25 * self.lane_spacing)
-        n_y = max(1, math.ceil((yb - ya) / step))
-        ys = [ya + (yb - ya) * k / n_y for k in range(n_y + 1)]
+        # coverage can only change at the y edges of swept bands: test each piece in between
+        cuts = sorted({ya, yb, *(y for b in self._swept for y in (b.y0, b.y1) if ya < y < yb)})
         segs: list[_Segment] = []
         for li in range(n_lanes):
             x = strip.x_min + (li + 0.5) * s
-            probes = (x - 0.45 * s, x, x + 0.45 * s)
-            todo = [not all(self._swept_at(px, y) for px in probes) for y in ys]
-            k = 0
-            while k < len(ys):
-                if not todo[k]:
-                    k += 1
-                    continue
-                j = k
-                while j + 1 < len(ys) and todo[j + 1]:
-                    j += 1
-                # widen by one probe step so that nothing between probes is lost
-                y0 = ys[k - 1] if k > 0 else ys[k]
-                y1 = ys[j + 1] if j + 1 < len(ys) else ys[j]
-                segs.append(_Segment((x, y0), (x, y1), s))
-                k = j + 1
+            xl, xr = x - 0.5 * s, x + 0.5 * s
+            run: float | None = None  # y where the current unswept run started
+            for y0, y1 in zip(cuts, cuts[1:]):
+                if self._band_swept(xl, xr, 0.5 * (y0 + y1)):
+                    if run is not None and y0 - run >= self._min_piece:
+                        segs.append(_Segment((x, run), (x, y0), s))
+                    run = None
+                elif run is None:
+                    run = y0
+            if run is not None and yb - run >= self._min_piece:
+                segs.append(_Segment((x, run), (x, yb), s))
         return segs
 
     @staticmethod
