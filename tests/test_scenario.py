@@ -1,0 +1,91 @@
+"""Scenario files: the shipped ones load; bad ones are refused naming the file and the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mrswarm.scenario import ScenarioError, load_scenario
+from uav_stack.config import NetworkConfig, VirtualUavConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (ROOT / "scenarios").glob("*.yaml")))
+def test_shipped_scenarios_load(name: str) -> None:
+    s = load_scenario(ROOT / "scenarios" / name)
+    assert s.uav_list()
+
+
+def test_default_scenario_is_ten_uavs() -> None:
+    s = load_scenario(ROOT / "scenarios" / "coverage.yaml")
+    assert len(s.uav_list()) == 10 and s.mission.type == "coverage"
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    return p
+
+
+BASE = """
+name: t
+duration: 10
+origin: {lat: 46.6, lon: 14.2, alt: 440}
+mission: {type: coverage, area: {x_min: 0, x_max: 50, y_min: 0, y_max: 50}}
+fleet: {count: 3}
+"""
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (BASE.replace("duration: 10", "duration: -1"), "duration"),
+        (BASE.replace("fleet: {count: 3}", "fleet: {count: 3, spwan: {}}"), "fleet.spwan: unknown field"),
+        (BASE.replace("lat: 46.6", "lat: 123"), "origin.lat"),
+        (BASE.replace("x_max: 50", "x_max: -5"), "mission.area"),
+        (BASE.replace("type: coverage, ", "type: patrol, "), "mission.type"),
+        (BASE + "uavs: [{id: 1, start: [0, 0]}]\n", "either 'fleet'"),
+        (BASE.replace("fleet: {count: 3}", "uavs: [{id: 1, start: [0, 0]}, {id: 1, start: [9, 9]}]"), "duplicate UAV ids [1]"),
+        (BASE.replace("fleet: {count: 3}", "fleet: {count: 3, spawn: {spacing: 1}}"), "closer than flight.safety_distance"),
+        (BASE.replace("{type: coverage, area: {x_min: 0, x_max: 50, y_min: 0, y_max: 50}}", "{type: goto}"), "needs a goal"),
+        ("name: [unclosed\n", ":1:"),
+        ("- just\n- a list\n", "must be a YAML mapping"),
+    ],
+)
+def test_bad_scenarios_name_the_file_and_field(tmp_path: Path, text: str, expected: str) -> None:
+    p = write(tmp_path, text)
+    with pytest.raises(ScenarioError) as ei:
+        load_scenario(p)
+    msg = str(ei.value)
+    assert str(p) in msg and expected in msg
+
+
+def test_overrides_are_validated_like_the_file(tmp_path: Path) -> None:
+    p = write(tmp_path, BASE)
+    s = load_scenario(p, ["fleet.count=5", "flight.speed=3.5"])
+    assert len(s.uav_list()) == 5 and s.flight.speed == 3.5
+    with pytest.raises(ScenarioError, match="flight.speed"):
+        load_scenario(p, ["flight.speed=100"])
+    with pytest.raises(ScenarioError, match="expected key.path=value"):
+        load_scenario(p, ["flight.speed"])
+    with pytest.raises(ScenarioError, match="not an index"):
+        load_scenario(ROOT / "scenarios" / "head_on.yaml", ["uavs.7.rtf=0.5"])
+    h = load_scenario(ROOT / "scenarios" / "head_on.yaml", ["uavs.1.rtf=0.4"])
+    assert [u.rtf for u in h.uav_list()] == [1.0, 0.4]
+
+
+def test_missing_file_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match="cannot read"):
+        load_scenario(tmp_path / "nope.yaml")
+
+
+def test_per_uav_configs_round_trip_through_json() -> None:
+    s = load_scenario(ROOT / "scenarios" / "head_on.yaml", ["uavs.1.rtf=0.7"])
+    net = NetworkConfig(endpoints=("tcp/127.0.0.1:7447",))
+    cfgs = s.virtual_uav_configs(net, record_dir="/tmp/x")
+    assert [c.target_rtf for c in cfgs] == [1.0, 0.7]
+    back = VirtualUavConfig.from_dict(__import__("json").loads(cfgs[1].to_json()))
+    assert back == cfgs[1]
+    assert back.agent.mission.goal == (-20.0, 0.0)
