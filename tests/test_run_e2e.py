@@ -1,0 +1,88 @@
+"""End to end: `mrswarm run` launches real UAV processes, flies, stops them all, summarises."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import wait_for
+
+ROOT = Path(__file__).resolve().parents[1]
+MINI = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"
+
+pytestmark = pytest.mark.e2e
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie is dead for our purpose
+        return open(f"/proc/{pid}/stat").read().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def run_cli(args: list[str], out: Path, timeout: float) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "mrswarm", "run", *args, "--out", str(out), "--no-live"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def only_run_dir(out: Path) -> Path:
+    dirs = [d for d in out.iterdir() if d.is_dir()]
+    assert len(dirs) == 1, dirs
+    return dirs[0]
+
+
+def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(tmp_path: Path) -> None:
+    res = run_cli([str(MINI)], tmp_path, timeout=180)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    run_dir = only_run_dir(tmp_path)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["uavs_recorded"] == 4
+    cov = summary["coverage"]
+    assert cov["final"] > 0.3
+    curve = [c for _, c in cov["curve"]]
+    assert curve[-1] > curve[0] and all(b >= a for a, b in zip(curve, curve[1:]))  # coverage only grows
+    assert summary["separation"]["collisions"] == 0
+    assert summary["separation"]["min_m"] > 1.0
+    assert summary["rtf"]["min"] > 0.8
+    assert summary["network"]["pose_age_ms"]["n"] > 100
+    assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
+    run = json.loads((run_dir / "run.json").read_text())
+    assert set(run["pids"]) == {"router", "uav1", "uav2", "uav3", "uav4"}
+    assert not [n for n, pid in run["pids"].items() if alive(pid)], "processes left behind"
+    assert "coverage" in res.stdout and "collisions" in res.stdout  # the printed summary
+
+
+def test_ctrl_c_stops_every_process_and_still_summarises(tmp_path: Path) -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "mrswarm", "run", str(MINI), "--out", str(tmp_path), "--no-live",
+                             "--set", "duration=120"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert wait_for(lambda: any(tmp_path.glob("*/uav1.csv")), 60.0), "UAVs never started recording"
+        time.sleep(3.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out[-3000:]
+    run_dir = only_run_dir(tmp_path)
+    run = json.loads((run_dir / "run.json").read_text())
+    assert run["interrupted"] is True
+    assert not [n for n, pid in run["pids"].items() if alive(pid)], "processes left behind"
+    assert (run_dir / "summary.json").exists()
+
+
+def test_bad_scenario_fails_fast_with_the_field_name(tmp_path: Path) -> None:
+    res = run_cli([str(MINI), "--set", "flight.altitude=500"], tmp_path, timeout=60)
+    assert res.returncode == 2
+    assert "flight.altitude" in res.stdout + res.stderr
