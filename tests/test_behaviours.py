@@ -224,7 +224,7 @@ def test_output_never_exceeds_max_speed():
 
 
 def test_message_age_extrapolates_and_inflates():
-    ca = CollisionAvoidance(SAFETY, VMAX)
+    ca = CollisionAvoidance(SAFETY, VMAX, response_time=0.0)
     me = me_at((0, 0), (5, 0))
     old = Neighbour(2, (30.0, 0.0), (-5.0, 0.0), 0.3)  # really at 28.5 now
     r = ca.adjust(me, (5.0, 0.0), [old])
@@ -237,7 +237,7 @@ def test_message_age_extrapolates_and_inflates():
 
 
 def test_inflation_bounded_stale_growth_and_forgetting():
-    ca = CollisionAvoidance(SAFETY, VMAX, stale_after=1.0, forget_after=5.0, max_inflation=4.0)
+    ca = CollisionAvoidance(SAFETY, VMAX, stale_after=1.0, forget_after=5.0, max_inflation=4.0, response_time=0.0)
     assert ca.inflation(0.2, 10.0) == pytest.approx(2.0)
     assert ca.inflation(0.5, 10.0) == pytest.approx(4.0)  # capped
     assert ca.inflation(-1.0, 10.0) == 0.0
@@ -251,6 +251,16 @@ def test_inflation_bounded_stale_growth_and_forgetting():
     assert kept.considered == 1 and kept.inflation == pytest.approx(4.0) and kept.active
     gone = ca.adjust(me, (2.0, 0.0), [Neighbour(2, near, (0.0, 0.0), 5.1)])
     assert gone.considered == 0 and gone.closest == math.inf and not gone.active
+
+
+def test_response_time_adds_to_message_age():
+    ca = CollisionAvoidance(SAFETY, VMAX, response_time=0.4, max_inflation=20.0)
+    assert ca.inflation(0.0, 5.0) == pytest.approx(2.0)
+    assert ca.inflation(0.2, 5.0) == pytest.approx(3.0)
+    assert ca.inflation(2.0, 5.0) == pytest.approx(5.0 * 1.4 + VMAX * 1.0)  # stale part from age only
+    assert CollisionAvoidance(SAFETY, VMAX).max_inflation == SAFETY  # default cap
+    with pytest.raises(ValueError):
+        CollisionAvoidance(SAFETY, VMAX, response_time=-0.1)
 
 
 def test_non_reciprocal_neighbour_gets_full_responsibility():
@@ -292,7 +302,7 @@ def test_bad_neighbour_data_is_ignored():
     assert r.velocity == (5.0, 0.0) and r.considered == 0
     # negative age (clock skew) is treated as fresh
     r = ca.adjust(me, (5.0, 0.0), [Neighbour(2, (20.0, 0.0), (-5.0, 0.0), -0.5)])
-    assert r.closest == pytest.approx(20.0) and r.inflation == 0.0
+    assert r.closest == pytest.approx(20.0) and r.inflation == pytest.approx(ca.inflation(0.0, 10.0))
 
 
 def test_only_nearest_neighbours_are_used():

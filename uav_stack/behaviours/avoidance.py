@@ -4,7 +4,8 @@ For me (A) and a neighbour (B) the agent gives B's pose as last received and its
 
 1. Extrapolate B to now: ``p_B = p + v * a``.
 2. Combined radius ``r = safety_distance + e`` with the age term
-   ``e = min(cap, |v_A - v_B| * a)`` while ``a <= stale_after``; beyond that the uncertainty keeps
+   ``e = min(cap, |v_A - v_B| * (a + response_time))`` while ``a <= stale_after`` (the response
+   time covers our own actuation lag, 0.4 s by default); beyond that the uncertainty keeps
    growing at ``max(|v_rel|, max_speed)`` per second up to the same cap, and B is ignored once
    ``a > forget_after``.  Stale neighbours are also treated as non-reciprocal (they may not be
    hearing us either).
@@ -66,6 +67,7 @@ class CollisionAvoidance:
         max_inflation: float | None = None,
         time_step: float = 0.1,
         bias_angle: float = 0.5 * math.pi,
+        response_time: float = 0.4,
     ) -> None:
         """
         safety_distance: minimum centre-to-centre distance between two UAVs (body + position
@@ -79,6 +81,10 @@ class CollisionAvoidance:
         forget_after: neighbours older than this are ignored altogether.
         max_inflation: cap of the age term, metres (default: ``safety_distance``).
         time_step: control period, s; an existing overlap is to be resolved within it.
+        response_time: the vehicle's own velocity response time, s (first-order lag of the
+            flight controller + airframe).  ORCA assumes a new velocity takes effect at once;
+            until it does the pair keeps closing at up to ``|v_rel|``, so this is added to the
+            message age in the inflation term.  0 gives the bare ``|v_rel| * age``.
         bias_angle: keep-right rule, radians: when avoidance blocks progress along the preferred
             velocity, that velocity is turned clockwise by up to this angle (in proportion to how
             much progress is lost) and ORCA solved again.  Breaks the symmetric deadlock of ORCA's
@@ -95,6 +101,8 @@ class CollisionAvoidance:
         ):
             if not (math.isfinite(val) and val > 0.0):
                 raise ValueError(f"{name} must be a positive finite number, got {val!r}")
+        if not (math.isfinite(response_time) and response_time >= 0.0):
+            raise ValueError(f"response_time must be finite and >= 0, got {response_time!r}")
         if forget_after < stale_after:
             raise ValueError("need stale_after <= forget_after")
         if not (math.isfinite(bias_angle) and 0.0 <= bias_angle <= 0.5 * math.pi):
@@ -115,15 +123,19 @@ class CollisionAvoidance:
         self.max_inflation = float(max_inflation)
         self.time_step = float(time_step)
         self.bias_angle = float(bias_angle)
+        self.response_time = float(response_time)
 
     # -- the age term ------------------------------------------------------------------------
     def inflation(self, age: float, rel_speed: float) -> float:
-        """Extra combined radius for a pose ``age`` seconds old at relative speed ``rel_speed``."""
+        """Extra combined radius for a pose ``age`` seconds old at relative speed ``rel_speed``.
+
+        ``rel_speed * (age + response_time)`` while fresh; past ``stale_after`` it grows at
+        ``max(rel_speed, max_speed)``; never more than ``max_inflation``.
+        """
         a = max(age, 0.0)
-        if a <= self.stale_after:
-            e = rel_speed * a
-        else:
-            e = rel_speed * self.stale_after + max(rel_speed, self.max_speed) * (a - self.stale_after)
+        e = rel_speed * (min(a, self.stale_after) + self.response_time)
+        if a > self.stale_after:
+            e += max(rel_speed, self.max_speed) * (a - self.stale_after)
         return min(e, self.max_inflation)
 
     # -- one ORCA half-plane -----------------------------------------------------------------
