@@ -1,0 +1,108 @@
+"""Simulation clock: fixed sim-time steps paced against wall time, and RTF measurement.
+
+RTF (real-time factor) = elapsed sim time / elapsed wall time, as in the paper's Figs. 7-8.
+A physics step of ``dt = 1/physics_hz`` sim seconds is due every ``dt / target_rtf`` wall
+seconds. When the caller falls behind by more than ``max_catchup_s`` of wall time, the
+excess backlog is dropped: sim time falls behind wall time (RTF < target) instead of the
+simulation bursting forward. Nothing else breaks, because every FCU timer runs on sim time.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+
+@dataclass
+class SimClock:
+    physics_hz: float = 50.0
+    target_rtf: float = 1.0
+    max_catchup_s: float = 0.1
+    steps: int = 0  # physics steps taken; sim_time = steps * dt exactly (no drift)
+    dropped_wall_s: float = 0.0  # wall time given up because the caller was late
+    wall_start: float = 0.0
+    next_step_wall: float = 0.0
+    _started: bool = field(default=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.physics_hz > 0 or not self.target_rtf > 0:
+            raise ValueError("physics_hz and target_rtf must be positive")
+        self.max_catchup_s = max(0.0, self.max_catchup_s)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.physics_hz
+
+    @property
+    def wall_per_step(self) -> float:
+        return 1.0 / (self.physics_hz * self.target_rtf)
+
+    @property
+    def sim_time(self) -> float:
+        return self.steps / self.physics_hz
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    def start(self, wall_now: float) -> None:
+        self.wall_start = wall_now
+        self.next_step_wall = wall_now + self.wall_per_step
+        self.steps = 0
+        self.dropped_wall_s = 0.0
+        self._started = True
+
+    def due_steps(self, wall_now: float) -> int:
+        """How many steps to run now; drops any backlog beyond ``max_catchup_s``."""
+        if not self._started:
+            self.start(wall_now)
+            return 0
+        lag = wall_now - self.next_step_wall
+        if lag < 0.0:
+            return 0
+        if lag > self.max_catchup_s:
+            self.dropped_wall_s += lag - self.max_catchup_s
+            self.next_step_wall = wall_now - self.max_catchup_s
+            lag = self.max_catchup_s
+        return int(lag / self.wall_per_step) + 1
+
+    def advance(self) -> None:
+        """Account for one step taken."""
+        self.steps += 1
+        self.next_step_wall += self.wall_per_step
+
+    def rtf_total(self, wall_now: float) -> float:
+        el = wall_now - self.wall_start
+        return self.sim_time / el if self._started and el > 1e-6 else 0.0
+
+
+@dataclass
+class RtfMeter:
+    """Sliding-window RTF: (sim now - sim then) / (wall now - wall then) over ~``window_s``."""
+
+    window_s: float = 5.0
+    sample_every_s: float = 0.25
+    _samples: deque[tuple[float, float]] = field(default_factory=deque, repr=False)
+    _last: tuple[float, float] = (0.0, 0.0)
+
+    def reset(self, wall: float, sim: float) -> None:
+        self._samples.clear()
+        self._samples.append((wall, sim))
+        self._last = (wall, sim)
+
+    def sample(self, wall: float, sim: float) -> None:
+        self._last = (wall, sim)
+        s = self._samples
+        if not s or wall - s[-1][0] >= self.sample_every_s:
+            s.append((wall, sim))
+        # keep exactly one sample at or beyond the window edge
+        while len(s) > 2 and wall - s[1][0] >= self.window_s:
+            s.popleft()
+
+    @property
+    def rtf(self) -> float:
+        if not self._samples:
+            return 0.0
+        w0, s0 = self._samples[0]
+        w1, s1 = self._last
+        return (s1 - s0) / (w1 - w0) if w1 - w0 > 1e-6 else 0.0

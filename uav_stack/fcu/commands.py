@@ -1,0 +1,303 @@
+"""COMMAND_LONG / COMMAND_INT handling: one function per MAV_CMD, one ACK per command.
+
+Handlers return ``(MAV_RESULT, reason)``; a refusal's reason also goes out as STATUSTEXT.
+Messages a handler wants sent after its ACK (REQUEST_MESSAGE) go to ``v.after_ack``.
+NaN (and INT32_MAX for COMMAND_INT x/y) mean "unset". Unknown commands get UNSUPPORTED.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from uav_stack.fcu.offboard import GLOBAL_FRAMES
+from uav_stack.fcu.telemetry import ENCODERS, REQUESTABLE, STREAM_BY_ID
+from uav_stack.fcu.vehicle import ACCEPTED, DENIED, FAILED, Vehicle
+from uav_stack.geo import GeoPoint
+from uav_stack.mav import mavlink
+
+M = mavlink
+NAN = math.nan
+INT32_MAX = 2**31 - 1
+FORCE_MAGIC = 21196
+UNSUPPORTED = M.MAV_RESULT_UNSUPPORTED
+
+Result = tuple[int, str]
+
+
+@dataclass
+class Command:
+    command: int
+    p1: float
+    p2: float
+    p3: float
+    p4: float
+    p5: float  # COMMAND_LONG: float; COMMAND_INT: x (int) as float
+    p6: float
+    p7: float
+    frame: int | None  # COMMAND_INT frame; None for COMMAND_LONG
+    src_sys: int
+    src_comp: int
+
+    @property
+    def is_int(self) -> bool:
+        return self.frame is not None
+
+    @classmethod
+    def from_long(cls, m: M.MAVLink_message) -> Command:
+        return cls(m.command, m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7, None,
+                   m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
+
+    @classmethod
+    def from_int(cls, m: M.MAVLink_message) -> Command:
+        return cls(m.command, m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z, m.frame,
+                   m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
+
+    def latlon(self) -> tuple[float, float] | None:
+        """Target latitude/longitude in degrees from p5/p6, or None if unset."""
+        if self.is_int:
+            x, y = int(self.p5), int(self.p6)
+            if x == INT32_MAX or y == INT32_MAX or (x == 0 and y == 0):
+                return None
+            return x * 1e-7, y * 1e-7
+        if not (math.isfinite(self.p5) and math.isfinite(self.p6)):
+            return None
+        return self.p5, self.p6
+
+    def alt_amsl(self, home_alt: float) -> float | None:
+        """Target altitude AMSL from p7 (COMMAND_INT frames may make it relative), None if unset."""
+        if not math.isfinite(self.p7):
+            return None
+        if self.is_int and GLOBAL_FRAMES.get(self.frame, False):
+            return self.p7 + home_alt
+        return self.p7
+
+
+def _finite(x: float) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+# ------------------------------------------------------------------ handlers
+def cmd_arm_disarm(v: Vehicle, c: Command) -> Result:
+    force = _finite(c.p2) and int(c.p2) == FORCE_MAGIC
+    if not _finite(c.p1):
+        return DENIED, "ARM_DISARM: param1 unset"
+    if c.p1 >= 0.5:
+        return v.arm(force)
+    return v.disarm(force, reason="Disarmed (forced)" if force and not v.landed else "")
+
+
+def cmd_takeoff(v: Vehicle, c: Command) -> Result:
+    if v.flavour.is_px4:
+        # PX4: p7 is AMSL; NaN (MAVSDK) or not above home -> MIS_TAKEOFF_ALT above home
+        alt = c.alt_amsl(v.home.alt)
+        if alt is not None and alt <= v.home.alt:
+            v.statustext(M.MAV_SEVERITY_WARNING, f"Takeoff alt {alt:.1f} below home: MIS_TAKEOFF_ALT")
+            alt = None
+        alt = alt if alt is not None else NAN
+        yaw = c.p4 if _finite(c.p4) else NAN
+        same = (alt == v.takeoff_alt_amsl or alt != alt and v.takeoff_alt_amsl != v.takeoff_alt_amsl) and (
+            yaw == v.takeoff_yaw or yaw != yaw and v.takeoff_yaw != v.takeoff_yaw
+        )
+        if v.mode.name == "TAKEOFF" and v.phase == "takeoff" and same:
+            return ACCEPTED, ""  # a retry of the takeoff in progress
+        v.takeoff_alt_amsl = alt
+        v.takeoff_yaw = yaw
+        v.enter_mode(v.flavour.mode("TAKEOFF"))
+        return ACCEPTED, ""
+    # ArduPilot: GUIDED and armed, on the ground; p7 = altitude above the current position
+    if v.mode.name != "GUIDED":
+        return FAILED, "Takeoff requires GUIDED mode"
+    if not v.armed:
+        return FAILED, "Takeoff: not armed"
+    if v.phase == "takeoff":
+        return ACCEPTED, ""  # a retry of the takeoff in progress
+    if not v.landed:
+        return FAILED, "Takeoff: already flying"
+    if not _finite(c.p7) or c.p7 <= 0:
+        return FAILED, "Takeoff: altitude must be > 0"
+    z = float(v.ctx.dyn.pos[v.i, 2]) - c.p7
+    v._start_takeoff(z, c.p4 if _finite(c.p4) else NAN)
+    return ACCEPTED, ""
+
+
+def cmd_land(v: Vehicle, c: Command) -> Result:
+    return v.request_mode(v.flavour.mode("LAND"))
+
+
+def cmd_rtl(v: Vehicle, c: Command) -> Result:
+    return v.request_mode(v.flavour.mode("RTL"))
+
+
+def cmd_loiter_unlim(v: Vehicle, c: Command) -> Result:
+    return v.request_mode(v.flavour.mode(v.flavour.hold_mode))
+
+
+def cmd_set_mode(v: Vehicle, c: Command) -> Result:
+    base = int(c.p1) if _finite(c.p1) else M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return DENIED, "DO_SET_MODE: only custom modes supported"
+    spec = v.flavour.from_command(c.p2, c.p3)
+    if spec is None:
+        return DENIED, "DO_SET_MODE: unknown mode"
+    return v.request_mode(spec)
+
+
+def cmd_reposition(v: Vehicle, c: Command) -> Result:
+    if c.is_int and c.frame not in GLOBAL_FRAMES:
+        return DENIED, "Reposition: frame not supported"
+    if not v.armed:
+        return DENIED, "Reposition: not armed"
+    if not v.flavour.is_px4:
+        change_mode = _finite(c.p2) and int(c.p2) & 1
+        if v.landed:
+            return FAILED, "Reposition: not flying"
+        if v.mode.name != "GUIDED" and not change_mode:
+            return FAILED, "Reposition: not in GUIDED"
+        if v.mode.name != "GUIDED":
+            v.enter_mode(v.flavour.mode("GUIDED"))
+    d, i = v.ctx.dyn, v.i
+    # unset axes keep the current hold target, or where the vehicle would stop now
+    target = d.pos_sp[i].copy() if v.phase == "hold" and np.isfinite(d.pos_sp[i]).all() else d.stop_point(i)
+    ll = c.latlon()
+    alt = c.alt_amsl(v.home.alt)
+    if ll is not None:
+        t = v.ned_of(ll[0], ll[1], alt if alt is not None else v.frame.origin.alt)
+        target[0], target[1] = t[0], t[1]
+    if alt is not None:
+        target[2] = min(v.alt_to_z(alt), float(d.ground_z[i]))
+    speed = c.p1 if _finite(c.p1) and c.p1 > 0 else NAN
+    yaw = c.p4 if _finite(c.p4) else NAN
+    v.goto(target, speed, yaw)
+    return ACCEPTED, ""
+
+
+def cmd_change_speed(v: Vehicle, c: Command) -> Result:
+    kind = int(c.p1) if _finite(c.p1) else 1
+    speed = c.p2
+    if not _finite(speed) or speed == -1:
+        return ACCEPTED, ""  # no change
+    value = NAN if speed == -2 or speed <= 0 else float(speed)
+    if kind in (0, 1):
+        v.speed_xy = value if value != value else min(value, v.settings.xy_vel_max)
+    elif kind == 2:
+        v.speed_up = value
+    elif kind == 3:
+        v.speed_dn = value
+    else:
+        return DENIED, "DO_CHANGE_SPEED: unknown speed type"
+    v._apply_limits()
+    return ACCEPTED, ""
+
+
+def cmd_set_home(v: Vehicle, c: Command) -> Result:
+    if _finite(c.p1) and int(c.p1) == 1:
+        lat, lon, alt = v.geodetic()
+    else:
+        ll = c.latlon()
+        alt_v = c.alt_amsl(v.home.alt)
+        if ll is None:
+            return DENIED, "DO_SET_HOME: no position"
+        lat, lon = ll
+        alt = alt_v if alt_v is not None else v.home.alt
+    v.home = GeoPoint(lat, lon, alt)
+    v.home_ned = v.ned_of(lat, lon, alt)
+    v.after_ack.append(ENCODERS["HOME_POSITION"](v))
+    return ACCEPTED, ""
+
+
+def cmd_request_message(v: Vehicle, c: Command) -> Result:
+    if not _finite(c.p1):
+        return DENIED, ""
+    fn = REQUESTABLE.get(int(c.p1))
+    if fn is None:
+        return DENIED, ""
+    v.after_ack.append(fn(v))
+    return ACCEPTED, ""
+
+
+def cmd_autopilot_caps(v: Vehicle, c: Command) -> Result:
+    v.after_ack.append(REQUESTABLE[M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
+    return ACCEPTED, ""
+
+
+def cmd_get_home(v: Vehicle, c: Command) -> Result:
+    v.after_ack.append(ENCODERS["HOME_POSITION"](v))
+    return ACCEPTED, ""
+
+
+def cmd_set_message_interval(v: Vehicle, c: Command) -> Result:
+    if not (_finite(c.p1) and _finite(c.p2)):
+        return DENIED, ""
+    name = STREAM_BY_ID.get(int(c.p1))
+    if name is None:
+        return DENIED, ""
+    if name == "HEARTBEAT":
+        if c.p2 == -1 or c.p2 < 0:
+            return DENIED, "HEARTBEAT cannot be disabled"
+        v.hb_interval_wall = max(c.p2 * 1e-6, 0.1) if c.p2 > 0 else 1.0
+        return ACCEPTED, ""
+    v.streams.set_interval_us(name, c.p2, v.now)
+    return ACCEPTED, ""
+
+
+def cmd_get_message_interval(v: Vehicle, c: Command) -> Result:
+    if not _finite(c.p1):
+        return DENIED, ""
+    mid = int(c.p1)
+    name = STREAM_BY_ID.get(mid)
+    if name is None:
+        v.after_ack.append(v.mav.message_interval_encode(mid, 0))
+    elif name == "HEARTBEAT":
+        v.after_ack.append(v.mav.message_interval_encode(mid, int(v.hb_interval_wall * 1e6)))
+    else:
+        v.after_ack.append(v.mav.message_interval_encode(mid, v.streams.interval_us(name)))
+    return ACCEPTED, ""
+
+
+HANDLERS: dict[int, Callable[[Vehicle, Command], Result]] = {
+    M.MAV_CMD_COMPONENT_ARM_DISARM: cmd_arm_disarm,
+    M.MAV_CMD_NAV_TAKEOFF: cmd_takeoff,
+    M.MAV_CMD_NAV_LAND: cmd_land,
+    M.MAV_CMD_NAV_RETURN_TO_LAUNCH: cmd_rtl,
+    M.MAV_CMD_NAV_LOITER_UNLIM: cmd_loiter_unlim,
+    M.MAV_CMD_DO_SET_MODE: cmd_set_mode,
+    M.MAV_CMD_DO_REPOSITION: cmd_reposition,
+    M.MAV_CMD_DO_CHANGE_SPEED: cmd_change_speed,
+    M.MAV_CMD_DO_SET_HOME: cmd_set_home,
+    M.MAV_CMD_REQUEST_MESSAGE: cmd_request_message,
+    M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: cmd_autopilot_caps,
+    M.MAV_CMD_GET_HOME_POSITION: cmd_get_home,
+    M.MAV_CMD_SET_MESSAGE_INTERVAL: cmd_set_message_interval,
+    M.MAV_CMD_GET_MESSAGE_INTERVAL: cmd_get_message_interval,
+}
+
+_RESULT_NAMES = {
+    getattr(M, n): n[len("MAV_RESULT_") :] for n in dir(M) if n.startswith("MAV_RESULT_") and n != "MAV_RESULT_ENUM_END"
+}
+
+
+def handle_command(v: Vehicle, c: Command) -> None:
+    """Run one command and ACK it (always exactly one ACK, even if the handler raises)."""
+    stats = v.ctx.stats
+    stats.commands_by_id[c.command] += 1
+    v.after_ack.clear()
+    fn = HANDLERS.get(c.command)
+    try:
+        result, reason = fn(v, c) if fn is not None else (UNSUPPORTED, "")
+    except Exception:
+        stats.handler_errors += 1
+        stats.handler_errors_by_type[f"COMMAND_{c.command}"] += 1
+        v.ctx.log.exception("sysid %d: command %d failed", v.sysid, c.command)
+        result, reason = FAILED, ""
+        v.after_ack.clear()
+    stats.commands[_RESULT_NAMES.get(result, str(result))] += 1
+    v.send(v.mav.command_ack_encode(c.command, result, 0, 0, c.src_sys, c.src_comp))
+    if reason and result != ACCEPTED:
+        v.statustext(M.MAV_SEVERITY_WARNING if result == DENIED else M.MAV_SEVERITY_ERROR, reason)
+    for m in v.after_ack:
+        v.send(m)
+    v.after_ack.clear()

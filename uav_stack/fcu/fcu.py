@@ -1,0 +1,269 @@
+"""VirtualFcu: a fleet of N virtual vehicles stepped together, one UDP socket per vehicle.
+
+Single-threaded and non-blocking. A host loop (the agent's ``selectors`` loop, or
+``run()``) calls ``poll_io()`` when a socket is readable and ``service()`` when the deadline
+it returned has come.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import selectors
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import numpy as np
+
+from uav_stack.fcu.clock import RtfMeter, SimClock
+from uav_stack.fcu.config import FcuConfig
+from uav_stack.fcu.dynamics import MultirotorArray
+from uav_stack.fcu.handlers import addressed_to, lookup
+from uav_stack.fcu.link import UdpLink
+from uav_stack.fcu.stats import FcuStats
+from uav_stack.fcu.vehicle import FleetContext, Vehicle
+
+log = logging.getLogger("uav_stack.fcu")
+
+SUPERVISOR_HZ = 10.0
+ERROR_LOG_FIRST = 5  # per message type, then every 1000th
+
+
+@dataclass
+class VehicleTruth:
+    """Ground truth of one vehicle, for loggers (sim time, local NED at the initial home)."""
+
+    sysid: int
+    sim_time: float
+    pos_ned: tuple[float, float, float]
+    vel_ned: tuple[float, float, float]
+    yaw: float
+    armed: bool
+    mode: str
+    landed: bool
+    battery_remaining: float  # 0..1
+    lat: float
+    lon: float
+    alt_amsl: float
+
+
+class VirtualFcu:
+    def __init__(self, config: FcuConfig, clock: Callable[[], float] = time.monotonic):
+        self.config = config
+        self._wall = clock
+        self.stats = FcuStats()
+        self.clock = SimClock(config.physics_hz, config.target_rtf, config.max_catchup_s)
+        self._meter = RtfMeter()
+        yaws = np.array([float(v.yaw) for v in config.vehicles])
+        self.dyn = MultirotorArray(len(config.vehicles), config.dynamics, yaw=yaws)
+        self.ctx = FleetContext(
+            clock=self.clock,
+            dyn=self.dyn,
+            stats=self.stats,
+            rtf=lambda: self.rtf,
+            wall=clock,
+            unix_at_start=time.time(),
+            log=log,
+        )
+        self.vehicles: list[Vehicle] = []
+        for i, vc in enumerate(config.vehicles):
+            link = UdpLink(tuple(vc.listen), tuple(vc.remotes), config.max_peers, config.peer_timeout_s, stats=self.stats)  # type: ignore[arg-type]
+            self.vehicles.append(Vehicle(i, vc, self.ctx, config.stream_rates, link))
+        self._by_fd: dict[int, Vehicle] = {}
+        self._sup_every = max(1, round(config.physics_hz / SUPERVISOR_HZ))
+        self._next_hb_wall = math.inf
+        self._next_peer_check = 0.0
+        self._opened = False
+        self._closed = False
+
+    # ----------------------------------------------------------- lifecycle
+    def open(self) -> list[tuple[str, int]]:
+        """Bind every vehicle's socket; return the bound (host, port) per vehicle."""
+        if self._opened:
+            return [v.link.sock.getsockname()[:2] for v in self.vehicles]  # type: ignore[union-attr]
+        addrs: list[tuple[str, int]] = []
+        try:
+            for v in self.vehicles:
+                addrs.append(v.link.open())
+        except OSError:
+            for v in self.vehicles:
+                v.link.close()
+            raise
+        self._by_fd = {v.link.fileno(): v for v in self.vehicles}
+        now = self._wall()
+        self.clock.start(now)
+        self._meter.reset(now, 0.0)
+        self.ctx.unix_at_start = time.time()
+        n = len(self.vehicles)
+        for k, v in enumerate(self.vehicles):  # spread first heartbeats over 1 s
+            v.next_hb_wall = now + (k / n) * min(1.0, v.hb_interval_wall)
+        self._next_hb_wall = now
+        self._opened = True
+        return addrs
+
+    def fds(self) -> list[int]:
+        return [v.link.fileno() for v in self.vehicles]
+
+    def close(self) -> None:
+        for v in self.vehicles:
+            v.link.close()
+        self._closed = True
+
+    def __enter__(self) -> VirtualFcu:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- I/O
+    def poll_io(self, ready_fds: Iterable[int] | None = None) -> None:
+        """Read and handle every pending datagram (optionally only on the given fds)."""
+        if ready_fds is None:
+            vehicles: Iterable[Vehicle] = self.vehicles
+        else:
+            vehicles = [self._by_fd[fd] for fd in ready_fds if fd in self._by_fd]
+        wall = self._wall()
+        for v in vehicles:
+            for data, addr in v.link.recv():
+                self._on_datagram(v, data, addr, wall)
+
+    def _on_datagram(self, v: Vehicle, data: bytes, addr: tuple[str, int], wall: float) -> None:
+        st = self.stats
+        st.datagrams_in += 1
+        st.bytes_in += len(data)
+        msgs, clean = v.parser.parse(data)
+        if not clean:
+            st.bad_datagrams += 1
+        if not msgs:
+            return
+        v.link.note_peer(addr, wall)
+        for m in msgs:
+            name = m.get_type()
+            st.messages_in[name] += 1
+            if m.get_srcSystem() == v.sysid and m.get_srcComponent() == v.compid:
+                continue  # our own echo
+            handler = lookup(name)
+            if handler is None:
+                continue
+            try:
+                if not addressed_to(v, m):
+                    st.not_for_us += 1
+                    continue
+                handler(v, m)
+            except Exception:
+                self._handler_error(v, name)
+
+    def _handler_error(self, v: Vehicle, where: str) -> None:
+        st = self.stats
+        st.handler_errors += 1
+        st.handler_errors_by_type[where] += 1
+        k = st.handler_errors_by_type[where]
+        if k <= ERROR_LOG_FIRST or k % 1000 == 0:
+            log.exception("sysid %d: handling %s failed (%d so far); vehicle continues", v.sysid, where, k)
+
+    # ------------------------------------------------------------ service
+    def service(self, now: float | None = None) -> float:
+        """Run due physics steps, supervisor ticks, failsafes and telemetry.
+
+        Returns the wall time of the next deadline (for the caller's select timeout).
+        """
+        if not self._opened:
+            raise RuntimeError("VirtualFcu.open() first")
+        if now is None:
+            now = self._wall()
+        clock, dyn, vehicles = self.clock, self.dyn, self.vehicles
+        n = clock.due_steps(now)
+        dt = clock.dt
+        for _ in range(n):
+            dyn.step(dt)
+            clock.advance()
+            sim = clock.sim_time
+            if clock.steps % self._sup_every == 0:
+                for v in vehicles:
+                    try:
+                        v.tick(sim)
+                    except Exception:
+                        self._handler_error(v, "supervisor")
+            for v in vehicles:
+                try:
+                    v.send_due_telemetry(sim)
+                except Exception:
+                    self._handler_error(v, "telemetry")
+        self.stats.physics_steps = clock.steps
+        self.stats.dropped_wall_s = clock.dropped_wall_s
+        self._meter.sample(now, clock.sim_time)
+        # heartbeats are paced on wall time: link liveness must not depend on the RTF
+        if now >= self._next_hb_wall:
+            nxt = math.inf
+            for v in vehicles:
+                if now >= v.next_hb_wall:
+                    try:
+                        v.send_heartbeat()
+                    except Exception:
+                        self._handler_error(v, "heartbeat")
+                        v.next_hb_wall = now + v.hb_interval_wall
+                nxt = min(nxt, v.next_hb_wall)
+            self._next_hb_wall = nxt
+        if now >= self._next_peer_check:
+            self._next_peer_check = now + 1.0
+            for v in vehicles:
+                v.link.expire_peers(now)
+        return min(clock.next_step_wall, self._next_hb_wall, self._next_peer_check)
+
+    def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
+        """Standalone loop: service + select on the sockets until duration/stop."""
+        if not self._opened:
+            self.open()
+        sel = selectors.DefaultSelector()
+        for fd in self.fds():
+            sel.register(fd, selectors.EVENT_READ)
+        end = self._wall() + duration if duration is not None else math.inf
+        max_wait = 0.05 if stop is not None else 0.5
+        try:
+            while stop is None or not stop.is_set():
+                now = self._wall()
+                if now >= end:
+                    break
+                nxt = self.service(now)
+                timeout = min(max(0.0, nxt - self._wall()), end - now, max_wait)
+                events = sel.select(timeout)
+                if events:
+                    self.poll_io([key.fd for key, _ in events])
+        finally:
+            sel.close()
+
+    # ------------------------------------------------------------- observe
+    @property
+    def rtf(self) -> float:
+        """Measured RTF over the last ~5 s of wall time."""
+        return self._meter.rtf
+
+    @property
+    def rtf_total(self) -> float:
+        return self.clock.rtf_total(self._wall())
+
+    @property
+    def sim_time(self) -> float:
+        return self.clock.sim_time
+
+    def truth(self, i: int = 0) -> VehicleTruth:
+        v = self.vehicles[i]
+        d = self.dyn
+        lat, lon, alt = v.geodetic()
+        return VehicleTruth(
+            sysid=v.sysid,
+            sim_time=self.clock.sim_time,
+            pos_ned=tuple(d.pos[i].tolist()),  # type: ignore[arg-type]
+            vel_ned=tuple(d.vel[i].tolist()),  # type: ignore[arg-type]
+            yaw=float(d.yaw[i]),
+            armed=v.armed,
+            mode=v.mode.name,
+            landed=bool(d.landed[i]),
+            battery_remaining=float(d.battery[i]),
+            lat=lat,
+            lon=lon,
+            alt_amsl=alt,
+        )

@@ -1,0 +1,128 @@
+"""One vehicle's UDP MAVLink endpoint: a non-blocking socket, learned peers, datagram parsing.
+
+Like a PX4 SITL / mavlink-router UDP server endpoint, the vehicle streams to every peer
+that has sent it a datagram (at most ``max_peers``; the least recently heard one is
+replaced, and peers silent for ``peer_timeout_s`` are forgotten) plus static ``remotes``.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass, field
+
+from uav_stack.fcu.stats import FcuStats
+from uav_stack.mav import mavlink
+
+Addr = tuple[str, int]
+
+
+@dataclass
+class UdpLink:
+    listen: Addr = ("127.0.0.1", 0)
+    remotes: tuple[Addr, ...] = ()
+    max_peers: int = 8
+    peer_timeout_s: float = 30.0
+    peers: dict[Addr, float] = field(default_factory=dict)  # addr -> wall time last heard
+    sock: socket.socket | None = None
+    stats: FcuStats | None = None  # datagrams_out / send_errors are counted here
+    targets: list[Addr] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.remotes = tuple((str(h), int(p)) for h, p in self.remotes)
+        self._rebuild()
+
+    def open(self) -> Addr:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(self.listen)
+            s.setblocking(False)
+        except OSError:
+            s.close()
+            raise
+        self.sock = s
+        host, port = s.getsockname()[:2]
+        return host, port
+
+    def fileno(self) -> int:
+        return self.sock.fileno() if self.sock is not None else -1
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+    def recv(self, max_datagrams: int = 256) -> list[tuple[bytes, Addr]]:
+        """Every pending datagram (bounded), without blocking."""
+        out: list[tuple[bytes, Addr]] = []
+        s = self.sock
+        if s is None:
+            return out
+        for _ in range(max_datagrams):
+            try:
+                data, addr = s.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # e.g. ECONNREFUSED reported for an earlier send: ignore
+                continue
+            out.append((data, (addr[0], addr[1])))
+        return out
+
+    def note_peer(self, addr: Addr, wall: float) -> None:
+        known = addr in self.peers
+        self.peers[addr] = wall
+        if not known:
+            if len(self.peers) > self.max_peers:
+                oldest = min(self.peers, key=self.peers.__getitem__)
+                del self.peers[oldest]
+            self._rebuild()
+
+    def expire_peers(self, wall: float) -> None:
+        stale = [a for a, t in self.peers.items() if wall - t > self.peer_timeout_s]
+        if stale:
+            for a in stale:
+                del self.peers[a]
+            self._rebuild()
+
+    def _rebuild(self) -> None:
+        self.targets = list(dict.fromkeys([*self.remotes, *self.peers]))
+
+    def send(self, buf: bytes) -> None:
+        s = self.sock
+        if s is None:
+            return
+        ok = err = 0
+        for addr in self.targets:
+            try:
+                s.sendto(buf, addr)
+                ok += 1
+            except OSError:  # full buffer, unreachable peer...: drop, like UDP
+                err += 1
+        if self.stats is not None:
+            self.stats.datagrams_out += ok
+            self.stats.send_errors += err
+
+
+class DatagramParser:
+    """Parses whole UDP datagrams with a MAVLink decoder whose state is reset per datagram."""
+
+    def __init__(self) -> None:
+        self.mav = mavlink.MAVLink(None)
+        self.mav.robust_parsing = True
+
+    def parse(self, data: bytes) -> tuple[list[mavlink.MAVLink_message], bool]:
+        """(good messages, datagram was clean)."""
+        d = self.mav
+        d.buf = bytearray()
+        d.buf_index = 0
+        d.expected_length = mavlink.HEADER_LEN_V1 + 2
+        d.have_prefix_error = False
+        try:
+            msgs = d.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - any decoder failure is a bad datagram
+            return [], False
+        bad = [m for m in msgs if isinstance(m, mavlink.MAVLink_bad_data)]
+        # valid frames of messages outside our dialect are skipped, not counted as bad
+        good = [m for m in msgs if not isinstance(m, (mavlink.MAVLink_bad_data, mavlink.MAVLink_unknown))]
+        clean = not bad and d.buf_len() == 0 and bool(msgs)
+        return good, clean

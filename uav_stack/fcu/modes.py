@@ -1,0 +1,149 @@
+"""Flight modes of the two autopilot flavours and their MAVLink ``custom_mode`` encodings.
+
+PX4: ``custom_mode = main << 16 | sub << 24`` (px4_custom_mode.h). ArduCopter: the mode
+number itself. Each mode maps to one of a few internal behaviours that the vehicle's
+guidance implements (mavlink.md section 2 and 4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from uav_stack.mav import mavlink
+
+
+class Behaviour(str, Enum):
+    HOLD = "hold"  # hold position (or fly to a reposition target), brake to a stop on entry
+    TAKEOFF = "takeoff"  # climb to the takeoff altitude, then HOLD (PX4) / guided hold (ArduPilot)
+    LAND = "land"  # descend at the landing speed, auto-disarm on the ground
+    RTL = "rtl"  # climb, return at cruise speed, land at home
+    OFFBOARD = "offboard"  # follow external setpoints (PX4 OFFBOARD, ArduPilot GUIDED)
+    MANUAL = "manual"  # needs RC: refused in the air without one; acts like HOLD
+
+
+@dataclass(frozen=True)
+class ModeSpec:
+    name: str
+    custom_mode: int
+    behaviour: Behaviour
+    base_flags: int  # MAV_MODE_FLAG bits besides CUSTOM_MODE_ENABLED and SAFETY_ARMED
+    can_arm: bool = True
+
+
+def px4_custom_mode(main: int, sub: int = 0) -> int:
+    return (main & 0xFF) << 16 | (sub & 0xFF) << 24
+
+
+def px4_main_sub(custom_mode: int) -> tuple[int, int]:
+    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+
+
+_AUTO = mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+_GUIDED = mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+_MANUAL = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+_ASSIST = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+
+B = Behaviour
+PX4_MODES: tuple[ModeSpec, ...] = (
+    ModeSpec("MANUAL", px4_custom_mode(1), B.MANUAL, _MANUAL),
+    ModeSpec("ALTCTL", px4_custom_mode(2), B.HOLD, _ASSIST),
+    ModeSpec("POSCTL", px4_custom_mode(3), B.HOLD, _ASSIST),
+    ModeSpec("READY", px4_custom_mode(4, 1), B.HOLD, _AUTO),
+    ModeSpec("TAKEOFF", px4_custom_mode(4, 2), B.TAKEOFF, _AUTO),
+    ModeSpec("HOLD", px4_custom_mode(4, 3), B.HOLD, _AUTO),
+    ModeSpec("MISSION", px4_custom_mode(4, 4), B.HOLD, _AUTO),  # no mission execution: holds
+    ModeSpec("RTL", px4_custom_mode(4, 5), B.RTL, _AUTO, can_arm=False),
+    ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO),
+    ModeSpec("ACRO", px4_custom_mode(5), B.MANUAL, _MANUAL),
+    ModeSpec("OFFBOARD", px4_custom_mode(6), B.OFFBOARD, _GUIDED),
+    ModeSpec("STABILIZED", px4_custom_mode(7), B.MANUAL, _ASSIST),
+)
+
+_APM_BASE = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+_APM_GUIDED = _APM_BASE | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+ARDUPILOT_MODES: tuple[ModeSpec, ...] = (
+    ModeSpec("STABILIZE", 0, B.MANUAL, _APM_BASE),
+    ModeSpec("ACRO", 1, B.MANUAL, _APM_BASE),
+    ModeSpec("ALT_HOLD", 2, B.HOLD, _APM_BASE),
+    ModeSpec("AUTO", 3, B.HOLD, _APM_GUIDED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED, can_arm=False),
+    ModeSpec("GUIDED", 4, B.OFFBOARD, _APM_GUIDED),
+    ModeSpec("LOITER", 5, B.HOLD, _APM_BASE),
+    ModeSpec("RTL", 6, B.RTL, _APM_GUIDED, can_arm=False),
+    ModeSpec("LAND", 9, B.LAND, _APM_GUIDED, can_arm=False),
+    ModeSpec("POSHOLD", 16, B.HOLD, _APM_BASE),
+    ModeSpec("BRAKE", 17, B.HOLD, _APM_GUIDED),
+    ModeSpec("SMART_RTL", 21, B.RTL, _APM_GUIDED, can_arm=False),
+)
+
+
+@dataclass(frozen=True)
+class Flavour:
+    """What differs between the emulated autopilots."""
+
+    name: str  # "px4" | "ardupilot"
+    autopilot: int  # HEARTBEAT.autopilot
+    modes: tuple[ModeSpec, ...]
+    initial_mode: str
+    hold_mode: str  # target of "hold"-type failsafes
+    offboard_mode: str
+    takeoff_mode: str | None  # PX4 has a TAKEOFF mode; ArduPilot takes off inside GUIDED
+    bytewise_params: bool  # PX4 PARAM_ENCODE_BYTEWISE; ArduPilot C cast
+    flight_sw_version: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_by_name", {m.name: m for m in self.modes})
+        object.__setattr__(self, "_by_custom", {m.custom_mode: m for m in self.modes})
+
+    @property
+    def is_px4(self) -> bool:
+        return self.name == "px4"
+
+    def mode(self, name: str) -> ModeSpec:
+        return self._by_name[name]  # type: ignore[attr-defined]
+
+    def by_custom_mode(self, custom_mode: int) -> ModeSpec | None:
+        return self._by_custom.get(custom_mode)  # type: ignore[attr-defined]
+
+    def from_command(self, p2: float, p3: float) -> ModeSpec | None:
+        """Decode DO_SET_MODE params: PX4 main/sub in p2/p3, ArduPilot number in p2."""
+        if p2 != p2:
+            return None
+        if self.is_px4:
+            sub = 0 if p3 != p3 else int(p3)
+            return self.by_custom_mode(px4_custom_mode(int(p2), sub))
+        return self.by_custom_mode(int(p2))
+
+
+PX4 = Flavour(
+    name="px4",
+    autopilot=mavlink.MAV_AUTOPILOT_PX4,
+    modes=PX4_MODES,
+    initial_mode="HOLD",
+    hold_mode="HOLD",
+    offboard_mode="OFFBOARD",
+    takeoff_mode="TAKEOFF",
+    bytewise_params=True,
+    flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 0xFF,  # v1.15.0 release
+)
+
+ARDUPILOT = Flavour(
+    name="ardupilot",
+    autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+    modes=ARDUPILOT_MODES,
+    initial_mode="STABILIZE",
+    hold_mode="LOITER",
+    offboard_mode="GUIDED",
+    takeoff_mode=None,
+    bytewise_params=False,
+    flight_sw_version=(4 << 24) | (5 << 16) | (0 << 8) | 0xFF,  # v4.5.0 release
+)
+
+FLAVOURS: dict[str, Flavour] = {"px4": PX4, "ardupilot": ARDUPILOT}
+
+
+def get_flavour(name: str) -> Flavour:
+    try:
+        return FLAVOURS[name.lower()]
+    except KeyError:
+        raise ValueError(f"unknown flavour {name!r}; expected one of {sorted(FLAVOURS)}") from None

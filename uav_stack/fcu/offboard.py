@@ -1,0 +1,129 @@
+"""External setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT decoding and stream rules.
+
+PX4 rules (mavlink.md section 3): OFFBOARD can be entered (or armed in) only while a
+setpoint stream at > 2 Hz has been arriving for >= 1 s; in OFFBOARD, no setpoint for
+COM_OF_LOSS_T triggers the COM_OBL_RC_ACT failsafe. ArduPilot GUIDED has no entry rule;
+velocity targets time out after GUID_TIMEOUT (the vehicle stops and holds).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uav_stack.geo import LocalFrame
+from uav_stack.mav import mavlink
+
+M = mavlink
+IGNORE_PX, IGNORE_PY, IGNORE_PZ = 1, 2, 4
+IGNORE_VX, IGNORE_VY, IGNORE_VZ = 8, 16, 32
+IGNORE_YAW, IGNORE_YAW_RATE = 1024, 2048
+STREAM_GAP_S = 0.5  # > 2 Hz
+STREAM_MIN_S = 1.0  # for at least one second
+
+LOCAL_FRAMES = {
+    M.MAV_FRAME_LOCAL_NED,
+    M.MAV_FRAME_LOCAL_OFFSET_NED,
+    M.MAV_FRAME_BODY_NED,
+    M.MAV_FRAME_BODY_OFFSET_NED,
+    M.MAV_FRAME_BODY_FRD,
+}
+# global frames -> altitude reference: True = relative to home, False = AMSL
+GLOBAL_FRAMES = {
+    M.MAV_FRAME_GLOBAL: False,
+    M.MAV_FRAME_GLOBAL_INT: False,
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT: True,
+    M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: True,
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT: True,  # flat terrain at home height
+    M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: True,
+}
+
+
+@dataclass
+class Setpoint:
+    pos: np.ndarray  # NED, NaN per axis = not position-controlled
+    vel: np.ndarray  # NED, NaN per axis = none
+    yaw: float = math.nan
+    yaw_rate: float = math.nan
+
+    @property
+    def has_velocity(self) -> bool:
+        return bool(np.any(np.isfinite(self.vel) & np.isnan(self.pos)))
+
+
+def _masked(vals: tuple[float, float, float], mask: int, bits: tuple[int, int, int]) -> np.ndarray:
+    return np.array([x if not (mask & b) and math.isfinite(x) else math.nan for x, b in zip(vals, bits)])
+
+
+def _rot(yaw: float, v: np.ndarray) -> np.ndarray:
+    """Body (forward, right, down) -> NED for a vehicle at heading yaw."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]])
+
+
+def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) -> Setpoint | None:
+    """SET_POSITION_TARGET_LOCAL_NED -> LOCAL_NED setpoint; None for unsupported frames."""
+    frame = msg.coordinate_frame
+    if frame not in LOCAL_FRAMES:
+        return None
+    m = msg.type_mask
+    pos = _masked((msg.x, msg.y, msg.z), m, (IGNORE_PX, IGNORE_PY, IGNORE_PZ))
+    vel = _masked((msg.vx, msg.vy, msg.vz), m, (IGNORE_VX, IGNORE_VY, IGNORE_VZ))
+    if frame == M.MAV_FRAME_LOCAL_OFFSET_NED:
+        pos = pos_now + pos
+    elif frame == M.MAV_FRAME_BODY_NED:
+        vel = _rot(yaw_now, vel)
+    elif frame in (M.MAV_FRAME_BODY_OFFSET_NED, M.MAV_FRAME_BODY_FRD):
+        pos = pos_now + _rot(yaw_now, pos)
+        vel = _rot(yaw_now, vel)
+    yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan
+    yaw_rate = msg.yaw_rate if not (m & IGNORE_YAW_RATE) and math.isfinite(msg.yaw_rate) else math.nan
+    return Setpoint(pos, vel, yaw, yaw_rate)
+
+
+def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float) -> Setpoint | None:
+    """SET_POSITION_TARGET_GLOBAL_INT -> LOCAL_NED setpoint; None for unsupported frames."""
+    rel = GLOBAL_FRAMES.get(msg.coordinate_frame)
+    if rel is None:
+        return None
+    m = msg.type_mask
+    alt = msg.alt + (home_alt if rel else 0.0)
+    z_ok = not (m & IGNORE_PZ) and math.isfinite(msg.alt)
+    e, n, u = frame_geo.to_enu(msg.lat_int * 1e-7, msg.lon_int * 1e-7, alt if z_ok else frame_geo.origin.alt)
+    pos = np.array(
+        [
+            n if not (m & IGNORE_PX) else math.nan,
+            e if not (m & IGNORE_PY) else math.nan,
+            -u if z_ok else math.nan,
+        ]
+    )
+    vel = _masked((msg.vx, msg.vy, msg.vz), m, (IGNORE_VX, IGNORE_VY, IGNORE_VZ))
+    yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan
+    yaw_rate = msg.yaw_rate if not (m & IGNORE_YAW_RATE) and math.isfinite(msg.yaw_rate) else math.nan
+    return Setpoint(pos, vel, yaw, yaw_rate)
+
+
+@dataclass
+class SetpointStream:
+    """Tracks the setpoint stream on sim time (PX4's offboard entry/loss rules)."""
+
+    last: float = -math.inf
+    start: float = -math.inf
+    latest: Setpoint | None = None
+    count: int = 0
+
+    def note(self, sp: Setpoint, now: float) -> None:
+        if now - self.last > STREAM_GAP_S:
+            self.start = now
+        self.last = now
+        self.latest = sp
+        self.count += 1
+
+    def active(self, now: float) -> bool:
+        """A > 2 Hz stream has been arriving for >= 1 s (and is still arriving)."""
+        return self.latest is not None and now - self.last <= STREAM_GAP_S and now - self.start >= STREAM_MIN_S - 1e-9
+
+    def age(self, now: float) -> float:
+        return now - self.last

@@ -1,0 +1,326 @@
+"""Telemetry: message encoders per stream name and the per-vehicle stream scheduler.
+
+Streams are scheduled on *sim* time, checked after every physics step, so they slow down
+with the simulation and never burst. Vehicles of one fleet get different phase offsets so
+a process hosting many vehicles spreads its sends over the period.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Callable
+
+from uav_stack.mav import mavlink
+
+if TYPE_CHECKING:
+    from uav_stack.fcu.vehicle import Vehicle
+
+M = mavlink
+SENSORS = (
+    M.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | M.MAV_SYS_STATUS_SENSOR_GPS
+    | M.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | M.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | M.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | M.MAV_SYS_STATUS_AHRS
+    | M.MAV_SYS_STATUS_SENSOR_BATTERY
+)
+PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
+FENCE = M.MAV_SYS_STATUS_GEOFENCE
+_RAD2CDEG = 18000.0 / math.pi
+
+
+def _ms(v: Vehicle) -> int:
+    return int(v.ctx.clock.sim_time * 1000.0) & 0xFFFFFFFF
+
+
+def _cdeg_heading(yaw: float) -> int:
+    return int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000
+
+
+def _i16(x: float) -> int:
+    return max(-32767, min(32767, int(round(x))))
+
+
+def heartbeat(v: Vehicle) -> M.MAVLink_message:
+    base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | v.mode.base_flags
+    if v.armed:
+        base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+    status = M.MAV_STATE_ACTIVE if v.armed else M.MAV_STATE_STANDBY
+    if v.failsafe_active:
+        status = M.MAV_STATE_CRITICAL
+    return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, v.mode.custom_mode, status)
+
+
+def global_position_int(v: Vehicle) -> M.MAVLink_message:
+    lat, lon, alt = v.geodetic()
+    vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
+    return v.mav.global_position_int_encode(
+        _ms(v),
+        int(round(lat * 1e7)),
+        int(round(lon * 1e7)),
+        int(round(alt * 1000.0)),
+        int(round((alt - v.home.alt) * 1000.0)),
+        _i16(vn * 100.0),
+        _i16(ve * 100.0),
+        _i16(vd * 100.0),
+        _cdeg_heading(float(v.ctx.dyn.yaw[v.i])),
+    )
+
+
+def local_position_ned(v: Vehicle) -> M.MAVLink_message:
+    d = v.ctx.dyn
+    x, y, z = d.pos[v.i].tolist()
+    vx, vy, vz = d.vel[v.i].tolist()
+    return v.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
+
+
+def attitude(v: Vehicle) -> M.MAVLink_message:
+    d, i = v.ctx.dyn, v.i
+    return v.mav.attitude_encode(
+        _ms(v),
+        float(d.roll[i]),
+        float(d.pitch[i]),
+        float(d.yaw[i]),
+        float(d.roll_rate[i]),
+        float(d.pitch_rate[i]),
+        float(d.yaw_rate[i]),
+    )
+
+
+def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:
+    d, i = v.ctx.dyn, v.i
+    r, p, y = float(d.roll[i]) / 2, float(d.pitch[i]) / 2, float(d.yaw[i]) / 2
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return v.mav.attitude_quaternion_encode(
+        _ms(v),
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        float(d.roll_rate[i]),
+        float(d.pitch_rate[i]),
+        float(d.yaw_rate[i]),
+    )
+
+
+def sys_status(v: Vehicle) -> M.MAVLink_message:
+    present = SENSORS | PREARM | FENCE
+    enabled = SENSORS | PREARM | (FENCE if v.fence_enabled else 0)
+    health = SENSORS | FENCE
+    if v.prearm_ok():
+        health |= PREARM
+    if v.fence_breached:
+        health &= ~FENCE
+    volts, amps, pct = v.battery_readings()
+    return v.mav.sys_status_encode(
+        present, enabled, health, 0, int(volts * 1000), int(amps * 100), pct, 0, 0, 0, 0, 0, 0
+    )
+
+
+def extended_sys_state(v: Vehicle) -> M.MAVLink_message:
+    return v.mav.extended_sys_state_encode(M.MAV_VTOL_STATE_MC, v.landed_state())
+
+
+def home_position(v: Vehicle) -> M.MAVLink_message:
+    h = v.home
+    x, y, z = (float(c) for c in v.home_ned)
+    return v.mav.home_position_encode(
+        int(round(h.lat * 1e7)),
+        int(round(h.lon * 1e7)),
+        int(round(h.alt * 1000.0)),
+        x,
+        y,
+        z,
+        [1.0, 0.0, 0.0, 0.0],
+        0.0,
+        0.0,
+        0.0,
+        int(v.ctx.clock.sim_time * 1e6),
+    )
+
+
+def battery_status(v: Vehicle) -> M.MAVLink_message:
+    volts, amps, pct = v.battery_readings()
+    cells = v.ctx.dyn.params.battery_cells
+    cell_mv = int(volts * 1000 / cells)
+    voltages = [cell_mv] * min(cells, 10) + [65535] * (10 - min(cells, 10))
+    soc = float(v.ctx.dyn.battery[v.i])
+    cap = v.ctx.dyn.params.battery_capacity_mah
+    s = v.settings
+    if soc <= s.bat_emerg:
+        charge = M.MAV_BATTERY_CHARGE_STATE_EMERGENCY
+    elif soc <= s.bat_crit:
+        charge = M.MAV_BATTERY_CHARGE_STATE_CRITICAL
+    elif soc <= s.bat_low:
+        charge = M.MAV_BATTERY_CHARGE_STATE_LOW
+    else:
+        charge = M.MAV_BATTERY_CHARGE_STATE_OK
+    remaining_s = int(soc * s.endurance_s)
+    return v.mav.battery_status_encode(
+        0,
+        M.MAV_BATTERY_FUNCTION_ALL,
+        M.MAV_BATTERY_TYPE_LIPO,
+        32767,
+        voltages,
+        int(amps * 100),
+        int((1.0 - soc) * cap),
+        -1,
+        pct,
+        remaining_s,
+        charge,
+    )
+
+
+def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
+    lat, lon, alt = v.geodetic()
+    vn, ve, _ = v.ctx.dyn.vel[v.i].tolist()
+    gs = math.hypot(vn, ve)
+    cog = _cdeg_heading(math.atan2(ve, vn)) if gs > 0.1 else 65535
+    return v.mav.gps_raw_int_encode(
+        int(v.ctx.clock.sim_time * 1e6),
+        M.GPS_FIX_TYPE_3D_FIX,
+        int(round(lat * 1e7)),
+        int(round(lon * 1e7)),
+        int(round(alt * 1000.0)),
+        70,
+        110,
+        int(gs * 100),
+        cog,
+        14,
+        int(round(alt * 1000.0)),
+        500,
+        800,
+        200,
+        0,
+        0,
+    )
+
+
+def vfr_hud(v: Vehicle) -> M.MAVLink_message:
+    _, _, alt = v.geodetic()
+    vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
+    gs = math.hypot(vn, ve)
+    throttle = 0 if not v.armed else (15 if v.ctx.dyn.landed[v.i] else 50)
+    return v.mav.vfr_hud_encode(gs, gs, int(math.degrees(float(v.ctx.dyn.yaw[v.i])) % 360), throttle, alt, -vd)
+
+
+def system_time(v: Vehicle) -> M.MAVLink_message:
+    unix_us = int((v.ctx.unix_at_start + v.ctx.clock.sim_time) * 1e6)
+    return v.mav.system_time_encode(unix_us, _ms(v))
+
+
+def named_value_rtf(v: Vehicle) -> M.MAVLink_message:
+    return v.mav.named_value_float_encode(_ms(v), b"RTF", float(v.ctx.rtf()))
+
+
+def autopilot_version(v: Vehicle) -> M.MAVLink_message:
+    cap = (
+        M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+        | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+        | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+        | M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+        | M.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+    )
+    cap |= (
+        M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        if v.flavour.bytewise_params
+        else M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    )
+    return v.mav.autopilot_version_encode(
+        cap,
+        v.flavour.flight_sw_version,
+        0,
+        0,
+        0,
+        [0] * 8,
+        [0] * 8,
+        [0] * 8,
+        0,
+        0,
+        0x4D52_0000_0000_0000 | v.sysid,  # "MR" + sysid: stable per vehicle
+    )
+
+
+ENCODERS: dict[str, Callable[[Vehicle], M.MAVLink_message]] = {
+    "HEARTBEAT": heartbeat,
+    "GLOBAL_POSITION_INT": global_position_int,
+    "LOCAL_POSITION_NED": local_position_ned,
+    "ATTITUDE": attitude,
+    "ATTITUDE_QUATERNION": attitude_quaternion,
+    "SYS_STATUS": sys_status,
+    "EXTENDED_SYS_STATE": extended_sys_state,
+    "HOME_POSITION": home_position,
+    "BATTERY_STATUS": battery_status,
+    "GPS_RAW_INT": gps_raw_int,
+    "VFR_HUD": vfr_hud,
+    "SYSTEM_TIME": system_time,
+    "NAMED_VALUE_FLOAT": named_value_rtf,
+}
+
+# Messages REQUEST_MESSAGE can produce, by id (streams plus one-shot ones).
+REQUESTABLE: dict[int, Callable[[Vehicle], M.MAVLink_message]] = {
+    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+    **{getattr(M, f"MAVLINK_MSG_ID_{name}"): fn for name, fn in ENCODERS.items()},
+}
+STREAM_BY_ID: dict[int, str] = {getattr(M, f"MAVLINK_MSG_ID_{name}"): name for name in ENCODERS}
+
+
+class StreamSet:
+    """Per-vehicle stream intervals (sim seconds) and next due times."""
+
+    def __init__(self, rates: dict[str, float], defaults: dict[str, float], dt: float, phase: int = 0):
+        self.dt = dt
+        self.defaults = dict(defaults)
+        self.interval: dict[str, float] = {}
+        self.next_due: dict[str, float] = {}
+        self.next_any = math.inf
+        self._phase = phase
+        for k, name in enumerate(ENCODERS):
+            self.set_rate(name, rates.get(name, 0.0), now=0.0, slot=phase + 3 * k)
+
+    def set_rate(self, name: str, hz: float, now: float, slot: int | None = None) -> None:
+        if not hz > 0 or not math.isfinite(hz):
+            self.interval[name] = 0.0
+            self.next_due[name] = math.inf
+        else:
+            iv = max(1.0 / hz, self.dt)
+            self.interval[name] = iv
+            steps = max(1, round(iv / self.dt))
+            off = ((slot if slot is not None else self._phase) % steps) * self.dt
+            self.next_due[name] = now + off
+        self.next_any = min(self.next_due.values())
+
+    def set_interval_us(self, name: str, interval_us: float, now: float) -> None:
+        """SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else microseconds."""
+        if interval_us == -1:
+            self.set_rate(name, 0.0, now)
+        elif interval_us == 0:
+            self.set_rate(name, self.defaults.get(name, 0.0), now)
+        else:
+            self.set_rate(name, 1e6 / interval_us, now)
+
+    def interval_us(self, name: str) -> int:
+        iv = self.interval.get(name, 0.0)
+        return int(round(iv * 1e6)) if iv > 0 else -1
+
+    def due(self, now: float) -> list[str]:
+        if now + 1e-9 < self.next_any:
+            return []
+        out = []
+        for name, t in self.next_due.items():
+            if now + 1e-9 >= t:
+                out.append(name)
+                iv = self.interval[name]
+                nt = t + iv
+                self.next_due[name] = nt if nt > now else now + iv
+        self.next_any = min(self.next_due.values())
+        return out
