@@ -55,6 +55,18 @@ def test_area_validation_and_helpers():
             Area(*bad)
 
 
+def test_missions_hold_without_a_position_fix():
+    area = Area(0, 50, 0, 50)
+    for m in (
+        GoTo((1, 1), 2.0),
+        RandomDirectionCoverage(area, 2.0, np.random.default_rng(0)),
+        LawnmowerCoverage(area, 2.0, 4.0),
+    ):
+        assert m.velocity(me_at((math.nan, 3.0)), [1]) == (0.0, 0.0)
+        v = m.velocity(me_at((25.0, 25.0), t=1.0), [1])  # recovers once the fix is back
+        assert math.isfinite(v[0]) and speed(v) > 0.1
+
+
 def test_missions_satisfy_protocol():
     area = Area(0, 10, 0, 10)
     for m in (
@@ -276,6 +288,20 @@ def test_non_reciprocal_neighbour_gets_full_responsibility():
     assert ca.adjust(me, (5.0, 0.0), [Neighbour(2, *args[:2], 0.0)]).velocity == half.velocity
 
 
+def test_keep_right_only_for_oncoming_traffic():
+    me = me_at((0, 0), (0, 0))
+    oncoming = Neighbour(2, (8.0, 0.0), (-3.0, 0.0), 0.0)
+    parked = Neighbour(2, (8.0, 0.0), (0.0, 0.0), 0.0)
+    plain = CollisionAvoidance(SAFETY, VMAX, bias_angle=0.0)
+    biased = CollisionAvoidance(SAFETY, VMAX)
+    # head-on with an oncoming UAV: the keep-right rule adds a clockwise (here: southward) dodge
+    v0 = plain.adjust(me, (5.0, 0.0), [oncoming]).velocity
+    v1 = biased.adjust(me, (5.0, 0.0), [oncoming]).velocity
+    assert v1[1] < v0[1] - 0.2
+    # a parked one: identical to plain ORCA
+    assert biased.adjust(me, (5.0, 0.0), [parked]).velocity == pytest.approx(plain.adjust(me, (5.0, 0.0), [parked]).velocity)
+
+
 def test_inside_safety_distance_moves_apart():
     ca = CollisionAvoidance(SAFETY, VMAX)
     for pref in [(5.0, 0.0), (0.0, 0.0), (0.0, 5.0)]:
@@ -467,6 +493,20 @@ def test_exactly_symmetric_head_on_resolves_without_noise():
     assert len(res.done_at) == 2 and max(res.done_at.values()) < 12.0
     assert res.min_separation >= SAFETY - 0.05  # no age inflation here; ORCA keeps ~r
     assert tr[-1, 0] == pytest.approx((40.0, 0.0), abs=1.0)
+
+
+def test_goal_occupied_by_hovering_physical_uav_waits_instead_of_circling():
+    """Keep-right only reacts to oncoming traffic: a parked, non-reciprocal UAV is waited for."""
+    a = SimAgent(1, (0.0, 0.0), GoTo((20.0, 0.0), VMAX), CollisionAvoidance(SAFETY, VMAX))
+    b = SimAgent(2, (20.0, 0.0), GoTo((20.0, 0.0), VMAX), None, reciprocal=False)  # no avoidance at all
+    sim = PointMassSim([a, b], SimConfig(seed=0), keep_trace=True)
+    res = sim.run(40.0)
+    tr = np.array(res.trace)
+    assert res.min_separation >= SAFETY - 0.05
+    assert not a.mission.done
+    last = tr[-100:, 0]  # the last 10 s
+    assert np.ptp(last, axis=0).max() < 0.5  # parked, not orbiting
+    assert np.hypot(*(last[-1] - (20.0, 0.0))) < SAFETY + 4.0
 
 
 @pytest.mark.parametrize("variant", ["rtf", "slow"])

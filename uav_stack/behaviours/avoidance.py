@@ -50,6 +50,7 @@ class AvoidanceResult:
 class _Constraint:
     dist: float
     plane: HalfPlane
+    oncoming: float  # 0..1: how fast this neighbour itself comes towards us (keep-right weight)
 
 
 class CollisionAvoidance:
@@ -221,7 +222,10 @@ class CollisionAvoidance:
             plane = self._half_plane(
                 me.uav, v_a, (xx, xy), (rvx, rvy), self.safety_distance + infl, share, nb.uav
             )
-            cons.append(_Constraint(d, plane))
+            # the neighbour's own speed towards us, relative to a fifth of our top speed
+            closing = -(bvx * xx + bvy * xy) / d if d > 1e-9 else 0.0
+            oncoming = min(max(closing / (0.2 * self.max_speed), 0.0), 1.0)
+            cons.append(_Constraint(d, plane, oncoming))
 
         if not cons:
             return AvoidanceResult(pref, False, closest, closest_infl)
@@ -234,10 +238,12 @@ class CollisionAvoidance:
         v, feasible = solve(planes, self.max_speed, pref)
         sp = math.hypot(pref[0], pref[1])
         if self.bias_angle > 0.0 and sp > 1e-9:
-            # keep-right: the more progress is blocked, the more the wish turns clockwise
+            # keep-right: the more progress is blocked by traffic coming our way, the more the
+            # wish turns clockwise (a parked neighbour is just waited for, not circled)
             blocked = 1.0 - (v[0] * pref[0] + v[1] * pref[1]) / (sp * sp)
-            if blocked > 1e-6:
-                phi = self.bias_angle * min(blocked, 1.0)
+            oncoming = max(c.oncoming for c in cons)
+            if blocked > 1e-6 and oncoming > 0.0:
+                phi = self.bias_angle * min(blocked, 1.0) * oncoming
                 c, s = math.cos(phi), math.sin(phi)
                 biased = (c * pref[0] + s * pref[1], -s * pref[0] + c * pref[1])
                 v, feasible = solve(planes, self.max_speed, biased)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uav_stack.behaviours.base import Area, SelfState, Vec2, dist
+from uav_stack.behaviours.base import Area, SelfState, Vec2, dist, is_finite
 
 _ZERO: Vec2 = (0.0, 0.0)
 
@@ -64,6 +64,8 @@ class GoTo:
         return self._done
 
     def velocity(self, me: SelfState, members: Sequence[int] = ()) -> Vec2:
+        if not is_finite(me.pos):
+            return _ZERO  # no position fix: hold (and keep the state untouched)
         d = dist(me.pos, self.goal)
         if d <= self.tolerance:
             self._done = True
@@ -149,6 +151,8 @@ class RandomDirectionCoverage:
         self._deadline = me.t + 2.0 * dist(me.pos, self.target) / self.speed + 5.0
 
     def velocity(self, me: SelfState, members: Sequence[int] = ()) -> Vec2:
+        if not is_finite(me.pos):
+            return _ZERO
         if self.target is None or dist(me.pos, self.target) <= self.reach_tolerance or me.t > self._deadline:
             self._new_leg(me)
         assert self.target is not None
@@ -173,9 +177,6 @@ class _Band:
     x1: float
     y0: float
     y1: float
-
-    def contains(self, x: float, y: float) -> bool:
-        return self.x0 <= x <= self.x1 and self.y0 <= y <= self.y1
 
 
 class LawnmowerCoverage:
@@ -304,6 +305,8 @@ class LawnmowerCoverage:
 
     # control --------------------------------------------------------------------------------
     def velocity(self, me: SelfState, members: Sequence[int]) -> Vec2:
+        if not is_finite(me.pos):
+            return _ZERO
         ids = _members(me, members)
         if ids != self.members:
             self._replan(me, ids)
