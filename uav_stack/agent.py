@@ -134,7 +134,11 @@ class Agent:
             return False
         o = self.own
         o.x, o.y, o.z = self.frame.to_enu(st.lat, st.lon, st.alt)
-        o.vx, o.vy, o.vz = st.ve, st.vn, -st.vd
+        # The swarm lives in wall-clock time: a virtual FCU at RTF 0.4 that reports 5 m/s is
+        # really covering 2 m/s of ground per wall second, and neighbours extrapolate with that.
+        k = self.link.rtf.value
+        k = k if 0.0 < k < 1.0 else 1.0
+        o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
         o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
         return True
 
@@ -283,7 +287,7 @@ class Agent:
         me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
         self.counters["control_ticks"] += 1
         vx, vy = 0.0, 0.0
-        if self.mission is not None and self.phase == Phase.MISSION:
+        if self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
             if self.mission.done:
@@ -292,6 +296,8 @@ class Agent:
                     return
                 self._set_phase(Phase.DONE, "mission complete")
                 vx, vy = 0.0, 0.0
+            elif self.phase == Phase.DONE:  # a re-split (a member left) gave us more to do
+                self._set_phase(Phase.MISSION, "more work after a re-split")
         if self.avoidance is not None:
             neigh = [
                 Neighbour(uav=n.uav, pos=(n.pose.x, n.pose.y), vel=(n.pose.vx, n.pose.vy), age=n.age(now))
