@@ -2,9 +2,11 @@
 
 RTF (real-time factor) = elapsed sim time / elapsed wall time, as in the paper's Figs. 7-8.
 A physics step of ``dt = 1/physics_hz`` sim seconds is due every ``dt / target_rtf`` wall
-seconds. When the caller falls behind by more than ``max_catchup_s`` of wall time, the
-excess backlog is dropped: sim time falls behind wall time (RTF < target) instead of the
-simulation bursting forward. Nothing else breaks, because every FCU timer runs on sim time.
+seconds. The FCU may run several due steps in one wake-up (it plans its wake-ups with
+``plan_wake``); when the caller comes back more than ``max_catchup_s`` of wall time after
+the planned wake-up, the excess backlog is dropped: sim time falls behind wall time
+(RTF < target) instead of the simulation bursting forward. Nothing else breaks, because
+every FCU timer runs on sim time.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ class SimClock:
     dropped_wall_s: float = 0.0  # wall time given up because the caller was late
     wall_start: float = 0.0
     next_step_wall: float = 0.0
+    planned_wake: float = 0.0  # when the host loop was asked to come back
     _started: bool = field(default=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -48,6 +51,7 @@ class SimClock:
     def start(self, wall_now: float) -> None:
         self.wall_start = wall_now
         self.next_step_wall = wall_now + self.wall_per_step
+        self.planned_wake = self.next_step_wall
         self.steps = 0
         self.dropped_wall_s = 0.0
         self._started = True
@@ -57,19 +61,27 @@ class SimClock:
         if not self._started:
             self.start(wall_now)
             return 0
+        late = wall_now - max(self.planned_wake, self.next_step_wall)
+        if late > self.max_catchup_s:
+            drop = late - self.max_catchup_s
+            self.dropped_wall_s += drop
+            self.next_step_wall += drop
         lag = wall_now - self.next_step_wall
         if lag < 0.0:
             return 0
-        if lag > self.max_catchup_s:
-            self.dropped_wall_s += lag - self.max_catchup_s
-            self.next_step_wall = wall_now - self.max_catchup_s
-            lag = self.max_catchup_s
-        return int(lag / self.wall_per_step) + 1
+        return int(lag / self.wall_per_step + 1e-9) + 1
 
-    def advance(self) -> None:
-        """Account for one step taken."""
-        self.steps += 1
-        self.next_step_wall += self.wall_per_step
+    def wall_of_step(self, k: int) -> float:
+        """Wall time at which step number k (1-based count after it) is due."""
+        return self.next_step_wall + (k - self.steps - 1) * self.wall_per_step
+
+    def plan_wake(self, wall: float) -> None:
+        self.planned_wake = wall
+
+    def advance(self, k: int = 1) -> None:
+        """Account for k steps taken."""
+        self.steps += k
+        self.next_step_wall += k * self.wall_per_step
 
     def rtf_total(self, wall_now: float) -> float:
         el = wall_now - self.wall_start

@@ -48,6 +48,8 @@ class FcuConfig:
     physics_hz: float = 50.0
     target_rtf: float = 1.0  # < 1 runs slower than real time
     max_catchup_s: float = 0.1  # wall lag beyond this is dropped (sim slows down instead of bursting)
+    max_step_batch_s: float = 0.1  # physics steps between two wake-ups at most (0 = wake every step)
+    coalesce_datagrams: bool = True  # several MAVLink messages per UDP datagram (as PX4 does)
     dynamics: MultirotorParams = field(default_factory=MultirotorParams)
     stream_rates: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_STREAM_RATES))
     max_peers: int = 8  # learned UDP peers per vehicle (like mavlink-router server endpoints)

@@ -138,19 +138,23 @@ class MultirotorArray:
         return float(self.ground_z[i] - self.pos[i, 2])
 
     # --------------------------------------------------------------------- step
-    def step(self, dt: float) -> None:
-        """Advance all vehicles by dt seconds (semi-implicit Euler; stable for dt <= ~0.05).
+    scalar_max: int = 8
+
+    def step(self, dt: float, n: int = 1) -> None:
+        """Advance all vehicles by ``n`` steps of ``dt`` seconds (semi-implicit Euler;
+        stable for dt <= ~0.05).
 
         numpy's per-call overhead (~0.6 us) dominates for a handful of vehicles, so small
-        fleets take an equivalent scalar path (same equations, ``math`` on floats);
-        tests check that both paths agree.
+        fleets take an equivalent scalar path (same equations, ``math`` on floats, arrays
+        converted once per call); tests check that both paths agree.
         """
+        if n < 1:
+            return
         if self.n <= self.scalar_max:
-            self._step_scalar(dt)
+            self._step_scalar(dt, n)
         else:
-            self._step_vector(dt)
-
-    scalar_max: int = 4
+            for _ in range(n):
+                self._step_vector(dt)
 
     def _step_vector(self, dt: float) -> None:
         prm = self.params
@@ -185,8 +189,7 @@ class MultirotorArray:
 
         # attitude/thrust lag; motors off when disarmed
         A += (asp - A) * min(1.0, dt / prm.tau_att)
-        disarmed = ~armed
-        np.copyto(A, self._gcol, where=disarmed)
+        np.copyto(A, self._gcol, where=~armed)
 
         # integrate
         V += (A - prm.drag * rel) * dt
@@ -226,12 +229,15 @@ class MultirotorArray:
         load = np.where(self.landed, prm.battery_idle_fraction, 1.0 + 0.3 / G * axy)
         self.battery = np.maximum(self.battery - (armed * dt) * load / self.endurance_s, 0.0)
 
-    def _step_scalar(self, dt: float) -> None:
+    def _step_scalar(self, dt: float, n: int) -> None:
+        """The same equations as ``_step_vector``, per vehicle on Python floats."""
         prm = self.params
-        sqrt, hypot, atan2 = math.sqrt, math.hypot, math.atan2
-        kpxy, kpz, bz2 = prm.kp_xy, prm.kp_z, self._2bz
+        sqrt, hypot, atan2, cos, sin = math.sqrt, math.hypot, math.atan2, math.cos, math.sin
+        pi = math.pi
+        kpxy, kpz, bz2, kpyaw = prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw
         itxy, itz = 1.0 / prm.tau_vel_xy, 1.0 / prm.tau_vel_z
         drag, acc_up, acc_dn = prm.drag, prm.acc_up, prm.acc_dn
+        l_alt, l_spd, idle = prm.landed_alt, prm.landed_speed, prm.battery_idle_fraction
         klag = min(1.0, dt / prm.tau_att)
         P, V, A = self.pos.tolist(), self.vel.tolist(), self.acc.tolist()
         PSP, VFF, W = self.pos_sp.tolist(), self.vel_ff.tolist(), self.wind.tolist()
@@ -239,79 +245,96 @@ class MultirotorArray:
         vxy_l, vup_l, vdn_l = self.vxy_max.tolist(), self.vz_up.tolist(), self.vz_dn.tolist()
         acc_l, tilt_l, yrm_l = self.acc_hor.tolist(), self.tilt_acc.tolist(), self.yaw_rate_max.tolist()
         ysp_l, yrsp_l, yaw_l = self.yaw_sp.tolist(), self.yaw_rate_sp.tolist(), self.yaw.tolist()
-        roll_l, pitch_l, bat_l, end_l = self.roll.tolist(), self.pitch.tolist(), self.battery.tolist(), self.endurance_s.tolist()
+        roll_l, pitch_l, bat_l = self.roll.tolist(), self.pitch.tolist(), self.battery.tolist()
+        end_l = self.endurance_s.tolist()
         landed_o, rate_o, rr_o, pr_o = [], [], [], []
         for i in range(self.n):
-            p, v, a, psp, vff, w = P[i], V[i], A[i], PSP[i], VFF[i], W[i]
+            p0, p1, p2 = P[i]
+            v0_, v1_, v2_ = V[i]
+            x0, x1, x2 = A[i]
+            s0, s1, s2 = PSP[i]
+            f0, f1, f2 = VFF[i]
+            w0, w1, w2 = W[i]
             armed, gz = armed_l[i], gz_l[i]
-            e0 = 0.0 if psp[0] != psp[0] else psp[0] - p[0]
-            e1 = 0.0 if psp[1] != psp[1] else psp[1] - p[1]
-            e2 = 0.0 if psp[2] != psp[2] else psp[2] - p[2]
-            gxy = min(sqrt(acc_l[i] / max(hypot(e0, e1), 1e-9)), kpxy)
-            gzz = min(sqrt(bz2 / max(abs(e2), 1e-9)), kpz)
-            v0, v1, v2 = e0 * gxy + vff[0], e1 * gxy + vff[1], e2 * gzz + vff[2]
-            s = min(vxy_l[i] / max(hypot(v0, v1), 1e-9), 1.0)
-            v0 *= s
-            v1 *= s
-            v2 = min(max(v2, -vup_l[i]), vdn_l[i])
-            a0, a1, a2 = (v0 - v[0]) * itxy, (v1 - v[1]) * itxy, (v2 - v[2]) * itz
-            s = min(acc_l[i] / max(hypot(a0, a1), 1e-9), 1.0)
-            a0 *= s
-            a1 *= s
-            a2 = min(max(a2, -acc_up), acc_dn)
-            r0, r1, r2 = v[0] - w[0], v[1] - w[1], v[2] - w[2]
-            a0 += drag * r0
-            a1 += drag * r1
-            a2 += drag * r2
-            axy = hypot(a0, a1)
-            s = min(tilt_l[i] / max(axy, 1e-9), 1.0)
-            a0 *= s
-            a1 *= s
-            axy *= s
-            if armed:
-                x0, x1, x2 = a[0] + (a0 - a[0]) * klag, a[1] + (a1 - a[1]) * klag, a[2] + (a2 - a[2]) * klag
-            else:
-                x0, x1, x2 = 0.0, 0.0, G
-            u0 = v[0] + (x0 - drag * r0) * dt
-            u1 = v[1] + (x1 - drag * r1) * dt
-            u2 = v[2] + (x2 - drag * r2) * dt
-            q0, q1, q2 = p[0] + u0 * dt, p[1] + u1 * dt, p[2] + u2 * dt
-            if q2 >= gz:
-                q2 = gz
-                u2 = min(u2, 0.0)
-                if x2 >= -1e-3:
-                    u0 = u1 = u2 = x0 = x1 = x2 = 0.0
-                    contact = True
+            vxy, vup, vdn, acch, tilt, yrm = vxy_l[i], vup_l[i], vdn_l[i], acc_l[i], tilt_l[i], yrm_l[i]
+            ysp, yrsp, yaw, roll, pitch, bat = ysp_l[i], yrsp_l[i], yaw_l[i], roll_l[i], pitch_l[i], bat_l[i]
+            drain = dt / end_l[i] if armed else 0.0
+            landed = False
+            rate = roll_rate = pitch_rate = 0.0
+            if not armed and p2 >= gz and not (v0_ or v1_ or v2_ or x0 or x1 or x2 or roll or pitch):
+                landed_o.append(True)  # motors off, resting on the ground: nothing changes
+                rate_o.append(0.0)
+                rr_o.append(0.0)
+                pr_o.append(0.0)
+                continue
+            for _ in range(n):
+                e0 = 0.0 if s0 != s0 else s0 - p0
+                e1 = 0.0 if s1 != s1 else s1 - p1
+                e2 = 0.0 if s2 != s2 else s2 - p2
+                gxy = min(sqrt(acch / max(hypot(e0, e1), 1e-9)), kpxy)
+                gzz = min(sqrt(bz2 / max(abs(e2), 1e-9)), kpz)
+                c0, c1, c2 = e0 * gxy + f0, e1 * gxy + f1, e2 * gzz + f2
+                s = min(vxy / max(hypot(c0, c1), 1e-9), 1.0)
+                c0 *= s
+                c1 *= s
+                c2 = min(max(c2, -vup), vdn)
+                a0, a1, a2 = (c0 - v0_) * itxy, (c1 - v1_) * itxy, (c2 - v2_) * itz
+                s = min(acch / max(hypot(a0, a1), 1e-9), 1.0)
+                a0 *= s
+                a1 *= s
+                a2 = min(max(a2, -acc_up), acc_dn)
+                r0, r1, r2 = v0_ - w0, v1_ - w1, v2_ - w2
+                a0 += drag * r0
+                a1 += drag * r1
+                a2 += drag * r2
+                axy = hypot(a0, a1)
+                s = min(tilt / max(axy, 1e-9), 1.0)
+                a0 *= s
+                a1 *= s
+                axy *= s
+                if armed:
+                    x0, x1, x2 = x0 + (a0 - x0) * klag, x1 + (a1 - x1) * klag, x2 + (a2 - x2) * klag
                 else:
-                    contact = False
-            else:
+                    x0, x1, x2 = 0.0, 0.0, G
+                v0_ += (x0 - drag * r0) * dt
+                v1_ += (x1 - drag * r1) * dt
+                v2_ += (x2 - drag * r2) * dt
+                p0 += v0_ * dt
+                p1 += v1_ * dt
+                p2 += v2_ * dt
                 contact = False
-            landed = contact or (q2 > gz - prm.landed_alt and abs(u2) < prm.landed_speed and x2 > -0.5)
-            P[i], V[i], A[i] = [q0, q1, q2], [u0, u1, u2], [x0, x1, x2]
-            # heading
-            ysp, yaw = ysp_l[i], yaw_l[i]
-            if ysp == ysp:
-                rate = prm.kp_yaw * (((ysp - yaw) + math.pi) % _TWO_PI - math.pi)
-            else:
-                rate = yrsp_l[i]
-            rate = min(max(rate, -yrm_l[i]), yrm_l[i])
-            if rate != rate or not armed or landed:
-                rate = 0.0
-            yaw = ((yaw + rate * dt) + math.pi) % _TWO_PI - math.pi
-            yaw_l[i] = yaw
-            c, sn = math.cos(yaw), math.sin(yaw)
-            fwd = c * x0 + sn * x1
-            right = c * x1 - sn * x0
-            up = max(G - x2, 0.0)
-            pitch = -atan2(fwd, up)
-            roll = atan2(right, hypot(fwd, up))
-            pr_o.append((pitch - pitch_l[i]) / dt)
-            rr_o.append((roll - roll_l[i]) / dt)
-            pitch_l[i], roll_l[i] = pitch, roll
-            load = prm.battery_idle_fraction if landed else 1.0 + 0.3 / G * axy
-            bat_l[i] = max(bat_l[i] - (dt if armed else 0.0) * load / end_l[i], 0.0)
+                if p2 >= gz:
+                    p2 = gz
+                    v2_ = min(v2_, 0.0)
+                    if x2 >= -1e-3:
+                        v0_ = v1_ = v2_ = x0 = x1 = x2 = 0.0
+                        contact = True
+                landed = contact or (p2 > gz - l_alt and abs(v2_) < l_spd and x2 > -0.5)
+                # heading
+                if ysp == ysp:
+                    rate = kpyaw * (((ysp - yaw) + pi) % _TWO_PI - pi)
+                else:
+                    rate = yrsp
+                rate = min(max(rate, -yrm), yrm)
+                if rate != rate or not armed or landed:
+                    rate = 0.0
+                yaw = ((yaw + rate * dt) + pi) % _TWO_PI - pi
+                # attitude for telemetry
+                c, sn = cos(yaw), sin(yaw)
+                fwd = c * x0 + sn * x1
+                right = c * x1 - sn * x0
+                up = max(G - x2, 0.0)
+                pt = -atan2(fwd, up)
+                rl = atan2(right, hypot(fwd, up))
+                pitch_rate, roll_rate = (pt - pitch) / dt, (rl - roll) / dt
+                pitch, roll = pt, rl
+                bat = max(bat - drain * (idle if landed else 1.0 + 0.3 / G * axy), 0.0)
+            P[i], V[i], A[i] = [p0, p1, p2], [v0_, v1_, v2_], [x0, x1, x2]
+            yaw_l[i], roll_l[i], pitch_l[i], bat_l[i] = yaw, roll, pitch, bat
             landed_o.append(landed)
             rate_o.append(rate)
+            rr_o.append(roll_rate)
+            pr_o.append(pitch_rate)
         self.pos[:] = P
         self.vel[:] = V
         self.acc[:] = A

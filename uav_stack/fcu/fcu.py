@@ -68,11 +68,21 @@ class VirtualFcu:
             log=log,
         )
         self.vehicles: list[Vehicle] = []
+        self._dirty: list[UdpLink] = []  # links with queued (coalesced) output
         for i, vc in enumerate(config.vehicles):
-            link = UdpLink(tuple(vc.listen), tuple(vc.remotes), config.max_peers, config.peer_timeout_s, stats=self.stats)  # type: ignore[arg-type]
+            link = UdpLink(
+                tuple(vc.listen),  # type: ignore[arg-type]
+                tuple(vc.remotes),
+                config.max_peers,
+                config.peer_timeout_s,
+                stats=self.stats,
+                coalesce=config.coalesce_datagrams,
+                dirty=self._dirty,
+            )
             self.vehicles.append(Vehicle(i, vc, self.ctx, config.stream_rates, link))
         self._by_fd: dict[int, Vehicle] = {}
         self._sup_every = max(1, round(config.physics_hz / SUPERVISOR_HZ))
+        self._batch_steps = max(1, int(config.max_step_batch_s * config.physics_hz + 1e-9))
         self._next_hb_wall = math.inf
         self._next_peer_check = 0.0
         self._opened = False
@@ -107,6 +117,7 @@ class VirtualFcu:
         return [v.link.fileno() for v in self.vehicles]
 
     def close(self) -> None:
+        self._flush()
         for v in self.vehicles:
             v.link.close()
         self._closed = True
@@ -126,9 +137,12 @@ class VirtualFcu:
         else:
             vehicles = [self._by_fd[fd] for fd in ready_fds if fd in self._by_fd]
         wall = self._wall()
+        if self._opened:
+            self._advance(wall)  # handle messages against the state at their arrival
         for v in vehicles:
             for data, addr in v.link.recv():
                 self._on_datagram(v, data, addr, wall)
+        self._flush()
 
     def _on_datagram(self, v: Vehicle, data: bytes, addr: tuple[str, int], wall: float) -> None:
         st = self.stats
@@ -165,23 +179,27 @@ class VirtualFcu:
             log.exception("sysid %d: handling %s failed (%d so far); vehicle continues", v.sysid, where, k)
 
     # ------------------------------------------------------------ service
-    def service(self, now: float | None = None) -> float:
-        """Run due physics steps, supervisor ticks, failsafes and telemetry.
+    def _next_tel_step(self) -> int:
+        tel = min(v.streams.next_any for v in self.vehicles)
+        return math.ceil(tel * self.clock.physics_hz - 1e-6) if tel < math.inf else 1 << 62
 
-        Returns the wall time of the next deadline (for the caller's select timeout).
+    def _advance(self, now: float) -> None:
+        """Run the physics steps due by ``now``; supervisor ticks and telemetry at their steps.
+
+        Steps between two such events are handed to the dynamics as one multi-step call.
         """
-        if not self._opened:
-            raise RuntimeError("VirtualFcu.open() first")
-        if now is None:
-            now = self._wall()
         clock, dyn, vehicles = self.clock, self.dyn, self.vehicles
         n = clock.due_steps(now)
         dt = clock.dt
-        for _ in range(n):
-            dyn.step(dt)
-            clock.advance()
+        sup = self._sup_every
+        while n > 0:
+            steps = clock.steps
+            k = min(n, (steps // sup + 1) * sup - steps, max(1, self._next_tel_step() - steps))
+            dyn.step(dt, k)
+            clock.advance(k)
+            n -= k
             sim = clock.sim_time
-            if clock.steps % self._sup_every == 0:
+            if clock.steps % sup == 0:
                 for v in vehicles:
                     try:
                         v.tick(sim)
@@ -194,6 +212,26 @@ class VirtualFcu:
                     self._handler_error(v, "telemetry")
         self.stats.physics_steps = clock.steps
         self.stats.dropped_wall_s = clock.dropped_wall_s
+
+    def _flush(self) -> None:
+        dirty = self._dirty
+        while dirty:
+            dirty.pop().flush()
+
+    def service(self, now: float | None = None) -> float:
+        """Run due physics steps, supervisor ticks (failsafes) and telemetry.
+
+        Returns the wall time of the next deadline: the next step at which telemetry or a
+        supervisor tick is due, or a heartbeat, and at most ``max_step_batch_s`` away.
+        Physics steps in between are run in a batch then, each with its own fixed sim dt
+        (fewer wake-ups: a sleeping loop's wake-up costs more than a warm step).
+        """
+        if not self._opened:
+            raise RuntimeError("VirtualFcu.open() first")
+        if now is None:
+            now = self._wall()
+        self._advance(now)
+        clock, vehicles = self.clock, self.vehicles
         self._meter.sample(now, clock.sim_time)
         # heartbeats are paced on wall time: link liveness must not depend on the RTF
         if now >= self._next_hb_wall:
@@ -207,11 +245,19 @@ class VirtualFcu:
                         v.next_hb_wall = now + v.hb_interval_wall
                 nxt = min(nxt, v.next_hb_wall)
             self._next_hb_wall = nxt
-        if now >= self._next_peer_check:
-            self._next_peer_check = now + 1.0
-            for v in vehicles:
-                v.link.expire_peers(now)
-        return min(clock.next_step_wall, self._next_hb_wall, self._next_peer_check)
+            if now >= self._next_peer_check:
+                self._next_peer_check = now + 1.0
+                for v in vehicles:
+                    v.link.expire_peers(now)
+        self._flush()
+        # next step that must happen at its own wall time; heartbeats ride along (<= one
+        # batch late) unless no step wake-up comes soon enough
+        steps = clock.steps
+        k = (steps // self._sup_every + 1) * self._sup_every
+        k = min(k, steps + self._batch_steps, max(steps + 1, self._next_tel_step()))
+        wake = min(clock.wall_of_step(k), self._next_hb_wall + self.config.max_step_batch_s)
+        clock.plan_wake(wake)
+        return wake
 
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
         """Standalone loop: service + select on the sockets until duration/stop."""

@@ -14,6 +14,7 @@ from uav_stack.fcu.stats import FcuStats
 from uav_stack.mav import mavlink
 
 Addr = tuple[str, int]
+MAX_DATAGRAM = 1400  # bytes: stays under a 1500-byte MTU with IP/UDP headers
 
 
 @dataclass
@@ -25,7 +26,11 @@ class UdpLink:
     peers: dict[Addr, float] = field(default_factory=dict)  # addr -> wall time last heard
     sock: socket.socket | None = None
     stats: FcuStats | None = None  # datagrams_out / send_errors are counted here
+    coalesce: bool = True  # queue() joins messages into datagrams of <= MAX_DATAGRAM bytes
+    dirty: list[UdpLink] | None = None  # shared list this link joins when it has queued output
     targets: list[Addr] = field(default_factory=list)
+    _pending: list[bytes] = field(default_factory=list)
+    _pending_len: int = 0
 
     def __post_init__(self) -> None:
         self.remotes = tuple((str(h), int(p)) for h, p in self.remotes)
@@ -48,6 +53,8 @@ class UdpLink:
         return self.sock.fileno() if self.sock is not None else -1
 
     def close(self) -> None:
+        self._pending.clear()
+        self._pending_len = 0
         if self.sock is not None:
             self.sock.close()
             self.sock = None
@@ -86,6 +93,25 @@ class UdpLink:
 
     def _rebuild(self) -> None:
         self.targets = list(dict.fromkeys([*self.remotes, *self.peers]))
+
+    def queue(self, buf: bytes) -> None:
+        """Send one packed message now, or (coalescing) with the rest of this wake-up's output."""
+        if not self.coalesce:
+            self.send(buf)
+            return
+        if self._pending_len + len(buf) > MAX_DATAGRAM:
+            self.flush()
+        if not self._pending and self.dirty is not None:
+            self.dirty.append(self)
+        self._pending.append(buf)
+        self._pending_len += len(buf)
+
+    def flush(self) -> None:
+        if self._pending:
+            data = b"".join(self._pending)
+            self._pending.clear()
+            self._pending_len = 0
+            self.send(data)
 
     def send(self, buf: bytes) -> None:
         s = self.sock

@@ -275,7 +275,13 @@ STREAM_BY_ID: dict[int, str] = {getattr(M, f"MAVLINK_MSG_ID_{name}"): name for n
 
 
 class StreamSet:
-    """Per-vehicle stream intervals (sim seconds) and next due times."""
+    """Per-vehicle stream intervals (sim seconds) and next due times.
+
+    All of a vehicle's streams are phase-aligned on the physics step grid (offset
+    ``phase`` steps), so one wake-up sends everything due and a lone vehicle wakes its
+    host loop about 10 times a second, not once per stream; vehicles of a fleet get
+    different phases, which spreads their sends.
+    """
 
     def __init__(self, rates: dict[str, float], defaults: dict[str, float], dt: float, phase: int = 0):
         self.dt = dt
@@ -284,19 +290,22 @@ class StreamSet:
         self.next_due: dict[str, float] = {}
         self.next_any = math.inf
         self._phase = phase
-        for k, name in enumerate(ENCODERS):
-            self.set_rate(name, rates.get(name, 0.0), now=0.0, slot=phase + 3 * k)
+        for name in ENCODERS:
+            self.set_rate(name, rates.get(name, 0.0), now=0.0)
 
-    def set_rate(self, name: str, hz: float, now: float, slot: int | None = None) -> None:
+    def _aligned(self, now: float, iv: float) -> float:
+        steps = max(1, round(iv / self.dt))
+        k_now = round(now / self.dt)
+        return (k_now + 1 + (self._phase - k_now - 1) % steps) * self.dt
+
+    def set_rate(self, name: str, hz: float, now: float) -> None:
         if not hz > 0 or not math.isfinite(hz):
             self.interval[name] = 0.0
             self.next_due[name] = math.inf
         else:
             iv = max(1.0 / hz, self.dt)
             self.interval[name] = iv
-            steps = max(1, round(iv / self.dt))
-            off = ((slot if slot is not None else self._phase) % steps) * self.dt
-            self.next_due[name] = now + off
+            self.next_due[name] = self._aligned(now, iv)
         self.next_any = min(self.next_due.values())
 
     def set_interval_us(self, name: str, interval_us: float, now: float) -> None:

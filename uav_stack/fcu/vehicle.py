@@ -132,7 +132,7 @@ class Vehicle:
         mav = self.mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
-        self.link.send(buf)
+        self.link.queue(buf)
         self.ctx.stats.messages_out += 1
 
     def send_heartbeat(self) -> None:

@@ -1,0 +1,191 @@
+"""Helpers for tests and experiments: a minimal pymavlink GCS client over a real UDP socket
+and a context manager that runs a VirtualFcu in a background thread.
+
+Every wait is bounded by a timeout. Only used by tests and tools; the FCU never imports it.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import socket
+import threading
+import time
+from typing import Callable
+
+from uav_stack.fcu.config import FcuConfig
+from uav_stack.fcu.fcu import VirtualFcu
+from uav_stack.fcu.link import DatagramParser
+from uav_stack.fcu.modes import px4_main_sub
+from uav_stack.mav import mavlink
+
+M = mavlink
+NAN = math.nan
+PX4_MODE_NAMES = {
+    (1, 0): "MANUAL", (2, 0): "ALTCTL", (3, 0): "POSCTL", (4, 1): "READY", (4, 2): "TAKEOFF", (4, 3): "HOLD",
+    (4, 4): "MISSION", (4, 5): "RTL", (4, 6): "LAND", (5, 0): "ACRO", (6, 0): "OFFBOARD", (7, 0): "STABILIZED",
+}  # fmt: skip
+
+
+class FcuThread:
+    """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``."""
+
+    def __init__(self, config: FcuConfig):
+        self.fcu = VirtualFcu(config)
+        self.addrs = self.fcu.open()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self.fcu.run, kwargs={"stop": self._stop}, daemon=True)
+
+    def __enter__(self) -> FcuThread:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.fcu.close()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+
+class MavClient:
+    """A GCS/companion endpoint: sends to one vehicle, parses every datagram it gets back."""
+
+    def __init__(self, target: tuple[str, int], sysid: int = 245, compid: int = 190, target_sysid: int = 1):
+        self.target = target
+        self.target_sysid = target_sysid
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self.mav = M.MAVLink(None, sysid, compid)
+        self._parser = DatagramParser()
+        self.latest: dict[str, M.MAVLink_message] = {}
+        self.counts: dict[str, int] = {}
+        self.statustexts: list[str] = []
+        self.received: list[M.MAVLink_message] = []  # everything, in order (bounded)
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> MavClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ----------------------------------------------------------------- raw
+    def send(self, msg: M.MAVLink_message) -> None:
+        buf = msg.pack(self.mav)
+        self.mav.seq = (self.mav.seq + 1) & 0xFF
+        self.sock.sendto(buf, self.target)
+
+    def send_raw(self, data: bytes) -> None:
+        self.sock.sendto(data, self.target)
+
+    def pump(self, timeout: float) -> list[M.MAVLink_message]:
+        """Receive for up to ``timeout`` s (returns early after the first datagram batch)."""
+        out: list[M.MAVLink_message] = []
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+        if not r:
+            return out
+        for _ in range(1000):
+            try:
+                data, _addr = self.sock.recvfrom(65535)
+            except BlockingIOError:
+                break
+            for m in self._parser.parse(data)[0]:
+                t = m.get_type()
+                self.latest[t] = m
+                self.counts[t] = self.counts.get(t, 0) + 1
+                if t == "STATUSTEXT":
+                    self.statustexts.append(m.text)
+                if len(self.received) < 100_000:
+                    self.received.append(m)
+                out.append(m)
+        return out
+
+    def recv_match(
+        self,
+        types: str | tuple[str, ...],
+        timeout: float = 2.0,
+        cond: Callable[[M.MAVLink_message], bool] | None = None,
+    ) -> M.MAVLink_message | None:
+        types = (types,) if isinstance(types, str) else types
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            for m in self.pump(min(left, 0.2)):
+                if m.get_type() in types and (cond is None or cond(m)):
+                    return m
+
+    def wait(self, pred: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if pred():
+                return True
+            self.pump(min(0.05, max(0.0, deadline - time.monotonic())))
+        return pred()
+
+    def drain(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.pump(end - time.monotonic())
+
+    # ------------------------------------------------------------ services
+    def heartbeat(self, mav_type: int = M.MAV_TYPE_GCS) -> None:
+        self.send(self.mav.heartbeat_encode(mav_type, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE))
+
+    def command_long(self, command: int, *params: float, timeout: float = 2.0, confirmation: int = 0) -> int | None:
+        p = [float(x) for x in params] + [NAN] * (7 - len(params))
+        self.send(self.mav.command_long_encode(self.target_sysid, 1, command, confirmation, *p))
+        ack = self.recv_match("COMMAND_ACK", timeout, lambda m: m.command == command)
+        return None if ack is None else ack.result
+
+    def command_int(self, command: int, frame: int, p1: float = NAN, p2: float = NAN, p3: float = NAN,
+                    p4: float = NAN, x: int = 0, y: int = 0, z: float = NAN, timeout: float = 2.0) -> int | None:  # fmt: skip
+        self.send(self.mav.command_int_encode(self.target_sysid, 1, frame, command, 0, 0, p1, p2, p3, p4, x, y, z))
+        ack = self.recv_match("COMMAND_ACK", timeout, lambda m: m.command == command)
+        return None if ack is None else ack.result
+
+    def px4_mode(self) -> str | None:
+        hb = self.latest.get("HEARTBEAT")
+        if hb is None:
+            return None
+        return PX4_MODE_NAMES.get(px4_main_sub(hb.custom_mode), f"custom {hb.custom_mode}")
+
+    def armed(self) -> bool:
+        hb = self.latest.get("HEARTBEAT")
+        return bool(hb and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    def set_mode_px4(self, main: int, sub: int = 0) -> int | None:
+        return self.command_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+
+    def setpoint_local(self, x: float = NAN, y: float = NAN, z: float = NAN, vx: float = NAN, vy: float = NAN,
+                       vz: float = NAN, yaw: float = NAN, frame: int = M.MAV_FRAME_LOCAL_NED) -> None:  # fmt: skip
+        mask = 0
+        for bit, val in ((1, x), (2, y), (4, z), (8, vx), (16, vy), (32, vz)):
+            if val != val:
+                mask |= bit
+        mask |= 64 | 128 | 256 | 2048  # no acceleration, no yaw rate
+        if yaw != yaw:
+            mask |= 1024
+        z0 = [0.0 if v != v else v for v in (x, y, z, vx, vy, vz, yaw)]
+        self.send(
+            self.mav.set_position_target_local_ned_encode(
+                0, self.target_sysid, 1, frame, mask, z0[0], z0[1], z0[2], z0[3], z0[4], z0[5], 0, 0, 0, z0[6], 0
+            )
+        )
+
+    def param_set(self, name: str, value: float, ptype: int = M.MAV_PARAM_TYPE_REAL32, timeout: float = 2.0):
+        self.send(self.mav.param_set_encode(self.target_sysid, 1, name.encode(), value, ptype))
+        return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_id == name)
+
+    def param_read(self, name: str = "", index: int = -1, timeout: float = 2.0):
+        self.send(self.mav.param_request_read_encode(self.target_sysid, 1, name.encode(), index))
+        if index >= 0:
+            return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_index == index)
+        return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_id == name)
