@@ -30,6 +30,20 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
+def wait_tcp(host: str, port: int, timeout: float, proc: subprocess.Popen[bytes] | None = None) -> None:
+    """Wait until something accepts TCP connections on host:port (bounded)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"router exited with code {proc.returncode} before listening on {host}:{port}")
+        try:
+            with socket.create_connection((host, port), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.1)
+    raise RuntimeError(f"nothing listens on {host}:{port} after {timeout:.0f} s")
+
+
 @dataclass
 class Child:
     name: str
@@ -51,8 +65,10 @@ class ProcessRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: str = "peer") -> NetworkConfig:
         """Start a rendezvous router on 127.0.0.1 and return how nodes reach it."""
-        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        port = free_tcp_port()
+        endpoint = f"tcp/127.0.0.1:{port}"
         self._spawn("router", [self.python, "-m", "discovery.rendezvous", "--listen", endpoint])
+        wait_tcp("127.0.0.1", port, timeout=20.0, proc=self.children["router"].proc)
         return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",))
 
     # ---- UAVs ------------------------------------------------------------------------------

@@ -320,8 +320,9 @@ def plot_run(path: Path, scenario: Any, tracks: dict[int, Track], grid: np.ndarr
         xs, ys = axes
         covered = np.where(np.isnan(first_visit), np.nan, first_visit - t0)
         step = xs[1] - xs[0] if len(xs) > 1 else 1.0
-        im = ax.imshow(covered, origin="lower", extent=(xs[0] - step / 2, xs[-1] + step / 2, ys[0] - step / 2, ys[-1] + step / 2),
-                       cmap="Greens_r", alpha=0.45, aspect="equal")
+        extent = (xs[0] - step / 2, xs[-1] + step / 2, ys[0] - step / 2, ys[-1] + step / 2)
+        ax.imshow(np.ones_like(covered), origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=6, aspect="equal")  # uncovered: grey
+        im = ax.imshow(covered, origin="lower", extent=extent, cmap="viridis", alpha=0.55, aspect="equal")
         fig.colorbar(im, ax=ax, fraction=0.035, label="first covered at (s)")
     m = scenario.mission
     if m.area is not None:

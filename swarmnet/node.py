@@ -255,7 +255,7 @@ class SwarmNode:
             if uav_from_key(key) != pose.uav:
                 stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
                 continue
-            if pose.uav == me:
+            if pose.uav == me and self.identity.role == "uav":
                 stats.reject("own_id", key, "another node publishes poses with our UAV id")
                 continue
             stats.received["pose"] += 1

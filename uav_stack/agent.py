@@ -109,6 +109,7 @@ class Agent:
         self._phase_since = self.clock()
         self._handle: CommandHandle | None = None
         self._next_control = 0.0
+        self._published_position_at = -math.inf
         self._next_telemetry = 0.0
         self._next_state = 0.0
         self._next_stats = 0.0
@@ -155,8 +156,11 @@ class Agent:
         inbox = node.poll(now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
-        if have_pos and node.pose_due(now):
-            st = link.state
+        st = link.state
+        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
+        # age at the neighbours is transport time, not the phase between two timers.
+        if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period):
+            self._published_position_at = st.position_at
             o = self.own
             node.publish_pose(
                 t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
