@@ -329,14 +329,20 @@ def plot_run(path: Path, scenario: Any, tracks: dict[int, Track], grid: np.ndarr
         x0, x1, y0, y1 = m.area.as_tuple()
         ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "k--", lw=1)
     cmap = plt.get_cmap("tab20")
+    rtf_of = {u.id: u.rtf for u in scenario.uav_list()}
     for k, u in enumerate(ids):
         p = pos[k]
-        ax.plot(p[:, 0], p[:, 1], "-", lw=1.1, color=cmap(k % 20), label=f"UAV {u}" if len(ids) <= 12 else None)
+        label = f"UAV {u}" + (f" (RTF {rtf_of[u]:g})" if rtf_of.get(u, 1.0) != 1.0 else "")
+        ax.plot(p[:, 0], p[:, 1], "-", lw=1.1, color=cmap(k % 20), label=label if len(ids) <= 12 else None)
         tr = tracks[u]
         ax.plot(tr.xyz[0, 0], tr.xyz[0, 1], "o", color=cmap(k % 20), ms=4)
     for u in scenario.uav_list():
         if u.goal is not None:
             ax.plot(*u.goal, "x", color="k", ms=8)
+    if len(ids) == 2 and np.isfinite(min_sep).any():  # closest approach of a head-on encounter
+        k = int(np.nanargmin(np.where(np.isfinite(min_sep), min_sep, np.nan)))
+        ax.plot(pos[:, k, 0], pos[:, k, 1], "k:", lw=1)
+        ax.plot(pos[:, k, 0].mean(), pos[:, k, 1].mean(), "*", color="tab:red", ms=12, label=f"closest {min_sep[k]:.1f} m")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_aspect("equal", adjustable="datalim")

@@ -86,3 +86,21 @@ def test_bad_scenario_fails_fast_with_the_field_name(tmp_path: Path) -> None:
     res = run_cli([str(MINI), "--set", "flight.altitude=500"], tmp_path, timeout=60)
     assert res.returncode == 2
     assert "flight.altitude" in res.stdout + res.stderr
+
+
+def test_head_on_at_three_rtfs_meets_closer_to_the_slow_uav(tmp_path: Path) -> None:
+    """The paper's Fig. 8: throttling the virtual UAV moves the meeting point towards its start."""
+    meet_x = {}
+    for rtf in (1.0, 0.7, 0.4):
+        out = tmp_path / f"rtf{rtf}"
+        res = run_cli([str(ROOT / "scenarios" / "head_on.yaml"), "--set", f"uavs.1.rtf={rtf}"], out, timeout=240)
+        assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+        s = json.loads((only_run_dir(out) / "summary.json").read_text())
+        assert s["separation"]["collisions"] == 0
+        assert s["separation"]["min_m"] >= s["separation"]["safety_distance_m"]
+        assert all(g["reached"] for g in s["goals"].values()), s["goals"]
+        assert s["rtf"]["per_uav"]["2"] == pytest.approx(rtf, abs=0.05)
+        meet_x[rtf] = s["encounter"]["meeting_point"][0]  # UAV 2 starts at x = +20, UAV 1 at x = -20
+    assert abs(meet_x[1.0]) < 4.0  # equal speeds: they meet in the middle
+    assert meet_x[1.0] < meet_x[0.7] < meet_x[0.4]
+    assert meet_x[0.4] > 8.0
