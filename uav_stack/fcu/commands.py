@@ -285,6 +285,8 @@ def handle_command(v: Vehicle, c: Command) -> None:
     stats = v.ctx.stats
     stats.commands_by_id[c.command] += 1
     v.after_ack.clear()
+    v.hb_after_ack = False
+    v.in_command = True
     fn = HANDLERS.get(c.command)
     try:
         result, reason = fn(v, c) if fn is not None else (UNSUPPORTED, "")
@@ -294,10 +296,15 @@ def handle_command(v: Vehicle, c: Command) -> None:
         v.ctx.log.exception("sysid %d: command %d failed", v.sysid, c.command)
         result, reason = FAILED, ""
         v.after_ack.clear()
+    finally:
+        v.in_command = False
     stats.commands[_RESULT_NAMES.get(result, str(result))] += 1
     v.send(v.mav.command_ack_encode(c.command, result, 0, 0, c.src_sys, c.src_comp))
     if reason and result != ACCEPTED:
         v.statustext(M.MAV_SEVERITY_WARNING if result == DENIED else M.MAV_SEVERITY_ERROR, reason)
+    if v.hb_after_ack:
+        v.hb_after_ack = False
+        v.send_heartbeat()
     for m in v.after_ack:
         v.send(m)
     v.after_ack.clear()

@@ -20,7 +20,7 @@ import numpy as np
 from uav_stack.fcu.clock import RtfMeter, SimClock
 from uav_stack.fcu.config import FcuConfig
 from uav_stack.fcu.dynamics import MultirotorArray
-from uav_stack.fcu.handlers import addressed_to, lookup
+from uav_stack.fcu.handlers import HANDLERS, Handler, addressed_to
 from uav_stack.fcu.link import UdpLink
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.fcu.vehicle import FleetContext, Vehicle
@@ -81,6 +81,8 @@ class VirtualFcu:
             )
             self.vehicles.append(Vehicle(i, vc, self.ctx, config.stream_rates, link))
         self._by_fd: dict[int, Vehicle] = {}
+        # message type -> handler(vehicle, msg); per instance, so a host can add its own
+        self.handlers: dict[str, Handler] = dict(HANDLERS)
         self._sup_every = max(1, round(config.physics_hz / SUPERVISOR_HZ))
         self._batch_steps = max(1, int(config.max_step_batch_s * config.physics_hz + 1e-9))
         self._next_hb_wall = math.inf
@@ -153,13 +155,14 @@ class VirtualFcu:
             st.bad_datagrams += 1
         if not msgs:
             return
-        v.link.note_peer(addr, wall)
+        if v.link.note_peer(addr, wall):
+            v.send_heartbeat()  # a new peer learns about us at once (fast discovery)
         for m in msgs:
             name = m.get_type()
             st.messages_in[name] += 1
             if m.get_srcSystem() == v.sysid and m.get_srcComponent() == v.compid:
                 continue  # our own echo
-            handler = lookup(name)
+            handler = self.handlers.get(name)
             if handler is None:
                 continue
             try:

@@ -220,7 +220,7 @@ def on_set_position_target_global_int(v: Vehicle, m: M.MAVLink_message) -> None:
 # ------------------------------------------------------------------ small stuff
 def on_timesync(v: Vehicle, m: M.MAVLink_message) -> None:
     if m.tc1 == 0:
-        v.send(v.mav.timesync_encode(int(v.now * 1e9), m.ts1))
+        v.send(v.mav.timesync_encode(max(1, int(v.now * 1e9)), m.ts1))  # tc1 = 0 would be a request
 
 
 def on_ping(v: Vehicle, m: M.MAVLink_message) -> None:
@@ -281,7 +281,3 @@ def addressed_to(v: Vehicle, m: M.MAVLink_message) -> bool:
         return False
     tc = getattr(m, "target_component", 0)
     return tc in (0, v.compid) or m.get_type() in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT")
-
-
-def lookup(name: str) -> Handler | None:
-    return HANDLERS.get(name)

@@ -75,7 +75,8 @@ class UdpLink:
             out.append((data, (addr[0], addr[1])))
         return out
 
-    def note_peer(self, addr: Addr, wall: float) -> None:
+    def note_peer(self, addr: Addr, wall: float) -> bool:
+        """Remember a peer we heard from; True if it is new."""
         known = addr in self.peers
         self.peers[addr] = wall
         if not known:
@@ -83,6 +84,7 @@ class UdpLink:
                 oldest = min(self.peers, key=self.peers.__getitem__)
                 del self.peers[oldest]
             self._rebuild()
+        return not known
 
     def expire_peers(self, wall: float) -> None:
         stale = [a for a, t in self.peers.items() if wall - t > self.peer_timeout_s]

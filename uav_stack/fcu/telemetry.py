@@ -290,22 +290,25 @@ class StreamSet:
         self.next_due: dict[str, float] = {}
         self.next_any = math.inf
         self._phase = phase
+        self._grid = max(1, round(0.1 / dt))  # first sends on the 10 Hz grid: everything within 0.1 s
         for name in ENCODERS:
-            self.set_rate(name, rates.get(name, 0.0), now=0.0)
+            self.set_rate(name, rates.get(name, 0.0), now=0.0, first=True)
 
-    def _aligned(self, now: float, iv: float) -> float:
+    def _aligned(self, now: float, iv: float, first: bool = False) -> float:
         steps = max(1, round(iv / self.dt))
+        if first:
+            steps = min(steps, self._grid)
         k_now = round(now / self.dt)
         return (k_now + 1 + (self._phase - k_now - 1) % steps) * self.dt
 
-    def set_rate(self, name: str, hz: float, now: float) -> None:
+    def set_rate(self, name: str, hz: float, now: float, first: bool = False) -> None:
         if not hz > 0 or not math.isfinite(hz):
             self.interval[name] = 0.0
             self.next_due[name] = math.inf
         else:
             iv = max(1.0 / hz, self.dt)
             self.interval[name] = iv
-            self.next_due[name] = self._aligned(now, iv)
+            self.next_due[name] = self._aligned(now, iv, first)
         self.next_any = min(self.next_due.values())
 
     def set_interval_us(self, name: str, interval_us: float, now: float) -> None:

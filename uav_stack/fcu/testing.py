@@ -11,6 +11,7 @@ import select
 import socket
 import threading
 import time
+from collections import deque
 from typing import Callable
 
 from uav_stack.fcu.config import FcuConfig
@@ -65,6 +66,7 @@ class MavClient:
         self.counts: dict[str, int] = {}
         self.statustexts: list[str] = []
         self.received: list[M.MAVLink_message] = []  # everything, in order (bounded)
+        self._queue: deque[M.MAVLink_message] = deque(maxlen=10_000)  # not yet consumed by recv_match
 
     def close(self) -> None:
         self.sock.close()
@@ -104,6 +106,7 @@ class MavClient:
                 if len(self.received) < 100_000:
                     self.received.append(m)
                 out.append(m)
+        self._queue.extend(out)
         return out
 
     def recv_match(
@@ -112,15 +115,19 @@ class MavClient:
         timeout: float = 2.0,
         cond: Callable[[M.MAVLink_message], bool] | None = None,
     ) -> M.MAVLink_message | None:
+        """Next unconsumed message of one of ``types`` (others are skipped, like mavutil)."""
         types = (types,) if isinstance(types, str) else types
         deadline = time.monotonic() + timeout
+        q = self._queue
         while True:
+            while q:
+                m = q.popleft()
+                if m.get_type() in types and (cond is None or cond(m)):
+                    return m
             left = deadline - time.monotonic()
             if left <= 0:
                 return None
-            for m in self.pump(min(left, 0.2)):
-                if m.get_type() in types and (cond is None or cond(m)):
-                    return m
+            self.pump(min(left, 0.2))
 
     def wait(self, pred: Callable[[], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -131,9 +138,11 @@ class MavClient:
         return pred()
 
     def drain(self, seconds: float) -> None:
+        """Receive (updating counts/latest) for ``seconds``; forget the unconsumed queue."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             self.pump(end - time.monotonic())
+        self._queue.clear()
 
     # ------------------------------------------------------------ services
     def heartbeat(self, mav_type: int = M.MAV_TYPE_GCS) -> None:

@@ -105,6 +105,8 @@ class Vehicle:
         self.missions: dict[int, list[M.MAVLink_message]] = {0: [], 1: [], 2: []}
         self.upload: dict[str, object] | None = None
         self.after_ack: list[M.MAVLink_message] = []
+        self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
+        self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
@@ -136,6 +138,9 @@ class Vehicle:
         self.ctx.stats.messages_out += 1
 
     def send_heartbeat(self) -> None:
+        if self.in_command:  # after the COMMAND_ACK, like PX4 (its next heartbeat shows the change)
+            self.hb_after_ack = True
+            return
         self.send(heartbeat(self))
         self.next_hb_wall = self.ctx.wall() + self.hb_interval_wall
 
@@ -530,5 +535,9 @@ class Vehicle:
             target = fl.mode("LAND")
         elif action in (Action.TERMINATE, Action.DISARM):
             self.disarm(force=True)
-        if target is not None and target is not self.mode:
+        if target is None:
+            return
+        if target is not self.mode:
             self.enter_mode(target)
+        elif target.behaviour is Behaviour.HOLD:
+            self._start_hold()  # already holding (e.g. flying to a reposition target): stop here
