@@ -58,40 +58,45 @@ def heartbeat(v: Vehicle) -> M.MAVLink_message:
     return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, v.mode.custom_mode, status)
 
 
+def _reuse(v: Vehicle, name: str, make: Callable[[], M.MAVLink_message]) -> M.MAVLink_message:
+    """The vehicle's instance of a high-rate message, refilled in place (skips re-construction)."""
+    m = v.msg_cache.get(name)
+    if m is None:
+        m = v.msg_cache[name] = make()
+    return m
+
+
 def global_position_int(v: Vehicle) -> M.MAVLink_message:
     lat, lon, alt = v.geodetic()
-    vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
-    return v.mav.global_position_int_encode(
-        _ms(v),
-        int(round(lat * 1e7)),
-        int(round(lon * 1e7)),
-        int(round(alt * 1000.0)),
-        int(round((alt - v.home.alt) * 1000.0)),
-        _i16(vn * 100.0),
-        _i16(ve * 100.0),
-        _i16(vd * 100.0),
-        _cdeg_heading(float(v.ctx.dyn.yaw[v.i])),
-    )
+    d = v.ctx.dyn
+    vn, ve, vd = d.vel[v.i].tolist()
+    m = _reuse(v, "GLOBAL_POSITION_INT", lambda: v.mav.global_position_int_encode(0, 0, 0, 0, 0, 0, 0, 0, 0))
+    m.time_boot_ms = _ms(v)
+    m.lat = int(round(lat * 1e7))
+    m.lon = int(round(lon * 1e7))
+    m.alt = int(round(alt * 1000.0))
+    m.relative_alt = int(round((alt - v.home.alt) * 1000.0))
+    m.vx, m.vy, m.vz = _i16(vn * 100.0), _i16(ve * 100.0), _i16(vd * 100.0)
+    m.hdg = _cdeg_heading(float(d.yaw[v.i]))
+    return m
 
 
 def local_position_ned(v: Vehicle) -> M.MAVLink_message:
     d = v.ctx.dyn
-    x, y, z = d.pos[v.i].tolist()
-    vx, vy, vz = d.vel[v.i].tolist()
-    return v.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
+    m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
+    m.time_boot_ms = _ms(v)
+    m.x, m.y, m.z = d.pos[v.i].tolist()
+    m.vx, m.vy, m.vz = d.vel[v.i].tolist()
+    return m
 
 
 def attitude(v: Vehicle) -> M.MAVLink_message:
     d, i = v.ctx.dyn, v.i
-    return v.mav.attitude_encode(
-        _ms(v),
-        float(d.roll[i]),
-        float(d.pitch[i]),
-        float(d.yaw[i]),
-        float(d.roll_rate[i]),
-        float(d.pitch_rate[i]),
-        float(d.yaw_rate[i]),
-    )
+    m = _reuse(v, "ATTITUDE", lambda: v.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
+    m.time_boot_ms = _ms(v)
+    m.roll, m.pitch, m.yaw = float(d.roll[i]), float(d.pitch[i]), float(d.yaw[i])
+    m.rollspeed, m.pitchspeed, m.yawspeed = float(d.roll_rate[i]), float(d.pitch_rate[i]), float(d.yaw_rate[i])
+    return m
 
 
 def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:

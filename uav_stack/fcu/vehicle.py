@@ -108,6 +108,7 @@ class Vehicle:
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
+        self.msg_cache: dict[str, M.MAVLink_message] = {}  # reused instances of high-rate messages
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
         d.pos_sp[i] = d.pos[i]
