@@ -15,6 +15,7 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
@@ -88,7 +89,7 @@ class LiveMetrics:
 
 class Experiment:
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
-                 live: bool = True, log_level: str = "INFO"):
+                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None):
         self.scn = scenario
         self.console = console or Console()
         self.live = live and self.console.is_terminal
@@ -104,6 +105,7 @@ class Experiment:
         self.metrics = LiveMetrics(scenario)
         self.phase = "starting"
         self.observer: SwarmObserver | None = None
+        self.probe = probe  # called every tick of the mission with the elapsed time (benchmarks)
 
     # ---- orchestration -------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
@@ -156,6 +158,8 @@ class Experiment:
             end = start + scn.duration
             while time.time() < end:
                 self._tick(refresh, start)
+                if self.probe is not None:
+                    self.probe(self, time.time() - start)
                 if all(self._phase_of(u) in ("done", "landed") for u in ids):
                     self.run_info["all_done_at"] = time.time() - start
                     break

@@ -10,10 +10,17 @@ process frames MAVLink 2 (message ids > 255) and loads the same dialect.
   import alone costs about 4 MB of RSS per process, which matters when a swarm runs 50
   agents on one machine. We pre-register an empty module under that name; nothing in
   mavutil uses it.
+* ``mavutil`` imports ``ssl`` (4.7 MB of RSS) at the top but uses it only for TLS TCP
+  links. If nothing has imported ``ssl`` yet, a stand-in module takes its place and imports
+  the real one on the first attribute access (module ``__getattr__``, PEP 562), so a TLS
+  link still works and every other agent process saves the memory. (``LazyLoader`` from the
+  standard library cannot do this on Python 3.11: the ``import`` statement itself reads
+  ``__spec__``, which loads the module.)
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 import types
@@ -21,6 +28,21 @@ import types
 os.environ["MAVLINK20"] = "1"
 os.environ.setdefault("MAVLINK_DIALECT", "common")
 sys.modules.setdefault("pymavlink.dialects.v10.all", types.ModuleType("pymavlink.dialects.v10.all"))
+
+
+class _Deferred(types.ModuleType):
+    """Stands in for a module until one of its attributes is used."""
+
+    def __getattr__(self, attr: str) -> object:
+        real = sys.modules.get(self.__name__)
+        if real is self or real is None:
+            del sys.modules[self.__name__]
+            real = importlib.import_module(self.__name__)
+        return getattr(real, attr)
+
+
+if "ssl" not in sys.modules:
+    sys.modules["ssl"] = _Deferred("ssl")
 
 from pymavlink import mavutil  # noqa: E402
 
