@@ -2,7 +2,7 @@
 
     python -m uav_stack.fcu --sysid 1 --listen 127.0.0.1:14580 [--remote 127.0.0.1:14540]
         --home LAT,LON,ALT [--flavour px4|ardupilot] [--rtf 1.0] [--duration S]
-        [--count N] [--param NAME=VALUE ...] [--physics-hz 50]
+        [--count N] [--param NAME=VALUE ...] [--rate MESSAGE=HZ ...] [--physics-hz 50]
 
 With ``--count N`` it hosts N vehicles in one process: sysids sysid..sysid+N-1, listen
 port and remote ports +i (PX4 SITL's multi-vehicle convention), homes 5 m apart eastwards.
@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 
-from uav_stack.fcu.config import FcuConfig, VehicleConfig
+from uav_stack.fcu.config import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
 from uav_stack.fcu.fcu import VirtualFcu
 from uav_stack.geo import GeoPoint, LocalFrame
 
@@ -67,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--count", type=int, default=1, help="vehicles in this process")
     p.add_argument("--yaw", type=float, default=0.0, help="initial heading, rad")
     p.add_argument("--param", type=_param, action="append", default=[], help="NAME=VALUE override")
+    p.add_argument("--rate", type=_param, action="append", default=[], help="MESSAGE=HZ stream rate (0 = off)")
     p.add_argument("--log-level", default="WARNING")
     return p
 
@@ -90,7 +91,9 @@ def config_from_args(a: argparse.Namespace) -> FcuConfig:
                 params=dict(a.param),
             )
         )
-    return FcuConfig(vehicles=vehicles, physics_hz=a.physics_hz, target_rtf=a.rtf)
+    rates = dict(DEFAULT_STREAM_RATES)
+    rates.update(dict(a.rate))
+    return FcuConfig(vehicles=vehicles, physics_hz=a.physics_hz, target_rtf=a.rtf, stream_rates=rates)
 
 
 def main(argv: list[str] | None = None) -> int:

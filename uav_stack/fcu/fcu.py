@@ -270,7 +270,7 @@ class VirtualFcu:
         for fd in self.fds():
             sel.register(fd, selectors.EVENT_READ)
         end = self._wall() + duration if duration is not None else math.inf
-        max_wait = 0.05 if stop is not None else 0.5
+        max_wait = 0.25  # bounds the reaction to ``stop``; normally the FCU's own deadlines come first
         try:
             while stop is None or not stop.is_set():
                 now = self._wall()
