@@ -38,7 +38,7 @@ from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario  # noqa: E402
 
 
-def scenario_for(n: int, duration: float, mode: str) -> Scenario:
+def scenario_for(n: int, duration: float, mode: str, feed: str) -> Scenario:
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
     cols = math.ceil(math.sqrt(n))
     return Scenario.model_validate({
@@ -47,7 +47,7 @@ def scenario_for(n: int, duration: float, mode: str) -> Scenario:
         "seed": 1,
         "duration": duration,
         "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
-        "network": {"connectivity": "rendezvous", "mode": mode},
+        "network": {"connectivity": "rendezvous", "mode": mode, "pose_feed": feed},
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "random",
                     "area": {"x_min": -side / 2, "x_max": side / 2, "y_min": -side / 2, "y_max": side / 2}, "sensor_radius": 10},
@@ -94,7 +94,7 @@ class Sampler:
 
 def run_size(n: int, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     sampler = Sampler(args.warmup, args.window)
-    scn = scenario_for(n, args.warmup + args.window + 2.0, args.mode)
+    scn = scenario_for(n, args.warmup + args.window + 2.0, args.mode, args.feed)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
     summary = exp.run()
@@ -108,6 +108,7 @@ def run_size(n: int, args: argparse.Namespace, console: Console) -> dict[str, An
     row = {
         "n": n,
         "mode": args.mode,
+        "feed": args.feed,
         "cpu_pct_median": round(med("cpu_pct"), 3),
         "cpu_pct_max": round(mx("cpu_pct"), 3),
         "rss_mb_median": round(med("rss_mb"), 1),
@@ -159,7 +160,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         a.set_xlabel("virtual UAVs (N)")
         a.legend(fontsize=8)
         a.grid(alpha=0.3)
-    fig.suptitle(f"mrswarm scaling, process runtime, {rows[0]['mode']} mode, {psutil.cpu_count()} cores")
+    fig.suptitle(f"mrswarm scaling, process runtime, {rows[0]['mode']} mode, {rows[0]['feed']} pose feed, {psutil.cpu_count()} cores")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -170,13 +171,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup", type=float, default=8.0, help="seconds after the mission starts before measuring")
     ap.add_argument("--window", type=float, default=30.0, help="measurement window, s")
     ap.add_argument("--mode", choices=["peer", "client"], default="peer")
+    ap.add_argument("--feed", choices=["direct", "edge"], default="direct", help="pose feed (edge: batches from the router)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
     rows = [run_size(n, args, console) for n in args.sizes]
-    tag = f"scale-{args.mode}"
+    tag = f"scale-{args.mode}-{args.feed}"
     (out / f"{tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
     with open(out / f"{tag}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))

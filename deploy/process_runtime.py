@@ -63,13 +63,17 @@ class ProcessRuntime:
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
     # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: str = "peer") -> NetworkConfig:
-        """Start a rendezvous router on 127.0.0.1 and return how nodes reach it."""
+    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*") -> NetworkConfig:
+        """Start a rendezvous (edge) router on 127.0.0.1 and return how nodes reach it."""
         port = free_tcp_port()
         endpoint = f"tcp/127.0.0.1:{port}"
-        self._spawn("router", [self.python, "-m", "discovery.rendezvous", "--listen", endpoint])
+        argv = [self.python, "-m", "discovery.rendezvous", "--listen", endpoint]
+        if pose_feed == "edge":
+            argv += ["--feed", swarm]
+        self._spawn("router", argv)
         wait_tcp("127.0.0.1", port, timeout=20.0, proc=self.children["router"].proc)
-        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",))
+        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
+                             pose_feed=pose_feed)
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -5,7 +5,10 @@ the router is not on their data path and may die without interrupting them (rese
 zenoh.md §1.2, run B6). Client-mode nodes (UAVs behind carrier NAT) route all data
 through it instead.
 
-Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447`` (or ``mrswarm router``).
+With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
+one batch of every UAV's latest pose per period instead of a message per neighbour.
+
+Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]`` (or ``mrswarm router``).
 """
 
 from __future__ import annotations
@@ -15,11 +18,13 @@ import json
 import signal
 import sys
 import threading
+import time
 from typing import Any
 
 import zenoh
 
 from swarmnet.connectivity import TransportTuning
+from swarmnet.feed import DEFAULT_PERIOD, PoseFeed
 
 
 def router_config(listen: list[str], tuning: TransportTuning | None = None) -> dict[str, Any]:
@@ -31,11 +36,20 @@ def router_config(listen: list[str], tuning: TransportTuning | None = None) -> d
     return (tuning or TransportTuning()).apply(cfg)
 
 
-def serve(listen: list[str], stop: threading.Event, duration: float | None = None) -> None:
+def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
+          feed_swarms: list[str] | None = None, feed_period: float = DEFAULT_PERIOD) -> None:
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen))))
     try:
-        print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}", flush=True)
-        stop.wait(duration)
+        print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}"
+              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""), flush=True)
+        if not feed_swarms:
+            stop.wait(duration)
+            return
+        feed = PoseFeed(session, feed_swarms, feed_period)
+        end = time.monotonic() + duration if duration is not None else float("inf")
+        while not stop.is_set() and time.monotonic() < end:
+            nxt = feed.step()
+            stop.wait(max(0.0, min(nxt - time.time(), end - time.monotonic())))
     finally:
         session.close()
 
@@ -43,12 +57,15 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm router", description=__doc__.splitlines()[0])
     ap.add_argument("--listen", action="append", default=None, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    ap.add_argument("--feed", action="append", default=[], metavar="SWARM",
+                    help="run the edge pose feed for this swarm ('*' for all; repeatable)")
+    ap.add_argument("--feed-period", type=float, default=DEFAULT_PERIOD, help="seconds between pose batches")
     ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     args = ap.parse_args(argv)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration)
+    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_period)
     return 0
 
 

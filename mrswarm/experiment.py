@@ -133,7 +133,7 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
-        net = self.runtime.start_network(scn.network.mode)
+        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:

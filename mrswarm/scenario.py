@@ -87,6 +87,7 @@ class Flight(_Model):
 class Network(_Model):
     connectivity: Literal["rendezvous"] = "rendezvous"
     mode: Literal["peer", "client"] = "peer"
+    pose_feed: Literal["direct", "edge"] = "direct"
 
 
 class Spawn(_Model):

@@ -4,8 +4,8 @@ Every key starts with ``mrs/<swarm>/``, so two swarms on one network never recei
 other's traffic unless a node subscribes across swarms on purpose (``mrs/*/...``): Zenoh
 routes data only towards matching subscribers.
 
-UAV ids are decimal integers (1..65535); the words below are reserved segment names and can
-never be mistaken for a UAV id.
+UAV ids are decimal integers (1..65535); the words ``alive``, ``msg``, ``cmd`` and ``feed`` are
+reserved segment names and can never be mistaken for a UAV id.
 """
 
 from __future__ import annotations
@@ -56,6 +56,11 @@ class SwarmKeys:
         return f"{self.prefix}/alive/{role}/{node}"
 
     # swarm-wide
+    @property
+    def pose_feed(self) -> str:
+        """Batches of every UAV's latest pose, published by the edge (see swarmnet/feed.py)."""
+        return f"{self.prefix}/feed/poses"
+
     @property
     def swarm_cmd(self) -> str:
         return f"{self.prefix}/cmd"

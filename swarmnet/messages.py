@@ -40,6 +40,7 @@ class Kind(IntEnum):
     SWARM_MESSAGE = 4
     COMMAND = 5
     COMMAND_ACK = 6
+    POSE_BATCH = 7
 
 
 class Realm(IntEnum):
@@ -74,6 +75,8 @@ MAX_TELEMETRY_BYTES = 256
 MAX_STATE_BYTES = 512
 MAX_COMMAND_BYTES = 1024
 DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024
+MAX_BATCH_POSES = 4096
+MAX_BATCH_BYTES = 16 + MAX_BATCH_POSES * (MAX_POSE_BYTES + 2) + 16
 _INT16 = 32767
 _INT32 = 2**31 - 1
 _UINT32 = 2**32 - 1
@@ -177,7 +180,16 @@ class CommandAck:
     t_wall: float
 
 
-Message = Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck
+@dataclass(frozen=True, slots=True)
+class PoseBatch:
+    """Poses of many UAVs in one message (the edge pose feed), each still a pose payload."""
+
+    seq: int
+    t_wall: float
+    poses: list[bytes]  # encoded Pose payloads, validated again by every receiver
+
+
+Message = Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch
 
 
 # --- helpers -------------------------------------------------------------------------------
@@ -437,3 +449,26 @@ def decode_ack(data: bytes) -> CommandAck:
         message=_str(o[4], MAX_TEXT_LEN, "message"),
         t_wall=_int(o[5], 0, _UINT64, "t_wall") / 1e6,
     )
+
+
+# --- pose batches (edge feed) ---------------------------------------------------------------
+_BATCH_TAG = tag(Kind.POSE_BATCH)
+
+
+def encode_pose_batch(b: PoseBatch) -> bytes:
+    if len(b.poses) > MAX_BATCH_POSES:
+        raise ValueError(f"{len(b.poses)} poses in one batch, over {MAX_BATCH_POSES}")
+    return msgpack.packb([_BATCH_TAG, b.seq & 0xFFFFFFFF, _us(b.t_wall), b.poses], use_bin_type=True)
+
+
+def decode_pose_batch(data: bytes) -> PoseBatch:
+    """Checks the envelope; every pose inside is decoded (and validated) by the caller."""
+    o = _unpack(data, MAX_BATCH_BYTES)
+    _expect(o, Kind.POSE_BATCH, 4)
+    poses = o[3]
+    if type(poses) is not list or len(poses) > MAX_BATCH_POSES:
+        raise DecodeError("bad_field", "poses must be a list of at most %d payloads" % MAX_BATCH_POSES)
+    for p in poses:
+        if type(p) is not bytes or len(p) > MAX_POSE_BYTES:
+            raise DecodeError("bad_field", "a batched pose is not a <= 48-byte payload")
+    return PoseBatch(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, poses=poses)

@@ -32,6 +32,7 @@ from swarmnet.messages import (
     Telemetry,
     decode_command,
     decode_pose,
+    decode_pose_batch,
     decode_swarm_message,
     encode_ack,
     encode_pose,
@@ -89,10 +90,14 @@ class SwarmNode:
         forget_after: float = 10.0,
         max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
         ring_size: int = 1024,
+        pose_feed: str = "direct",
         clock: Callable[[], float] = time.time,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
+        if pose_feed not in ("direct", "edge"):
+            raise ValueError(f"pose_feed must be 'direct' or 'edge', not {pose_feed!r}")
+        self.pose_feed = pose_feed
         self.identity = identity
         self.connectivity = connectivity
         self.keys = SwarmKeys(identity.swarm)
@@ -130,7 +135,10 @@ class SwarmNode:
                 self._subs["unicast"] = s.declare_subscriber(k.all_unicast(u), ring(64))
                 self._subs["cmd"] = s.declare_subscriber(k.cmd(u), ring(64))
                 self._subs["swarm_cmd"] = s.declare_subscriber(k.swarm_cmd, ring(64))
-            self._subs["pose"] = s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE)
+            if self.pose_feed == "edge":  # one batch per edge tick instead of a message per neighbour
+                self._subs["pose_batch"] = s.declare_subscriber(k.pose_feed, ring(64))
+            else:
+                self._subs["pose"] = s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE)
             self._subs["broadcast"] = s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE)
             self._subs["alive"] = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
@@ -239,9 +247,9 @@ class SwarmNode:
         stats = self.stats
         me = self.identity.uav
         # poses: the hot path
-        pose_sub = subs["pose"]
+        pose_sub = subs.get("pose")
         budget = max_samples
-        while budget:
+        while pose_sub is not None and budget:
             sample = pose_sub.try_recv()
             if sample is None:
                 break
@@ -255,12 +263,28 @@ class SwarmNode:
             if uav_from_key(key) != pose.uav:
                 stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
                 continue
-            if pose.uav == me and self.identity.role == "uav":
-                stats.reject("own_id", key, "another node publishes poses with our UAV id")
+            self._apply_pose(pose, now, key)
+        batch_sub = subs.get("pose_batch")
+        while batch_sub is not None:
+            sample = batch_sub.try_recv()
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            try:
+                batch = decode_pose_batch(sample.payload.to_bytes())
+            except DecodeError as exc:
+                stats.reject(exc.reason, key, exc.detail)
                 continue
-            stats.received["pose"] += 1
-            if self.neighbours.update(pose, now):
-                stats.pose_age.add(now - pose.t_wall)
+            stats.received["pose_batch"] += 1
+            for data in batch.poses:
+                try:
+                    pose = decode_pose(data)
+                except DecodeError as exc:
+                    stats.reject(exc.reason, key, exc.detail)
+                    continue
+                if pose.uav == me and self.identity.role == "uav":
+                    continue  # our own pose comes back in the swarm's batch
+                self._apply_pose(pose, now, key)
         # swarm messages
         for name in ("broadcast", "unicast"):
             sub = subs.get(name)
@@ -316,6 +340,15 @@ class SwarmNode:
                 inbox.left.append(key)
         self.neighbours.expire(now)
         return inbox
+
+    def _apply_pose(self, pose: Pose, now: float, key: str) -> None:
+        stats = self.stats
+        if pose.uav == self.identity.uav and self.identity.role == "uav":
+            stats.reject("own_id", key, "another node publishes poses with our UAV id")
+            return
+        stats.received["pose"] += 1
+        if self.neighbours.update(pose, now):
+            stats.pose_age.add(now - pose.t_wall)
 
     def alive_uavs(self) -> set[int]:
         """UAV ids whose liveliness token is present (the node's own included)."""

@@ -21,6 +21,7 @@ class NetworkConfig:
     endpoints: tuple[str, ...] = ()
     mode: str = "peer"  # peer | client
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    pose_feed: str = "direct"  # direct: a message per neighbour pose; edge: batches from the edge router
     options: dict[str, Any] = field(default_factory=dict)  # strategy-specific settings
 
 

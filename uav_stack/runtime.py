@@ -13,7 +13,6 @@ import json
 import logging
 import math
 import os
-import selectors
 import signal
 import sys
 import time
@@ -30,7 +29,7 @@ from uav_stack.geo import GeoPoint
 
 log = logging.getLogger(__name__)
 
-AGENT_STEP_HZ = 50.0
+TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
 _PR_SET_PDEATHSIG = 1
 
 
@@ -73,44 +72,41 @@ def make_connectivity(net: NetworkConfig) -> Connectivity:
 
 def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
-    return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after)
+    return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
+                     pose_feed=cfg.network.pose_feed)
 
 
-def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None) -> None:
-    """Drive the FCU (optional) and the agent until stopped, the duration passes, or the parent dies."""
-    sel = selectors.DefaultSelector()
-    if fcu is not None:
-        for fd in fcu.fds():  # type: ignore[attr-defined]
-            sel.register(fd, selectors.EVENT_READ)
+def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None,
+             tick_hz: float = TICK_HZ) -> None:
+    """Drive the FCU (optional) and the agent on one fixed tick until stopped.
+
+    One wake-up per tick does everything: the FCU's datagrams and physics (run in a batch of
+    fixed sim steps), the agent's step (MAVLink in, Zenoh in and out, control), and then the
+    FCU once more, so setpoints the agent just sent apply in the same tick. A sleeping loop's
+    wake-up costs more than the work of a warm tick, so fewer, fuller ticks are cheaper than
+    waking on every datagram and timer.
+    """
     parent = os.getppid()
-    period = 1.0 / AGENT_STEP_HZ
+    period = 1.0 / tick_hz
     t0 = time.monotonic()
     end = math.inf if duration is None else t0 + duration
-    next_agent = t0
-    next_fcu = t0
-    try:
-        while not stop.stopped:
-            now_m = time.monotonic()
-            if now_m >= end:
-                break
-            timeout = max(0.0, min(next_agent, next_fcu, end) - now_m)
-            if sel.get_map():
-                sel.select(timeout)
-            else:
-                time.sleep(timeout)
-            if fcu is not None:
-                fcu.poll_io()  # type: ignore[attr-defined]
-                next_fcu = fcu.service()  # type: ignore[attr-defined]
-            else:
-                next_fcu = math.inf
-            now_m = time.monotonic()
-            if now_m >= next_agent:
-                next_agent = max(next_agent + period, now_m)
-                agent.step(time.time())
-                if os.getppid() != parent:  # re-parented: the launcher is gone
-                    break
-    finally:
-        sel.close()
+    next_tick = t0
+    while not stop.stopped:
+        now_m = time.monotonic()
+        if now_m >= end:
+            break
+        if next_tick > now_m:
+            time.sleep(min(next_tick, end) - now_m)
+            continue
+        next_tick = max(next_tick + period, now_m)  # late: skip, never burst
+        if fcu is not None:
+            fcu.poll_io()  # type: ignore[attr-defined]
+            fcu.service()  # type: ignore[attr-defined]
+        agent.step(time.time())
+        if fcu is not None:
+            fcu.poll_io()  # type: ignore[attr-defined]
+        if os.getppid() != parent:  # re-parented: the launcher is gone
+            break
 
 
 def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
@@ -183,6 +179,8 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realm", default="physical", choices=["physical", "virtual"])
     ap.add_argument("--connect", action="append", default=[], help="Zenoh endpoint of the rendezvous/edge router (repeatable)")
     ap.add_argument("--mode", default="peer", choices=["peer", "client"], help="client behind carrier NAT")
+    ap.add_argument("--pose-feed", default="direct", choices=["direct", "edge"],
+                    help="edge: receive neighbour poses as batches from the edge router's feed")
     ap.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint (peer mode)")
     ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
@@ -202,7 +200,7 @@ def agent_main(argv: list[str] | None = None) -> int:
         cfg = AgentConfig(
             swarm=args.swarm, uav=args.uav, origin=GeoPoint(lat, lon, alt), fcu=args.fcu, realm=args.realm,
             autostart=args.autostart, record_dir=args.record_dir,
-            network=NetworkConfig(endpoints=tuple(args.connect), mode=args.mode,
+            network=NetworkConfig(endpoints=tuple(args.connect), mode=args.mode, pose_feed=args.pose_feed,
                                   listen=tuple(args.listen or ["tcp/0.0.0.0:0"])),
         )
     return run_agent(cfg, stop, args.duration)

@@ -1,0 +1,101 @@
+"""The edge pose feed: one batch of every UAV's latest pose per tick, instead of N-1 messages.
+
+With direct pose keys every UAV receives a message per neighbour per pose period: 490
+messages a second each at N = 50, and Zenoh's receive path alone then costs ~2-4 % of a
+core per UAV before any Python runs (docs/benchmarks.md). A cellular downlink also prefers
+few full packets to many tiny ones. The feed runs on the edge (inside the rendezvous/edge
+router process): it subscribes to ``mrs/<swarm>/*/pose``, validates every pose, keeps the
+latest per UAV, and every ``period`` publishes the new ones as one ``PoseBatch`` on
+``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
+
+Each pose in a batch is still the UAV's own 48-byte payload with its own timestamps, so
+receivers validate it again and measure its age exactly as for a direct pose; the batching
+adds on average half a period of age.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import zenoh
+
+from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key, uav_from_key
+from swarmnet.messages import DecodeError, PoseBatch, decode_pose, encode_pose_batch
+from swarmnet.stats import NodeStats
+
+DEFAULT_PERIOD = 0.04
+
+
+class PoseFeed:
+    """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session."""
+
+    def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), period: float = DEFAULT_PERIOD,
+                 clock: Callable[[], float] = time.time):
+        if period <= 0:
+            raise ValueError("period must be > 0")
+        self.session = session
+        self.period = period
+        self.clock = clock
+        self.stats = NodeStats()
+        self.batches: Counter[str] = Counter()
+        self._latest: dict[str, dict[int, bytes]] = {}
+        self._pubs: dict[str, Any] = {}
+        self._seq = 0
+        self._subs = [
+            session.declare_subscriber(f"{ROOT}/{sw}/*/pose", zenoh.handlers.RingChannel(8192)) for sw in swarms
+        ]
+        self.next_flush = clock()
+
+    def poll(self) -> None:
+        """Drain and validate the poses that arrived; keep the newest per UAV."""
+        stats = self.stats
+        for sub in self._subs:
+            while True:
+                sample = sub.try_recv()
+                if sample is None:
+                    break
+                key = str(sample.key_expr)
+                data = sample.payload.to_bytes()
+                try:
+                    pose = decode_pose(data)
+                except DecodeError as exc:
+                    stats.reject(exc.reason, key, exc.detail)
+                    continue
+                if uav_from_key(key) != pose.uav:
+                    stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
+                    continue
+                swarm = swarm_from_key(key)
+                assert swarm is not None  # the subscription only matches mrs/<swarm>/...
+                stats.received["pose"] += 1
+                self._latest.setdefault(swarm, {})[pose.uav] = data
+
+    def flush(self) -> int:
+        """Publish one batch per swarm with the poses received since the last flush."""
+        now = self.clock()
+        self.next_flush = max(self.next_flush + self.period, now)
+        sent = 0
+        for swarm, latest in self._latest.items():
+            if not latest:
+                continue
+            pub = self._pubs.get(swarm)
+            if pub is None:
+                pub = self._pubs[swarm] = self.session.declare_publisher(
+                    SwarmKeys(swarm).pose_feed, congestion_control=zenoh.CongestionControl.DROP,
+                    priority=zenoh.Priority.DATA_HIGH, express=True)
+            pub.put(encode_pose_batch(PoseBatch(self._seq, now, list(latest.values()))))
+            self._seq += 1
+            self.batches[swarm] += 1
+            self.stats.sent["pose_batch"] += 1
+            sent += len(latest)
+            latest.clear()
+        return sent
+
+    def step(self) -> float:
+        """poll + flush when due; return the time of the next flush."""
+        self.poll()
+        if self.clock() >= self.next_flush:
+            self.flush()
+        return self.next_flush

@@ -1,0 +1,80 @@
+"""The edge pose feed: batches of validated poses from the edge router, isolation, bad input."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import msgpack
+import pytest
+import zenoh
+
+from discovery.rendezvous import serve
+from swarmnet.connectivity import Rendezvous, to_zenoh
+from swarmnet.keyspace import SwarmKeys
+from swarmnet.messages import Kind, Pose, PoseBatch, Realm, decode_pose_batch, encode_pose, encode_pose_batch, tag
+from swarmnet.node import NodeIdentity, SwarmNode
+from tests.conftest import free_port, wait_for
+
+
+@pytest.fixture
+def edge() -> Iterator[Rendezvous]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    stop = threading.Event()
+    th = threading.Thread(target=serve, args=([endpoint], stop, None, ["alpha", "beta"], 0.04), daemon=True)
+    th.start()
+    time.sleep(0.6)
+    yield Rendezvous((endpoint,), mode="client")
+    stop.set()
+    th.join(5)
+
+
+def test_batch_codec_round_trip_and_limits() -> None:
+    p = encode_pose(Pose(3, Realm.VIRTUAL, 1, 1.0, time.time(), 1, 2, 3, 0, 0, 0, 0))
+    b = decode_pose_batch(encode_pose_batch(PoseBatch(7, time.time(), [p, p])))
+    assert b.seq == 7 and b.poses == [p, p]
+    from swarmnet.messages import DecodeError
+    with pytest.raises(DecodeError):  # a 49-byte "pose" inside a batch
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH), 1, 1, [bytes(49)]], use_bin_type=True))
+    with pytest.raises(DecodeError):
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH), 1, 1, ["not bytes"]], use_bin_type=True))
+
+
+def test_edge_feed_delivers_every_pose_in_batches_per_swarm(edge: Rendezvous) -> None:
+    nodes = [SwarmNode(NodeIdentity("alpha", i), edge, pose_feed="edge").open() for i in (1, 2, 3)]
+    other = SwarmNode(NodeIdentity("beta", 1), edge, pose_feed="edge").open()
+    try:
+        assert wait_for(lambda: all((n.poll(), n.alive_uavs() == {1, 2, 3})[1] for n in nodes), 5.0)
+        time.sleep(0.3)
+        for k in range(10):
+            for i, n in enumerate(nodes):
+                n.publish_pose(t_sim=k * 0.1, x=float(i), y=float(k), z=5.0, vx=0, vy=0, vz=0, yaw=0)
+            other.publish_pose(t_sim=0, x=99, y=99, z=5, vx=0, vy=0, vz=0, yaw=0)
+            time.sleep(0.1)
+        time.sleep(0.3)
+        for n in nodes:
+            n.poll()
+            assert sorted(nb.uav for nb in n.neighbours) == sorted({1, 2, 3} - {n.identity.uav})
+            assert all(nb.received == 10 and nb.lost == 0 and nb.pose.y == 9.0 for nb in n.neighbours)
+            assert 5 <= n.stats.received["pose_batch"] <= 40  # batches, not a message per pose
+            assert n.stats.rejected == {}  # our own pose in the batch is not a rejection
+        other.poll()
+        assert len(other.neighbours) == 0  # beta's feed carries only beta
+    finally:
+        for n in nodes + [other]:
+            n.close()
+
+
+def test_edge_feed_drops_invalid_and_spoofed_poses(edge: Rendezvous) -> None:
+    keys = SwarmKeys("alpha")
+    with SwarmNode(NodeIdentity("alpha", 1), edge, pose_feed="edge") as victim, \
+            zenoh.open(to_zenoh(edge.zenoh_config())) as attacker:
+        time.sleep(0.4)
+        attacker.put(keys.pose(5), b"\xc1garbage")
+        attacker.put(keys.pose(5), encode_pose(Pose(2, Realm.VIRTUAL, 1, 0.0, time.time(), 0, 0, 0, 0, 0, 0, 0)))  # spoofed
+        attacker.put(keys.pose_feed, b"\x00junk")  # a forged batch straight on the feed key
+        attacker.put(keys.pose(6), encode_pose(Pose(6, Realm.VIRTUAL, 1, 0.0, time.time(), 1, 1, 1, 0, 0, 0, 0)))  # valid
+        assert wait_for(lambda: (victim.poll(), 6 in victim.neighbours)[1], 3.0)
+        assert sorted(nb.uav for nb in victim.neighbours) == [6]
+        assert victim.stats.rejected["malformed"] == 1  # the forged batch; the feed filtered the rest
