@@ -23,6 +23,8 @@ M = mavlink
 NAN = math.nan
 INT32_MAX = 2**31 - 1
 FORCE_MAGIC = 21196
+ALT_MIN, ALT_MAX = -1000.0, 20000.0  # m AMSL accepted in commands
+MAX_REL_ALT = 10000.0  # m, ArduPilot takeoff
 UNSUPPORTED = M.MAV_RESULT_UNSUPPORTED
 
 Result = tuple[int, str]
@@ -57,23 +59,34 @@ class Command:
                    m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
 
     def latlon(self) -> tuple[float, float] | None:
-        """Target latitude/longitude in degrees from p5/p6, or None if unset."""
+        """Target latitude/longitude in degrees from p5/p6; None if unset.
+
+        Raises ValueError for a set but impossible location.
+        """
         if self.is_int:
             x, y = int(self.p5), int(self.p6)
             if x == INT32_MAX or y == INT32_MAX or (x == 0 and y == 0):
                 return None
-            return x * 1e-7, y * 1e-7
-        if not (math.isfinite(self.p5) and math.isfinite(self.p6)):
-            return None
-        return self.p5, self.p6
+            lat, lon = x * 1e-7, y * 1e-7
+        else:
+            if not (math.isfinite(self.p5) and math.isfinite(self.p6)):
+                return None
+            lat, lon = self.p5, self.p6
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            raise ValueError("latitude/longitude out of range")
+        return lat, lon
 
     def alt_amsl(self, home_alt: float) -> float | None:
-        """Target altitude AMSL from p7 (COMMAND_INT frames may make it relative), None if unset."""
+        """Target altitude AMSL from p7 (COMMAND_INT frames may make it relative); None if unset.
+
+        Raises ValueError for an altitude no multirotor flies at.
+        """
         if not math.isfinite(self.p7):
             return None
-        if self.is_int and GLOBAL_FRAMES.get(self.frame, False):
-            return self.p7 + home_alt
-        return self.p7
+        alt = self.p7 + home_alt if self.is_int and GLOBAL_FRAMES.get(self.frame, False) else self.p7
+        if not ALT_MIN <= alt <= ALT_MAX:
+            raise ValueError("altitude out of range")
+        return alt
 
 
 def _finite(x: float) -> bool:
@@ -93,7 +106,10 @@ def cmd_arm_disarm(v: Vehicle, c: Command) -> Result:
 def cmd_takeoff(v: Vehicle, c: Command) -> Result:
     if v.flavour.is_px4:
         # PX4: p7 is AMSL; NaN (MAVSDK) or not above home -> MIS_TAKEOFF_ALT above home
-        alt = c.alt_amsl(v.home.alt)
+        try:
+            alt = c.alt_amsl(v.home.alt)
+        except ValueError as e:
+            return DENIED, f"Takeoff: {e}"
         if alt is not None and alt <= v.home.alt:
             v.statustext(M.MAV_SEVERITY_WARNING, f"Takeoff alt {alt:.1f} below home: MIS_TAKEOFF_ALT")
             alt = None
@@ -117,7 +133,7 @@ def cmd_takeoff(v: Vehicle, c: Command) -> Result:
         return ACCEPTED, ""  # a retry of the takeoff in progress
     if not v.landed:
         return FAILED, "Takeoff: already flying"
-    if not _finite(c.p7) or c.p7 <= 0:
+    if not _finite(c.p7) or not 0 < c.p7 <= MAX_REL_ALT:
         return FAILED, "Takeoff: altitude must be > 0"
     z = float(v.ctx.dyn.pos[v.i, 2]) - c.p7
     v._start_takeoff(z, c.p4 if _finite(c.p4) else NAN)
@@ -162,8 +178,11 @@ def cmd_reposition(v: Vehicle, c: Command) -> Result:
     d, i = v.ctx.dyn, v.i
     # unset axes keep the current hold target, or where the vehicle would stop now
     target = d.pos_sp[i].copy() if v.phase == "hold" and np.isfinite(d.pos_sp[i]).all() else d.stop_point(i)
-    ll = c.latlon()
-    alt = c.alt_amsl(v.home.alt)
+    try:
+        ll = c.latlon()
+        alt = c.alt_amsl(v.home.alt)
+    except ValueError as e:
+        return DENIED, f"Reposition: {e}"
     if ll is not None:
         t = v.ned_of(ll[0], ll[1], alt if alt is not None else v.frame.origin.alt)
         target[0], target[1] = t[0], t[1]
@@ -178,8 +197,10 @@ def cmd_reposition(v: Vehicle, c: Command) -> Result:
 def cmd_change_speed(v: Vehicle, c: Command) -> Result:
     kind = int(c.p1) if _finite(c.p1) else 1
     speed = c.p2
-    if not _finite(speed) or speed == -1:
+    if speed != speed or speed == -1:
         return ACCEPTED, ""  # no change
+    if not math.isfinite(speed) or speed > 100.0:
+        return DENIED, "DO_CHANGE_SPEED: speed out of range"
     value = NAN if speed == -2 or speed <= 0 else float(speed)
     if kind in (0, 1):
         v.speed_xy = value if value != value else min(value, v.settings.xy_vel_max)
@@ -197,8 +218,11 @@ def cmd_set_home(v: Vehicle, c: Command) -> Result:
     if _finite(c.p1) and int(c.p1) == 1:
         lat, lon, alt = v.geodetic()
     else:
-        ll = c.latlon()
-        alt_v = c.alt_amsl(v.home.alt)
+        try:
+            ll = c.latlon()
+            alt_v = c.alt_amsl(v.home.alt)
+        except ValueError as e:
+            return DENIED, f"DO_SET_HOME: {e}"
         if ll is None:
             return DENIED, "DO_SET_HOME: no position"
         lat, lon = ll
@@ -209,8 +233,12 @@ def cmd_set_home(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
+def _msg_id(x: float) -> int | None:
+    return int(x) if _finite(x) and 0 <= x < 1 << 24 else None
+
+
 def cmd_request_message(v: Vehicle, c: Command) -> Result:
-    if not _finite(c.p1):
+    if _msg_id(c.p1) is None:
         return DENIED, ""
     fn = REQUESTABLE.get(int(c.p1))
     if fn is None:
@@ -230,7 +258,7 @@ def cmd_get_home(v: Vehicle, c: Command) -> Result:
 
 
 def cmd_set_message_interval(v: Vehicle, c: Command) -> Result:
-    if not (_finite(c.p1) and _finite(c.p2)):
+    if _msg_id(c.p1) is None or not _finite(c.p2) or not -1 <= c.p2 <= 2e9:
         return DENIED, ""
     name = STREAM_BY_ID.get(int(c.p1))
     if name is None:
@@ -245,9 +273,9 @@ def cmd_set_message_interval(v: Vehicle, c: Command) -> Result:
 
 
 def cmd_get_message_interval(v: Vehicle, c: Command) -> Result:
-    if not _finite(c.p1):
+    mid = _msg_id(c.p1)
+    if mid is None or mid > 0xFFFF:  # MESSAGE_INTERVAL.message_id is 16 bit
         return DENIED, ""
-    mid = int(c.p1)
     name = STREAM_BY_ID.get(mid)
     if name is None:
         v.after_ack.append(v.mav.message_interval_encode(mid, 0))

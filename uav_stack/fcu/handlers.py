@@ -7,6 +7,7 @@ vehicle keeps flying.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 from uav_stack.fcu.commands import Command, handle_command
@@ -123,9 +124,15 @@ def _request_item(v: Vehicle, m: M.MAVLink_message, seq: int, mission_type: int)
     v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
 
 
-def _item_fields(m: M.MAVLink_message) -> dict[str, object]:
+def _item_fields(m: M.MAVLink_message) -> dict[str, object] | None:
+    """The item as MISSION_ITEM_INT fields; None if a float item's x/y cannot be one."""
     is_int = m.get_type() == "MISSION_ITEM_INT"
-    x, y = (m.x, m.y) if is_int else (int(round(m.x * 1e7)), int(round(m.y * 1e7)))
+    if is_int:
+        x, y = m.x, m.y
+    else:
+        if not (math.isfinite(m.x) and math.isfinite(m.y) and abs(m.x) <= 180.0 and abs(m.y) <= 180.0):
+            return None
+        x, y = int(round(m.x * 1e7)), int(round(m.y * 1e7))
     return {
         "frame": m.frame,
         "command": m.command,
@@ -152,7 +159,12 @@ def on_mission_item(v: Vehicle, m: M.MAVLink_message) -> None:
     if m.seq != len(items):
         _request_item(v, m, len(items), m.mission_type)
         return
-    items.append(_item_fields(m))
+    f = _item_fields(m)
+    if f is None:
+        v.upload = None
+        _mission_ack(v, m, M.MAV_MISSION_INVALID_PARAM5_X, m.mission_type)
+        return
+    items.append(f)
     up["t"] = v.ctx.wall()
     if len(items) >= up["count"]:  # type: ignore[operator]
         v.missions[m.mission_type] = items
@@ -164,12 +176,14 @@ def on_mission_item(v: Vehicle, m: M.MAVLink_message) -> None:
 
 def _guided_item(v: Vehicle, m: M.MAVLink_message) -> None:
     f = _item_fields(m)
-    if v.mode.name != "GUIDED" or not v.armed or v.landed:
+    lat, lon = (int(f["x"]) * 1e-7, int(f["y"]) * 1e-7) if f is not None else (999.0, 999.0)  # type: ignore[call-overload]
+    ok_alt = math.isfinite(m.z) and abs(m.z) < 20000.0
+    if v.mode.name != "GUIDED" or not v.armed or v.landed or abs(lat) > 90 or abs(lon) > 180 or not ok_alt:
         _mission_ack(v, m, M.MAV_MISSION_ERROR, m.mission_type)
         return
-    rel = f["frame"] in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
-    alt = float(f["z"]) + (v.home.alt if rel else 0.0)  # type: ignore[arg-type]
-    target = v.ned_of(int(f["x"]) * 1e-7, int(f["y"]) * 1e-7, alt)  # type: ignore[call-overload]
+    rel = m.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+    alt = float(m.z) + (v.home.alt if rel else 0.0)
+    target = v.ned_of(lat, lon, alt)
     target[2] = min(target[2], float(v.ctx.dyn.ground_z[v.i]))
     v.goto(target)
     _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)

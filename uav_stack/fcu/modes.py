@@ -7,6 +7,7 @@ guidance implements (mavlink.md section 2 and 4).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
@@ -107,11 +108,14 @@ class Flavour:
 
     def from_command(self, p2: float, p3: float) -> ModeSpec | None:
         """Decode DO_SET_MODE params: PX4 main/sub in p2/p3, ArduPilot number in p2."""
-        if p2 != p2:
+        if not (math.isfinite(p2) and 0 <= p2 < 256):
             return None
         if self.is_px4:
-            sub = 0 if p3 != p3 else int(p3)
-            return self.by_custom_mode(px4_custom_mode(int(p2), sub))
+            if p3 != p3:
+                p3 = 0.0
+            if not (math.isfinite(p3) and 0 <= p3 < 256):
+                return None
+            return self.by_custom_mode(px4_custom_mode(int(p2), int(p3)))
         return self.by_custom_mode(int(p2))
 
 

@@ -21,6 +21,8 @@ IGNORE_PX, IGNORE_PY, IGNORE_PZ = 1, 2, 4
 IGNORE_VX, IGNORE_VY, IGNORE_VZ = 8, 16, 32
 IGNORE_YAW, IGNORE_YAW_RATE = 1024, 2048
 STREAM_GAP_S = 0.5  # > 2 Hz
+MAX_OFFSET_M = 1e6  # setpoints farther than this from the origin are refused
+MAX_SPEED = 100.0  # m/s, velocity setpoints above this are refused
 STREAM_MIN_S = 1.0  # for at least one second
 
 LOCAL_FRAMES = {
@@ -57,6 +59,14 @@ def _masked(vals: tuple[float, float, float], mask: int, bits: tuple[int, int, i
     return np.array([x if not (mask & b) and math.isfinite(x) else math.nan for x, b in zip(vals, bits)])
 
 
+def _sane(sp: Setpoint) -> Setpoint | None:
+    """Refuse setpoints no vehicle could follow (they would only overflow telemetry later)."""
+    far = np.nanmax(np.abs(np.append(sp.pos, 0.0))) > MAX_OFFSET_M
+    fast = np.nanmax(np.abs(np.append(sp.vel, 0.0))) > MAX_SPEED
+    odd_yaw = abs(sp.yaw) > 100.0 or abs(sp.yaw_rate) > 100.0  # NaN compares False
+    return None if far or fast or odd_yaw else sp
+
+
 def _rot(yaw: float, v: np.ndarray) -> np.ndarray:
     """Body (forward, right, down) -> NED for a vehicle at heading yaw."""
     c, s = math.cos(yaw), math.sin(yaw)
@@ -80,7 +90,7 @@ def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) ->
         vel = _rot(yaw_now, vel)
     yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan
     yaw_rate = msg.yaw_rate if not (m & IGNORE_YAW_RATE) and math.isfinite(msg.yaw_rate) else math.nan
-    return Setpoint(pos, vel, yaw, yaw_rate)
+    return _sane(Setpoint(pos, vel, yaw, yaw_rate))
 
 
 def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float) -> Setpoint | None:
@@ -89,9 +99,12 @@ def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float
     if rel is None:
         return None
     m = msg.type_mask
+    lat, lon = msg.lat_int * 1e-7, msg.lon_int * 1e-7
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        return None
     alt = msg.alt + (home_alt if rel else 0.0)
     z_ok = not (m & IGNORE_PZ) and math.isfinite(msg.alt)
-    e, n, u = frame_geo.to_enu(msg.lat_int * 1e-7, msg.lon_int * 1e-7, alt if z_ok else frame_geo.origin.alt)
+    e, n, u = frame_geo.to_enu(lat, lon, alt if z_ok else frame_geo.origin.alt)
     pos = np.array(
         [
             n if not (m & IGNORE_PX) else math.nan,
@@ -102,7 +115,7 @@ def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float
     vel = _masked((msg.vx, msg.vy, msg.vz), m, (IGNORE_VX, IGNORE_VY, IGNORE_VZ))
     yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan
     yaw_rate = msg.yaw_rate if not (m & IGNORE_YAW_RATE) and math.isfinite(msg.yaw_rate) else math.nan
-    return Setpoint(pos, vel, yaw, yaw_rate)
+    return _sane(Setpoint(pos, vel, yaw, yaw_rate))
 
 
 @dataclass

@@ -111,35 +111,35 @@ _APM_FENCE = {0: Action.WARN, 1: Action.RTL, 2: Action.LAND, 3: Action.RTL, 4: A
 def px4_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
     P = ParamDef
     return [
-        P("MIS_TAKEOFF_ALT", 2.5, role="takeoff_alt", min=0.0),
-        P("MPC_XY_CRUISE", mp.xy_cruise, role="xy_cruise", min=0.1),
-        P("MPC_XY_VEL_MAX", mp.xy_vel_max, role="xy_vel_max", min=0.1),
-        P("MPC_Z_VEL_MAX_UP", mp.z_vel_up, role="z_vel_up", min=0.1),
-        P("MPC_Z_VEL_MAX_DN", mp.z_vel_dn, role="z_vel_dn", min=0.1),
-        P("MPC_ACC_HOR", mp.acc_hor, role="acc_hor", min=0.1),
+        P("MIS_TAKEOFF_ALT", 2.5, role="takeoff_alt", min=0.0, max=1000.0),
+        P("MPC_XY_CRUISE", mp.xy_cruise, role="xy_cruise", min=0.1, max=50.0),
+        P("MPC_XY_VEL_MAX", mp.xy_vel_max, role="xy_vel_max", min=0.1, max=50.0),
+        P("MPC_Z_VEL_MAX_UP", mp.z_vel_up, role="z_vel_up", min=0.1, max=20.0),
+        P("MPC_Z_VEL_MAX_DN", mp.z_vel_dn, role="z_vel_dn", min=0.1, max=20.0),
+        P("MPC_ACC_HOR", mp.acc_hor, role="acc_hor", min=0.1, max=30.0),
         P("MPC_TILTMAX_AIR", mp.tilt_max_deg, role="tilt_max_deg", min=5.0, max=89.0),
-        P("MPC_LAND_SPEED", mp.land_speed, role="land_speed", min=0.05),
-        P("MPC_LAND_ALT2", mp.land_alt_slow, role="land_alt_slow", min=0.0),
-        P("MPC_TKO_SPEED", mp.takeoff_speed, role="tko_speed", min=0.1),
-        P("MPC_YAWRAUTO_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0),
-        P("RTL_RETURN_ALT", 60.0, role="rtl_alt", min=0.0),
-        P("COM_OF_LOSS_T", 1.0, role="of_loss_t", min=0.0),
+        P("MPC_LAND_SPEED", mp.land_speed, role="land_speed", min=0.05, max=20.0),
+        P("MPC_LAND_ALT2", mp.land_alt_slow, role="land_alt_slow", min=0.0, max=1000.0),
+        P("MPC_TKO_SPEED", mp.takeoff_speed, role="tko_speed", min=0.1, max=20.0),
+        P("MPC_YAWRAUTO_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0, max=1000.0),
+        P("RTL_RETURN_ALT", 60.0, role="rtl_alt", min=0.0, max=1000.0),
+        P("COM_OF_LOSS_T", 1.0, role="of_loss_t", min=0.0, max=3600.0),
         P("COM_OBL_RC_ACT", 5, INT32, role="of_loss_act", actions=_PX4_OBL),
-        P("COM_DISARM_LAND", 2.0, role="disarm_land_s"),
-        P("COM_DISARM_PRFLT", 10.0, role="disarm_prflt_s"),
+        P("COM_DISARM_LAND", 2.0, role="disarm_land_s", min=-1.0, max=3600.0),
+        P("COM_DISARM_PRFLT", 10.0, role="disarm_prflt_s", min=-1.0, max=3600.0),
         P("NAV_DLL_ACT", 0, INT32, role="dll_act", actions=_PX4_DLL),
-        P("COM_DL_LOSS_T", 10, INT32, role="dll_t", min=1),
+        P("COM_DL_LOSS_T", 10, INT32, role="dll_t", min=1, max=3600),
         P("COM_LOW_BAT_ACT", 0, INT32, role="px4_low_bat_act", min=0, max=3),
         P("BAT_LOW_THR", 0.15, role="bat_low", min=0.0, max=1.0),
         P("BAT_CRIT_THR", 0.07, role="bat_crit", min=0.0, max=1.0),
         P("BAT_EMERGEN_THR", 0.05, role="bat_emerg", min=0.0, max=1.0),
         P("GF_ACTION", 2, INT32, role="gf_action", actions=_PX4_GF),
-        P("GF_MAX_HOR_DIST", 0.0, role="gf_hor", min=0.0),
-        P("GF_MAX_VER_DIST", 0.0, role="gf_ver", min=0.0),
+        P("GF_MAX_HOR_DIST", 0.0, role="gf_hor", min=0.0, max=1e6),
+        P("GF_MAX_VER_DIST", 0.0, role="gf_ver", min=0.0, max=1e5),
         P("MAV_SYS_ID", sysid, INT32, min=1, max=255),  # takes effect after a reboot (never, here)
         P("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32),
         P("COM_RC_IN_MODE", 4, INT32, min=4, max=4),  # 4 = no RC: swarms fly without sticks
-        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0),  # emulator: s to drain
+        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
     ]
 
 
@@ -148,30 +148,30 @@ def ardupilot_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
     cm = 0.01
     return [
         P("SYSID_THISMAV", sysid, INT16, min=1, max=255),
-        P("WPNAV_SPEED", mp.xy_cruise * 100, role="xy_cruise", scale=cm, min=10),
-        P("WPNAV_SPEED_UP", mp.z_vel_up * 100, role="z_vel_up", scale=cm, min=10),
-        P("WPNAV_SPEED_DN", mp.z_vel_dn * 100, role="z_vel_dn", scale=cm, min=10),
-        P("WPNAV_ACCEL", mp.acc_hor * 100, role="acc_hor", scale=cm, min=10),
+        P("WPNAV_SPEED", mp.xy_cruise * 100, role="xy_cruise", scale=cm, min=10, max=5000),
+        P("WPNAV_SPEED_UP", mp.z_vel_up * 100, role="z_vel_up", scale=cm, min=10, max=2000),
+        P("WPNAV_SPEED_DN", mp.z_vel_dn * 100, role="z_vel_dn", scale=cm, min=10, max=2000),
+        P("WPNAV_ACCEL", mp.acc_hor * 100, role="acc_hor", scale=cm, min=10, max=3000),
         P("ANGLE_MAX", mp.tilt_max_deg * 100, INT16, role="tilt_max_deg", scale=cm, min=500, max=8000),
-        P("ATC_RATE_Y_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0),
-        P("LAND_SPEED", mp.land_speed * 100, INT16, role="land_speed", scale=cm, min=5),
+        P("ATC_RATE_Y_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0, max=1000.0),
+        P("LAND_SPEED", mp.land_speed * 100, INT16, role="land_speed", scale=cm, min=5, max=2000),
         P("LAND_ALT_LOW", mp.land_alt_slow * 100, INT16, role="land_alt_slow", scale=cm, min=0),
-        P("RTL_ALT", 1500, INT32, role="rtl_alt", scale=cm, min=0),
-        P("RTL_SPEED", 0, role="rtl_speed", scale=cm, min=0),
+        P("RTL_ALT", 1500, INT32, role="rtl_alt", scale=cm, min=0, max=100000),
+        P("RTL_SPEED", 0, role="rtl_speed", scale=cm, min=0, max=5000),
         P("DISARM_DELAY", 10, INT8, role="disarm_prflt_s", min=0),
         P("FS_GCS_ENABLE", 0, INT8, role="dll_act", actions=_APM_GCS),
-        P("FS_GCS_TIMEOUT", 5.0, role="dll_t", min=2.0),
+        P("FS_GCS_TIMEOUT", 5.0, role="dll_t", min=2.0, max=3600.0),
         P("FS_THR_ENABLE", 0, INT8, min=0, max=0),  # no RC receiver
-        P("BATT_LOW_VOLT", 14.4, role="bat_low"),  # volts, converted to a charge fraction
-        P("BATT_CRT_VOLT", 14.2, role="bat_crit"),
+        P("BATT_LOW_VOLT", 14.4, role="bat_low", min=0.0, max=100.0),  # volts, converted to a charge fraction
+        P("BATT_CRT_VOLT", 14.2, role="bat_crit", min=0.0, max=100.0),
         P("BATT_FS_LOW_ACT", 0, INT8, role="bat_low_act", actions=_APM_BATT),
         P("BATT_FS_CRT_ACT", 0, INT8, role="bat_crit_act", actions=_APM_BATT),
         P("FENCE_ENABLE", 0, INT8, role="fence_enable", min=0, max=1),
         P("FENCE_ACTION", 1, INT8, role="gf_action", actions=_APM_FENCE),
-        P("FENCE_RADIUS", 300.0, role="gf_hor", min=30.0),
-        P("FENCE_ALT_MAX", 100.0, role="gf_ver", min=10.0),
-        P("GUID_TIMEOUT", 3.0, role="guided_timeout", min=0.1),
-        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0),  # emulator: s to drain
+        P("FENCE_RADIUS", 300.0, role="gf_hor", min=30.0, max=1e6),
+        P("FENCE_ALT_MAX", 100.0, role="gf_ver", min=10.0, max=1e5),
+        P("GUID_TIMEOUT", 3.0, role="guided_timeout", min=0.1, max=3600.0),
+        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
     ]
 
 

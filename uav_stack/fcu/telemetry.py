@@ -41,11 +41,19 @@ def _ms(v: Vehicle) -> int:
 
 
 def _cdeg_heading(yaw: float) -> int:
-    return int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000
+    return int(round(math.degrees(yaw) % 360.0 * 100.0)) % 36000 if math.isfinite(yaw) else 65535
 
 
 def _i16(x: float) -> int:
-    return max(-32767, min(32767, int(round(x))))
+    return max(-32767, min(32767, int(round(x)))) if math.isfinite(x) else 0
+
+
+def _i32(x: float) -> int:
+    return max(-(2**31) + 1, min(2**31 - 1, int(round(x)))) if math.isfinite(x) else 0
+
+
+def _u16(x: float) -> int:
+    return max(0, min(65534, int(round(x)))) if math.isfinite(x) else 0
 
 
 def heartbeat(v: Vehicle) -> M.MAVLink_message:
@@ -72,10 +80,10 @@ def global_position_int(v: Vehicle) -> M.MAVLink_message:
     vn, ve, vd = d.vel[v.i].tolist()
     m = _reuse(v, "GLOBAL_POSITION_INT", lambda: v.mav.global_position_int_encode(0, 0, 0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
-    m.lat = int(round(lat * 1e7))
-    m.lon = int(round(lon * 1e7))
-    m.alt = int(round(alt * 1000.0))
-    m.relative_alt = int(round((alt - v.home.alt) * 1000.0))
+    m.lat = _i32(lat * 1e7)
+    m.lon = _i32(lon * 1e7)
+    m.alt = _i32(alt * 1000.0)
+    m.relative_alt = _i32((alt - v.home.alt) * 1000.0)
     m.vx, m.vy, m.vz = _i16(vn * 100.0), _i16(ve * 100.0), _i16(vd * 100.0)
     m.hdg = _cdeg_heading(float(d.yaw[v.i]))
     return m
@@ -125,7 +133,7 @@ def sys_status(v: Vehicle) -> M.MAVLink_message:
         health &= ~FENCE
     volts, amps, pct = v.battery_readings()
     return v.mav.sys_status_encode(
-        present, enabled, health, 0, int(volts * 1000), int(amps * 100), pct, 0, 0, 0, 0, 0, 0
+        present, enabled, health, 0, _u16(volts * 1000), _i16(amps * 100), pct, 0, 0, 0, 0, 0, 0
     )
 
 
@@ -137,9 +145,9 @@ def home_position(v: Vehicle) -> M.MAVLink_message:
     h = v.home
     x, y, z = (float(c) for c in v.home_ned)
     return v.mav.home_position_encode(
-        int(round(h.lat * 1e7)),
-        int(round(h.lon * 1e7)),
-        int(round(h.alt * 1000.0)),
+        _i32(h.lat * 1e7),
+        _i32(h.lon * 1e7),
+        _i32(h.alt * 1000.0),
         x,
         y,
         z,
@@ -167,18 +175,18 @@ def battery_status(v: Vehicle) -> M.MAVLink_message:
         charge = M.MAV_BATTERY_CHARGE_STATE_LOW
     else:
         charge = M.MAV_BATTERY_CHARGE_STATE_OK
-    remaining_s = int(soc * s.endurance_s)
+    remaining_s = soc * s.endurance_s
     return v.mav.battery_status_encode(
         0,
         M.MAV_BATTERY_FUNCTION_ALL,
         M.MAV_BATTERY_TYPE_LIPO,
         32767,
         voltages,
-        int(amps * 100),
-        int((1.0 - soc) * cap),
+        _i16(amps * 100),
+        _i32((1.0 - soc) * cap),
         -1,
         pct,
-        remaining_s,
+        _i32(remaining_s),
         charge,
     )
 
@@ -191,15 +199,15 @@ def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
     return v.mav.gps_raw_int_encode(
         int(v.ctx.clock.sim_time * 1e6),
         M.GPS_FIX_TYPE_3D_FIX,
-        int(round(lat * 1e7)),
-        int(round(lon * 1e7)),
-        int(round(alt * 1000.0)),
+        _i32(lat * 1e7),
+        _i32(lon * 1e7),
+        _i32(alt * 1000.0),
         70,
         110,
-        int(gs * 100),
+        _u16(gs * 100),
         cog,
         14,
-        int(round(alt * 1000.0)),
+        _i32(alt * 1000.0),
         500,
         800,
         200,
@@ -213,7 +221,8 @@ def vfr_hud(v: Vehicle) -> M.MAVLink_message:
     vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
     throttle = 0 if not v.armed else (15 if v.ctx.dyn.landed[v.i] else 50)
-    return v.mav.vfr_hud_encode(gs, gs, int(math.degrees(float(v.ctx.dyn.yaw[v.i])) % 360), throttle, alt, -vd)
+    heading = int(math.degrees(float(v.ctx.dyn.yaw[v.i])) % 360) if math.isfinite(float(v.ctx.dyn.yaw[v.i])) else 0
+    return v.mav.vfr_hud_encode(gs, gs, heading, throttle, alt, -vd)
 
 
 def system_time(v: Vehicle) -> M.MAVLink_message:
