@@ -69,6 +69,10 @@ def test_stream_rule_needs_more_than_2hz_for_a_second() -> None:
         s.note(sp, t + k * 0.05)
     assert s.active(t + 39 * 0.05)
     assert not s.active(t + 39 * 0.05 + 0.6)  # stopped
+    # SIM_OFB_STREAM_T = 0: PX4's code rule, one setpoint younger than COM_OF_LOSS_T
+    s2 = SetpointStream()
+    s2.note(sp, 100.0)
+    assert not s2.active(100.0) and s2.active(100.0, 0.0, 1.0) and not s2.active(101.1, 0.0, 1.0)
 
 
 def test_global_setpoints_home_speed_and_data_stream_over_udp() -> None:

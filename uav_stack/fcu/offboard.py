@@ -1,8 +1,10 @@
 """External setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT decoding and stream rules.
 
-PX4 rules (mavlink.md section 3): OFFBOARD can be entered (or armed in) only while a
-setpoint stream at > 2 Hz has been arriving for >= 1 s; in OFFBOARD, no setpoint for
-COM_OF_LOSS_T triggers the COM_OBL_RC_ACT failsafe. ArduPilot GUIDED has no entry rule;
+PX4 rules (mavlink.md section 3, PX4 docs): OFFBOARD can be entered (or armed in) only
+while a setpoint stream at > 2 Hz has been arriving for >= 1 s (emulator parameter
+SIM_OFB_STREAM_T; 0 gives what PX4's code actually checks, a setpoint within
+COM_OF_LOSS_T, which MAVSDK's "set a setpoint, then start()" relies on); in OFFBOARD, no
+setpoint for COM_OF_LOSS_T triggers the COM_OBL_RC_ACT failsafe. ArduPilot GUIDED has no entry rule;
 velocity targets time out after GUID_TIMEOUT (the vehicle stops and holds).
 """
 
@@ -134,9 +136,17 @@ class SetpointStream:
         self.latest = sp
         self.count += 1
 
-    def active(self, now: float) -> bool:
-        """A > 2 Hz stream has been arriving for >= 1 s (and is still arriving)."""
-        return self.latest is not None and now - self.last <= STREAM_GAP_S and now - self.start >= STREAM_MIN_S - 1e-9
+    def active(self, now: float, min_stream_s: float = STREAM_MIN_S, loss_t: float = STREAM_GAP_S) -> bool:
+        """A > 2 Hz stream has been arriving for >= ``min_stream_s`` (and still is).
+
+        ``min_stream_s <= 0`` is what PX4's code checks (offboardCheck.cpp): any setpoint
+        younger than COM_OF_LOSS_T (``loss_t``) is enough.
+        """
+        if self.latest is None:
+            return False
+        if min_stream_s <= 0:
+            return now - self.last <= loss_t
+        return now - self.last <= STREAM_GAP_S and now - self.start >= min_stream_s - 1e-9
 
     def age(self, now: float) -> float:
         return now - self.last

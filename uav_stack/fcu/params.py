@@ -78,6 +78,7 @@ class Settings:
     rtl_speed: float = 0.0  # 0 = xy_cruise
     of_loss_t: float = 1.0
     of_loss_act: Action = Action.HOLD
+    of_stream_s: float = 1.0
     disarm_land_s: float = 2.0  # <= 0 disables
     disarm_prflt_s: float = 10.0  # <= 0 disables
     dll_act: Action = Action.NONE
@@ -125,6 +126,9 @@ def px4_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
         P("RTL_RETURN_ALT", 60.0, role="rtl_alt", min=0.0, max=1000.0),
         P("COM_OF_LOSS_T", 1.0, role="of_loss_t", min=0.0, max=3600.0),
         P("COM_OBL_RC_ACT", 5, INT32, role="of_loss_act", actions=_PX4_OBL),
+        # emulator: seconds of > 2 Hz setpoint stream before OFFBOARD is allowed (PX4 docs: 1 s);
+        # 0 = PX4's code: one setpoint younger than COM_OF_LOSS_T is enough
+        P("SIM_OFB_STREAM_T", 1.0, role="of_stream_s", min=0.0, max=60.0),
         P("COM_DISARM_LAND", 2.0, role="disarm_land_s", min=-1.0, max=3600.0),
         P("COM_DISARM_PRFLT", 10.0, role="disarm_prflt_s", min=-1.0, max=3600.0),
         P("NAV_DLL_ACT", 0, INT32, role="dll_act", actions=_PX4_DLL),

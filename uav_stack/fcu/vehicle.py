@@ -174,6 +174,11 @@ class Vehicle:
     def prearm_ok(self) -> bool:
         return float(self.ctx.dyn.battery[self.i]) > self.settings.bat_emerg
 
+    def offboard_ready(self) -> bool:
+        """PX4 entry rule for OFFBOARD (see offboard.py; SIM_OFB_STREAM_T = 0 relaxes it)."""
+        s = self.settings
+        return self.setpoints.active(self.now, s.of_stream_s, s.of_loss_t)
+
     def landed_state(self) -> int:
         if self.landed:
             return M.MAV_LANDED_STATE_ON_GROUND
@@ -378,7 +383,7 @@ class Vehicle:
             return ACCEPTED, ""
         if spec.behaviour is Behaviour.MANUAL and not self.landed:
             return DENIED, f"{spec.name} needs RC input (none here)"
-        if self.flavour.is_px4 and spec.behaviour is Behaviour.OFFBOARD and not self.setpoints.active(self.now):
+        if self.flavour.is_px4 and spec.behaviour is Behaviour.OFFBOARD and not self.offboard_ready():
             return DENIED, "Offboard: no setpoint stream (>2Hz for 1s)"
         if spec.behaviour is Behaviour.TAKEOFF:
             self.takeoff_alt_amsl = NAN
@@ -393,7 +398,7 @@ class Vehicle:
         if not force:
             if not self.mode.can_arm:
                 return DENIED, f"Arming denied: not in {self.mode.name}"
-            if self.flavour.is_px4 and self.mode.behaviour is Behaviour.OFFBOARD and not self.setpoints.active(self.now):
+            if self.flavour.is_px4 and self.mode.behaviour is Behaviour.OFFBOARD and not self.offboard_ready():
                 return DENIED, "Arming denied: no offboard setpoints"
             if not self.prearm_ok():
                 return DENIED, "Arming denied: battery too low"
