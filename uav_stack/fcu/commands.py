@@ -167,6 +167,11 @@ def cmd_reposition(v: Vehicle, c: Command) -> Result:
         return DENIED, "Reposition: frame not supported"
     if not v.armed:
         return DENIED, "Reposition: not armed"
+    try:
+        ll = c.latlon()
+        alt = c.alt_amsl(v.home.alt)
+    except ValueError as e:
+        return DENIED, f"Reposition: {e}"
     if not v.flavour.is_px4:
         change_mode = _finite(c.p2) and int(c.p2) & 1
         if v.landed:
@@ -178,11 +183,6 @@ def cmd_reposition(v: Vehicle, c: Command) -> Result:
     d, i = v.ctx.dyn, v.i
     # unset axes keep the current hold target, or where the vehicle would stop now
     target = d.pos_sp[i].copy() if v.phase == "hold" and np.isfinite(d.pos_sp[i]).all() else d.stop_point(i)
-    try:
-        ll = c.latlon()
-        alt = c.alt_amsl(v.home.alt)
-    except ValueError as e:
-        return DENIED, f"Reposition: {e}"
     if ll is not None:
         t = v.ned_of(ll[0], ll[1], alt if alt is not None else v.frame.origin.alt)
         target[0], target[1] = t[0], t[1]

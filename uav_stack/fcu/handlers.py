@@ -1,8 +1,8 @@
 """Handlers for every MAVLink message the FCU understands (commands live in commands.py).
 
-``dispatch`` filters messages addressed to other systems/components, then calls the
-handler; the caller (VirtualFcu) wraps it so an exception is logged and counted and the
-vehicle keeps flying.
+VirtualFcu looks a message's handler up in ``HANDLERS`` (copied per instance), skips
+messages ``addressed_to`` another system/component, and wraps the call so an exception is
+logged and counted and the vehicle keeps flying.
 """
 
 from __future__ import annotations
