@@ -97,9 +97,13 @@ def check_uav_id(uav: Any, field_name: str = "uav") -> int:
 
 
 # --- dataclasses -------------------------------------------------------------------------
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Pose:
-    """Where a UAV is, in the swarm's shared ENU frame (metres from the swarm origin)."""
+    """Where a UAV is, in the swarm's shared ENU frame (metres from the swarm origin).
+
+    Treat as immutable. It is not ``frozen`` only because a frozen dataclass's ``__init__``
+    costs 6x more (1.6 vs 0.3 us), and a UAV decodes ~500 poses a second at N = 50.
+    """
 
     uav: int
     realm: Realm
@@ -285,23 +289,24 @@ def encode_pose(p: Pose) -> bytes:
     return msgpack.packb(fields)
 
 
+_POSE_FIELDS = (  # name, lo, hi of the integer fields 1..12, in wire order
+    ("uav", UAV_ID_MIN, UAV_ID_MAX), ("realm", 0, 1), ("seq", 0, 0xFFFF), ("t_sim", 0, _UINT32), ("t_wall", 0, _UINT64),
+    ("x", -_INT32, _INT32), ("y", -_INT32, _INT32), ("z", -_INT16, _INT16),
+    ("vx", -_INT16, _INT16), ("vy", -_INT16, _INT16), ("vz", -_INT16, _INT16), ("yaw", -31416, 31416),
+)
+_REALMS = (Realm.VIRTUAL, Realm.PHYSICAL)
+
+
 def decode_pose(data: bytes) -> Pose:
+    """The hot path (every neighbour pose): one loop of integer range checks, then scaling."""
     o = _unpack(data, MAX_POSE_BYTES)
     _expect(o, Kind.POSE, 13)
-    return Pose(
-        uav=check_uav_id(o[1]),
-        realm=_realm(o[2]),
-        seq=_int(o[3], 0, 0xFFFF, "seq"),
-        t_sim=_int(o[4], 0, _UINT32, "t_sim") / 1000.0,
-        t_wall=_int(o[5], 0, _UINT64, "t_wall") / 1e6,
-        x=_int(o[6], -_INT32, _INT32, "x") / 100.0,
-        y=_int(o[7], -_INT32, _INT32, "y") / 100.0,
-        z=_int(o[8], -_INT16, _INT16, "z") / 100.0,
-        vx=_int(o[9], -_INT16, _INT16, "vx") / 100.0,
-        vy=_int(o[10], -_INT16, _INT16, "vy") / 100.0,
-        vz=_int(o[11], -_INT16, _INT16, "vz") / 100.0,
-        yaw=_int(o[12], -31416, 31416, "yaw") / 1e4,
-    )
+    for i, (name, lo, hi) in enumerate(_POSE_FIELDS, 1):
+        v = o[i]
+        if type(v) is not int or not lo <= v <= hi:  # bool is not an int here
+            raise DecodeError("bad_field", f"{name}={v!r} outside {lo}..{hi}")
+    return Pose(o[1], _REALMS[o[2]], o[3], o[4] / 1000.0, o[5] / 1e6, o[6] / 100.0, o[7] / 100.0, o[8] / 100.0,
+                o[9] / 100.0, o[10] / 100.0, o[11] / 100.0, o[12] / 1e4)
 
 
 # --- telemetry -----------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from uav_stack.fcu import FcuConfig, VehicleConfig
+from uav_stack.fcu import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
 from uav_stack.fcu.modes import px4_custom_mode
 from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.geo import GeoPoint, LocalFrame
@@ -28,7 +28,9 @@ ACC = M.MAV_RESULT_ACCEPTED
 def fly(flavour: str = "px4", **params: float) -> tuple[FcuThread, MavClient]:
     p = dict(FAST) if flavour == "px4" else {}
     p.update(params)
-    ft = FcuThread(FcuConfig([VehicleConfig(sysid=1, home=HOME, flavour=flavour, params=p)]))
+    # these tests watch the flight closely: LOCAL_POSITION_NED at 10 Hz instead of the default 2 Hz
+    rates = dict(DEFAULT_STREAM_RATES, LOCAL_POSITION_NED=10.0)
+    ft = FcuThread(FcuConfig([VehicleConfig(sysid=1, home=HOME, flavour=flavour, params=p)], stream_rates=rates))
     c = MavClient(ft.addrs[0])
     return ft, c
 
@@ -142,10 +144,8 @@ def test_offboard_entry_rule_setpoints_and_loss_failsafe(px4) -> None:
     takeoff(c)
     hover = ned(c)
     hold_here = lambda: c.setpoint_local(hover[0], hover[1], -1.5, yaw=0.0)  # noqa: E731
-    stream(c, 0.5, hold_here)
-    assert c.set_mode_px4(6) == M.MAV_RESULT_DENIED  # < 1 s of stream
-    stream(c, 0.7, hold_here)
-    assert c.set_mode_px4(6) == ACC
+    stream(c, 0.3, hold_here)
+    assert c.set_mode_px4(6) == ACC  # PX4's code rule: a setpoint younger than COM_OF_LOSS_T is enough
     assert wait_mode(c, "OFFBOARD", 1.0)
     # position setpoint 6 m east: reached, no overshoot worth the name
     goal = (hover[0], hover[1] + 6.0, -2.0)
@@ -166,6 +166,19 @@ def test_offboard_entry_rule_setpoints_and_loss_failsafe(px4) -> None:
     x_hold = ned(c)[0]
     c.drain(3.0)
     assert abs(ned(c)[0] - x_hold) < 2.5 and abs(c.latest["LOCAL_POSITION_NED"].vx) < 0.1  # braked and holds
+
+
+def test_offboard_strict_stream_rule_when_configured(px4) -> None:
+    """SIM_OFB_STREAM_T > 0: PX4's documented rule, a > 2 Hz stream for that long."""
+    ft, c = px4
+    assert c.param_set("SIM_OFB_STREAM_T", 1.0) is not None
+    takeoff(c)
+    hover = ned(c)
+    hold_here = lambda: c.setpoint_local(hover[0], hover[1], -1.5, yaw=0.0)  # noqa: E731
+    stream(c, 0.5, hold_here)
+    assert c.set_mode_px4(6) == M.MAV_RESULT_DENIED  # < 1 s of stream
+    stream(c, 0.7, hold_here)
+    assert c.set_mode_px4(6) == ACC
 
 
 def test_set_mode_message_qgc_style(px4) -> None:

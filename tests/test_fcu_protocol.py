@@ -46,7 +46,7 @@ def test_heartbeat_streams_and_px4_mode_encoding(px4) -> None:
     c.drain(2.0)
     n = c.counts
     for name, lo, hi in [
-        ("GLOBAL_POSITION_INT", 16, 24), ("LOCAL_POSITION_NED", 16, 24), ("ATTITUDE", 16, 24),
+        ("GLOBAL_POSITION_INT", 16, 24), ("LOCAL_POSITION_NED", 3, 5), ("ATTITUDE", 8, 12),
         ("HEARTBEAT", 1, 3), ("SYS_STATUS", 1, 3), ("EXTENDED_SYS_STATE", 1, 3), ("GPS_RAW_INT", 1, 3),
         ("VFR_HUD", 3, 5), ("SYSTEM_TIME", 1, 3), ("NAMED_VALUE_FLOAT", 1, 3),
     ]:  # fmt: skip

@@ -303,9 +303,14 @@ class Agent:
             elif self.phase == Phase.DONE:  # a re-split (a member left) gave us more to do
                 self._set_phase(Phase.MISSION, "more work after a re-split")
         if self.avoidance is not None:
+            # only neighbours that could matter (avoidance looks at most neighbour_range away);
+            # at N = 50 this skips building ~40 views per tick
+            reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
+            r2 = reach * reach
             neigh = [
-                Neighbour(uav=n.uav, pos=(n.pose.x, n.pose.y), vel=(n.pose.vx, n.pose.vy), age=n.age(now))
+                Neighbour(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
                 for n in self.node.neighbours
+                if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
             res = self.avoidance.adjust(me, (vx, vy), neigh)
             if res.active:

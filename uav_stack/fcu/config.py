@@ -9,12 +9,14 @@ from uav_stack.geo import GeoPoint
 
 # Default telemetry rates (Hz, sim time) per message name; SET_MESSAGE_INTERVAL changes
 # them per vehicle (0 Hz = off). Names are MAVLink message names, except that
-# NAMED_VALUE_FLOAT is the "RTF" value.
+# NAMED_VALUE_FLOAT is the "RTF" value. The agent needs GLOBAL_POSITION_INT at 10 Hz; the
+# rest is for ground stations, at about PX4's rates for a GCS link (LOCAL_POSITION_NED 1 Hz,
+# GLOBAL_POSITION_INT 5 Hz there), since every message costs CPU in every UAV process.
 DEFAULT_STREAM_RATES: dict[str, float] = {
     "HEARTBEAT": 1.0,
     "GLOBAL_POSITION_INT": 10.0,
-    "LOCAL_POSITION_NED": 10.0,
-    "ATTITUDE": 10.0,
+    "LOCAL_POSITION_NED": 2.0,
+    "ATTITUDE": 5.0,
     "SYS_STATUS": 1.0,
     "EXTENDED_SYS_STATE": 1.0,
     "HOME_POSITION": 0.5,

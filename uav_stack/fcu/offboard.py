@@ -1,10 +1,11 @@
 """External setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT decoding and stream rules.
 
-PX4 rules (mavlink.md section 3, PX4 docs): OFFBOARD can be entered (or armed in) only
-while a setpoint stream at > 2 Hz has been arriving for >= 1 s (emulator parameter
-SIM_OFB_STREAM_T; 0 gives what PX4's code actually checks, a setpoint within
-COM_OF_LOSS_T, which MAVSDK's "set a setpoint, then start()" relies on); in OFFBOARD, no
-setpoint for COM_OF_LOSS_T triggers the COM_OBL_RC_ACT failsafe. ArduPilot GUIDED has no entry rule;
+PX4 rules (mavlink.md section 3, PX4's offboardCheck.cpp): OFFBOARD can be entered (or armed
+in) only while a setpoint younger than COM_OF_LOSS_T exists; this is what PX4's code checks
+and what MAVSDK's "set a setpoint, then start()" relies on. The emulator parameter
+SIM_OFB_STREAM_T > 0 enforces the stricter rule of PX4's documentation instead (a > 2 Hz
+stream for that many seconds). In OFFBOARD, no setpoint for COM_OF_LOSS_T triggers the
+COM_OBL_RC_ACT failsafe. ArduPilot GUIDED has no entry rule;
 velocity targets time out after GUID_TIMEOUT (the vehicle stops and holds).
 """
 

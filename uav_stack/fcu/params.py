@@ -128,7 +128,7 @@ def px4_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
         P("COM_OBL_RC_ACT", 5, INT32, role="of_loss_act", actions=_PX4_OBL),
         # emulator: seconds of > 2 Hz setpoint stream before OFFBOARD is allowed (PX4 docs: 1 s);
         # 0 = PX4's code: one setpoint younger than COM_OF_LOSS_T is enough
-        P("SIM_OFB_STREAM_T", 1.0, role="of_stream_s", min=0.0, max=60.0),
+        P("SIM_OFB_STREAM_T", 0.0, role="of_stream_s", min=0.0, max=60.0),
         P("COM_DISARM_LAND", 2.0, role="disarm_land_s", min=-1.0, max=3600.0),
         P("COM_DISARM_PRFLT", 10.0, role="disarm_prflt_s", min=-1.0, max=3600.0),
         P("NAV_DLL_ACT", 0, INT32, role="dll_act", actions=_PX4_DLL),
