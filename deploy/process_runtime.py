@@ -24,6 +24,27 @@ from uav_stack.config import NetworkConfig, VirtualUavConfig
 log = logging.getLogger(__name__)
 
 
+def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str]]:
+    """argv prefix and environment for lean child Python processes.
+
+    ``-S`` skips ``site``: every ``.pth`` hook of the host's site-packages (a machine can
+    carry several, each importing modules into every Python process; 5 MB of RSS on our
+    machines) and the user site. The import path is handed over explicitly instead: the
+    directory holding our packages (an editable checkout or site-packages) and the
+    site-packages directories, in the parent's order.
+    """
+    import site
+    import uav_stack
+
+    roots = [str(Path(uav_stack.__file__).resolve().parents[1])]
+    for d in site.getsitepackages() + [site.getusersitepackages()]:
+        if d not in roots and Path(d).is_dir():
+            roots.append(d)
+    extra = os.environ.get("PYTHONPATH")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(([extra] if extra else []) + roots), PYTHONUNBUFFERED="1")
+    return [python, "-S"], env
+
+
 def free_tcp_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
@@ -59,6 +80,7 @@ class ProcessRuntime:
         self.python = python
         self.log_level = log_level
         self.children: dict[str, Child] = {}
+        self._py, self._env = child_python(python)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
@@ -67,7 +89,7 @@ class ProcessRuntime:
         """Start a rendezvous (edge) router on 127.0.0.1 and return how nodes reach it."""
         port = free_tcp_port()
         endpoint = f"tcp/127.0.0.1:{port}"
-        argv = [self.python, "-m", "discovery.rendezvous", "--listen", endpoint]
+        argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
         self._spawn("router", argv)
@@ -81,16 +103,15 @@ class ProcessRuntime:
         path.write_text(cfg.to_json())
         self._spawn(
             f"uav{cfg.agent.uav}",
-            [self.python, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
+            [*self._py, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
         )
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"
         out = open(log_path, "ab")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
         try:
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    start_new_session=True, env=env)
+                                    start_new_session=True, env=self._env)
         finally:
             out.close()
         self.children[name] = Child(name, proc, log_path)

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from swarmnet.messages import Command, Realm
 from swarmnet.node import SwarmNode
@@ -70,8 +70,8 @@ def make_mission(cfg: AgentConfig) -> Any:
     if m.type == "coverage":
         area = Area(*m.area)
         if m.strategy == "random":
-            rng = np.random.default_rng([cfg.seed, cfg.uav])
-            return RandomDirectionCoverage(area, cfg.speed, rng)
+            # stdlib Random, not numpy's Generator: numpy.random pulls in OpenSSL (~4 MB per process)
+            return RandomDirectionCoverage(area, cfg.speed, random.Random(cfg.seed * 1_000_003 + cfg.uav))
         if m.strategy == "lawnmower":
             return LawnmowerCoverage(area, cfg.speed, m.lane_spacing)
         raise ValueError(f"unknown coverage strategy {m.strategy!r}")

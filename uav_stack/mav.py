@@ -10,10 +10,12 @@ process frames MAVLink 2 (message ids > 255) and loads the same dialect.
   import alone costs about 4 MB of RSS per process, which matters when a swarm runs 50
   agents on one machine. We pre-register an empty module under that name; nothing in
   mavutil uses it.
-* ``mavutil`` imports ``ssl`` (4.7 MB of RSS) at the top but uses it only for TLS TCP
-  links. If nothing has imported ``ssl`` yet, a stand-in module takes its place and imports
-  the real one on the first attribute access (module ``__getattr__``, PEP 562), so a TLS
-  link still works and every other agent process saves the memory. (``LazyLoader`` from the
+* ``mavutil`` imports ``ssl`` at the top but uses it only for TLS TCP links, and the
+  dialect imports ``hashlib`` only for MAVLink signing; through OpenSSL's libcrypto they
+  cost several MB of RSS. If nothing has imported them yet, a stand-in module takes each
+  one's place and imports the real one on the first attribute access (module
+  ``__getattr__``, PEP 562), so TLS links and signing still work and every other agent
+  process saves the memory. (``LazyLoader`` from the
   standard library cannot do this on Python 3.11: the ``import`` statement itself reads
   ``__spec__``, which loads the module.)
 """
@@ -41,8 +43,9 @@ class _Deferred(types.ModuleType):
         return getattr(real, attr)
 
 
-if "ssl" not in sys.modules:
-    sys.modules["ssl"] = _Deferred("ssl")
+for _name in ("ssl", "hashlib"):
+    if _name not in sys.modules:
+        sys.modules[_name] = _Deferred(_name)
 
 from pymavlink import mavutil  # noqa: E402
 

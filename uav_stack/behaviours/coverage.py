@@ -9,13 +9,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Protocol
 from dataclasses import dataclass
 
-import numpy as np
 
 from uav_stack.behaviours.base import Area, SelfState, Vec2, dist, is_finite
 
 _ZERO: Vec2 = (0.0, 0.0)
+
+
+class UniformSource(Protocol):
+    """Anything that draws a uniform float in [low, high): ``random.Random`` or a numpy Generator."""
+
+    def uniform(self, low: float, high: float) -> float: ...
 
 
 def _check_positive(**vals: float) -> None:
@@ -101,7 +107,7 @@ class RandomDirectionCoverage:
         self,
         area: Area,
         speed: float,
-        rng: np.random.Generator,
+        rng: UniformSource,
         margin: float = 2.0,
         reach_tolerance: float = 1.0,
         max_tries: int = 20,
