@@ -27,11 +27,11 @@ def local(frame: int, mask: int, x=0.0, y=0.0, z=0.0, vx=0.0, vy=0.0, vz=0.0, ya
 def test_local_frames_and_masks() -> None:
     here = np.array([10.0, 20.0, -5.0])
     sp = decode_local(local(M.MAV_FRAME_LOCAL_NED, POS_YAW, 1, 2, -3, yaw=0.5), here, 0.0)
-    assert sp.pos.tolist() == [1, 2, -3] and np.isnan(sp.vel).all() and sp.yaw == 0.5 and math.isnan(sp.yaw_rate)
+    assert list(sp.pos) == [1, 2, -3] and np.isnan(sp.vel).all() and sp.yaw == 0.5 and math.isnan(sp.yaw_rate)
     sp = decode_local(local(M.MAV_FRAME_LOCAL_NED, VEL_YAW, vx=1, vy=-1, vz=0.5), here, 0.0)
-    assert np.isnan(sp.pos).all() and sp.vel.tolist() == [1, -1, 0.5] and sp.has_velocity
+    assert np.isnan(sp.pos).all() and list(sp.vel) == [1, -1, 0.5] and sp.has_velocity
     sp = decode_local(local(M.MAV_FRAME_LOCAL_OFFSET_NED, POS_YAW, 1, 2, -3), here, 0.0)
-    assert sp.pos.tolist() == [11, 22, -8]
+    assert list(sp.pos) == [11, 22, -8]
     # body frames: facing east (yaw 90 deg), forward = east
     sp = decode_local(local(M.MAV_FRAME_BODY_NED, VEL_YAW, vx=2.0), here, math.pi / 2)
     assert np.allclose(sp.vel, [0, 2, 0], atol=1e-9)
@@ -39,7 +39,7 @@ def test_local_frames_and_masks() -> None:
     assert np.allclose(sp.pos, [10 - 1, 20 + 3, -5], atol=1e-9)
     # per-axis: xy position, z velocity
     sp = decode_local(local(M.MAV_FRAME_LOCAL_NED, 0b1101_1101_1100, 4, 5, vz=-1), here, 0.0)
-    assert sp.pos[:2].tolist() == [4, 5] and math.isnan(sp.pos[2]) and sp.vel[2] == -1
+    assert list(sp.pos[:2]) == [4, 5] and math.isnan(sp.pos[2]) and sp.vel[2] == -1
     assert decode_local(local(M.MAV_FRAME_GLOBAL_INT, POS_YAW), here, 0.0) is None  # not a local frame
 
 

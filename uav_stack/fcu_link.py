@@ -199,20 +199,34 @@ class FcuLink:
 
     # ---- receive ------------------------------------------------------------------------
     def poll(self, max_messages: int = 500) -> int:
-        """Read everything pending (bounded); return the number of messages handled."""
+        """Read everything pending (bounded); return the number of messages handled.
+
+        Reads raw bytes (a whole UDP datagram, or what a serial/TCP stream has) and parses
+        them with the dialect's ``parse_buffer``, which keeps partial frames between calls.
+        mavutil's ``recv_msg`` would make a syscall and run its own bookkeeping per message;
+        the agent keeps its own state, so that is skipped.
+        """
         n = 0
         conn = self.conn
+        parse = conn.mav.parse_buffer
         while n < max_messages:
             try:
-                msg = conn.recv_msg()
-            except (OSError, ValueError) as exc:  # a dead serial port, a garbled frame
+                data = conn.recv(4096)
+            except (OSError, ValueError) as exc:  # a dead serial port
                 self.counts["bad"] += 1
                 log.debug("fcu link: %s", exc)
                 break
-            if msg is None:
+            if not data:
                 break
-            n += 1
-            self._handle(msg)
+            try:
+                msgs = parse(data) or ()
+            except Exception as exc:  # pymavlink raises on some corrupt frames; count, never crash
+                self.counts["bad"] += 1
+                log.debug("fcu link: unparsable bytes: %s", exc)
+                continue
+            for msg in msgs:
+                n += 1
+                self._handle(msg)
         return n
 
     def _handle(self, msg: Any) -> None:

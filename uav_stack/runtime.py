@@ -81,10 +81,11 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: 
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
 
     One wake-up per tick does everything: the FCU's datagrams and physics (run in a batch of
-    fixed sim steps), the agent's step (MAVLink in, Zenoh in and out, control), and then the
-    FCU once more, so setpoints the agent just sent apply in the same tick. A sleeping loop's
-    wake-up costs more than the work of a warm tick, so fewer, fuller ticks are cheaper than
-    waking on every datagram and timer.
+    fixed sim steps), then the agent's step (MAVLink in, Zenoh in and out, control). The
+    setpoints the agent sends reach the FCU's socket and apply at the next tick, one tick
+    later, as over a real serial link. Fewer, fuller ticks are cheaper than waking on every
+    datagram and timer: with other processes evicting the CPU caches between ticks, each
+    code path costs several times its warm cost (docs/benchmarks.md).
     """
     parent = os.getppid()
     period = 1.0 / tick_hz
@@ -103,8 +104,6 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: 
             fcu.poll_io()  # type: ignore[attr-defined]
             fcu.service()  # type: ignore[attr-defined]
         agent.step(time.time())
-        if fcu is not None:
-            fcu.poll_io()  # type: ignore[attr-defined]
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
 

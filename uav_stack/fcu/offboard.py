@@ -46,34 +46,45 @@ GLOBAL_FRAMES = {
 }
 
 
+Vec3 = tuple[float, float, float]
+
+
 @dataclass
 class Setpoint:
-    pos: np.ndarray  # NED, NaN per axis = not position-controlled
-    vel: np.ndarray  # NED, NaN per axis = none
+    """One external setpoint, NED. Plain float tuples: this runs for every setpoint (10-20 Hz per
+    vehicle), and numpy's per-call overhead on 3-element arrays dominated its cost."""
+
+    pos: Vec3  # NaN per axis = not position-controlled
+    vel: Vec3  # NaN per axis = none
     yaw: float = math.nan
     yaw_rate: float = math.nan
 
     @property
     def has_velocity(self) -> bool:
-        return bool(np.any(np.isfinite(self.vel) & np.isnan(self.pos)))
+        return any(v == v and p != p for p, v in zip(self.pos, self.vel))
 
 
-def _masked(vals: tuple[float, float, float], mask: int, bits: tuple[int, int, int]) -> np.ndarray:
-    return np.array([x if not (mask & b) and math.isfinite(x) else math.nan for x, b in zip(vals, bits)])
+def _masked(vals: Vec3, mask: int, bits: tuple[int, int, int]) -> Vec3:
+    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits))
+    return (a, b, c)
 
 
 def _sane(sp: Setpoint) -> Setpoint | None:
     """Refuse setpoints no vehicle could follow (they would only overflow telemetry later)."""
-    far = np.nanmax(np.abs(np.append(sp.pos, 0.0))) > MAX_OFFSET_M
-    fast = np.nanmax(np.abs(np.append(sp.vel, 0.0))) > MAX_SPEED
-    odd_yaw = abs(sp.yaw) > 100.0 or abs(sp.yaw_rate) > 100.0  # NaN compares False
+    far = any(abs(x) > MAX_OFFSET_M for x in sp.pos)  # NaN compares False
+    fast = any(abs(x) > MAX_SPEED for x in sp.vel)
+    odd_yaw = abs(sp.yaw) > 100.0 or abs(sp.yaw_rate) > 100.0
     return None if far or fast or odd_yaw else sp
 
 
-def _rot(yaw: float, v: np.ndarray) -> np.ndarray:
+def _rot(yaw: float, v: Vec3) -> Vec3:
     """Body (forward, right, down) -> NED for a vehicle at heading yaw."""
     c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]])
+    return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
+
+
+def _add(a: Vec3 | np.ndarray, b: Vec3) -> Vec3:
+    return (float(a[0]) + b[0], float(a[1]) + b[1], float(a[2]) + b[2])
 
 
 def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) -> Setpoint | None:
@@ -85,11 +96,11 @@ def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) ->
     pos = _masked((msg.x, msg.y, msg.z), m, (IGNORE_PX, IGNORE_PY, IGNORE_PZ))
     vel = _masked((msg.vx, msg.vy, msg.vz), m, (IGNORE_VX, IGNORE_VY, IGNORE_VZ))
     if frame == M.MAV_FRAME_LOCAL_OFFSET_NED:
-        pos = pos_now + pos
+        pos = _add(pos_now, pos)
     elif frame == M.MAV_FRAME_BODY_NED:
         vel = _rot(yaw_now, vel)
     elif frame in (M.MAV_FRAME_BODY_OFFSET_NED, M.MAV_FRAME_BODY_FRD):
-        pos = pos_now + _rot(yaw_now, pos)
+        pos = _add(pos_now, _rot(yaw_now, pos))
         vel = _rot(yaw_now, vel)
     yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan
     yaw_rate = msg.yaw_rate if not (m & IGNORE_YAW_RATE) and math.isfinite(msg.yaw_rate) else math.nan
@@ -108,12 +119,10 @@ def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float
     alt = msg.alt + (home_alt if rel else 0.0)
     z_ok = not (m & IGNORE_PZ) and math.isfinite(msg.alt)
     e, n, u = frame_geo.to_enu(lat, lon, alt if z_ok else frame_geo.origin.alt)
-    pos = np.array(
-        [
-            n if not (m & IGNORE_PX) else math.nan,
-            e if not (m & IGNORE_PY) else math.nan,
-            -u if z_ok else math.nan,
-        ]
+    pos = (
+        n if not (m & IGNORE_PX) else math.nan,
+        e if not (m & IGNORE_PY) else math.nan,
+        -u if z_ok else math.nan,
     )
     vel = _masked((msg.vx, msg.vy, msg.vz), m, (IGNORE_VX, IGNORE_VY, IGNORE_VZ))
     yaw = msg.yaw if not (m & IGNORE_YAW) and math.isfinite(msg.yaw) else math.nan

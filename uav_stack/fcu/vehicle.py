@@ -307,14 +307,13 @@ class Vehicle:
 
     def apply_setpoint(self, sp: Setpoint) -> None:
         d, i = self.ctx.dyn, self.i
-        pos = sp.pos.copy()
-        vel = np.nan_to_num(sp.vel, nan=0.0)
-        free = np.isnan(pos) & np.isnan(sp.vel)  # neither: hold that axis where it is
-        if free.any():
-            cur_sp = d.pos_sp[i]
-            hold = np.where(np.isfinite(cur_sp), cur_sp, d.pos[i])
-            pos[free] = hold[free]
-        self._targets(pos, (float(vel[0]), float(vel[1]), float(vel[2])), sp.yaw, sp.yaw_rate)
+        pos = list(sp.pos)
+        for k, (p, v) in enumerate(zip(sp.pos, sp.vel)):
+            if p != p and v != v:  # neither position nor velocity: hold that axis where it is
+                cur = float(d.pos_sp[i, k])
+                pos[k] = cur if cur == cur else float(d.pos[i, k])
+        a, b, c = (0.0 if v != v else v for v in sp.vel)
+        self._targets(np.array(pos), (a, b, c), sp.yaw, sp.yaw_rate)
         self.guided_vel = sp.has_velocity
 
     def on_setpoint(self, sp: Setpoint) -> None:
