@@ -47,6 +47,24 @@ VELOCITY_ONLY_MASK = (
 )
 
 
+def parse_fcu_url(url: str) -> tuple[str, int]:
+    """pymavlink connection strings, plus ``serial:<device>[:<baud>]`` (also ``serial://``, as
+    MAVSDK writes it), which pymavlink would read as a UDP host:port. Returns (device, baud)."""
+    if not url:
+        raise ValueError("empty FCU connection string")
+    if url.startswith("serial:"):
+        rest = url[len("serial:"):]
+        if rest.startswith("//"):
+            rest = rest[2:]
+        device, sep, baud = rest.rpartition(":")
+        if not sep or not baud.isdigit():
+            device, baud = rest, "57600"
+        if not device:
+            raise ValueError(f"no serial device in {url!r}; use serial:/dev/ttyACM0:921600")
+        return device, int(baud)
+    return url, 57600
+
+
 @dataclass
 class CommandHandle:
     command: int
@@ -174,8 +192,9 @@ class FcuLink:
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
+        device, baud = parse_fcu_url(self.url)
         self.conn = mavutil.mavlink_connection(
-            self.url, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
+            device, baud=baud, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
         )
         return self
 
