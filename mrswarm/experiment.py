@@ -242,34 +242,48 @@ class Experiment:
         bar = ProgressBar(total=scn.duration, completed=min(elapsed or 0.0, scn.duration), width=60)
         return Group(Panel(t, title="mrswarm run", expand=False), bar)
 
-    def _display(self) -> Any:
-        exp = self
+    def _display(self) -> Display:
+        return Display(self)
 
-        class _Ctx:
-            def __enter__(self_inner) -> Any:
-                if exp.live:
-                    self_inner.live = Live(exp._status_table(), console=exp.console, refresh_per_second=4, transient=False)
-                    self_inner.live.__enter__()
-                    return lambda: self_inner.live.update(exp._status_table())
-                self_inner.last = 0.0
 
-                def refresh() -> None:
-                    if time.time() - self_inner.last >= 5.0:
-                        self_inner.last = time.time()
-                        cov = exp.metrics.coverage
-                        el = getattr(exp, "elapsed", None)
-                        exp.console.print(
-                            f"[{exp.phase}]" + (f" t={el:.0f}s" if el is not None else "")
-                            + (f" coverage={100 * cov:.1f}%" if cov is not None else "")
-                            + ("" if exp.metrics.min_sep == math.inf else f" min_sep={exp.metrics.min_sep:.1f}m")
-                        )
-                return refresh
+class Display:
+    """Live status while a run flies: a rich panel on a terminal, a line every 5 s otherwise.
 
-            def __exit__(self_inner, *exc: object) -> None:
-                if exp.live:
-                    self_inner.live.__exit__(*exc)
+    Used as ``with Display(exp) as refresh: ... refresh()``.
+    """
 
-        return _Ctx()
+    def __init__(self, exp: Experiment):
+        self.exp = exp
+        self.live: Live | None = None
+        self.last_line = 0.0
+
+    def __enter__(self) -> Callable[[], None]:
+        if self.exp.live:
+            self.live = Live(self.exp._status_table(), console=self.exp.console, refresh_per_second=4, transient=False)
+            self.live.__enter__()
+        return self.refresh
+
+    def __exit__(self, *exc: object) -> None:
+        if self.live is not None:
+            self.live.__exit__(*exc)
+
+    def refresh(self) -> None:
+        exp = self.exp
+        if self.live is not None:
+            self.live.update(exp._status_table())
+            return
+        if time.time() - self.last_line < 5.0:
+            return
+        self.last_line = time.time()
+        cov = exp.metrics.coverage
+        el = getattr(exp, "elapsed", None)
+        exp.console.print(
+            f"[{exp.phase}]"
+            + (f" t={el:.0f}s" if el is not None else "")
+            + (f" coverage={100 * cov:.1f}%" if cov is not None else "")
+            + ("" if exp.metrics.min_sep == math.inf else f" min_sep={exp.metrics.min_sep:.1f}m"),
+            markup=False, highlight=False,
+        )
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
