@@ -27,7 +27,7 @@ from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
 
-from deploy.process_runtime import ProcessRuntime
+from deploy.runtimes import make_runtime
 from mrswarm.results import analyze
 from mrswarm.scenario import Scenario
 from swarmnet.observer import SwarmObserver
@@ -100,7 +100,7 @@ class Experiment:
             n += 1
             self.run_dir = out_root / f"{scenario.name}-{stamp}-{n}"
         self.run_dir.mkdir(parents=True)
-        self.runtime = ProcessRuntime(self.run_dir, log_level=log_level)
+        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.run_info: dict[str, Any] = {"scenario": scenario.name, "started": time.time(), "interrupted": False}
         self.metrics = LiveMetrics(scenario)
         self.phase = "starting"

@@ -1,0 +1,120 @@
+"""Make multicast impossible on a container network, as on a cellular (LTE/5G) network.
+
+A cellular network delivers unicast only: no device hears another's multicast or
+broadcast, so discovery must go through a server. On a Docker bridge network containers
+share one Ethernet segment and multicast just works, which would let a misconfigured Zenoh
+node discover its neighbours by scouting and hide a broken discovery path. ``seal`` closes
+that door before the first container starts, with iptables rules on the host for the
+network's bridge (Docker's ``br_netfilter`` passes bridged IPv4 frames through them):
+
+* ``DOCKER-USER`` (FORWARD): drop IPv4 multicast (224.0.0.0/4) and link-layer broadcast
+  between the containers;
+* ``INPUT`` / ``OUTPUT``: the same between the containers and the host.
+
+Every container also runs with IPv6 disabled (a sysctl set by the runtime), so there is no
+IPv6 multicast either. Loopback inside each container is untouched: a node may still scout
+its own namespace (the discovery proxy does). Each rule carries the comment
+``mrswarm-seal:<network>``; :func:`unseal` removes a network's rules and :func:`sweep` removes
+those of networks that no longer exist.
+
+Docker's overlay networks (swarm mode) carry no multicast at all (VXLAN without a
+multicast underlay), so the stack needs no rules; ``tests/test_docker_multicast.py`` checks
+both.
+"""
+
+from __future__ import annotations
+
+import shlex
+import shutil
+import subprocess
+from pathlib import Path
+
+COMMENT = "mrswarm-seal:"
+IPV6_OFF = {"net.ipv6.conf.all.disable_ipv6": "1", "net.ipv6.conf.default.disable_ipv6": "1"}
+
+
+class SealError(RuntimeError):
+    pass
+
+
+def _rules(bridge: str, network: str) -> list[tuple[str, list[str]]]:
+    tag = ["-m", "comment", "--comment", f"{COMMENT}{network}"]
+    mc = ["-d", "224.0.0.0/4"]
+    bc = ["-m", "pkttype", "--pkt-type", "broadcast"]
+    return [
+        ("DOCKER-USER", ["-i", bridge, *mc, *tag, "-j", "DROP"]),
+        ("DOCKER-USER", ["-i", bridge, *bc, *tag, "-j", "DROP"]),
+        ("INPUT", ["-i", bridge, *mc, *tag, "-j", "DROP"]),
+        ("INPUT", ["-i", bridge, *bc, *tag, "-j", "DROP"]),
+        ("OUTPUT", ["-o", bridge, *mc, *tag, "-j", "DROP"]),
+    ]
+
+
+def _iptables(args: list[str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(["iptables", "-w", "10", *args], capture_output=True, text=True)
+
+
+def check_available() -> None:
+    if shutil.which("iptables") is None:
+        raise SealError("iptables is not installed (it comes with docker.io); cannot drop multicast on the container "
+                        "network. Set docker.multicast: allow in the scenario to run on a LAN-like network instead")
+    res = _iptables(["-S", "DOCKER-USER"])
+    if res.returncode != 0:
+        raise SealError(f"cannot read iptables' DOCKER-USER chain ({res.stderr.strip()}); sealing multicast needs root and "
+                        "dockerd's iptables chains. Run as root, or set docker.multicast: allow in the scenario")
+
+
+def seal(bridge: str, network: str) -> None:
+    """Drop multicast and broadcast on ``bridge`` (the host side of Docker network ``network``)."""
+    check_available()
+    if not Path(f"/sys/class/net/{bridge}").exists():
+        raise SealError(f"network {network}: no bridge device {bridge} on this host")
+    for chain, spec in _rules(bridge, network):
+        res = _iptables(["-I", chain, "1", *spec])
+        if res.returncode != 0:
+            unseal(network)
+            raise SealError(f"iptables -I {chain} failed: {res.stderr.strip()}")
+
+
+def _listed(network: str | None) -> list[tuple[str, list[str]]]:
+    """(chain, rule spec) of every seal rule, optionally only one network's."""
+    out = []
+    for chain in ("DOCKER-USER", "INPUT", "OUTPUT"):
+        res = _iptables(["-S", chain])
+        for line in res.stdout.splitlines():
+            if COMMENT not in line or not line.startswith(f"-A {chain} "):
+                continue
+            toks = shlex.split(line)  # iptables -S quotes the comment
+            if network is not None and f"{COMMENT}{network}" not in toks:
+                continue
+            out.append((chain, toks[2:]))
+    return out
+
+
+def _network_of(spec: list[str]) -> str:
+    for tok in spec:
+        if tok.startswith(COMMENT):
+            return tok[len(COMMENT):]
+    return ""
+
+
+def unseal(network: str) -> int:
+    """Remove the rules of ``network``; returns how many were removed."""
+    if shutil.which("iptables") is None:
+        return 0
+    n = 0
+    for chain, spec in _listed(network):
+        if _iptables(["-D", chain, *spec]).returncode == 0:
+            n += 1
+    return n
+
+
+def sweep(existing_networks: set[str]) -> int:
+    """Remove seal rules whose network is gone (a run killed with SIGKILL leaves them)."""
+    if shutil.which("iptables") is None:
+        return 0
+    n = 0
+    for chain, spec in _listed(None):
+        if _network_of(spec) not in existing_networks and _iptables(["-D", chain, *spec]).returncode == 0:
+            n += 1
+    return n
