@@ -3,9 +3,9 @@
 It mirrors :class:`deploy.process_runtime.ProcessRuntime` (``start_network``, ``start_uav``,
 ``exited``, ``pids``, ``stop``), so the experiment runner drives either. Per run it creates:
 
-* one user-defined bridge network ``mrs-<run>`` (internal: no route out of the host), on
-  which multicast is made impossible (``deploy/multicast.py``) unless the scenario says
-  ``docker.multicast: allow``;
+* one user-defined bridge network ``mrs-<run>-net``, internal (no route out of the host) and
+  with multicast and broadcast made impossible (``deploy/multicast.py``), unless the
+  scenario says ``docker.multicast: allow`` (a plain LAN bridge);
 * the services the scenario's connectivity needs (``deploy/services.py``; today the
   rendezvous/edge router), one container each;
 * one container per virtual UAV, running ``python3 -m uav_stack.virtual_uav --config ...``
@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy import multicast
-from deploy.dockerutil import L_RUN, client, labels
+from deploy.dockerutil import L_RUN, DeployError, client, labels
 from deploy.services import NetworkPlan, network_plan
 from uav_stack.config import NetworkConfig, VirtualUavConfig
 
@@ -98,6 +98,12 @@ class DockerRuntime:
 
         self.image = self.settings.image or image_tag()
         self._check_image()
+        ncpu = int(self.docker.info().get("NCPU", 0) or 0)
+        for what, cpus in (("docker.cpus", self.settings.cpus), ("service cpus", self.settings.service_cpus)):
+            if ncpu and cpus > ncpu:
+                raise DeployError(f"{what} = {cpus} but the docker host has {ncpu} CPUs")
+        if self.settings.multicast == "drop":
+            multicast.check_available()
         self.boxes: dict[str, Box] = {}
         self.network: Any = None
         self.sealed = False
@@ -112,7 +118,7 @@ class DockerRuntime:
         try:
             self.docker.images.get(self.image)
         except docker.errors.ImageNotFound:
-            raise RuntimeError(f"image {self.image} not found: build it with `mrswarm deploy build`") from None
+            raise DeployError(f"image {self.image} not found: build it with `mrswarm deploy build`") from None
 
     def _name(self, short: str) -> str:
         return f"mrs-{self.run}-{short}"
@@ -123,10 +129,11 @@ class DockerRuntime:
         """Create the run's network, start its services, and return how UAVs reach them."""
         self.swarm = swarm if swarm != "*" else self.swarm
         plan = network_plan(connectivity, mode, pose_feed, swarm)
-        if self.settings.multicast == "drop":
-            multicast.check_available()  # fail before creating anything
+        # internal: no route out of the host. (Docker's isolation rules for internal networks
+        # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
+        # network with multicast must not be internal.)
         self.network = self.docker.networks.create(
-            self._name("net"), driver="bridge", internal=True, check_duplicate=True,
+            self._name("net"), driver="bridge", internal=self.settings.multicast == "drop", check_duplicate=True,
             labels=labels(self.run, self.swarm, "network"),
         )
         if self.settings.multicast == "drop":
@@ -182,6 +189,11 @@ class DockerRuntime:
         container.reload()
         box.ip = container.attrs["NetworkSettings"]["Networks"][self.network.name]["IPAddress"]
         return box
+
+    def start_container(self, short: str, argv: list[str], role: str = "probe") -> Box:
+        """Any other container of the stack image on the run's network (tests, probes)."""
+        return self._run(short, role, argv, uav=None, cpus=self.settings.service_cpus,
+                         memory_mb=self.settings.service_memory_mb, mounts=False)
 
     def _running(self, box: Box) -> bool:
         box.container.reload()

@@ -11,7 +11,11 @@ L_ROLE = f"{LABEL}.role"  # uav | router | discovery | probe
 L_UAV = f"{LABEL}.uav"
 
 
-class DockerUnavailable(RuntimeError):
+class DeployError(RuntimeError):
+    """A deployment that cannot start; the message says what is wrong and how to fix it."""
+
+
+class DockerUnavailable(DeployError):
     """No docker engine can be reached; the message says how to get one."""
 
 

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from deploy.dockerutil import DeployError
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCKERFILE = Path(__file__).resolve().parent / "Dockerfile"
 BASE_TAG = "mrswarm-base:bookworm"
@@ -39,7 +41,7 @@ TRIM = ("var/cache/apt", "var/lib/apt/lists", "usr/share/doc", "usr/share/man", 
         "var/cache/debconf/templates.dat-old", "var/log")
 
 
-class ImageError(RuntimeError):
+class ImageError(DeployError):
     """An image cannot be made; the message says what is missing and how to get it."""
 
 

@@ -11,6 +11,9 @@ network's bridge (Docker's ``br_netfilter`` passes bridged IPv4 frames through t
   between the containers;
 * ``INPUT`` / ``OUTPUT``: the same between the containers and the host.
 
+The runtime also makes such a network ``internal`` (no route out of the host); Docker's
+isolation rules for internal networks already drop traffic to destinations outside the
+subnet, multicast included, and the rules above cover broadcast and the host as well.
 Every container also runs with IPv6 disabled (a sysctl set by the runtime), so there is no
 IPv6 multicast either. Loopback inside each container is untouched: a node may still scout
 its own namespace (the discovery proxy does). Each rule carries the comment
@@ -29,11 +32,13 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from deploy.dockerutil import DeployError
+
 COMMENT = "mrswarm-seal:"
 IPV6_OFF = {"net.ipv6.conf.all.disable_ipv6": "1", "net.ipv6.conf.default.disable_ipv6": "1"}
 
 
-class SealError(RuntimeError):
+class SealError(DeployError):
     pass
 
 

@@ -23,7 +23,11 @@ def _run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
-    exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+    try:
+        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+    except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
+        console.print(f"[red]error:[/] {exc}", highlight=False)
+        return 2
     summary = exp.run()
     print_summary(console, summary)
     if exp.run_info.get("interrupted"):
