@@ -20,9 +20,13 @@ its own namespace (the discovery proxy does). Each rule carries the comment
 ``mrswarm-seal:<network>``; :func:`unseal` removes a network's rules and :func:`sweep` removes
 those of networks that no longer exist.
 
-Docker's overlay networks (swarm mode) carry no multicast at all (VXLAN without a
-multicast underlay), so the stack needs no rules; ``tests/test_docker_multicast.py`` checks
-both.
+Docker's overlay networks (swarm mode) carry no multicast *between* edge servers (VXLAN
+without a multicast underlay), but containers on the same server share one bridge (``br0``
+in the overlay's own network namespace) and do multicast to each other. ``seal_overlay``
+puts the same drop rules into that namespace (``FORWARD``; ``br_netfilter`` is on there
+too). The namespace exists on a server only while a container of the network runs there,
+so the stack keeps a small sentinel container per server (``deploy/swarm.py``).
+``tests/test_docker_multicast.py`` and ``tests/test_docker_swarm.py`` check both kinds.
 """
 
 from __future__ import annotations
@@ -79,6 +83,31 @@ def seal(bridge: str, network: str) -> None:
         if res.returncode != 0:
             unseal(network)
             raise SealError(f"iptables -I {chain} failed: {res.stderr.strip()}")
+
+
+def overlay_netns(network_id: str) -> Path:
+    """Where dockerd keeps an overlay network's namespace on this server."""
+    return Path("/var/run/docker/netns") / f"1-{network_id[:10]}"
+
+
+def seal_overlay(network_id: str, network: str) -> bool:
+    """Drop multicast and broadcast on the overlay's bridge on this server; False if the
+    namespace is not here (no container of the network runs on this server)."""
+    ns = overlay_netns(network_id)
+    if not ns.exists():
+        return False
+    if shutil.which("nsenter") is None or shutil.which("iptables") is None:
+        raise SealError("nsenter and iptables are needed to seal an overlay network (util-linux, iptables)")
+    tag = ["-m", "comment", "--comment", f"{COMMENT}{network}"]
+    pre = ["nsenter", f"--net={ns}", "iptables", "-w", "10"]
+    if f"{COMMENT}{network}" in subprocess.run([*pre, "-S", "FORWARD"], capture_output=True, text=True).stdout:
+        return True
+    for spec in (["-i", "br0", "-d", "224.0.0.0/4", *tag, "-j", "DROP"],
+                 ["-i", "br0", "-m", "pkttype", "--pkt-type", "broadcast", *tag, "-j", "DROP"]):
+        res = subprocess.run([*pre, "-I", "FORWARD", "1", *spec], capture_output=True, text=True)
+        if res.returncode != 0:
+            raise SealError(f"cannot add a rule in {ns}: {res.stderr.strip()} (needs root)")
+    return True
 
 
 def _listed(network: str | None) -> list[tuple[str, list[str]]]:
