@@ -214,20 +214,30 @@ def build_image(tag: str | None = None, base: str | None = None, wheelhouse: Pat
     (wh / ".dockerignore").write_text("Dockerfile\n.dockerignore\n")
     src = source_hash()
     log(f"docker build {tag} FROM {base}")
+    # The dependency stage gets its own tag (per base and requirement set), so it stays in the
+    # cache as a named image instead of a dangling one, and older ones can be dropped.
+    deps_tag = "mrswarm-deps:" + hashlib.sha256(((wh / "deps" / "requirements.txt").read_text() + base).encode()).hexdigest()[:12]
+    args = {"BASE_IMAGE": base, "SOURCE_HASH": src}
     try:
-        img, logs = cl.images.build(path=str(wh), tag=tag, buildargs={"BASE_IMAGE": base, "SOURCE_HASH": src},
-                                    rm=True, forcerm=True, network_mode="none", labels={"org.mrswarm.base": base})
+        cl.images.build(path=str(wh), tag=deps_tag, target="deps", buildargs=args, rm=True, forcerm=True,
+                        network_mode="none", labels={"org.mrswarm.image": "deps"})
+        cl.images.build(path=str(wh), tag=tag, buildargs=args, rm=True, forcerm=True, network_mode="none",
+                        labels={"org.mrswarm.base": base})
     except docker.errors.BuildError as exc:
         tail = "".join(str(x.get("stream", x.get("error", ""))) for x in list(exc.build_log)[-30:])
         raise ImageError(f"docker build failed: {exc.msg}\n{tail}") from None
-    _prune_dangling(cl)
+    _prune_old(cl, deps_tag)
     return image_info(tag)
 
 
-def _prune_dangling(cl: Any) -> None:
-    """Drop the previous builds' untagged mrswarm images (their shared layers stay cached)."""
+def _prune_old(cl: Any, keep_deps: str) -> None:
+    """Drop earlier builds: untagged stack images and dependency stages of other requirement sets."""
     try:
         cl.images.prune(filters={"dangling": True, "label": "org.mrswarm.image=stack"})
+        for img in cl.images.list(name="mrswarm-deps"):
+            if keep_deps not in img.tags:
+                cl.images.remove(img.id, force=False)
+        cl.images.prune(filters={"dangling": True, "label": "org.mrswarm.image=deps"})
     except Exception:  # noqa: BLE001 - pruning is housekeeping only
         pass
 
