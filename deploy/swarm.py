@@ -139,8 +139,12 @@ def write_stack(scn: Any, opts: StackOptions, out: Path) -> Path:
     stack, fleet_json = stack_spec(scn, opts)
     out.mkdir(parents=True, exist_ok=True)
     (out / "fleet.json").write_text(fleet_json)
-    header = (f"# mrswarm stack for swarm '{scn.swarm}' ({opts.uavs} virtual UAVs), made by `mrswarm deploy swarm up`.\n"
-              f"# Deploy by hand: docker stack deploy -c stack.yml {stack_name(scn.swarm)}\n")
+    name = stack_name(scn.swarm)
+    header = (f"# mrswarm stack for swarm '{scn.swarm}' ({opts.uavs} virtual UAVs), made by `mrswarm deploy swarm up`\n"
+              f"# (which also makes the network and drops multicast on it). By hand, on a swarm manager:\n"
+              f"#   docker network create --driver overlay --attachable {name}\n"
+              f"#   mrswarm deploy swarm seal --swarm {scn.swarm}    # on every edge server: no multicast\n"
+              f"#   docker stack deploy -c stack.yml {name}\n")
     path = out / "stack.yml"
     path.write_text(header + yaml.dump(stack, Dumper=_NoAliases, sort_keys=False))
     return path
