@@ -29,6 +29,7 @@ import re
 import secrets
 import signal
 import socket
+import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -98,6 +99,7 @@ class DockerRuntime:
 
         self.image = self.settings.image or image_tag()
         self._check_image()
+        self._warn_if_stale()
         ncpu = int(self.docker.info().get("NCPU", 0) or 0)
         for what, cpus in (("docker.cpus", self.settings.cpus), ("service cpus", self.settings.service_cpus)):
             if ncpu and cpus > ncpu:
@@ -120,6 +122,16 @@ class DockerRuntime:
         except docker.errors.ImageNotFound:
             raise DeployError(f"image {self.image} not found: build it with `mrswarm deploy build`") from None
 
+    def _warn_if_stale(self) -> None:
+        """A checkout whose code differs from what the image was built from gets a warning."""
+        from deploy.images import ROOT, source_hash
+
+        if self.settings.image is None and (ROOT / "pyproject.toml").exists():
+            built = (self.docker.images.get(self.image).labels or {}).get("org.mrswarm.source")
+            if built and built != source_hash():
+                print(f"warning: {self.image} was built from other sources than this checkout; "
+                      "`mrswarm deploy build` updates it", file=sys.stderr)
+
     def _name(self, short: str) -> str:
         return f"mrs-{self.run}-{short}"
 
@@ -136,10 +148,15 @@ class DockerRuntime:
             self._name("net"), driver="bridge", internal=self.settings.multicast == "drop", check_duplicate=True,
             labels=labels(self.run, self.swarm, "network"),
         )
+        bridge = f"br-{self.network.id[:12]}"
         if self.settings.multicast == "drop":
-            self.network.reload()
-            multicast.seal(f"br-{self.network.id[:12]}", self.network.name)
+            multicast.seal(bridge, self.network.name)
             self.sealed = True
+        else:  # a LAN among the containers; still keep its multicast away from the host if we can
+            try:
+                multicast.seal(bridge, self.network.name, between_containers=False)
+            except multicast.SealError as exc:
+                log.warning("multicast between containers and host not blocked: %s", exc)
         return self._start_services(plan)
 
     def _start_services(self, plan: NetworkPlan) -> NetworkConfig:
@@ -298,9 +315,8 @@ class DockerRuntime:
             except docker.errors.APIError as exc:
                 log.warning("could not remove %s: %s", c.name, exc)
         if self.network is not None:
-            if self.sealed:
-                multicast.unseal(self.network.name)
-                self.sealed = False
+            multicast.unseal(self.network.name)
+            self.sealed = False
             try:
                 self.network.remove()
             except docker.errors.NotFound:

@@ -46,13 +46,15 @@ class SealError(DeployError):
     pass
 
 
-def _rules(bridge: str, network: str) -> list[tuple[str, list[str]]]:
+def _rules(bridge: str, network: str, between_containers: bool = True) -> list[tuple[str, list[str]]]:
     tag = ["-m", "comment", "--comment", f"{COMMENT}{network}"]
     mc = ["-d", "224.0.0.0/4"]
     bc = ["-m", "pkttype", "--pkt-type", "broadcast"]
-    return [
+    forward = [
         ("DOCKER-USER", ["-i", bridge, *mc, *tag, "-j", "DROP"]),
         ("DOCKER-USER", ["-i", bridge, *bc, *tag, "-j", "DROP"]),
+    ] if between_containers else []
+    return forward + [
         ("INPUT", ["-i", bridge, *mc, *tag, "-j", "DROP"]),
         ("INPUT", ["-i", bridge, *bc, *tag, "-j", "DROP"]),
         ("OUTPUT", ["-o", bridge, *mc, *tag, "-j", "DROP"]),
@@ -73,12 +75,15 @@ def check_available() -> None:
                         "dockerd's iptables chains. Run as root, or set docker.multicast: allow in the scenario")
 
 
-def seal(bridge: str, network: str) -> None:
-    """Drop multicast and broadcast on ``bridge`` (the host side of Docker network ``network``)."""
+def seal(bridge: str, network: str, between_containers: bool = True) -> None:
+    """Drop multicast and broadcast on ``bridge`` (the host side of Docker network ``network``).
+
+    ``between_containers=False`` keeps multicast among the containers (a LAN) and only keeps
+    it away from the host, so no host process ever hears a container's scouting."""
     check_available()
     if not Path(f"/sys/class/net/{bridge}").exists():
         raise SealError(f"network {network}: no bridge device {bridge} on this host")
-    for chain, spec in _rules(bridge, network):
+    for chain, spec in _rules(bridge, network, between_containers):
         res = _iptables(["-I", chain, "1", *spec])
         if res.returncode != 0:
             unseal(network)

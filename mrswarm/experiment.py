@@ -139,7 +139,8 @@ class Experiment:
         for c in configs:
             self.runtime.start_uav(c)
         self.run_info["pids"] = self.runtime.pids()
-        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV processes, results in {self.run_dir}")
+        kind = "containers" if self.runtime.name == "docker" else "processes"
+        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client")
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
         n = len(ids)
