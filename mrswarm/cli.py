@@ -19,11 +19,15 @@ def _run(args: argparse.Namespace) -> int:
 
     console = Console()
     try:
-        scn = load_scenario(args.scenario, args.set)
+        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
     except ScenarioError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
-    exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+    try:
+        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+    except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
+        console.print(f"[red]error:[/] {exc}", highlight=False)
+        return 2
     summary = exp.run()
     print_summary(console, summary)
     if exp.run_info.get("interrupted"):
@@ -45,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="results", help="folder for run results (default: ./results)")
     p.add_argument("--no-live", action="store_true", help="plain progress lines instead of the live display")
     p.add_argument("--log-level", default="INFO", help="log level of the UAV processes (their logs go to <run>/logs)")
+    p.add_argument("--runtime", choices=["process", "docker"], default=None,
+                   help="one OS process or one Docker container per virtual UAV (default: the scenario's, else process)")
     p.set_defaults(func=_run)
 
     p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
@@ -55,9 +61,12 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=lambda a: _delegate("uav_stack.fcu.__main__", "main", a.rest))
     p = sub.add_parser("router", help="a Zenoh rendezvous/edge router", add_help=False)
     p.set_defaults(func=lambda a: _delegate("discovery.rendezvous", "main", a.rest))
+    p = sub.add_parser("deploy", help="images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("deploy.cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router"):
+    if args.command in ("agent", "uav", "fcu", "router", "deploy"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

@@ -27,7 +27,7 @@ from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
 
-from deploy.process_runtime import ProcessRuntime
+from deploy.runtimes import make_runtime
 from mrswarm.results import analyze
 from mrswarm.scenario import Scenario
 from swarmnet.observer import SwarmObserver
@@ -100,7 +100,7 @@ class Experiment:
             n += 1
             self.run_dir = out_root / f"{scenario.name}-{stamp}-{n}"
         self.run_dir.mkdir(parents=True)
-        self.runtime = ProcessRuntime(self.run_dir, log_level=log_level)
+        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.run_info: dict[str, Any] = {"scenario": scenario.name, "started": time.time(), "interrupted": False}
         self.metrics = LiveMetrics(scenario)
         self.phase = "starting"
@@ -139,7 +139,8 @@ class Experiment:
         for c in configs:
             self.runtime.start_uav(c)
         self.run_info["pids"] = self.runtime.pids()
-        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV processes, results in {self.run_dir}")
+        kind = "containers" if self.runtime.name == "docker" else "processes"
+        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client")
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
         n = len(ids)

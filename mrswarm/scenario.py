@@ -111,6 +111,17 @@ class Uav(_Model):
     heading: float = Field(0.0, description="initial heading, degrees from north")
 
 
+class Docker(_Model):
+    """Settings of the container runtime (``runtime: docker`` or ``mrswarm run --runtime docker``)."""
+
+    image: str | None = Field(None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.:/@-]{0,199}$",
+                              description="image to run (default mrswarm:<version>, see `mrswarm deploy build`)")
+    cpus: float = Field(0.5, gt=0, le=64, description="CPU limit per UAV container, cores")
+    memory_mb: int = Field(256, ge=64, le=65536, description="memory limit per UAV container, MB")
+    multicast: Literal["drop", "allow"] = Field(
+        "drop", description="drop: no multicast or broadcast between containers, like a cellular network")
+
+
 class Scenario(_Model):
     name: str = Field(pattern=r"^[A-Za-z0-9_\-]{1,64}$")
     description: str = ""
@@ -123,7 +134,8 @@ class Scenario(_Model):
     mission: Mission
     fleet: Fleet | None = None
     uavs: list[Uav] | None = None
-    runtime: Literal["process"] = "process"
+    runtime: Literal["process", "docker"] = "process"
+    docker: Docker = Docker()
 
     @field_validator("uavs")
     @classmethod

@@ -1,0 +1,228 @@
+"""``mrswarm deploy``: images, containers of `mrswarm run --runtime docker`, Docker Swarm stacks.
+
+    mrswarm deploy base-image                 # Debian bookworm + Python 3.11 by debootstrap (cached)
+    mrswarm deploy build                      # the stack image from a host-built wheelhouse
+    mrswarm deploy ps                         # everything mrswarm runs in docker, by label
+    mrswarm deploy logs uav3 [--run RUN]      # a container's log (short name, full name or id)
+    mrswarm deploy down [--run RUN]           # remove run containers, networks and multicast rules
+    mrswarm deploy swarm up --uavs 20         # the stack on Docker Swarm mode (several edge servers)
+    mrswarm deploy swarm seal                 # on each other edge server: drop multicast there
+    mrswarm deploy swarm down
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, L_UAV, DeployError, client
+
+
+def _base_image(args: argparse.Namespace) -> int:
+    from deploy.images import make_base_image
+
+    print(make_base_image(args.tag, args.suite, args.mirror, force=args.force))
+    return 0
+
+
+def _build(args: argparse.Namespace) -> int:
+    from deploy.images import build_image
+
+    info = build_image(args.tag, args.base, full=args.full)
+    print(f"{info.tag}  {info.size_mb:.0f} MB  (FROM {info.base}, source {info.source})")
+    return 0
+
+
+def _ps(args: argparse.Namespace) -> int:
+    cl = client()
+    rows = []
+    for c in cl.containers.list(all=True, filters={"label": L_RUN}):
+        lb = c.labels
+        nets = c.attrs["NetworkSettings"]["Networks"]
+        ip = next(iter(nets.values()))["IPAddress"] if nets else ""
+        rows.append((lb.get(L_RUN, ""), lb.get(L_ROLE, ""), lb.get(L_UAV, ""), c.name, c.status, ip))
+    ns = "com.docker.stack.namespace"
+    for c in cl.containers.list(all=True, filters={"label": ns}):
+        if L_RUN not in c.labels:
+            rows.append((c.labels[ns], "task", "", c.name, c.status, ""))
+    if not rows:
+        print("no mrswarm containers")
+    else:
+        w = [max(len(str(r[i])) for r in rows + [("RUN", "ROLE", "UAV", "NAME", "STATUS", "IP")]) for i in range(6)]
+        for r in [("RUN", "ROLE", "UAV", "NAME", "STATUS", "IP")] + sorted(rows):
+            print("  ".join(str(v).ljust(w[i]) for i, v in enumerate(r)).rstrip())
+    try:
+        services = cl.services.list(filters={"label": L_RUN})
+    except Exception:  # noqa: BLE001 - not a swarm manager
+        services = []
+    for s in services:
+        tasks = [t for t in s.tasks() if t["DesiredState"] == "running"]
+        up = sum(1 for t in tasks if t["Status"]["State"] == "running")
+        print(f"service {s.name}: {up}/{len(tasks)} running")
+    for n in cl.networks.list(filters={"label": L_RUN}):
+        print(f"network {n.name} ({n.attrs.get('Driver')})")
+    return 0
+
+
+def _find(cl: Any, name: str, run: str | None) -> Any:
+    filters: dict[str, Any] = {"label": [L_RUN] + ([f"{L_RUN}={run}"] if run else [])}
+    cands = [c for c in cl.containers.list(all=True, filters=filters)
+             if c.name == name or c.id.startswith(name) or c.name.endswith(f"-{name}")]
+    if not cands:
+        raise DeployError(f"no mrswarm container matches {name!r}" + (f" in run {run}" if run else "") + " (see `mrswarm deploy ps`)")
+    if len(cands) > 1:
+        raise DeployError(f"{name!r} matches {len(cands)} containers ({', '.join(c.name for c in cands)}): add --run")
+    return cands[0]
+
+
+def _logs(args: argparse.Namespace) -> int:
+    cl = client()
+    try:
+        c = _find(cl, args.name, args.run)
+        sys.stdout.write(c.logs(stdout=True, stderr=True, tail=args.tail if args.tail else "all").decode(errors="replace"))
+        return 0
+    except DeployError:
+        if args.run:
+            raise
+    # a swarm service (e.g. `uav` of mrswarm-alpha)
+    for s in cl.services.list(filters={"label": L_RUN}):
+        if s.name == args.name or s.name.endswith(f"_{args.name}"):
+            for chunk in s.logs(stdout=True, stderr=True, tail=args.tail or "all"):
+                sys.stdout.write(chunk.decode(errors="replace"))
+            return 0
+    raise DeployError(f"no mrswarm container or service matches {args.name!r} (see `mrswarm deploy ps`)")
+
+
+def _down(args: argparse.Namespace) -> int:
+    from deploy import multicast
+
+    cl = client()
+    sel = [f"{L_RUN}={args.run}"] if args.run else [L_RUN]
+    removed = 0
+    for c in cl.containers.list(all=True, filters={"label": sel}):
+        if c.labels.get(L_ROLE) == "sentinel" and not args.run:
+            continue  # a swarm stack's: `mrswarm deploy swarm down` removes it
+        c.remove(force=True)
+        removed += 1
+    nets = 0
+    for n in cl.networks.list(filters={"label": sel}):
+        if n.attrs.get("Driver") == "bridge":
+            multicast.unseal(n.name)
+            n.remove()
+            nets += 1
+    swept = multicast.sweep({n.name for n in cl.networks.list()})
+    print(f"removed {removed} containers, {nets} networks, {swept} stale multicast rules")
+    return 0
+
+
+def _scenario(args: argparse.Namespace) -> Any:
+    from mrswarm.scenario import load_scenario
+
+    overrides = list(args.set) + ([f"swarm={args.swarm}"] if args.swarm else [])
+    return load_scenario(args.scenario, overrides)
+
+
+def _swarm_up(args: argparse.Namespace) -> int:
+    from deploy import swarm
+    from deploy.images import image_tag
+
+    scn = _scenario(args)
+    opts = swarm.StackOptions(uavs=args.uavs, image=args.image or scn.docker.image or image_tag(), port=args.port,
+                              cpus=scn.docker.cpus, memory_mb=scn.docker.memory_mb, max_per_node=args.max_per_node,
+                              autostart=args.autostart, log_level=args.log_level, multicast=scn.docker.multicast)
+    out = Path(args.out or f"build/swarm/{swarm.stack_name(scn.swarm)}")
+    if args.dry_run:
+        print(swarm.write_stack(scn, opts, out))
+        return 0
+    if args.init and swarm.init_swarm(client()):
+        print("initialised a single-node swarm (this engine is its manager)")
+    res = swarm.up(scn, opts, out, wait=args.wait)
+    print(json.dumps(res, indent=2))
+    return 0
+
+
+def _swarm_down(args: argparse.Namespace) -> int:
+    from deploy import swarm
+
+    print(json.dumps(swarm.down(args.swarm or "alpha", wait=args.wait, volumes=args.volumes)))
+    return 0
+
+
+def _swarm_seal(args: argparse.Namespace) -> int:
+    from deploy import swarm
+    from deploy.images import image_tag
+
+    print(swarm.seal_node(client(), args.swarm or "alpha", args.image or image_tag()))
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    from deploy.images import BASE_TAG, DEFAULT_MIRROR
+
+    ap = argparse.ArgumentParser(prog="mrswarm deploy", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+    p = sub.add_parser("base-image", help="make a Debian base image with debootstrap + docker import (skips if present)")
+    p.add_argument("--tag", default=BASE_TAG)
+    p.add_argument("--suite", default="bookworm", help="Debian suite; its python3 must be 3.11 (bookworm)")
+    p.add_argument("--mirror", default=DEFAULT_MIRROR)
+    p.add_argument("--force", action="store_true", help="remake it even if present")
+    p.set_defaults(func=_base_image)
+    p = sub.add_parser("build", help="build the stack image from a host-built wheelhouse (no network in the build)")
+    p.add_argument("--tag", default=None, help="default mrswarm:<version>")
+    p.add_argument("--base", default=None, help="BASE_IMAGE (default python:3.11-slim if present, else the debootstrap base)")
+    p.add_argument("--full", action="store_true", help="also install matplotlib (plots inside the image)")
+    p.set_defaults(func=_build)
+    p = sub.add_parser("ps", help="containers, services and networks mrswarm runs, by label")
+    p.set_defaults(func=_ps)
+    p = sub.add_parser("logs", help="the log of one container (or swarm service)")
+    p.add_argument("name", help="short name (uav3, router), full container name, id, or swarm service (uav)")
+    p.add_argument("--run", default=None, help="run id (see `mrswarm deploy ps`) when several runs match")
+    p.add_argument("--tail", type=int, default=0, help="only the last N lines")
+    p.set_defaults(func=_logs)
+    p = sub.add_parser("down", help="remove the containers and networks of runs (default: every run)")
+    p.add_argument("--run", default=None, help="only this run")
+    p.set_defaults(func=_down)
+
+    p = sub.add_parser("swarm", help="the stack on Docker Swarm mode: up, seal, down")
+    ssub = p.add_subparsers(dest="swarm_cmd", required=True, metavar="ACTION")
+    q = ssub.add_parser("up", help="deploy router + N virtual UAV replicas as a stack")
+    q.add_argument("--uavs", type=int, required=True, help="number of virtual UAV replicas")
+    q.add_argument("--scenario", default="scenarios/coverage.yaml", help="scenario for swarm, origin, mission, fleet layout")
+    q.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scenario override (repeatable)")
+    q.add_argument("--swarm", default=None, help="swarm name (default: the scenario's)")
+    q.add_argument("--image", default=None)
+    q.add_argument("--port", type=int, default=7447, help="router port published on the manager")
+    q.add_argument("--max-per-node", type=int, default=0, help="at most this many UAV replicas per edge server")
+    q.add_argument("--autostart", action="store_true", help="take off and fly without waiting for commands")
+    q.add_argument("--log-level", default="INFO")
+    q.add_argument("--out", default=None, help="where stack.yml and fleet.json go (default build/swarm/<stack>)")
+    q.add_argument("--init", action="store_true", help="`docker swarm init` first if this engine is in no swarm")
+    q.add_argument("--dry-run", action="store_true", help="only write stack.yml and fleet.json")
+    q.add_argument("--wait", type=float, default=180.0, help="seconds to wait for every replica to run")
+    q.set_defaults(func=_swarm_up)
+    q = ssub.add_parser("seal", help="on another edge server: keep a sentinel of the overlay and drop multicast there")
+    q.add_argument("--swarm", default=None)
+    q.add_argument("--image", default=None)
+    q.set_defaults(func=_swarm_seal)
+    q = ssub.add_parser("down", help="remove the stack, its network, configs and this server's sentinel")
+    q.add_argument("--swarm", default=None, help="swarm name (default alpha)")
+    q.add_argument("--volumes", action="store_true", help="also remove the recorded data volume")
+    q.add_argument("--wait", type=float, default=120.0)
+    q.set_defaults(func=_swarm_down)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except DeployError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,333 @@
+"""The container runtime: every virtual UAV is its own Docker container.
+
+It mirrors :class:`deploy.process_runtime.ProcessRuntime` (``start_network``, ``start_uav``,
+``exited``, ``pids``, ``stop``), so the experiment runner drives either. Per run it creates:
+
+* one user-defined bridge network ``mrs-<run>-net``, internal (no route out of the host) and
+  with multicast and broadcast made impossible (``deploy/multicast.py``), unless the
+  scenario says ``docker.multicast: allow`` (a plain LAN bridge);
+* the services the scenario's connectivity needs (``deploy/services.py``; today the
+  rendezvous/edge router), one container each;
+* one container per virtual UAV, running ``python3 -m uav_stack.virtual_uav --config ...``
+  with the same config JSON as a UAV process, on its own IP, with the scenario's CPU and
+  memory limits, no capabilities, a read-only root file system, and IPv6 off.
+
+The run folder is bind-mounted at the same path in every UAV container, so the recorded
+trajectories and counters land where the runner analyses them, owned by the invoking
+user. Containers and network carry ``org.mrswarm.*`` labels (run, swarm, role, UAV) and
+names ``mrs-<run>-<name>``. :meth:`DockerRuntime.stop` saves every container's log into
+``<run>/logs/`` and removes containers, network and rules, also after Ctrl-C; for a runner
+killed outright, ``mrswarm deploy down`` removes whatever carries the labels.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import secrets
+import signal
+import socket
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from deploy import multicast
+from deploy.dockerutil import L_RUN, DeployError, client, labels
+from deploy.services import NetworkPlan, network_plan
+from uav_stack.config import NetworkConfig, VirtualUavConfig
+
+log = logging.getLogger(__name__)
+
+EXITED_POLL_S = 1.0  # exited() asks the engine at most this often
+
+
+@dataclass(frozen=True)
+class ContainerSettings:
+    """Per-UAV container settings (the scenario's ``docker:`` section)."""
+
+    image: str | None = None  # default: mrswarm:<version>
+    cpus: float = 0.5  # CPU limit per UAV container, cores
+    memory_mb: int = 256  # memory limit per UAV container
+    multicast: str = "drop"  # drop: cellular-like (no multicast/broadcast); allow: a LAN
+    pids_limit: int = 256
+    service_cpus: float = 1.0  # limit of each infrastructure container (router, discovery)
+    service_memory_mb: int = 512
+
+
+@dataclass
+class Box:
+    name: str  # short name: router, uav3
+    container: Any
+    role: str
+    ip: str = ""
+
+
+def run_id_for(run_dir: Path) -> str:
+    base = re.sub(r"[^a-zA-Z0-9_.-]", "-", run_dir.name)[-40:].strip("-.") or "run"
+    return f"{base}-{secrets.token_hex(2)}"
+
+
+def wait_tcp(host: str, port: int, timeout: float, alive: Any = None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if alive is not None and not alive():
+            raise RuntimeError(f"the service on {host}:{port} exited before listening")
+        try:
+            with socket.create_connection((host, port), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.2)
+    raise RuntimeError(f"nothing listens on {host}:{port} after {timeout:.0f} s")
+
+
+class DockerRuntime:
+    name = "docker"
+
+    def __init__(self, run_dir: Path, log_level: str = "INFO", settings: ContainerSettings | None = None,
+                 swarm: str = "*"):
+        self.run_dir = run_dir.resolve()
+        self.log_level = log_level
+        self.settings = settings or ContainerSettings()
+        self.swarm = swarm
+        self.run = run_id_for(run_dir)
+        self.docker = client()
+        from deploy.images import image_tag
+
+        self.image = self.settings.image or image_tag()
+        self._check_image()
+        self._warn_if_stale()
+        ncpu = int(self.docker.info().get("NCPU", 0) or 0)
+        for what, cpus in (("docker.cpus", self.settings.cpus), ("service cpus", self.settings.service_cpus)):
+            if ncpu and cpus > ncpu:
+                raise DeployError(f"{what} = {cpus} but the docker host has {ncpu} CPUs")
+        if self.settings.multicast == "drop":
+            multicast.check_available()
+        self.boxes: dict[str, Box] = {}
+        self.network: Any = None
+        self.sealed = False
+        self._exited: dict[str, int] = {}
+        self._exited_at = 0.0
+        (self.run_dir / "logs").mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "config").mkdir(parents=True, exist_ok=True)
+
+    def _check_image(self) -> None:
+        import docker
+
+        try:
+            self.docker.images.get(self.image)
+        except docker.errors.ImageNotFound:
+            raise DeployError(f"image {self.image} not found: build it with `mrswarm deploy build`") from None
+
+    def _warn_if_stale(self) -> None:
+        """A checkout whose code differs from what the image was built from gets a warning."""
+        from deploy.images import ROOT, source_hash
+
+        if self.settings.image is None and (ROOT / "pyproject.toml").exists():
+            built = (self.docker.images.get(self.image).labels or {}).get("org.mrswarm.source")
+            if built and built != source_hash():
+                print(f"warning: {self.image} was built from other sources than this checkout; "
+                      "`mrswarm deploy build` updates it", file=sys.stderr)
+
+    def _name(self, short: str) -> str:
+        return f"mrs-{self.run}-{short}"
+
+    # ---- connectivity ---------------------------------------------------------------------
+    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*",
+                      connectivity: str = "rendezvous") -> NetworkConfig:
+        """Create the run's network, start its services, and return how UAVs reach them."""
+        self.swarm = swarm if swarm != "*" else self.swarm
+        plan = network_plan(connectivity, mode, pose_feed, swarm)
+        # internal: no route out of the host. (Docker's isolation rules for internal networks
+        # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
+        # network with multicast must not be internal.)
+        self.network = self.docker.networks.create(
+            self._name("net"), driver="bridge", internal=self.settings.multicast == "drop", check_duplicate=True,
+            labels=labels(self.run, self.swarm, "network"),
+        )
+        bridge = f"br-{self.network.id[:12]}"
+        if self.settings.multicast == "drop":
+            multicast.seal(bridge, self.network.name)
+            self.sealed = True
+        else:  # a LAN among the containers; still keep its multicast away from the host if we can
+            try:
+                multicast.seal(bridge, self.network.name, between_containers=False)
+            except multicast.SealError as exc:
+                log.warning("multicast between containers and host not blocked: %s", exc)
+        return self._start_services(plan)
+
+    def _start_services(self, plan: NetworkPlan) -> NetworkConfig:
+        addresses: dict[str, str] = {}
+        for svc in plan.services:
+            box = self._run(svc.name, "router" if svc.name == "router" else svc.name, list(svc.argv), uav=None,
+                            cpus=self.settings.service_cpus, memory_mb=self.settings.service_memory_mb, mounts=False)
+            addresses[svc.name] = box.ip
+            if svc.proto == "tcp":
+                wait_tcp(box.ip, svc.port, 30.0, alive=lambda b=box: self._running(b))
+        net = plan.uav_network(addresses)
+        self._write_manifest()
+        return net
+
+    # ---- UAVs ------------------------------------------------------------------------------
+    def start_uav(self, cfg: VirtualUavConfig) -> None:
+        rec = cfg.agent.record_dir
+        if rec is not None:
+            cfg = replace(cfg, agent=replace(cfg.agent, record_dir=str(Path(rec).resolve())))
+        path = self.run_dir / "config" / f"uav{cfg.agent.uav}.json"
+        path.write_text(cfg.to_json())
+        self._run(f"uav{cfg.agent.uav}", "uav",
+                  ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
+                  uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True)
+
+    def _run(self, short: str, role: str, argv: list[str], uav: int | None, cpus: float, memory_mb: int,
+             mounts: bool) -> Box:
+        from docker.types import LogConfig
+
+        kwargs: dict[str, Any] = {}
+        if mounts:  # the run folder at the same path: config in, recorded data out
+            kwargs["volumes"] = {str(self.run_dir): {"bind": str(self.run_dir), "mode": "rw"}}
+        name = self._name(short)
+        container = self.docker.containers.create(
+            self.image, argv, name=name, hostname=short, labels=labels(self.run, self.swarm, role, uav),
+            network=self.network.name, user=f"{os.getuid()}:{os.getgid()}",
+            nano_cpus=int(cpus * 1e9), mem_limit=f"{memory_mb}m", memswap_limit=f"{memory_mb}m",
+            pids_limit=self.settings.pids_limit, cap_drop=["ALL"], security_opt=["no-new-privileges"],
+            read_only=True, tmpfs={"/tmp": "size=16m"}, sysctls=dict(multicast.IPV6_OFF),
+            environment={"PYTHONUNBUFFERED": "1"},
+            log_config=LogConfig(type="json-file", config={"max-size": "20m", "max-file": "1"}),
+            **kwargs,
+        )
+        box = Box(short, container, role)
+        self.boxes[short] = box  # tracked before start: stop() removes it whatever happens next
+        container.start()
+        container.reload()
+        box.ip = container.attrs["NetworkSettings"]["Networks"][self.network.name]["IPAddress"]
+        return box
+
+    def start_container(self, short: str, argv: list[str], role: str = "probe") -> Box:
+        """Any other container of the stack image on the run's network (tests, probes)."""
+        return self._run(short, role, argv, uav=None, cpus=self.settings.service_cpus,
+                         memory_mb=self.settings.service_memory_mb, mounts=False)
+
+    def _running(self, box: Box) -> bool:
+        box.container.reload()
+        return box.container.status in ("created", "running")
+
+    # ---- status ----------------------------------------------------------------------------
+    def exited(self) -> dict[str, int]:
+        """Containers that have exited, with their exit codes (asks the engine at most 1/s)."""
+        now = time.monotonic()
+        if now - self._exited_at >= EXITED_POLL_S and self.boxes:
+            self._exited_at = now
+            by_id = {b.container.id: n for n, b in self.boxes.items()}
+            for c in self.docker.containers.list(all=True, filters={"label": f"{L_RUN}={self.run}", "status": "exited"}):
+                if c.id in by_id:
+                    self._exited[by_id[c.id]] = int(c.attrs["State"]["ExitCode"])
+        return dict(self._exited)
+
+    def pids(self) -> dict[str, int]:
+        """Host PIDs of each container's main process (psutil can measure them like processes)."""
+        out = {}
+        for n, b in self.boxes.items():
+            b.container.reload()
+            out[n] = int(b.container.attrs["State"]["Pid"])
+        return out
+
+    def containers(self) -> dict[str, dict[str, Any]]:
+        return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role} for n, b in self.boxes.items()}
+
+    def _write_manifest(self, exit_codes: dict[str, int] | None = None) -> None:
+        data = {"runtime": "docker", "run": self.run, "image": self.image, "settings": asdict(self.settings),
+                "network": self.network.name if self.network is not None else None, "multicast_sealed": self.sealed,
+                "containers": self.containers()}
+        if exit_codes is not None:
+            data["exit_codes"] = exit_codes
+        (self.run_dir / "containers.json").write_text(json.dumps(data, indent=2))
+
+    # ---- shutdown --------------------------------------------------------------------------
+    def stop(self, grace: float = 5.0) -> dict[str, int]:
+        """SIGTERM every UAV, then the services; SIGKILL what is left after ``grace``; save the
+        logs; remove containers, network and multicast rules. A second Ctrl-C cannot cut it short."""
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+        try:
+            return self._stop(grace)
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGINT, old)
+
+    def _stop(self, grace: float) -> dict[str, int]:
+        import docker
+
+        order = [n for n, b in self.boxes.items() if b.role == "uav"] + [n for n, b in self.boxes.items() if b.role != "uav"]
+        for n in order:
+            try:
+                self.boxes[n].container.kill(signal="SIGTERM")
+            except docker.errors.APIError:
+                pass  # not running
+        codes: dict[str, int] = {}
+        deadline = time.monotonic() + grace
+        for n in order:
+            c = self.boxes[n].container
+            codes[n] = self._wait(c, max(0.5, deadline - time.monotonic()))
+        for n in order:
+            self._save_log(n)
+        self._write_manifest(codes)
+        self._remove_all()
+        return codes
+
+    def _wait(self, c: Any, timeout: float) -> int:
+        import docker
+        import requests
+
+        try:
+            return int(c.wait(timeout=timeout)["StatusCode"])
+        except (requests.exceptions.RequestException, docker.errors.APIError):
+            pass
+        log.warning("%s did not exit on SIGTERM; killing it", c.name)
+        try:
+            c.kill()
+            return int(c.wait(timeout=10)["StatusCode"])
+        except (requests.exceptions.RequestException, docker.errors.APIError):
+            return -9
+
+    def _save_log(self, short: str) -> None:
+        try:
+            data = self.boxes[short].container.logs(stdout=True, stderr=True)
+        except Exception as exc:  # noqa: BLE001 - a missing log must not stop the clean-up
+            data = f"(log unavailable: {exc})\n".encode()
+        (self.run_dir / "logs" / f"{short}.log").write_bytes(data)
+
+    def _remove_all(self) -> None:
+        import docker
+
+        # every container of the run, also one created by a call that Ctrl-C interrupted
+        leftovers = {c.id: c for c in self.docker.containers.list(all=True, filters={"label": f"{L_RUN}={self.run}"})}
+        for b in self.boxes.values():
+            leftovers.setdefault(b.container.id, b.container)
+        for c in leftovers.values():
+            try:
+                c.remove(force=True)
+            except docker.errors.NotFound:
+                pass
+            except docker.errors.APIError as exc:
+                log.warning("could not remove %s: %s", c.name, exc)
+        if self.network is not None:
+            multicast.unseal(self.network.name)
+            self.sealed = False
+            try:
+                self.network.remove()
+            except docker.errors.NotFound:
+                pass
+            except docker.errors.APIError as exc:
+                log.warning("could not remove network %s: %s", self.network.name, exc)
+        for n in self.docker.networks.list(filters={"label": f"{L_RUN}={self.run}"}):
+            n.remove()
+
+
+def _main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()

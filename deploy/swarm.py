@@ -1,0 +1,318 @@
+"""Several edge servers: the stack on Docker Swarm mode.
+
+``mrswarm deploy swarm up --uavs N`` turns a scenario into a compose stack file and deploys it
+with ``docker stack deploy``:
+
+* the infrastructure services of the scenario's connectivity (``deploy/services.py``; today
+  the rendezvous/edge router) with DNS round-robin endpoints and their port published on
+  the manager in host mode (no ingress mesh needed);
+* ``uav``: a replicated service of N virtual UAVs. Every replica gets the same fleet file
+  (a swarm config); replica k runs the k-th UAV config (``deploy/swarm_uav.py``);
+* one attachable overlay network ``mrswarm-<swarm>`` that spans every edge server, created
+  before the stack (external to it). Its multicast is dropped on every server that runs a
+  sentinel container (``deploy/multicast.py``): ``up`` starts one on the manager, and
+  ``mrswarm deploy swarm seal`` on each other edge server. Discovery can then only go through
+  the rendezvous/discovery service, as on a cellular network.
+
+Other edge servers join with ``docker swarm join`` and replicas spread over them
+(``docs/deploy.md``). The stack's name is ``mrswarm-<swarm>``; ``down`` runs ``docker stack rm``
+and waits until its services, tasks, network and configs are gone.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, DeployError, client
+from deploy.multicast import IPV6_OFF
+from deploy.services import ROUTER_PORT, network_plan
+
+FLEET_PATH = "/etc/mrswarm/fleet.json"
+DATA_PATH = "/data"
+
+
+@dataclass(frozen=True)
+class StackOptions:
+    uavs: int
+    image: str
+    port: int = ROUTER_PORT  # router port published on the manager (the GCS / runner connects there)
+    cpus: float = 0.5
+    memory_mb: int = 256
+    max_per_node: int = 0  # 0: no limit; else at most this many UAV replicas on one edge server
+    autostart: bool = False  # take off and start the mission without waiting for commands
+    log_level: str = "INFO"
+    multicast: str = "drop"  # drop: seal the overlay on this server (cellular-like); allow: leave it
+
+
+def stack_name(swarm: str) -> str:
+    return f"mrswarm-{swarm}"
+
+
+def fleet_configs(scn: Any, opts: StackOptions) -> tuple[list[dict[str, Any]], Any]:
+    """The per-UAV configs of the fleet (UAVs reach the services by their DNS names)."""
+    if scn.fleet is not None:
+        scn = scn.model_copy(update={"fleet": scn.fleet.model_copy(update={"count": opts.uavs})})
+    elif len(scn.uav_list()) < opts.uavs:
+        raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {opts.uavs}")
+    net = scn.network
+    plan = network_plan(net.connectivity, net.mode, net.pose_feed, scn.swarm)
+    netcfg = plan.uav_network({s.name: s.name for s in plan.services})
+    cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[: opts.uavs]
+    if opts.autostart:
+        cfgs = [replace(c, agent=replace(c.agent, autostart=True)) for c in cfgs]
+    return [asdict(c) for c in cfgs], plan
+
+
+def stack_spec(scn: Any, opts: StackOptions) -> tuple[dict[str, Any], str]:
+    """The compose stack (as a dict) and the fleet file's JSON text."""
+    fleet, plan = fleet_configs(scn, opts)
+    fleet_json = json.dumps(fleet, indent=1)
+    digest = hashlib.sha256(fleet_json.encode()).hexdigest()[:10]
+    name = stack_name(scn.swarm)
+    common_labels = {L_RUN: name, L_SWARM: scn.swarm}
+    sysctls = {k: int(v) for k, v in IPV6_OFF.items()}
+    services: dict[str, Any] = {}
+    for svc in plan.services:
+        services[svc.name] = {
+            "image": opts.image,
+            "command": list(svc.argv),
+            "networks": ["swarm"],
+            "ports": [{"target": svc.port, "published": opts.port if svc.name == "router" else svc.port,
+                       "protocol": svc.proto, "mode": "host"}],
+            "sysctls": sysctls,
+            "read_only": True,
+            "tmpfs": ["/tmp"],
+            "labels": {**common_labels, L_ROLE: svc.name},
+            "deploy": {
+                "replicas": 1,
+                "endpoint_mode": "dnsrr",
+                "placement": {"constraints": ["node.role == manager"]},
+                "resources": {"limits": {"cpus": "1.0", "memory": "512M"}},
+                "restart_policy": {"condition": "on-failure", "max_attempts": 5},
+                "labels": {**common_labels, L_ROLE: svc.name},
+            },
+        }
+    uav_deploy: dict[str, Any] = {
+        "replicas": opts.uavs,
+        "endpoint_mode": "dnsrr",
+        "resources": {"limits": {"cpus": f"{opts.cpus:g}", "memory": f"{opts.memory_mb}M"}},
+        "restart_policy": {"condition": "on-failure", "max_attempts": 3},
+        "labels": {**common_labels, L_ROLE: "uav"},
+    }
+    if opts.max_per_node:
+        uav_deploy["placement"] = {"max_replicas_per_node": opts.max_per_node}
+    services["uav"] = {
+        "image": opts.image,
+        "command": ["python3", "-m", "deploy.swarm_uav", "--fleet", FLEET_PATH, "--log-level", opts.log_level],
+        "hostname": "uav{{.Task.Slot}}",
+        "environment": {"MRSWARM_SLOT": "{{.Task.Slot}}"},
+        "configs": [{"source": "fleet", "target": FLEET_PATH, "mode": 0o444}],
+        "volumes": [{"type": "volume", "source": "data", "target": DATA_PATH}],
+        "networks": ["swarm"],
+        "sysctls": sysctls,
+        "read_only": True,
+        "tmpfs": ["/tmp"],
+        "labels": {**common_labels, L_ROLE: "uav"},
+        "depends_on": [s.name for s in plan.services],
+        "deploy": uav_deploy,
+    }
+    stack = {
+        "version": "3.8",
+        "services": services,
+        "networks": {"swarm": {"external": True, "name": name}},
+        "volumes": {"data": {"labels": common_labels}},
+        "configs": {"fleet": {"name": f"{name}-fleet-{digest}", "file": "./fleet.json", "labels": common_labels}},
+    }
+    return stack, fleet_json
+
+
+def write_stack(scn: Any, opts: StackOptions, out: Path) -> Path:
+    stack, fleet_json = stack_spec(scn, opts)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fleet.json").write_text(fleet_json)
+    name = stack_name(scn.swarm)
+    header = (f"# mrswarm stack for swarm '{scn.swarm}' ({opts.uavs} virtual UAVs), made by `mrswarm deploy swarm up`\n"
+              f"# (which also makes the network and drops multicast on it). By hand, on a swarm manager:\n"
+              f"#   docker network create --driver overlay --attachable {name}\n"
+              f"#   mrswarm deploy swarm seal --swarm {scn.swarm}    # on every edge server: no multicast\n"
+              f"#   docker stack deploy -c stack.yml {name}\n")
+    path = out / "stack.yml"
+    path.write_text(header + yaml.dump(stack, Dumper=_NoAliases, sort_keys=False))
+    return path
+
+
+class _NoAliases(yaml.SafeDumper):
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def ensure_network(cl: Any, swarm: str) -> Any:
+    """The stack's attachable overlay network (made once, shared by every edge server)."""
+    name = stack_name(swarm)
+    for n in cl.networks.list(names=[name]):
+        if n.name == name:
+            return n
+    return cl.networks.create(name, driver="overlay", attachable=True, scope="swarm", check_duplicate=True,
+                              labels={L_RUN: name, L_SWARM: swarm, L_ROLE: "network"})
+
+
+def seal_node(cl: Any, swarm: str, image: str) -> str:
+    """Keep a sentinel container of the overlay on this server and drop multicast there."""
+    import socket
+
+    from deploy import multicast
+
+    net = ensure_network(cl, swarm)
+    name = f"{stack_name(swarm)}-sentinel-{socket.gethostname()}"[:63]
+    found = cl.containers.list(all=True, filters={"name": f"^{name}$"})
+    box = found[0] if found else cl.containers.run(
+        image, ["python3", "-c", SENTINEL], name=name, detach=True, network=net.name, read_only=True,
+        labels={L_RUN: stack_name(swarm), L_SWARM: swarm, L_ROLE: "sentinel"}, restart_policy={"Name": "unless-stopped"},
+        cap_drop=["ALL"], nano_cpus=int(0.05e9), mem_limit="32m")
+    if box.status != "running":
+        box.start()
+    net.reload()
+    deadline = time.monotonic() + 20
+    while not multicast.seal_overlay(net.id, net.name):
+        if time.monotonic() > deadline:
+            raise DeployError(f"the overlay {net.name} has no namespace on this server after 20 s")
+        time.sleep(0.5)
+    return name
+
+
+SENTINEL = "import signal, sys; signal.signal(signal.SIGTERM, lambda *a: sys.exit(0)); signal.pause()"
+
+
+def _docker_cli() -> str:
+    exe = shutil.which("docker")
+    if exe is None:
+        raise DeployError("the docker CLI is not installed (apt-get install docker.io); `docker stack deploy` needs it")
+    return exe
+
+
+def _swarm_manager(cl: Any) -> None:
+    info = cl.info().get("Swarm", {})
+    if info.get("LocalNodeState") != "active":
+        raise DeployError("this docker engine is not in a swarm: run `docker swarm init` on the first edge server "
+                          "(see docs/deploy.md), or pass --init")
+    if not info.get("ControlAvailable"):
+        raise DeployError("this node is a swarm worker; run `mrswarm deploy swarm` on a manager")
+
+
+def init_swarm(cl: Any) -> bool:
+    """``docker swarm init`` if this engine is in no swarm yet; True if it made one."""
+    if cl.info().get("Swarm", {}).get("LocalNodeState") == "active":
+        return False
+    cl.swarm.init(advertise_addr=_default_address(), listen_addr="0.0.0.0:2377")
+    return True
+
+
+def _default_address() -> str:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(("192.0.2.1", 9))  # route lookup only, nothing is sent
+            return str(s.getsockname()[0])
+        except OSError:
+            return "127.0.0.1"
+
+
+def up(scn: Any, opts: StackOptions, out: Path, wait: float = 120.0) -> dict[str, Any]:
+    cl = client()
+    _swarm_manager(cl)
+    try:
+        cl.images.get(opts.image)
+    except Exception:  # noqa: BLE001
+        raise DeployError(f"image {opts.image} is not on this node: `mrswarm deploy build` (and `docker save | docker load` "
+                          "it on every other edge server)") from None
+    path = write_stack(scn, opts, out)
+    name = stack_name(scn.swarm)
+    if opts.multicast == "drop":
+        seal_node(cl, scn.swarm, opts.image)  # before any task of the stack starts here
+    else:
+        ensure_network(cl, scn.swarm)
+    res = subprocess.run([_docker_cli(), "stack", "deploy", "--prune", "-c", path.name, name], cwd=out,
+                         capture_output=True, text=True, timeout=120)
+    if res.returncode != 0:
+        raise DeployError(f"docker stack deploy failed: {res.stderr.strip() or res.stdout.strip()}")
+    want = {f"{name}_{s}": 1 for s in stack_spec(scn, opts)[0]["services"]}
+    want[f"{name}_uav"] = opts.uavs
+    running = wait_running(cl, want, wait)
+    return {"stack": name, "file": str(path), "services": running, "router": f"tcp/<manager>:{opts.port}"}
+
+
+def wait_running(cl: Any, want: dict[str, int], timeout: float) -> dict[str, int]:
+    """Wait (bounded) until each service has its number of running tasks."""
+    deadline = time.monotonic() + timeout
+    counts: dict[str, int] = {}
+    while True:
+        counts = {}
+        for s in cl.services.list(filters={"name": list(want)}):
+            if s.name in want:
+                counts[s.name] = sum(1 for t in s.tasks() if t["Status"]["State"] == "running"
+                                     and t["DesiredState"] == "running")
+        if all(counts.get(n, 0) >= k for n, k in want.items()):
+            return counts
+        if time.monotonic() > deadline:
+            raise DeployError(f"services not running after {timeout:.0f} s: have {counts}, want {want} "
+                              "(`docker service ps --no-trunc` tells why)")
+        time.sleep(1.0)
+
+
+def down(swarm: str, wait: float = 90.0, volumes: bool = False) -> dict[str, int]:
+    """``docker stack rm`` and wait until its services, containers, network and configs are gone."""
+    cl = client()
+    name = stack_name(swarm)
+    label = f"{L_RUN}={name}"
+    ns = f"com.docker.stack.namespace={name}"
+    res = subprocess.run([_docker_cli(), "stack", "rm", name], capture_output=True, text=True, timeout=120)
+    if res.returncode != 0 and "Nothing found in stack" not in res.stderr:
+        raise DeployError(f"docker stack rm failed: {res.stderr.strip()}")
+    deadline = time.monotonic() + wait
+    left: dict[str, int] = {}
+    while True:
+        left = {
+            "services": len(cl.services.list(filters={"label": ns})),
+            "containers": len(cl.containers.list(all=True, sparse=True, filters={"label": ns})),
+            "networks": len(cl.networks.list(filters={"label": ns})),
+            "configs": len(cl.configs.list(filters={"label": label})),
+        }
+        if not any(left.values()):
+            break
+        if time.monotonic() > deadline:
+            raise DeployError(f"stack {name} not gone after {wait:.0f} s: {left}")
+        time.sleep(1.0)
+    for c in cl.containers.list(all=True, sparse=True, filters={"label": label}):  # this server's sentinel
+        try:
+            c.remove(force=True)
+        except Exception:  # noqa: BLE001 - already gone
+            pass
+    while nets := [n for n in cl.networks.list(names=[name]) if n.name == name]:
+        try:
+            nets[0].remove()
+        except Exception as exc:  # noqa: BLE001
+            if time.monotonic() > deadline:
+                raise DeployError(f"network {name} still in use (a sentinel on another edge server? run "
+                                  f"`mrswarm deploy swarm down --swarm {swarm}` there): {exc}") from None
+        time.sleep(0.5)  # removal of a swarm-scoped network completes asynchronously
+        if time.monotonic() > deadline + 30:
+            raise DeployError(f"network {name} not gone after {wait:.0f} s")
+    removed_volumes = 0
+    if volumes:
+        for v in cl.volumes.list(filters={"label": ns}):
+            try:
+                v.remove(force=True)
+                removed_volumes += 1
+            except Exception:  # noqa: BLE001 - a volume in use on another node stays
+                pass
+    return {"volumes_removed": removed_volumes}

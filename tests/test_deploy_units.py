@@ -1,0 +1,74 @@
+"""Container deployment pieces that need no docker engine: scenario fields, the network plan,
+the generated swarm stack (and that the committed deploy/stack.yml is what the generator makes),
+and the replica entry point's choice of UAV by task slot."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from deploy.images import image_tag
+from deploy.services import network_plan
+from deploy.swarm import StackOptions, stack_spec, write_stack
+from deploy.swarm_uav import SlotError, endpoint_host, pick
+from mrswarm.scenario import ScenarioError, load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+COVERAGE = ROOT / "scenarios" / "coverage.yaml"
+
+
+def test_docker_fields_are_validated_with_their_names() -> None:
+    scn = load_scenario(COVERAGE, ["runtime=docker", "docker.cpus=1.5", "docker.memory_mb=128"])
+    assert (scn.runtime, scn.docker.cpus, scn.docker.memory_mb, scn.docker.multicast) == ("docker", 1.5, 128, "drop")
+    for bad, field in (("docker.cpus=0", "docker.cpus"), ("docker.memory_mb=10", "docker.memory_mb"),
+                       ("docker.multicast=sometimes", "docker.multicast"), ("docker.image=bad image", "docker.image"),
+                       ("docker.gpus=1", "docker.gpus"), ("runtime=k8s", "runtime")):
+        with pytest.raises(ScenarioError, match=field.replace(".", r"\.")):
+            load_scenario(COVERAGE, [bad])
+
+
+def test_network_plan_rendezvous_router_and_uav_endpoints() -> None:
+    plan = network_plan("rendezvous", "peer", "edge", "alpha")
+    (router,) = plan.services
+    assert router.name == "router" and "--feed" in router.argv and "alpha" in router.argv
+    net = plan.uav_network({"router": "10.1.2.3"})
+    assert net.endpoints == ("tcp/10.1.2.3:7447",) and net.pose_feed == "edge" and net.mode == "peer"
+    with pytest.raises(ValueError, match="router"):
+        plan.uav_network({})
+    with pytest.raises(ValueError, match="no container deployment"):
+        network_plan("carrier-pigeon")
+
+
+def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
+    scn = load_scenario(COVERAGE)
+    stack, fleet_json = stack_spec(scn, StackOptions(uavs=7, image="img:1"))
+    fleet = json.loads(fleet_json)
+    assert [f["agent"]["uav"] for f in fleet] == [1, 2, 3, 4, 5, 6, 7]
+    assert all(f["agent"]["network"]["endpoints"] == ["tcp/router:7447"] for f in fleet)
+    uav = stack["services"]["uav"]
+    assert uav["deploy"]["replicas"] == 7 and uav["environment"]["MRSWARM_SLOT"] == "{{.Task.Slot}}"
+    assert uav["deploy"]["resources"]["limits"] == {"cpus": "0.5", "memory": "256M"}
+    assert uav["sysctls"]["net.ipv6.conf.all.disable_ipv6"] == 1
+    assert stack["services"]["router"]["deploy"]["endpoint_mode"] == "dnsrr"
+    assert stack["networks"]["swarm"] == {"external": True, "name": "mrswarm-alpha"}
+
+
+def test_committed_stack_file_is_what_the_generator_makes(tmp_path: Path) -> None:
+    write_stack(load_scenario(COVERAGE), StackOptions(uavs=5, image=image_tag()), tmp_path)
+    assert (tmp_path / "stack.yml").read_text() == (ROOT / "deploy" / "stack.yml").read_text(), \
+        "regenerate: mrswarm deploy swarm up --uavs 5 --dry-run --out deploy/"
+    assert (tmp_path / "fleet.json").read_text() == (ROOT / "deploy" / "fleet.json").read_text()
+    assert yaml.safe_load((ROOT / "deploy" / "stack.yml").read_text())["services"]["uav"]["deploy"]["replicas"] == 5
+
+
+def test_replica_picks_its_uav_by_slot_and_refuses_a_slot_without_one() -> None:
+    fleet = json.loads((ROOT / "deploy" / "fleet.json").read_text())
+    assert pick(fleet, 3).agent.uav == 3
+    for slot in (0, 6, -1):
+        with pytest.raises(SlotError, match="slot"):
+            pick(fleet, slot)
+    assert endpoint_host("tcp/router:7447") == ("router", 7447)
+    assert endpoint_host("tcp/[fd00::1]:7447#iface=eth0") == ("fd00::1", 7447)
