@@ -134,6 +134,8 @@ class Experiment:
     def _fly(self) -> None:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
+        # how other tools reach this run's swarm (e.g. `mrswarm netem set --run <dir>`)
+        (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
