@@ -49,8 +49,8 @@ def netem_report(stats: dict[int, dict[str, Any]]) -> dict[str, Any] | None:
         configs.setdefault(str(ne.get("config")), []).append(uav)
         for c in ne.get("changes", []):
             key = (c.get("id"), str(c.get("source")), str(c.get("config")))
-            ch = changes.setdefault(key, {"id": c.get("id"), "source": c.get("source"), "config": c.get("config"),
-                                          "t_sent": c.get("t_sent"), "applied": []})
+            ch = changes.setdefault(key, {"id": c.get("id"), "source": c.get("source"), "preset": c.get("preset"),
+                                          "config": c.get("config"), "t_sent": c.get("t_sent"), "applied": []})
             ch["applied"].append(float(c.get("t", 0.0)))
         for src, lk in (ne.get("links") or {}).items():
             cls = lk.get("class") or "unimpaired"
@@ -130,7 +130,7 @@ def pose_age_report(run_dir: Path, t0: float, t_end: float, changes: list[dict[s
             m[k, idx[ok]] = s[key][ok]
         return m
 
-    age = on_grid("age_p50_ms")
+    age = on_grid("age_mean_ms")
     aoi = on_grid("aoi_mean_ms")
     with warnings.catch_warnings():  # seconds where no UAV has a value are NaN, which is what we want
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -139,7 +139,7 @@ def pose_age_report(run_dir: Path, t0: float, t_end: float, changes: list[dict[s
         aoi_max = np.nanmax(on_grid("aoi_max_ms"), axis=0)
     keep = ~np.isnan(age_med) | ~np.isnan(aoi_med)
     r = lambda a: [None if v != v else round(float(v), 1) for v in a[keep]]  # noqa: E731
-    out: dict[str, Any] = {"t_s": [float(t) for t in grid[keep]], "age_p50_ms": r(age_med), "aoi_mean_ms": r(aoi_med),
+    out: dict[str, Any] = {"t_s": [float(t) for t in grid[keep]], "age_mean_ms": r(age_med), "aoi_mean_ms": r(aoi_med),
                            "aoi_max_ms": r(aoi_max)}
     if plot_path is not None:
         try:
@@ -160,11 +160,11 @@ def plot_pose_age(path: Path, grid: np.ndarray, series: dict[int, dict[str, np.n
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     for uav, s in series.items():
         t = s["t_wall"] - t0
-        ax1.plot(t, s["age_p50_ms"], lw=0.6, alpha=0.45)
+        ax1.plot(t, s["age_mean_ms"], lw=0.6, alpha=0.45)
         ax2.plot(t, s["aoi_mean_ms"], lw=0.6, alpha=0.45)
     ax1.plot(grid, age_med, color="k", lw=2, label="median over UAVs")
     ax2.plot(grid, aoi_med, color="k", lw=2, label="median over UAVs")
-    ax1.set_ylabel("pose age on arrival, p50 (ms)")
+    ax1.set_ylabel("pose age on arrival,\nmean per second (ms)")
     ax2.set_ylabel("age of information, mean over\nneighbours (ms)")
     ax2.set_xlabel("time since mission start (s)")
     for ax in (ax1, ax2):
@@ -175,10 +175,9 @@ def plot_pose_age(path: Path, grid: np.ndarray, series: dict[int, dict[str, np.n
         x = float(ch["applied_first"]) - t0
         for ax in (ax1, ax2):
             ax.axvline(x, color="tab:red", lw=1, ls="--")
-        label = str(ch.get("config", ""))
-        label = label if len(label) < 60 else label[:57] + "..."
-        ax1.annotate(f"netem: {label}", (x, 1.0), xycoords=("data", "axes fraction"), rotation=90, va="top", ha="right",
-                     fontsize=7, color="tab:red")
+        label = f"netem ({ch.get('source')}): {ch.get('preset') or 'custom'}"
+        ax1.annotate(label, (x, 0.04), xycoords=("data", "axes fraction"), xytext=(3, 0), textcoords="offset points",
+                     rotation=90, va="bottom", ha="left", fontsize=8, color="tab:red")
     ax1.legend(loc="upper left", fontsize=8)
     ax1.set_title(f"pose age over time ({len(series)} UAVs; thin lines: each UAV, per second)")
     fig.tight_layout()

@@ -431,7 +431,8 @@ class SwarmNode:
             else:
                 self.netem.reconfigure(cfg)
             desc = cfg.describe()
-        self.netem_changes.append({"t": now, "source": source, "id": msg_id, "config": desc})
+        preset = self.netem.config.preset if self.netem is not None else None
+        self.netem_changes.append({"t": now, "source": source, "id": msg_id, "preset": preset, "config": desc})
         del self.netem_changes[:-50]  # a bounded history
         return desc
 
