@@ -192,3 +192,59 @@ def test_stats_are_json_and_the_node_keeps_a_history_of_changes(rendezvous: Rend
     json.dumps(st)
     b.set_netem(None)
     assert b.netem is None and b.netem_stats()["config"] == "off"  # type: ignore[index]
+
+
+@pytest.fixture
+def edge() -> Iterator[Rendezvous]:
+    import threading
+
+    from discovery.rendezvous import serve
+    from tests.conftest import free_port
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    stop = threading.Event()
+    th = threading.Thread(target=serve, args=([endpoint], stop, None, ["alpha"], 0.04), daemon=True)
+    th.start()
+    time.sleep(0.6)
+    yield Rendezvous((endpoint,), mode="client")
+    stop.set()
+    th.join(5)
+
+
+def test_edge_feed_batches_are_impaired_per_sender_with_link_overrides(edge: Rendezvous, opened: list[Any]) -> None:
+    """One batch carries both neighbours' poses; only the link 1 -> 3 is slowed down."""
+    pubs = [SwarmNode(NodeIdentity("alpha", i), edge, pose_feed="edge").open() for i in (1, 2)]
+    rx = SwarmNode(NodeIdentity("alpha", 3), edge, pose_feed="edge",
+                   netem={"links": [{"src": 1, "dst": 3, "delay": {"ms": 300}}]}).open()
+    opened += [*pubs, rx]
+    meshed([*pubs, rx], {1, 2, 3})
+    fly(pubs, [rx], 3.0)
+    links = rx.netem_stats()["links"]  # type: ignore[index]
+    assert links["1"]["delay"]["total"] / links["1"]["delay"]["n"] == pytest.approx(0.3)
+    assert links["2"]["delay"]["total"] == 0.0 and links["2"]["sent"] == links["2"]["delivered"] >= 25
+    assert rx.stats.received["pose_batch"] >= 25
+    n1, n2 = rx.neighbours.get(1), rx.neighbours.get(2)
+    assert n1 is not None and n2 is not None and n1.received == links["1"]["delivered"]
+    now = time.time()
+    assert n1.age(now) > n2.age(now)
+
+
+def test_swarm_messages_go_through_the_same_link_as_poses(rendezvous: Rendezvous, opened: list[Any]) -> None:
+    a = node(rendezvous, 1)
+    b = node(rendezvous, 2, netem={"v2v": {"delay": {"ms": 300}}})
+    opened += [a, b]
+    meshed([a, b], {1, 2})
+    time.sleep(0.3)
+    sent = time.time()
+    a.send("chat", {"hello": 1})
+    a.send("direct", "hi", to=2)
+    got: dict[str, float] = {}
+    deadline = time.time() + 5.0
+    while time.time() < deadline and len(got) < 2:
+        for m in b.poll(time.time()).messages:
+            got[m.topic] = time.time()
+        time.sleep(TICK)
+    assert set(got) == {"chat", "direct"}
+    assert min(got.values()) - sent >= 0.3 - TICK
+    ls = link_stats(b, 1)
+    assert ls["sent"] == ls["delivered"] == 2 and b.stats.received["broadcast"] == b.stats.received["unicast"] == 1
