@@ -454,7 +454,7 @@ class SwarmNode:
                 continue
             try:
                 desc = self.set_netem(m.config, source=m.sender, now=now, msg_id=m.id)
-            except NetemConfigError as exc:
+            except (NetemConfigError, ValueError, TypeError, KeyError, RecursionError) as exc:  # bad input never crashes the UAV
                 self.stats.reject("bad_netem_config", key, str(exc))
                 if "ack" in self._pubs:
                     self.ack(m.id, False, f"netem: {exc}"[:200])

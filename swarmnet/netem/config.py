@@ -513,7 +513,7 @@ def parse_netem(data: Any, default_seed: int | str = 0) -> NetemConfig:
         data = {}
     m = _mapping(data, "", TOP_KEYS)
     preset = m.get("preset")
-    if preset is not None and preset not in PRESETS:
+    if preset is not None and (type(preset) is not str or preset not in PRESETS):
         raise NetemConfigError("preset", f"unknown preset {preset!r} (one of: {', '.join(PRESETS)})")
     seed = m.get("seed", default_seed)
     if not ((type(seed) is int and 0 <= seed < 2**63) or (type(seed) is str and 0 < len(seed) <= 64)):
