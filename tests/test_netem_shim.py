@@ -8,6 +8,7 @@ sizes used (several standard errors), not tuned to the seed.
 
 from __future__ import annotations
 
+import bisect
 import math
 import random
 from typing import Any
@@ -376,6 +377,31 @@ def test_outage_hold_delivers_at_the_end_of_the_outage() -> None:
         else:
             assert b == pytest.approx(a + 0.010)
     assert held > 1000
+
+
+@pytest.mark.parametrize("every_s, lo_ms, hi_ms", [(60.0, 50.0, 150.0), (5.0, 3000.0, 4900.0), (20.0, 500.0, 19_000.0)])
+def test_outage_lookup_is_exact_in_any_query_order(every_s: float, lo_ms: float, hi_ms: float) -> None:
+    """The cached O(1) lookup against a brute-force union of every generated outage."""
+    from swarmnet.netem.config import OutageSpec
+
+    spec = OutageSpec(every_s, lo_ms, hi_ms, "drop")
+    ref = OutageSchedule(3, 1, spec)
+    raw = sorted(iv for w in range(-1, 7) for iv in zip(*ref._window(w)))
+    union: list[list[float]] = []
+    for a, b in raw:
+        if union and a <= union[-1][1]:
+            union[-1][1] = max(union[-1][1], b)
+        else:
+            union.append([a, b])
+    sched = OutageSchedule(3, 1, spec)
+    rng = random.Random(0)
+    starts = [a for a, _ in union]
+    ts = sorted(rng.uniform(0, 20_000) for _ in range(20_000)) + [rng.uniform(0, 20_000) for _ in range(20_000)]
+    ts += [x for a, b in union for x in (a, b, math.nextafter(b, -math.inf))]  # the edges
+    for t in ts:
+        i = bisect.bisect_right(starts, t) - 1
+        assert sched.down_until(t) == (union[i][1] if i >= 0 and union[i][1] > t else 0.0)
+    assert OutageSchedule(3, 1, spec).intervals(100, 19_000) == [(a, b) for a, b in union if b > 100 and a < 19_000]
 
 
 def test_every_receiver_computes_the_same_outages_for_a_sender() -> None:

@@ -172,12 +172,14 @@ class OutageSchedule:
     def __init__(self, seed: int | str, uav: int | str, spec: OutageSpec):
         self.seed, self.uav, self.spec = seed, uav, spec
         self._windows: dict[int, tuple[list[float], list[float]]] = {}
+        self._merged_windows: dict[int, tuple[list[float], list[float]]] = {}
+        self._lo, self._hi, self._ans = 0.0, 0.0, 0.0  # the cached answer and where it holds
 
     def _window(self, w: int) -> tuple[list[float], list[float]]:
         got = self._windows.get(w)
         if got is not None:
             return got
-        if len(self._windows) > 4:
+        if len(self._windows) > 16:
             self._windows.clear()
         s = self.spec
         rng = random.Random(f"netem-outage/{self.seed}/{self.uav}/{w}")
@@ -199,20 +201,65 @@ class OutageSchedule:
         self._windows[w] = (starts, ends)
         return starts, ends
 
+    def _merged(self, w: int) -> tuple[list[float], list[float]]:
+        """Window ``w``'s outages with the one still running from window ``w - 1``, overlaps merged."""
+        got = self._merged_windows.get(w)
+        if got is not None:
+            return got
+        if len(self._merged_windows) > 16:
+            self._merged_windows.clear()
+        starts, ends = self._window(w)
+        ps, pe = self._window(w - 1)
+        out_s: list[float] = []
+        out_e: list[float] = []
+        if pe and pe[-1] > w * self.WINDOW:
+            out_s.append(ps[-1])
+            out_e.append(pe[-1])
+        for a, b in zip(starts, ends):
+            if out_e and a <= out_e[-1]:
+                out_e[-1] = max(out_e[-1], b)
+            else:
+                out_s.append(a)
+                out_e.append(b)
+        self._merged_windows[w] = (out_s, out_e)
+        return out_s, out_e
+
     def down_until(self, t: float) -> float:
-        """End of the outage covering ``t``, or 0.0 if the radio is up at ``t``."""
+        """End of the outage covering ``t``, or 0.0 if the radio is up at ``t``.
+
+        The answer holds on a whole interval (up until the next outage starts, down until it
+        ends), which is cached, so the per-message query is O(1) for ordinary traffic.
+        """
+        if self._lo <= t < self._hi:
+            return self._ans
         w = int(t // self.WINDOW)
-        for ww in (w, w - 1):
-            starts, ends = self._window(ww)
-            i = bisect.bisect_right(starts, t) - 1
-            if i >= 0 and ends[i] > t:
-                return ends[i]
+        starts, ends = self._merged(w)
+        i = bisect.bisect_right(starts, t) - 1
+        if i >= 0 and ends[i] > t:
+            lo, end = starts[i], ends[i]
+            ww = w
+            while end >= (ww + 1) * self.WINDOW:  # the outage runs into the next window: merge with what starts there
+                ww += 1
+                ns, ne = self._merged(ww)
+                for a, b in zip(ns, ne):
+                    if a <= end:
+                        end = max(end, b)
+            self._lo, self._hi, self._ans = lo, end, end
+            return end
+        lo = ends[i] if i >= 0 else w * self.WINDOW
+        hi = starts[i + 1] if i + 1 < len(starts) else (w + 1) * self.WINDOW
+        self._lo, self._hi, self._ans = lo, hi, 0.0
         return 0.0
 
     def intervals(self, t0: float, t1: float) -> list[tuple[float, float]]:
-        """All outages overlapping [t0, t1) (for tests and reports)."""
-        out = []
-        for w in range(int(t0 // self.WINDOW) - 1, int(t1 // self.WINDOW) + 1):
-            starts, ends = self._window(w)
-            out += [(a, b) for a, b in zip(starts, ends) if b > t0 and a < t1]
+        """All outages (overlaps merged) that overlap [t0, t1), for tests and reports."""
+        out: list[tuple[float, float]] = []
+        t = t0
+        while t < t1:
+            end = self.down_until(t)
+            if end:
+                out.append((self._lo, end))
+                t = end
+            else:
+                t = self._hi
         return out
