@@ -409,7 +409,8 @@ class SwarmNode:
 
     def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,
                   msg_id: int | None = None) -> str:
-        """Apply a netem configuration (the ``network.netem`` mapping; None: no shim at all).
+        """Apply a netem configuration (the ``network.netem`` mapping; None: no shim at all, and
+        whatever the shim still holds is discarded; ``{"preset": "none"}`` releases it instead).
 
         Raises :class:`~swarmnet.netem.NetemConfigError` for an invalid one. A missing ``seed``
         keeps the current seed. Returns a one-line description of what now applies.

@@ -87,10 +87,10 @@ class Link:
         self.distance = p.distance
 
     def stats(self) -> dict[str, Any]:
-        h = LogHistogram()
-        h.merge(self.hist)
-        h.counts[0] += self.zero_delay  # pass-through deliveries: delay 0
-        h.n += self.zero_delay
+        delay = self.hist.to_dict()
+        if self.zero_delay:  # pass-through deliveries: delay 0, the underflow bin
+            delay["bins"][0] = delay["bins"].get(0, 0) + self.zero_delay
+            delay["n"] += self.zero_delay
         return {
             "class": self.cls,
             "profile": self.profile.describe() if self.profile is not None else "no impairment",
@@ -102,7 +102,7 @@ class Link:
             "jumps": self.jumps,
             "queued": self.queued,
             "no_position": self.no_position,
-            "delay": h.to_dict(),
+            "delay": delay,
         }
 
 
