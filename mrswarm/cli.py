@@ -65,8 +65,11 @@ def main(argv: list[str] | None = None) -> int:
                        add_help=False)
     p.set_defaults(func=lambda a: _delegate("deploy.cli", "main", a.rest))
 
+    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))
+
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router", "deploy"):
+    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

@@ -134,6 +134,8 @@ class Experiment:
     def _fly(self) -> None:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
+        # how other tools reach this run's swarm (e.g. `mrswarm netem set --run <dir>`)
+        (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
@@ -316,6 +318,9 @@ def print_summary(console: Console, s: dict[str, Any]) -> None:
         t.add_row("pose age", f"p50 {_fmt(age['p50'])} ms, p99 {_fmt(age['p99'])} ms over {age['n']} poses")
         t.add_row("messages", f"sent {sum(net['messages_sent'].values())}, received {sum(net['messages_received'].values())}, "
                               f"rejected {sum(net['messages_rejected'].values())}, pose loss {100 * net['pose_loss']:.2f} %")
+        for cls, c in (net.get("netem") or {}).get("classes", {}).items():  # docs/netem.md
+            t.add_row(f"netem {cls}", f"{c['links']} links: delay mean {_fmt(c['delay_ms']['mean'])} ms, p99 "
+                                      f"{_fmt(c['delay_ms']['p99'])} ms, lost {100 * c['loss']:.2f} %, reordered {c['reordered']}")
     t.add_row("results", f"{s.get('run_dir')}/summary.json" + (f", {s['plot']}" if s.get("plot") else ""))
     if s.get("aborted"):
         t.add_row("aborted", str(s["aborted"]))

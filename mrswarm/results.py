@@ -211,6 +211,7 @@ def analyze(run_dir: Path, scenario: Any, write: bool = True) -> dict[str, Any]:
             summary["encounter"] = encounter_report(scenario, grid, pos, ids, sep["per_step"])
     summary["rtf"] = rtf_report(tracks, stats, t0, t_end)
     summary["network"] = network_report(stats)
+    _netem_sections(summary["network"], run_dir, stats, t0, t_end, write)
     summary["processes"] = run.get("exit_codes", {})
     summary["duration_s"] = float(t_end - t0)
     if write:
@@ -223,6 +224,23 @@ def analyze(run_dir: Path, scenario: Any, write: bool = True) -> dict[str, Any]:
         except Exception as exc:  # a plotting failure must not lose the numbers
             summary["plot_error"] = repr(exc)
     return summary
+
+
+def _netem_sections(network: dict[str, Any], run_dir: Path, stats: dict[int, dict[str, Any]], t0: float, t_end: float,
+                    write: bool) -> None:
+    """Per-link netem statistics and pose age over time (with its plot): mrswarm/netem_report.py."""
+    from mrswarm.netem_report import netem_report, pose_age_report
+
+    ne = netem_report(stats)
+    if ne is not None:
+        network["netem"] = ne
+    try:
+        age = pose_age_report(run_dir, t0, t_end, ne["changes"] if ne else None, run_dir / "pose_age.png" if write else None)
+    except Exception as exc:  # a plotting failure must not lose the numbers
+        network["pose_age_over_time_error"] = repr(exc)
+        return
+    if age is not None:
+        network["pose_age_over_time"] = age
 
 
 def _json_default(o: Any) -> Any:

@@ -8,11 +8,13 @@ so an override that breaks a rule is reported like a bad file.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from uav_stack.config import AgentConfig, AvoidanceConfig, MissionConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.geo import GeoPoint, LocalFrame
@@ -88,6 +90,19 @@ class Network(_Model):
     connectivity: Literal["rendezvous"] = "rendezvous"
     mode: Literal["peer", "client"] = "peer"
     pose_feed: Literal["direct", "edge"] = "direct"
+    netem: dict[str, Any] | None = Field(None, description="netem shim: per-link impairments (docs/netem.md)")
+
+    @field_validator("netem")
+    @classmethod
+    def _netem(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
+        if v is not None:
+            from swarmnet.netem import NetemConfigError, parse_netem
+
+            try:
+                parse_netem(v)
+            except NetemConfigError as exc:  # reads "network.netem: v2v.loss.p: must be ..."
+                raise PydanticCustomError("netem_config", "{error}", {"error": str(exc)}) from None
+        return v
 
 
 class Spawn(_Model):
@@ -185,6 +200,8 @@ class Scenario(_Model):
         origin = GeoPoint(self.origin.lat, self.origin.lon, self.origin.alt)
         frame = LocalFrame(origin)
         fl, m = self.flight, self.mission
+        if self.network.netem is not None:  # the per-link seeds default to the scenario's seed
+            network = replace(network, netem={"seed": self.seed, **self.network.netem})
         out = []
         for u in self.uav_list():
             lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)

@@ -4,8 +4,8 @@ Every key starts with ``mrs/<swarm>/``, so two swarms on one network never recei
 other's traffic unless a node subscribes across swarms on purpose (``mrs/*/...``): Zenoh
 routes data only towards matching subscribers.
 
-UAV ids are decimal integers (1..65535); the words ``alive``, ``msg``, ``cmd`` and ``feed`` are
-reserved segment names and can never be mistaken for a UAV id.
+UAV ids are decimal integers (1..65535); the words ``alive``, ``msg``, ``cmd``, ``feed`` and ``netem``
+are reserved segment names and can never be mistaken for a UAV id.
 """
 
 from __future__ import annotations
@@ -60,6 +60,11 @@ class SwarmKeys:
     def pose_feed(self) -> str:
         """Batches of every UAV's latest pose, published by the edge (see swarmnet/feed.py)."""
         return f"{self.prefix}/feed/poses"
+
+    @property
+    def netem_set(self) -> str:
+        """Runtime changes of the netem shim's configuration (see swarmnet/netem/control.py)."""
+        return f"{self.prefix}/netem/set"
 
     @property
     def swarm_cmd(self) -> str:

@@ -14,7 +14,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -43,9 +43,15 @@ from swarmnet.messages import (
 from swarmnet.neighbours import NeighbourTable
 from swarmnet.stats import NodeStats
 
+if TYPE_CHECKING:
+    from swarmnet.netem import NetemShim
+
 log = logging.getLogger(__name__)
 
 ROLES = ("uav", "gcs", "edge", "observer")
+# what the netem shim holds: kinds of delayed items (swarmnet/netem, docs/netem.md)
+_POSE, _BROADCAST, _UNICAST, _CMD = 0, 1, 2, 3
+_MSG_KIND = {"broadcast": _BROADCAST, "unicast": _UNICAST}
 
 
 @dataclass(frozen=True)
@@ -92,6 +98,8 @@ class SwarmNode:
         ring_size: int = 1024,
         pose_feed: str = "direct",
         clock: Callable[[], float] = time.time,
+        netem: dict[str, Any] | None = None,
+        netem_control: bool = True,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
@@ -114,6 +122,13 @@ class SwarmNode:
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
         self._next_pose = 0.0
+        # netem shim (docs/netem.md): receive-side impairment of UAV and ground-station nodes
+        self.netem: NetemShim | None = None
+        self.netem_changes: list[dict[str, Any]] = []
+        self.netem_control = netem_control and identity.role in ("uav", "gcs")
+        self.own_position: tuple[float, float, float] | None = None  # as last published, for distance models
+        if netem is not None:
+            self.set_netem(netem, source="config")
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> SwarmNode:
@@ -141,6 +156,8 @@ class SwarmNode:
                 self._subs["pose"] = s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE)
             self._subs["broadcast"] = s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE)
             self._subs["alive"] = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
+            if self.netem_control:
+                self._subs["netem"] = s.declare_subscriber(k.netem_set, ring(16))
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
             self.connectivity.attach(s)
         except BaseException:
@@ -203,6 +220,9 @@ class SwarmNode:
         )
         self._pubs["pose"].put(encode_pose(pose))
         self.stats.sent["pose"] += 1
+        self.own_position = (x, y, z)
+        if self.netem is not None:
+            self.netem.own_pos = self.own_position
         return pose
 
     def publish_telemetry(self, *, mode: str, armed: bool, battery: float, voltage: float, lat: float, lon: float, alt: float, rtf: float) -> None:
@@ -246,6 +266,10 @@ class SwarmNode:
             return inbox
         stats = self.stats
         me = self.identity.uav
+        if "netem" in subs:
+            self._drain_netem_control(subs["netem"], now)
+        shim = self.netem
+        t_in = shim.arrival_time(now) if shim is not None else now
         # poses: the hot path
         pose_sub = subs.get("pose")
         budget = max_samples
@@ -255,15 +279,19 @@ class SwarmNode:
                 break
             budget -= 1
             key = str(sample.key_expr)
+            data = sample.payload.to_bytes()
             try:
-                pose = decode_pose(sample.payload.to_bytes())
+                pose = decode_pose(data)
             except DecodeError as exc:
                 stats.reject(exc.reason, key, exc.detail)
                 continue
             if uav_from_key(key) != pose.uav:
                 stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
                 continue
-            self._apply_pose(pose, now, key)
+            if shim is None or pose.uav == me:
+                self._apply_pose(pose, now, key)
+            else:
+                self._shim_pose(shim, pose, t_in, now, key, len(data))
         batch_sub = subs.get("pose_batch")
         while batch_sub is not None:
             sample = batch_sub.try_recv()
@@ -284,7 +312,10 @@ class SwarmNode:
                     continue
                 if pose.uav == me and self.identity.role == "uav":
                     continue  # our own pose comes back in the swarm's batch
-                self._apply_pose(pose, now, key)
+                if shim is None:
+                    self._apply_pose(pose, now, key)
+                else:
+                    self._shim_pose(shim, pose, t_in, now, key, len(data))
         # swarm messages
         for name in ("broadcast", "unicast"):
             sub = subs.get(name)
@@ -304,6 +335,9 @@ class SwarmNode:
                 if uav_from_key(key) is None and msg.dst != 0:
                     stats.reject("wrong_destination", key, "unicast payload on a broadcast key")
                     continue
+                if shim is not None and msg.src != me and not shim.offer(
+                        shim.link(msg.src), t_in, _MSG_KIND[name], msg, key, len(sample.payload)):
+                    continue  # delayed or dropped by the netem shim
                 stats.received[name] += 1
                 inbox.messages.append(msg)
         # commands
@@ -322,6 +356,9 @@ class SwarmNode:
                 if cmd.target not in (0, me):
                     stats.reject("wrong_destination", key, f"command for UAV {cmd.target}")
                     continue
+                if shim is not None and not shim.config.exempt_commands and not shim.offer(
+                        shim.link(f"gcs:{cmd.sender}"), t_in, _CMD, cmd, key, len(sample.payload)):
+                    continue  # delayed or dropped by the netem shim
                 stats.received["cmd"] += 1
                 inbox.commands.append(cmd)
         # liveliness
@@ -338,6 +375,16 @@ class SwarmNode:
             elif key in self.alive:
                 self.alive.discard(key)
                 inbox.left.append(key)
+        if shim is not None:
+            for kind, item, key in shim.release(now):
+                if kind == _POSE:
+                    self._apply_pose(item, now, key)
+                elif kind == _CMD:
+                    stats.received["cmd"] += 1
+                    inbox.commands.append(item)
+                else:
+                    stats.received["broadcast" if kind == _BROADCAST else "unicast"] += 1
+                    inbox.messages.append(item)
         self.neighbours.expire(now)
         return inbox
 
@@ -349,6 +396,82 @@ class SwarmNode:
         stats.received["pose"] += 1
         if self.neighbours.update(pose, now):
             stats.pose_age.add(now - pose.t_wall)
+
+    # ---- netem shim (docs/netem.md) ----------------------------------------------------------
+    def _shim_pose(self, shim: NetemShim, pose: Pose, t_in: float, now: float, key: str, size: int) -> None:
+        link = shim.links.get(pose.uav)
+        if link is None or link.realm is not pose.realm:
+            link = shim.link(pose.uav, pose.realm)
+        if link.distance is not None:
+            link.pos = (pose.x, pose.y, pose.z)  # the sender's position when it sent this pose
+        if shim.offer(link, t_in, _POSE, pose, key, size):
+            self._apply_pose(pose, now, key)
+
+    def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,
+                  msg_id: int | None = None) -> str:
+        """Apply a netem configuration (the ``network.netem`` mapping; None: no shim at all, and
+        whatever the shim still holds is discarded; ``{"preset": "none"}`` releases it instead).
+
+        Raises :class:`~swarmnet.netem.NetemConfigError` for an invalid one. A missing ``seed``
+        keeps the current seed. Returns a one-line description of what now applies.
+        """
+        from swarmnet.netem import NetemShim, parse_netem
+
+        if self.identity.role not in ("uav", "gcs"):
+            raise ValueError(f"a {self.identity.role} node does not impair its links")
+        now = self.clock() if now is None else now
+        if config is None:
+            self.netem = None
+            desc = "off"
+        else:
+            seed = self.netem.config.seed if self.netem is not None else 0
+            cfg = parse_netem(config, default_seed=seed)
+            if self.netem is None:
+                self.netem = NetemShim(cfg, self.identity.uav, self.identity.realm, self.identity.role)
+                self.netem.own_pos = self.own_position
+            else:
+                self.netem.reconfigure(cfg)
+            desc = cfg.describe()
+        preset = self.netem.config.preset if self.netem is not None else None
+        self.netem_changes.append({"t": now, "source": source, "id": msg_id, "preset": preset, "config": desc})
+        del self.netem_changes[:-50]  # a bounded history
+        return desc
+
+    def _drain_netem_control(self, sub: Any, now: float) -> None:
+        from swarmnet.netem import NetemConfigError
+        from swarmnet.netem.control import decode_netem_set
+
+        while True:
+            sample = sub.try_recv()
+            if sample is None:
+                return
+            key = str(sample.key_expr)
+            try:
+                m = decode_netem_set(sample.payload.to_bytes())
+            except DecodeError as exc:
+                self.stats.reject(exc.reason, key, exc.detail)
+                continue
+            if m.targets is not None and self.identity.uav not in m.targets:
+                continue
+            try:
+                desc = self.set_netem(m.config, source=m.sender, now=now, msg_id=m.id)
+            except (NetemConfigError, ValueError, TypeError, KeyError, RecursionError) as exc:  # bad input never crashes the UAV
+                self.stats.reject("bad_netem_config", key, str(exc))
+                if "ack" in self._pubs:
+                    self.ack(m.id, False, f"netem: {exc}"[:200])
+                continue
+            self.stats.received["netem_set"] += 1
+            self.netem_changes[-1]["t_sent"] = m.t_wall
+            if "ack" in self._pubs:
+                self.ack(m.id, True, f"netem: {desc}"[:200])
+
+    def netem_stats(self) -> dict[str, Any] | None:
+        """Per-link statistics and the history of changes, for the stats JSON (None: never configured)."""
+        if self.netem is None and not self.netem_changes:
+            return None
+        out: dict[str, Any] = self.netem.stats() if self.netem is not None else {"config": "off", "links": {}}
+        out["changes"] = list(self.netem_changes)
+        return out
 
     def alive_uavs(self) -> set[int]:
         """UAV ids whose liveliness token is present (the node's own included)."""

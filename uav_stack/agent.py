@@ -27,6 +27,7 @@ from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirecti
 from uav_stack.config import AgentConfig
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
+from uav_stack.pose_age import PoseAgeLog
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -117,8 +118,10 @@ class Agent:
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
         self.recorder: TrajectoryRecorder | None = None
+        self.age_log: PoseAgeLog | None = None
         if cfg.record_dir:
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv")
+            self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node)
 
     # ---- helpers ------------------------------------------------------------------------
     def _set_phase(self, phase: str, detail: str = "") -> None:
@@ -347,6 +350,7 @@ class Agent:
                              "rate": round(n.rate, 2)}
                 for n in self.node.neighbours
             },
+            "netem": self.node.netem_stats(),
             "written_at": now,
         }
 
@@ -355,8 +359,12 @@ class Agent:
             write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now))
         if self.recorder is not None:
             self.recorder.flush(now)
+        if self.age_log is not None:
+            self.age_log.sample(now)
 
     def close(self, now: float) -> None:
         self.write_stats(now)
         if self.recorder is not None:
             self.recorder.close()
+        if self.age_log is not None:
+            self.age_log.close()

@@ -23,6 +23,7 @@ class NetworkConfig:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     pose_feed: str = "direct"  # direct: a message per neighbour pose; edge: batches from the edge router
     options: dict[str, Any] = field(default_factory=dict)  # strategy-specific settings
+    netem: dict[str, Any] | None = None  # netem shim config (network.netem, docs/netem.md); None: no shim
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ def make_connectivity(net: NetworkConfig) -> Connectivity:
 def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
     return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
-                     pose_feed=cfg.network.pose_feed)
+                     pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
 def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None,
