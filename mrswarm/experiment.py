@@ -133,14 +133,17 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
-        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
+        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
+                                         connectivity=scn.network.connectivity, discovery=scn.network.discovery.model_dump())
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
             self.runtime.start_uav(c)
         self.run_info["pids"] = self.runtime.pids()
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV processes, results in {self.run_dir}")
-        obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client")
+        # the runner joins like a node: a client of the router, or a discovery peer (as role "observer")
+        obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client") \
+            if net.connectivity == "rendezvous" else net
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)

@@ -84,10 +84,29 @@ class Flight(_Model):
         return self
 
 
+class Discovery(_Model):
+    key: str | None = Field(None, min_length=16, description="the swarm's discovery key; default: a fresh one per run")
+    period: float = Field(1.0, ge=0.2, le=10, description="seconds between beacons")
+    ttl: float = Field(3.0, gt=0, le=60, description="the server forgets nodes silent this long, s")
+
+    @model_validator(mode="after")
+    def _ttl(self) -> Discovery:
+        if self.ttl < 2 * self.period:
+            raise ValueError("ttl must be at least two beacon periods")
+        return self
+
+
 class Network(_Model):
-    connectivity: Literal["rendezvous"] = "rendezvous"
+    connectivity: Literal["discovery", "rendezvous"] = "discovery"
     mode: Literal["peer", "client"] = "peer"
     pose_feed: Literal["direct", "edge"] = "direct"
+    discovery: Discovery = Discovery()
+
+    @model_validator(mode="after")
+    def _client_needs_router(self) -> Network:
+        if self.mode == "client" and self.connectivity != "rendezvous":
+            raise ValueError("mode 'client' routes through the edge router: set connectivity: rendezvous")
+        return self
 
 
 class Spawn(_Model):
