@@ -49,7 +49,7 @@ def build_connectivity(args: argparse.Namespace) -> Any:
             extra[s] = Path(f).read_text().strip()
         return BeaconDiscovery(server=args.server, key=key, listen=tuple(args.listen or ["tcp/0.0.0.0:0"]),
                                advertise=tuple(args.advertise), extra_swarms=extra, period=args.period,
-                               connect=tuple(args.connect))
+                               connect=tuple(args.connect), zid=args.zid)
     from swarmnet.connectivity import Rendezvous
 
     if not args.connect:
@@ -73,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--advertise", action="append", default=[], help="announce this host/locator instead")
     ap.add_argument("--connect", action="append", default=[], help="static Zenoh endpoint (rendezvous router)")
     ap.add_argument("--period", type=float, default=1.0, help="beacon period, s")
+    ap.add_argument("--zid", default=None, help="pin the Zenoh id (hex)")
     ap.add_argument("--publish", type=float, default=10.0, help="pose rate, Hz (0: none; UAVs only)")
     ap.add_argument("--status", default=None, help="write the status JSON to this file")
     ap.add_argument("--status-period", type=float, default=0.2)

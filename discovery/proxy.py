@@ -115,6 +115,7 @@ class BeaconDiscovery:
     period: float = DEFAULT_PERIOD
     dial: str = "greater-zid"  # who dials a pair: only the larger ZID (one link per pair), or "always" both
     scout_port: int = 0  # 0: a free loopback UDP port, picked when the config is built
+    zid: str | None = None  # pin the session's Zenoh id (hex); default: random per session
     tuning: TransportTuning = field(default_factory=TransportTuning)
     name: str = "discovery"
 
@@ -147,7 +148,7 @@ class BeaconDiscovery:
             raise ValueError("discovery connects peers directly; client mode needs connectivity 'rendezvous'")
         return cls(server=o["server"], key=key, listen=tuple(net.listen), connect=tuple(net.endpoints),
                    advertise=tuple(o.get("advertise", ())), period=float(o.get("period", DEFAULT_PERIOD)),
-                   extra_swarms=dict(o.get("extra_swarms", {})), dial=o.get("dial", "greater-zid"))
+                   extra_swarms=dict(o.get("extra_swarms", {})), dial=o.get("dial", "greater-zid"), zid=o.get("zid"))
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""
@@ -177,6 +178,8 @@ class BeaconDiscovery:
             "gossip": {"enabled": False},
         }
         cfg["open"] = {"return_conditions": {"connect_scouted": False}}
+        if self.zid:
+            cfg["id"] = self.zid
         return cfg
 
     def memberships(self) -> dict[str, bytes]:

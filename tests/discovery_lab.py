@@ -90,13 +90,15 @@ class SwarmLab:
         keys = self.dir / "server.keys"
         keys.write_text("".join(f"{s} {k}\n" for s, k in self.keys.items()))
         keys.chmod(0o600)
+        log = self.dir / "server.log"
+        before = log.read_text().count("discovery server on") if log.exists() else 0
         p = self._spawn("server", "edge", [sys.executable, "-m", "discovery.server", "--listen", self.server,
                                             "--keys", str(keys), "--ttl", str(ttl)])
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if p.proc.poll() is not None:
                 raise RuntimeError(f"discovery server exited: {p.log.read_text()[-2000:]}")
-            if "discovery server on" in p.log.read_text():
+            if p.log.read_text().count("discovery server on") > before:
                 return p
             time.sleep(0.05)
         raise RuntimeError("discovery server did not start")
@@ -117,17 +119,53 @@ class SwarmLab:
         d = json.loads(res.stdout)
         return d["nodes"], d["stats"]
 
+    def watch_registry(self, swarm: str, duration: float, period: float = 0.1) -> Proc:
+        """Query the registry every ``period`` s from the edge host for ``duration`` s; read it with
+        :meth:`watched`. Each line: {"t": wall time of the answer, "nodes": [...]} or {"t", "error"}."""
+        out = self.dir / f"watch-{swarm}-{time.time():.3f}.jsonl"
+        code = (
+            "import json,sys,time\n"
+            "from discovery.client import query_registry, QueryTimeout\n"
+            f"end=time.time()+{duration}\n"
+            f"f=open({str(out)!r},'a',buffering=1)\n"
+            "while time.time()<end:\n"
+            "    t0=time.time()\n"
+            "    try:\n"
+            f"        r,s=query_registry({self.server!r},{swarm!r},{self.keys[swarm]!r},timeout=0.2,attempts=1)\n"
+            "        f.write(json.dumps({'t':time.time(),'nodes':[x.to_dict() for x in r]})+'\\n')\n"
+            "    except QueryTimeout as e:\n"
+            "        f.write(json.dumps({'t':time.time(),'error':str(e)})+'\\n')\n"
+            f"    time.sleep(max(0.0,{period}-(time.time()-t0)))\n"
+        )
+        p = self._spawn(out.stem, "edge", [sys.executable, "-c", code])
+        p.status = out
+        return p
+
+    @staticmethod
+    def watched(p: Proc) -> list[dict[str, Any]]:
+        assert p.status is not None
+        if not p.status.exists():
+            return []
+        lines = p.status.read_text().splitlines()
+        out = []
+        for line in lines:
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:  # the line being written
+                pass
+        return out
+
     # ---- probe nodes ---------------------------------------------------------------------------------------
     def start_probe(self, name: str, host: str, swarm: str, node_id: int, role: str = "uav", key_file: Path | None = None,
                     extra_swarms: tuple[str, ...] = (), publish: float = 10.0, connectivity: str = "discovery",
-                    connect: str | None = None, extra_args: tuple[str, ...] = ()) -> Proc:
+                    connect: str | None = None, extra_args: tuple[str, ...] = (), listen: str | None = None) -> Proc:
         status = self.dir / f"{name}.json"
         if status.exists():
             status.unlink()
         argv = [sys.executable, "-m", "discovery.probe", "--swarm", swarm, "--id", str(node_id), "--role", role,
                 "--connectivity", connectivity, "--server", self.server,
                 "--key-file", str(key_file or self.key_files[swarm]),
-                "--listen", f"tcp/{self.addr(host)}:7447", "--publish", str(publish), "--status", str(status),
+                "--listen", listen or f"tcp/{self.addr(host)}:7447", "--publish", str(publish), "--status", str(status),
                 *extra_args]
         for s in extra_swarms:
             argv += ["--extra-swarm", f"{s}={self.key_files[s]}"]
