@@ -100,8 +100,8 @@ class Netlab:
     def __init__(self, hosts: list[str], name: str | None = None, second_octet: int = 66):
         if not hosts or len(hosts) > 250:
             raise ValueError("a netlab has 1..250 hosts")
-        if len(set(hosts)) != len(hosts) or not all(NAME_RE.match(h) for h in hosts):
-            raise ValueError("host names must be unique, 1-12 characters of [a-z0-9]")
+        if len(set(hosts)) != len(hosts) or not all(NAME_RE.match(h) for h in hosts) or "core" in hosts:
+            raise ValueError("host names must be unique, 1-12 characters of [a-z0-9], not 'core'")
         if not 0 <= second_octet <= 255:
             raise ValueError("second_octet must be 0..255")
         if name is None:
@@ -165,8 +165,9 @@ class Netlab:
         self.down()
 
     def argv(self, host: str, argv: list[str]) -> list[str]:
-        """``argv`` run inside ``host``'s namespace."""
-        return ["ip", "netns", "exec", self.hosts[host].ns, *argv]
+        """``argv`` run inside ``host``'s namespace (``"core"``: the router's)."""
+        ns = self.core if host == "core" else self.hosts[host].ns
+        return ["ip", "netns", "exec", ns, *argv]
 
     def popen(self, host: str, argv: list[str], **kw: Any) -> subprocess.Popen[Any]:
         return subprocess.Popen(self.argv(host, argv), **kw)

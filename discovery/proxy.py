@@ -214,7 +214,7 @@ class DiscoveryProxy:
 
     def __init__(self, *, session: zenoh.Session, scout_port: int, memberships: dict[str, bytes], role: str, node: int,
                  realm: str, server: Addr, period: float = DEFAULT_PERIOD, advertise: tuple[str, ...] = (),
-                 window: float = DEFAULT_WINDOW, reinject_period: float = 1.0):
+                 window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0):
         self.session = session
         self.scout_addr: Addr = (LOCAL_HOST, scout_port)
         self.keys = memberships
@@ -222,12 +222,13 @@ class DiscoveryProxy:
         self.server = server
         self.period = period
         self.advertise = advertise
-        self.reinject_period = reinject_period
+        self.retry_min, self.retry_max = retry_min, retry_max
         self.guard = ReplayGuard(window)
         self.stats: Counter[str] = Counter()
         self.peers: dict[str, dict[tuple[str, int], NodeEntry]] = {s: {} for s in memberships}
         self._snaps: dict[str, tuple[int, int, dict[int, tuple[NodeEntry, ...]]]] = {}
-        self._injected: dict[bytes, float] = {}  # zid -> last time we handed its Hello to Zenoh
+        # zid -> (when we may hand its Hello to Zenoh again, the current retry delay)
+        self._retry: dict[bytes, tuple[float, float]] = {}
         self.entry: NodeEntry | None = None
         self.injector: Addr | None = None  # the session's scouting socket 127.0.0.1:S
         self.last_server_contact = 0.0
@@ -309,8 +310,12 @@ class DiscoveryProxy:
         raise RuntimeError(f"the Zenoh session does not answer scouts on {self.scout_addr[0]}:{self.scout_addr[1]} "
                            f"(is scouting.multicast configured by BeaconDiscovery?)")
 
-    def inject(self, e: NodeEntry, now: float) -> None:
-        """Hand a member's Hello to our session, which dials it (if it is the one to dial)."""
+    def inject(self, e: NodeEntry, now: float, delay: float | None = None) -> None:
+        """Hand a member's Hello to our session, which dials it (if it is the one to dial).
+
+        ``delay`` is when to try again if no link appears; retries back off exponentially,
+        because Zenoh handles Hellos one at a time: a dial to an unreachable locator holds up
+        every later Hello for ``open_timeout`` (2 s), the newcomers' included."""
         assert self.injector is not None
         try:
             self.local.sendto(encode_hello(Hello(e.zid, e.whatami, e.locators)), self.injector)
@@ -318,7 +323,8 @@ class DiscoveryProxy:
         except (OSError, ValueError) as exc:
             self.stats["inject_error"] += 1
             log.debug("inject %s failed: %s", e.zid_hex, exc)
-        self._injected[e.zid] = now
+        d = self.retry_min if delay is None else delay
+        self._retry[e.zid] = (now + d, d)
 
     def linked(self) -> set[str]:
         try:
@@ -361,13 +367,21 @@ class DiscoveryProxy:
             log.debug("beacon to %s failed: %s", self.server, exc)
 
     def reinject(self, now: float) -> None:
-        """Members we still have no link to get their Hello again (a dial may have failed)."""
+        """Members we still have no link to get their Hello again (a dial may have failed),
+        after 1, 2, 4, ... 30 s; the delay starts over when the member changes or links."""
         linked = self.linked()
         with self._lock:
-            members = [e for table in self.peers.values() for e in table.values()]
-        for e in members:
-            if e.zid_hex not in linked and now - self._injected.get(e.zid, 0.0) >= self.reinject_period:
-                self.inject(e, now)
+            members = {e.zid: e for table in self.peers.values() for e in table.values()}
+        for zid in [z for z in self._retry if z not in members]:
+            del self._retry[zid]
+        for zid, e in members.items():
+            if e.zid_hex in linked:
+                self._retry.pop(zid, None)
+                continue
+            due, d = self._retry.get(zid, (0.0, self.retry_min / 2))
+            if now >= due:
+                self.inject(e, now, min(2 * d, self.retry_max))
+                self.stats["retries"] += 1
 
     def _drain_local(self) -> None:
         for _ in range(64):
