@@ -4,7 +4,8 @@ A diagnostic node (and what the discovery tests and benchmark run on every host)
 :class:`SwarmNode` with the chosen connectivity that optionally publishes a pose at a fixed
 rate and records
 
-* the peers its Zenoh session links to directly, with the time each link first appeared;
+* the peers its Zenoh session links to directly, with the time each link appeared (from
+  Zenoh's transport events, so the times are exact);
 * every remote sample it receives under ``mrs/**`` (all swarms, to prove isolation), and
   for poses the arrival gaps per sender;
 * liveliness tokens of its swarm appearing and disappearing;
@@ -21,6 +22,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -77,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--publish", type=float, default=10.0, help="pose rate, Hz (0: none; UAVs only)")
     ap.add_argument("--status", default=None, help="write the status JSON to this file")
     ap.add_argument("--status-period", type=float, default=0.2)
-    ap.add_argument("--poll", type=float, default=0.05, help="loop period, s (resolution of the link times)")
+    ap.add_argument("--poll", type=float, default=0.05, help="loop period, s (pose arrival times are taken per loop)")
     ap.add_argument("--duration", type=float, default=None)
     args = ap.parse_args(argv)
 
@@ -99,6 +101,18 @@ def main(argv: list[str] | None = None) -> int:
     s = node.session
     assert s is not None
     spy = s.declare_subscriber("mrs/**", zenoh.handlers.RingChannel(8192), allowed_origin=zenoh.Locality.REMOTE)
+    lock = threading.Lock()
+    pending: list[tuple[float, str, str]] = []  # (time, "put"/"delete", zid) from Zenoh's transport events
+
+    def on_transport(ev: Any) -> None:  # runs on a Zenoh thread: record and return
+        t = time.time()
+        tr = ev.transport
+        if tr.is_multicast or str(tr.whatami).lower().endswith("client"):
+            return
+        with lock:
+            pending.append((t, "put" if ev.kind == zenoh.SampleKind.PUT else "delete", str(tr.zid)))
+
+    transports = s.info.declare_transport_events_listener(on_transport, history=True)
     peers: dict[str, float] = {}
     lost: dict[str, float] = {}
     rx: dict[str, dict[str, Any]] = {}
@@ -140,25 +154,24 @@ def main(argv: list[str] | None = None) -> int:
                         r["gaps"].append([r["last"], now])
                     r["n"] += 1
                     r["last"] = now
-            current = {str(z) for z in s.info.peers_zid()}
-            for z in current:
-                if z not in peers:
-                    peers[z] = now
+            with lock:
+                events, pending = pending, []
+            for t, kind, z in events:
+                if kind == "put":
+                    peers.setdefault(z, t)
                     lost.pop(z, None)
-                    if status_path is None:
-                        print(f"{now - t_open:7.3f} s  linked to {z} ({len(current)} peers)", flush=True)
-            for z in list(peers):
-                if z not in current:
-                    lost[z] = now
-                    del peers[z]
-                    if status_path is None:
-                        print(f"{now - t_open:7.3f} s  lost {z} ({len(current)} peers)", flush=True)
+                else:
+                    lost[z] = t
+                    peers.pop(z, None)
+                if status_path is None:
+                    print(f"{t - t_open:7.3f} s  {'linked to' if kind == 'put' else 'lost'} {z} ({len(peers)} peers)", flush=True)
             if status_path is not None and now >= next_status:
                 next_status = now + args.status_period
                 st = {
                     "t": now, "launched_at": t_launch, "opened_at": t_open, "zid": zid, "swarm": args.swarm,
                     "role": args.role, "id": args.id, "pid": os.getpid(),
                     "peers": peers, "lost": lost, "links": len(list(s.info.links())),
+                    "peers_now": sorted(str(z) for z in s.info.peers_zid()),
                     "rx": rx, "per_swarm": per_swarm, "alive": alive_since, "alive_left": alive_left,
                     "discovery": conn.status() if hasattr(conn, "status") else {},
                     "rejects": dict(node.stats.rejected),
@@ -169,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(args.poll)
     finally:
         spy.undeclare()
+        transports.undeclare()
         node.close()
     return 0
 

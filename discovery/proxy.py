@@ -116,6 +116,7 @@ class BeaconDiscovery:
     dial: str = "greater-zid"  # who dials a pair: only the larger ZID (one link per pair), or "always" both
     scout_port: int = 0  # 0: a free loopback UDP port, picked when the config is built
     zid: str | None = None  # pin the session's Zenoh id (hex); default: random per session
+    lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
     name: str = "discovery"
 
@@ -126,6 +127,8 @@ class BeaconDiscovery:
             check_key(k, f"key of swarm {s!r}")
         if self.dial not in ("greater-zid", "always"):
             raise ValueError(f"dial must be 'greater-zid' or 'always', not {self.dial!r}")
+        if not 1 <= self.lanes <= 8:
+            raise ValueError("lanes must be 1..8")
         if not 0.1 <= self.period <= 30:
             raise ValueError("the beacon period must be within 0.1..30 s")
         if not self.listen:
@@ -148,7 +151,8 @@ class BeaconDiscovery:
             raise ValueError("discovery connects peers directly; client mode needs connectivity 'rendezvous'")
         return cls(server=o["server"], key=key, listen=tuple(net.listen), connect=tuple(net.endpoints),
                    advertise=tuple(o.get("advertise", ())), period=float(o.get("period", DEFAULT_PERIOD)),
-                   extra_swarms=dict(o.get("extra_swarms", {})), dial=o.get("dial", "greater-zid"), zid=o.get("zid"))
+                   extra_swarms=dict(o.get("extra_swarms", {})), dial=o.get("dial", "greater-zid"), zid=o.get("zid"),
+                   lanes=int(o.get("lanes", 4)))
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""
@@ -168,7 +172,7 @@ class BeaconDiscovery:
             "multicast": {
                 "enabled": True,
                 "address": f"{LOCAL_HOST}:{self.scout_port}",
-                "interface": LOCAL_HOST,
+                "interface": ",".join(f"127.0.0.{k + 1}" for k in range(self.lanes)),
                 "listen": True,
                 "autoconnect": {"peer": ["router", "peer"]},
                 "autoconnect_strategy": {"peer": {"to_router": "always", "to_peer": self.dial}},
@@ -197,6 +201,7 @@ class BeaconDiscovery:
         self.proxy = DiscoveryProxy(
             session=session, scout_port=self.scout_port, memberships=self.memberships(), role=self.role, node=self.node,
             realm=self.realm or "virtual", server=self.server_addr, period=self.period, advertise=self.advertise,
+            lanes=self.lanes,
         )
         self.proxy.start()
 
@@ -214,7 +219,7 @@ class DiscoveryProxy:
 
     def __init__(self, *, session: zenoh.Session, scout_port: int, memberships: dict[str, bytes], role: str, node: int,
                  realm: str, server: Addr, period: float = DEFAULT_PERIOD, advertise: tuple[str, ...] = (),
-                 window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0):
+                 window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0, lanes: int = 1):
         self.session = session
         self.scout_addr: Addr = (LOCAL_HOST, scout_port)
         self.keys = memberships
@@ -230,7 +235,9 @@ class DiscoveryProxy:
         # zid -> (when we may hand its Hello to Zenoh again, the current retry delay)
         self._retry: dict[bytes, tuple[float, float]] = {}
         self.entry: NodeEntry | None = None
-        self.injector: Addr | None = None  # the session's scouting socket 127.0.0.1:S
+        self.lanes = lanes
+        self.injectors: list[Addr] = []  # the session's scouting sockets (where Hellos are injected)
+        self._rr = 0
         self.last_server_contact = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -275,50 +282,85 @@ class DiscoveryProxy:
                 pass
 
     # ---- the local Zenoh session ------------------------------------------------------------------------
+    def _scout_once(self, sock: socket.socket, deadline: float) -> tuple[Hello, Addr] | None:
+        """Scout our responder from ``sock``; the Hello and the scouting socket that sent it."""
+        sock.sendto(encode_scout(), self.scout_addr)
+        while True:
+            ready, _, _ = select.select([sock], [], [], max(0.0, min(0.2, deadline - time.monotonic())))
+            if not ready:
+                return None
+            try:
+                data, src = sock.recvfrom(MAX_DATAGRAM)
+            except BlockingIOError:
+                continue
+            try:
+                return decode_hello(data), src[:2]
+            except WireError as exc:
+                self.stats["local_" + exc.reason] += 1
+
     def learn(self, timeout: float) -> NodeEntry:
-        """Scout our own session: its Hello gives our locators, its source our injection address."""
+        """Scout our own session: its Hello gives our locators, its source our injection address.
+
+        With several lanes, the session has one scouting socket per loopback address
+        127.0.0.1..127.0.0.K, and a scout from 127.0.0.k is answered from the k-th socket:
+        scouting from each address finds every lane."""
         want = str(self.session.info.zid())
         deadline = time.monotonic() + timeout
-        scout = encode_scout()
-        while time.monotonic() < deadline:
-            self.local.sendto(scout, self.scout_addr)
-            ready, _, _ = select.select([self.local], [], [], 0.2)
-            while ready:
+        lanes: list[Addr] = []
+        hello: Hello | None = None
+        for k in range(self.lanes):
+            src_ip = f"127.0.0.{k + 1}"
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
                 try:
-                    data, src = self.local.recvfrom(MAX_DATAGRAM)
-                except BlockingIOError:
+                    sock.bind((src_ip, 0))
+                except OSError:
+                    break  # no such loopback address here: fewer lanes
+                got = None
+                while got is None and time.monotonic() < deadline:
+                    got = self._scout_once(sock, deadline)
+                if got is None:
                     break
-                try:
-                    hello = decode_hello(data)
-                except WireError as exc:
-                    self.stats["local_" + exc.reason] += 1
-                    continue
-                if hello.zid_hex != want:
-                    raise RuntimeError(
-                        f"scouting port {self.scout_addr[1]} answered by another Zenoh session (ZID {hello.zid_hex}, "
-                        f"ours {want}); two nodes picked the same port - restart this node")
-                keep_lo = is_loopback_host(self.server[0])
-                locs = advertised_locators(hello.locators, self.advertise, keep_loopback=keep_lo)
-                if not locs:
-                    raise RuntimeError(
-                        f"the session advertises no usable locator (listening on {', '.join(hello.locators) or 'nothing'}"
-                        f"{'' if keep_lo else ', loopback dropped: the server is remote'}); set network.listen or advertise")
-                self.injector = src[:2]
-                self.entry = NodeEntry(self.role, self.node, self.realm, SOFTWARE, hello.zid, hello.whatami, locs)
-                log.info("discovery: zid %s at %s; beaconing to %s:%d", want, ", ".join(locs), *self.server)
-                return self.entry
-        raise RuntimeError(f"the Zenoh session does not answer scouts on {self.scout_addr[0]}:{self.scout_addr[1]} "
-                           f"(is scouting.multicast configured by BeaconDiscovery?)")
+            h, src = got
+            if h.zid_hex != want:
+                raise RuntimeError(
+                    f"scouting port {self.scout_addr[1]} answered by another Zenoh session (ZID {h.zid_hex}, "
+                    f"ours {want}); two nodes picked the same port - restart this node")
+            hello = hello or h
+            if src not in lanes:
+                lanes.append(src)
+        if hello is None:
+            raise RuntimeError(f"the Zenoh session does not answer scouts on {self.scout_addr[0]}:{self.scout_addr[1]} "
+                               f"(is scouting.multicast configured by BeaconDiscovery?)")
+        keep_lo = is_loopback_host(self.server[0])
+        locs = advertised_locators(hello.locators, self.advertise, keep_loopback=keep_lo)
+        if not locs:
+            raise RuntimeError(
+                f"the session advertises no usable locator (listening on {', '.join(hello.locators) or 'nothing'}"
+                f"{'' if keep_lo else ', loopback dropped: the server is remote'}); set network.listen or advertise")
+        self.injectors = lanes
+        self.entry = NodeEntry(self.role, self.node, self.realm, SOFTWARE, hello.zid, hello.whatami, locs)
+        log.info("discovery: zid %s at %s; %d dial lane(s); beaconing to %s:%d", want, ", ".join(locs), len(lanes),
+                 *self.server)
+        return self.entry
 
     def inject(self, e: NodeEntry, now: float, delay: float | None = None) -> None:
         """Hand a member's Hello to our session, which dials it (if it is the one to dial).
 
-        ``delay`` is when to try again if no link appears; retries back off exponentially,
-        because Zenoh handles Hellos one at a time: a dial to an unreachable locator holds up
-        every later Hello for ``open_timeout`` (2 s), the newcomers' included."""
-        assert self.injector is not None
+        Zenoh handles the Hellos of one scouting socket one at a time, and a dial to an
+        unreachable locator holds up every later Hello of that socket for ``open_timeout``
+        (2 s). So first Hellos go round-robin to all lanes but the last (several dials run in
+        parallel), retries go to the last lane (an unreachable member never delays a newcomer),
+        and retries back off exponentially: ``delay`` is when to try again."""
+        lanes = self.injectors
+        assert lanes
+        if delay is not None and len(lanes) > 1:
+            lane = lanes[-1]
+        else:
+            fresh = lanes[:-1] or lanes
+            lane = fresh[self._rr % len(fresh)]
+            self._rr += 1
         try:
-            self.local.sendto(encode_hello(Hello(e.zid, e.whatami, e.locators)), self.injector)
+            self.local.sendto(encode_hello(Hello(e.zid, e.whatami, e.locators)), lane)
             self.stats["injected"] += 1
         except (OSError, ValueError) as exc:
             self.stats["inject_error"] += 1
@@ -466,7 +508,7 @@ class DiscoveryProxy:
         return {
             "zid": self.entry.zid_hex if self.entry else None,
             "locators": list(self.entry.locators) if self.entry else [],
-            "injector": f"{self.injector[0]}:{self.injector[1]}" if self.injector else None,
+            "injectors": [f"{h}:{p}" for h, p in self.injectors],
             "server_contact_age": (time.time() - self.last_server_contact) if self.last_server_contact else None,
             "members": members,
             "stats": dict(self.stats),

@@ -33,15 +33,16 @@ from tests.conftest import wait_for
 KEY = "test-key-0123456789abcdef"
 
 
-def open_session(dial: str = "always", listen: str = "tcp/127.0.0.1:0") -> tuple[zenoh.Session, int]:
-    bd = BeaconDiscovery(server="127.0.0.1:9", key=KEY, swarm="wire", node=1, role="uav", listen=(listen,), dial=dial)
+def open_session(dial: str = "always", listen: str = "tcp/127.0.0.1:0", lanes: int = 1) -> tuple[zenoh.Session, int]:
+    bd = BeaconDiscovery(server="127.0.0.1:9", key=KEY, swarm="wire", node=1, role="uav", listen=(listen,), dial=dial,
+                         lanes=lanes)
     cfg = bd.zenoh_config()
     return zenoh.open(zenoh.Config.from_json5(json.dumps(cfg))), bd.scout_port
 
 
-def scout(port: int, timeout: float = 3.0) -> tuple[bytes, tuple[str, int]]:
+def scout(port: int, timeout: float = 3.0, src: str = "127.0.0.1") -> tuple[bytes, tuple[str, int]]:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
+        s.bind((src, 0))
         s.settimeout(0.3)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -158,5 +159,38 @@ def test_discovery_config_never_points_zenoh_at_a_multicast_group() -> None:
     cfg = BeaconDiscovery(server="10.0.0.2:7450", key=KEY, swarm="s", node=1, role="uav").zenoh_config()
     mc = cfg["scouting"]["multicast"]
     host, port = mc["address"].rsplit(":", 1)
-    assert host == "127.0.0.1" and mc["interface"] == "127.0.0.1" and int(port) > 0
+    assert host == "127.0.0.1" and int(port) > 0
+    assert mc["interface"] == "127.0.0.1,127.0.0.2,127.0.0.3,127.0.0.4"  # loopback only: the dial lanes
     assert cfg["scouting"]["gossip"]["enabled"] is False
+
+
+def test_hellos_of_one_scouting_socket_are_dialled_one_at_a_time_and_lanes_run_in_parallel() -> None:
+    """Why the proxy injects through several lanes: zenoh 1.10 handles the Hellos of one scouting
+    socket serially, so a dial that hangs (here: a TCP server that never answers the zenoh
+    handshake) holds up the next Hello for open_timeout (2 s). A second scouting socket,
+    found by scouting from 127.0.0.2, is not held up."""
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(16)
+    hang = encode_hello(Hello(zid_from_hex("abc123"), 1, (f"tcp/127.0.0.1:{silent.getsockname()[1]}",)))
+    a, pa = open_session(lanes=2)
+    b, pb = open_session()
+    c, pc = open_session()
+    try:
+        lane1, lane2 = scout(pa)[1], scout(pa, src="127.0.0.2")[1]
+        assert lane1 != lane2
+        linked = lambda s: {str(z) for z in a.info.peers_zid()} >= {str(s.info.zid())}  # noqa: E731
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            u.sendto(hang, lane1)
+            time.sleep(0.1)
+            t0 = time.monotonic()
+            u.sendto(scout(pb)[0], lane2)  # another lane: dialled at once
+            assert wait_for(lambda: linked(b), 1.0)
+            assert time.monotonic() - t0 < 1.0
+            u.sendto(scout(pc)[0], lane1)  # behind the hanging dial
+            assert wait_for(lambda: linked(c), 5.0)
+            assert time.monotonic() - t0 > 1.5
+    finally:
+        for s in (a, b, c):
+            s.close()
+        silent.close()
