@@ -35,8 +35,6 @@ Bodies (msgpack arrays)::
 
 from __future__ import annotations
 
-import hashlib
-import hmac
 import os
 import re
 import struct
@@ -47,6 +45,25 @@ from enum import IntEnum
 from typing import Any, Callable
 
 import msgpack
+from _operator import _compare_digest as compare_digest  # what hmac.compare_digest is
+
+try:  # the interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process)
+    from _sha256 import sha256 as _sha256  # CPython 3.11
+except ImportError:  # pragma: no cover - CPython 3.12+
+    from _sha2 import sha256 as _sha256  # type: ignore[no-redef]
+
+_IPAD = bytes(x ^ 0x36 for x in range(256))
+_OPAD = bytes(x ^ 0x5C for x in range(256))
+
+
+def hmac_sha256(key: bytes, msg: bytes) -> bytes:
+    """HMAC-SHA256 (RFC 2104) on the built-in SHA-256, checked against ``hmac`` in the tests."""
+    if len(key) > 64:
+        key = _sha256(key).digest()
+    key = key.ljust(64, b"\0")
+    inner = _sha256(key.translate(_IPAD) + msg).digest()
+    return _sha256(key.translate(_OPAD) + inner).digest()
+
 
 MAGIC = b"MRSD"
 VERSION = 1
@@ -154,7 +171,7 @@ class NodeEntry:
 def view_digest(entries: Any) -> bytes:
     """8-byte digest of a set of entries (order-independent): lets the server answer a
     beacon with a tiny ACK when the proxy already holds exactly the current member list."""
-    h = hashlib.sha256()
+    h = _sha256()
     for e in sorted(entries, key=lambda e: e.key):
         h.update(msgpack.packb(e.to_wire()))
     return h.digest()[:8]
@@ -177,7 +194,7 @@ def seal(mtype: MsgType, swarm: str, key: bytes, body: Any, ts: float | None = N
     head = MAGIC + bytes((VERSION, int(mtype), len(sw))) + sw
     head += _TS.pack(int((time.time() if ts is None else ts) * 1e6)) + (nonce or os.urandom(NONCE_LEN))
     data = head + msgpack.packb(body, use_bin_type=True)
-    data += hmac.new(key, data, hashlib.sha256).digest()
+    data += hmac_sha256(key, data)
     if len(data) > MAX_DATAGRAM:
         raise ValueError(f"message of {len(data)} bytes exceeds {MAX_DATAGRAM}")
     return data
@@ -214,8 +231,8 @@ def unseal(data: bytes, key_for: Callable[[str], bytes | None]) -> Envelope:
     key = key_for(swarm)
     if key is None:
         raise ProtocolError("unknown_swarm", swarm)
-    mac = hmac.new(key, data[:-MAC_LEN], hashlib.sha256).digest()
-    if not hmac.compare_digest(mac, data[-MAC_LEN:]):
+    mac = hmac_sha256(key, data[:-MAC_LEN])
+    if not compare_digest(mac, data[-MAC_LEN:]):
         raise ProtocolError("bad_mac", f"swarm {swarm}")
     p = 7 + len(swarm)
     ts = _TS.unpack_from(data, p)[0] / 1e6

@@ -362,3 +362,34 @@ def test_keys_file_formats(tmp_path: Any) -> None:
         load_keys(p)
     with pytest.raises(ValueError, match="at least 16"):
         ServerConfig(keys={"alpha": b"short"})
+
+
+def test_builtin_hmac_matches_the_standard_library() -> None:
+    import hashlib
+    import hmac
+
+    from discovery.protocol import hmac_sha256
+
+    # RFC 4231 test case 2
+    assert hmac_sha256(b"Jefe", b"what do ya want for nothing?").hex() == \
+        "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843"
+    rng = random.Random(9)
+    for n in range(300):
+        key = bytes(rng.randrange(256) for _ in range(n % 140))
+        msg = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 1500)))
+        assert hmac_sha256(key, msg) == hmac.new(key, msg, hashlib.sha256).digest()
+
+
+def test_discovery_in_a_uav_process_does_not_load_openssl() -> None:
+    """hashlib/hmac pull in OpenSSL's libcrypto (~4 MB RSS in each of 50 UAV processes)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("import sys, discovery.proxy, discovery.protocol, swarmnet.node; "
+            "print(sorted(m for m in ('_hashlib', 'hashlib', 'hmac', 'ssl') if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(root)})
+    assert res.returncode == 0, res.stderr
+    assert "_hashlib" not in res.stdout and "'hmac'" not in res.stdout, res.stdout
