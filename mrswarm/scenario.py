@@ -102,6 +102,14 @@ class Network(_Model):
     pose_feed: Literal["direct", "edge"] = "direct"
     discovery: Discovery = Discovery()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _default_connectivity(cls, data: Any) -> Any:
+        # client mode means "through the edge router": it implies the rendezvous topology
+        if isinstance(data, dict) and "connectivity" not in data and data.get("mode") == "client":
+            data = {**data, "connectivity": "rendezvous"}
+        return data
+
     @model_validator(mode="after")
     def _client_needs_router(self) -> Network:
         if self.mode == "client" and self.connectivity != "rendezvous":
