@@ -7,7 +7,7 @@ rate and records
 * the peers its Zenoh session links to directly, with the time each link appeared (from
   Zenoh's transport events, so the times are exact);
 * every remote sample it receives under ``mrs/**`` (all swarms, to prove isolation), and
-  for poses the arrival gaps per sender;
+  for poses, per sender, the arrival gaps and the poses lost (from sequence numbers);
 * liveliness tokens of its swarm appearing and disappearing;
 * the discovery proxy's status and counters.
 
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import zenoh
 
-    from swarmnet.messages import Realm
+    from swarmnet.messages import DecodeError, Realm, decode_pose
     from swarmnet.node import NodeIdentity, SwarmNode
 
     stop = {"flag": False}
@@ -123,9 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     next_status = next_pose = 0.0
     end = t_open + args.duration if args.duration else float("inf")
     zid = str(s.info.zid())
+    stalls: list[list[float]] = []  # [from, to] when this loop itself did not run for > GAP (busy machine)
+    last_loop = time.time()
     try:
         while not stop["flag"] and time.time() < end:
             now = time.time()
+            if now - last_loop > GAP and len(stalls) < 200:
+                stalls.append([last_loop, now])
+            last_loop = now
             if rate and now >= next_pose:
                 node.publish_pose(t_sim=now - t_open, x=float(args.id), y=0.0, z=10.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
                 next_pose = max(next_pose + 1.0 / rate, now)
@@ -146,12 +151,25 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 per_swarm[parts[1]] = per_swarm.get(parts[1], 0) + 1
                 if len(parts) == 4 and parts[3] == "pose":
-                    r = rx.setdefault(f"{parts[1]}/{parts[2]}", {"n": 0, "first": now, "last": now, "max_gap": 0.0, "gaps": []})
+                    r = rx.setdefault(f"{parts[1]}/{parts[2]}", {"n": 0, "first": now, "last": now, "max_gap": 0.0, "gaps": [],
+                                                                 "seq": None, "missing": 0, "losses": []})
                     gap = now - r["last"]
                     if r["n"] and gap > r["max_gap"]:
                         r["max_gap"] = gap
                     if r["n"] and gap > GAP and len(r["gaps"]) < 100:
                         r["gaps"].append([r["last"], now])
+                    try:  # sequence numbers tell lost poses from a receiver that was merely busy
+                        seq = decode_pose(sample.payload.to_bytes()).seq
+                    except DecodeError:
+                        seq = None
+                    if seq is not None:
+                        if r["seq"] is not None:
+                            missing = (seq - r["seq"] - 1) % 65536
+                            if missing and missing < 32768:
+                                r["missing"] += missing
+                                if len(r["losses"]) < 100:
+                                    r["losses"].append([now, missing])
+                        r["seq"] = seq
                     r["n"] += 1
                     r["last"] = now
             with lock:
@@ -172,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
                     "role": args.role, "id": args.id, "pid": os.getpid(),
                     "peers": peers, "lost": lost, "links": len(list(s.info.links())),
                     "peers_now": sorted(str(z) for z in s.info.peers_zid()),
-                    "rx": rx, "per_swarm": per_swarm, "alive": alive_since, "alive_left": alive_left,
+                    "rx": rx, "per_swarm": per_swarm, "stalls": stalls, "alive": alive_since, "alive_left": alive_left,
                     "discovery": conn.status() if hasattr(conn, "status") else {},
                     "rejects": dict(node.stats.rejected),
                 }
