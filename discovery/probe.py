@@ -27,7 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-GAP = 0.35  # s between two poses of one sender that counts as a gap (poses come every 0.1 s)
+GAP = 0.35  # s between two poses of one sender that is recorded as a gap (poses come every 0.1 s)
+STALL = 0.2  # s between two iterations of our own loop that is recorded as a stall (busy machine)
 
 
 def _read_key(text: str | None, file: str | None) -> str | None:
@@ -123,12 +124,12 @@ def main(argv: list[str] | None = None) -> int:
     next_status = next_pose = 0.0
     end = t_open + args.duration if args.duration else float("inf")
     zid = str(s.info.zid())
-    stalls: list[list[float]] = []  # [from, to] when this loop itself did not run for > GAP (busy machine)
+    stalls: list[list[float]] = []  # [from, to] when this loop itself did not run for > STALL (busy machine)
     last_loop = time.time()
     try:
         while not stop["flag"] and time.time() < end:
             now = time.time()
-            if now - last_loop > GAP and len(stalls) < 200:
+            if now - last_loop > STALL and len(stalls) < 500:
                 stalls.append([last_loop, now])
             last_loop = now
             if rate and now >= next_pose:

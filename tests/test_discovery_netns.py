@@ -113,13 +113,15 @@ def test_server_killed_pose_flow_continues_and_restarted_registry_is_complete_in
             lost = [m for t, m in r["losses"] if t > t_kill]
             assert not lost, f"{n}: lost {sum(lost)} poses from {sender} after the server died"
             assert now - r["last"] < 2.0, f"{n}: no pose from {sender} for {now - r['last']:.1f} s"
-            # an arrival gap counts unless this receiver's own loop stalled then (a busy machine)
+            # an interruption: no pose for 0.75 s (7 periods), unless this receiver's own loop was
+            # not running then (a busy machine delays the drain, not the flow)
             stalls = {round(b, 6): a for a, b in st[n]["stalls"]}
             gaps = [(a, b) for a, b in r["gaps"] if b > t_kill]
-            unexplained = [round(b - a, 2) for a, b in gaps if not (round(b, 6) in stalls and stalls[round(b, 6)] - a <= 0.35)]
+            unexplained = [round(b - a, 2) for a, b in gaps
+                           if b - a > 0.75 and not (round(b, 6) in stalls and stalls[round(b, 6)] - a <= 0.75)]
             assert not unexplained, f"{n}: poses from {sender} stopped for {unexplained} s"
             if gaps:
-                print(f"{n}: {len(gaps)} gap(s) in poses from {sender} while {n} itself stalled; none lost")
+                print(f"{n}: poses from {sender} late by {[round(b - a, 2) for a, b in gaps]} s (none lost)")
     # restart: the registry fills from the next round of beacons
     lab.start_server(ttl=TTL)
     watch = lab.watch_registry("alpha", duration=10.0)
