@@ -26,7 +26,7 @@ from discovery.protocol import (
     seal,
     unseal,
 )
-from discovery.proxy import parse_server
+from discovery.proxy import parse_server, resolve
 
 
 class QueryTimeout(TimeoutError):
@@ -36,7 +36,7 @@ class QueryTimeout(TimeoutError):
 def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1.0,
                    attempts: int = 3) -> tuple[list[RegisteredNode], dict[str, Any]]:
     """The swarm's current members and the server's counters; raises :class:`QueryTimeout`."""
-    addr = parse_server(server)
+    addr = resolve(parse_server(server))
     k = check_key(key)
     fam = socket.AF_INET6 if ":" in addr[0] else socket.AF_INET
     guard = ReplayGuard()

@@ -90,6 +90,13 @@ def is_loopback_host(host: str) -> bool:
     return host in ("localhost", "::1") or host.startswith("127.")
 
 
+def resolve(addr: Addr) -> Addr:
+    """``(host, port)`` -> ``(ip, port)``, as datagrams from that address will show it."""
+    family = socket.AF_INET6 if ":" in addr[0] else socket.AF_UNSPEC
+    info = socket.getaddrinfo(addr[0], addr[1], family, socket.SOCK_DGRAM)
+    return info[0][4][0], info[0][4][1]
+
+
 @dataclass
 class BeaconDiscovery:
     """Find the swarm through a discovery server; connect to every member directly.
@@ -224,7 +231,11 @@ class DiscoveryProxy:
         self.scout_addr: Addr = (LOCAL_HOST, scout_port)
         self.keys = memberships
         self.role, self.node, self.realm = role, node, realm
-        self.server = server
+        self.server_name = server
+        try:  # a name that does not resolve yet (no network at boot) is retried at every beacon
+            self.server: Addr | None = resolve(server)
+        except OSError:
+            self.server = None
         self.period = period
         self.advertise = advertise
         self.retry_min, self.retry_max = retry_min, retry_max
@@ -244,9 +255,10 @@ class DiscoveryProxy:
         self._lock = threading.Lock()
         self.local = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.local.bind((LOCAL_HOST, 0))
-        fam = socket.AF_INET6 if ":" in server[0] else socket.AF_INET
+        target = self.server or server
+        fam = socket.AF_INET6 if ":" in target[0] else socket.AF_INET
         self.up = socket.socket(fam, socket.SOCK_DGRAM)
-        self.up.bind((LOCAL_HOST if is_loopback_host(server[0]) else ("::" if fam == socket.AF_INET6 else "0.0.0.0"), 0))
+        self.up.bind((LOCAL_HOST if is_loopback_host(target[0]) else ("::" if fam == socket.AF_INET6 else "0.0.0.0"), 0))
         for s in (self.local, self.up):
             s.setblocking(False)
 
@@ -331,7 +343,7 @@ class DiscoveryProxy:
         if hello is None:
             raise RuntimeError(f"the Zenoh session does not answer scouts on {self.scout_addr[0]}:{self.scout_addr[1]} "
                                f"(is scouting.multicast configured by BeaconDiscovery?)")
-        keep_lo = is_loopback_host(self.server[0])
+        keep_lo = is_loopback_host((self.server or self.server_name)[0])
         locs = advertised_locators(hello.locators, self.advertise, keep_loopback=keep_lo)
         if not locs:
             raise RuntimeError(
@@ -340,7 +352,7 @@ class DiscoveryProxy:
         self.injectors = lanes
         self.entry = NodeEntry(self.role, self.node, self.realm, SOFTWARE, hello.zid, hello.whatami, locs)
         log.info("discovery: zid %s at %s; %d dial lane(s); beaconing to %s:%d", want, ", ".join(locs), len(lanes),
-                 *self.server)
+                 *self.server_name)
         return self.entry
 
     def inject(self, e: NodeEntry, now: float, delay: float | None = None) -> None:
@@ -378,20 +390,25 @@ class DiscoveryProxy:
     def _run(self) -> None:
         next_beacon = 0.0
         while not self._stop.is_set():
-            now_m = time.monotonic()
-            if now_m >= next_beacon:
-                self.beacon()
-                self.reinject(time.time())
-                jitter = 0.9 + 0.2 * int.from_bytes(os.urandom(2), "big") / 65535.0  # no lock-step beacons
-                next_beacon = now_m + self.period * jitter
             try:
-                ready, _, _ = select.select([self.up, self.local], [], [], max(0.0, next_beacon - time.monotonic()))
-            except (OSError, ValueError):  # sockets closed by stop()
-                return
-            if self.up in ready:
-                self._drain_up()
-            if self.local in ready:
-                self._drain_local()
+                now_m = time.monotonic()
+                if now_m >= next_beacon:
+                    self.beacon()
+                    self.reinject(time.time())
+                    jitter = 0.9 + 0.2 * int.from_bytes(os.urandom(2), "big") / 65535.0  # no lock-step beacons
+                    next_beacon = now_m + self.period * jitter
+                try:
+                    ready, _, _ = select.select([self.up, self.local], [], [], max(0.0, next_beacon - time.monotonic()))
+                except (OSError, ValueError):  # sockets closed by stop()
+                    return
+                if self.up in ready:
+                    self._drain_up()
+                if self.local in ready:
+                    self._drain_local()
+            except Exception:  # a bug must not end discovery for the life of the process
+                self.stats["internal_error"] += 1
+                log.exception("discovery proxy error")
+                self._stop.wait(self.period)
 
     def beacon(self) -> None:
         assert self.entry is not None
@@ -403,10 +420,12 @@ class DiscoveryProxy:
 
     def _send_up(self, data: bytes) -> None:
         try:
+            if self.server is None:
+                self.server = resolve(self.server_name)
             self.up.sendto(data, self.server)
-        except OSError as exc:  # no route yet, network down: try again next period
+        except OSError as exc:  # no name resolution or route yet, network down: try again next period
             self.stats["send_error"] += 1
-            log.debug("beacon to %s failed: %s", self.server, exc)
+            log.debug("beacon to %s failed: %s", self.server_name, exc)
 
     def reinject(self, now: float) -> None:
         """Members we still have no link to get their Hello again (a dial may have failed),

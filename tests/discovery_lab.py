@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from discovery.client import QueryTimeout, query_registry
+from discovery.client import QueryTimeout
 from discovery.netlab import Netlab, cleanup_stale
 
 ROOT = Path(__file__).resolve().parents[1]

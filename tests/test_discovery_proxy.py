@@ -172,3 +172,14 @@ def test_cli_serve_nodes_keygen(tmp_path: Path) -> None:
     assert res.returncode == 2 and "expected 'SWARM KEY'" in res.stderr
     res = cli("discovery", "serve", "--listen", "127.0.0.1:0", "--key", "alpha=short")
     assert res.returncode == 2 and "at least 16" in res.stderr
+
+
+def test_server_given_by_name_works(server: str) -> None:
+    port = server.rsplit(":", 1)[1]
+    a, b = node(f"localhost:{port}", 1).open(), node(f"localhost:{port}", 2).open()
+    try:
+        assert wait_for(lambda: a.peers() == [b.zid], 5.0)
+        assert query_registry(f"localhost:{port}", "alpha", KEY)[0]
+    finally:
+        a.close()
+        b.close()
