@@ -2,17 +2,18 @@
 
 ``BeaconDiscovery`` configures the node's Zenoh session to do *scouting on a unicast
 loopback address* (``scouting.multicast.address = 127.0.0.1:P``): Zenoh binds its scouting
-responder there and a scouting socket ``127.0.0.1:S``, and never sends a multicast
-packet (its own periodic scouts go to ``127.0.0.1:P``, where its responder ignores them).
-Gossip is off: the discovery server is the only source of peers' addresses.
+responder there, plus one scouting socket ``S_k`` per address 127.0.0.1..127.0.0.4 (zenoh
+1.10.2 binds them to 0.0.0.0), and never sends a multicast packet: its own periodic scouts
+go to ``127.0.0.1:P``, its own responder. Gossip is off: the discovery server is the only
+source of peers' addresses.
 
 Then a small thread in the same process (no root, no raw sockets):
 
-1. sends a Scout to ``127.0.0.1:P``; the session answers with its Hello (ZID, locators)
-   from ``127.0.0.1:S``, which tells the proxy where to inject;
+1. sends a Scout to ``127.0.0.1:P`` from each 127.0.0.k; the session answers with its Hello
+   (ZID, locators) from ``S_k``, which tells the proxy where to inject;
 2. beacons that identity to the discovery server every period (1 s), authenticated
    with the swarm's key, and keeps the server's list of the swarm's other members;
-3. sends each member's Hello to ``127.0.0.1:S``, and Zenoh dials its locators
+3. sends each member's Hello to one of the ``S_k``, and Zenoh dials its locators
    directly, peer to peer, exactly as if it had scouted the member on a LAN.
 
 The thread wakes once per period and when the server pushes news; it never touches the
