@@ -100,7 +100,8 @@ class ProcessRuntime:
         server = f"127.0.0.1:{free_udp_port()}"
         period = float(opts.get("period", 1.0))
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000"])  # every node shares 127.0.0.1
+                                  "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000",  # every node shares 127.0.0.1
+                                  "--die-with-parent"])
         deadline = time.monotonic() + 20.0
         while True:
             proc = self.children["discovery"].proc

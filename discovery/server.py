@@ -341,7 +341,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=100.0, help="datagrams/s accepted per source IP")
     ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     ap.add_argument("--log-level", default="INFO")
+    ap.add_argument("--die-with-parent", action="store_true", help="exit when the launching process dies (runtimes)")
     args = ap.parse_args(argv)
+    if args.die_with_parent and sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except OSError:
+            pass
     logging.basicConfig(level=getattr(logging, args.log_level.upper(), logging.INFO), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
