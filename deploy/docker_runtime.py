@@ -33,6 +33,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 from deploy import multicast
@@ -43,6 +44,22 @@ from uav_stack.config import NetworkConfig, VirtualUavConfig
 log = logging.getLogger(__name__)
 
 EXITED_POLL_S = 1.0  # exited() asks the engine at most this often
+
+
+def wait_discovery(server: str, swarm: str, key: str, timeout: float, alive: Callable[[], bool]) -> None:
+    """Wait until the discovery server answers a registry query (bounded)."""
+    from discovery.client import QueryTimeout, query_registry
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not alive():
+            raise RuntimeError(f"the discovery server on {server} exited before answering")
+        try:
+            query_registry(server, swarm, key, timeout=0.3, attempts=1)
+            return
+        except QueryTimeout:
+            continue
+    raise RuntimeError(f"the discovery server on {server} does not answer after {timeout:.0f} s")
 
 
 @dataclass(frozen=True)
@@ -89,6 +106,7 @@ class DockerRuntime:
 
     def __init__(self, run_dir: Path, log_level: str = "INFO", settings: ContainerSettings | None = None,
                  swarm: str = "*"):
+        self.discovery_opts: dict[str, Any] = {}
         self.run_dir = run_dir.resolve()
         self.log_level = log_level
         self.settings = settings or ContainerSettings()
@@ -137,10 +155,19 @@ class DockerRuntime:
 
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous") -> NetworkConfig:
-        """Create the run's network, start its services, and return how UAVs reach them."""
+                      connectivity: str = "rendezvous", discovery: dict[str, Any] | None = None) -> NetworkConfig:
+        """Create the run's network, start its services, and return how UAVs reach them.
+
+        With discovery the edge router runs too: the runner on the host joins through it.
+        """
         self.swarm = swarm if swarm != "*" else self.swarm
-        plan = network_plan(connectivity, mode, pose_feed, swarm)
+        opts = dict(discovery or {})
+        if connectivity == "discovery" and not opts.get("key"):
+            from discovery.protocol import new_key
+
+            opts["key"] = new_key()  # a fresh key per run unless the scenario sets one
+        self.discovery_opts = opts
+        plan = network_plan(connectivity, mode, pose_feed, swarm, opts, with_router=connectivity == "discovery")
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -167,6 +194,9 @@ class DockerRuntime:
             addresses[svc.name] = box.ip
             if svc.proto == "tcp":
                 wait_tcp(box.ip, svc.port, 30.0, alive=lambda b=box: self._running(b))
+            elif svc.name == "discovery":
+                wait_discovery(f"{box.ip}:{svc.port}", self.swarm, self.discovery_opts["key"], 30.0,
+                               alive=lambda b=box: self._running(b))
         net = plan.uav_network(addresses)
         self._write_manifest()
         return net

@@ -2,7 +2,7 @@
 
 Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
 with its own Zenoh session and a real MAVLink/UDP link between the two. The runtime also
-starts what connectivity needs on 127.0.0.1 (a rendezvous router). Children get their own
+starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Children get their own
 process group and ``PR_SET_PDEATHSIG``, and :meth:`ProcessRuntime.stop` escalates from
 SIGTERM to SIGKILL, so nothing outlives the run.
 """
@@ -18,6 +18,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from uav_stack.config import NetworkConfig, VirtualUavConfig
 
@@ -85,8 +86,21 @@ class ProcessRuntime:
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
     # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*") -> NetworkConfig:
-        """Start a rendezvous (edge) router on 127.0.0.1 and return how nodes reach it."""
+    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*",
+                      connectivity: str = "rendezvous", discovery: dict[str, Any] | None = None) -> NetworkConfig:
+        """Start what the nodes need on 127.0.0.1 and return how they reach it.
+
+        ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
+        ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
+        router when the pose feed needs it.
+        """
+        if connectivity == "discovery":
+            return self._start_discovery(swarm, pose_feed, discovery or {})
+        endpoint = self._start_router(pose_feed, swarm)
+        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
+                             pose_feed=pose_feed)
+
+    def _start_router(self, pose_feed: str, swarm: str) -> str:
         port = free_tcp_port()
         endpoint = f"tcp/127.0.0.1:{port}"
         argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
@@ -94,8 +108,38 @@ class ProcessRuntime:
             argv += ["--feed", swarm]
         self._spawn("router", argv)
         wait_tcp("127.0.0.1", port, timeout=20.0, proc=self.children["router"].proc)
-        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
-                             pose_feed=pose_feed)
+        return endpoint
+
+    def _start_discovery(self, swarm: str, pose_feed: str, opts: dict[str, Any]) -> NetworkConfig:
+        from discovery.client import QueryTimeout, query_registry
+        from discovery.protocol import new_key
+        from discovery.proxy import free_udp_port
+
+        key = opts.get("key") or new_key()  # a fresh key per run unless the scenario sets one
+        keys = self.run_dir / "config" / "discovery.keys"
+        keys.write_text(f"{swarm} {key}\n")
+        keys.chmod(0o600)
+        server = f"127.0.0.1:{free_udp_port()}"
+        period = float(opts.get("period", 1.0))
+        self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
+                                  "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000",  # every node shares 127.0.0.1
+                                  "--die-with-parent"])
+        deadline = time.monotonic() + 20.0
+        while True:
+            proc = self.children["discovery"].proc
+            if proc.poll() is not None:
+                raise RuntimeError(f"discovery server exited with code {proc.returncode} (see {self.children['discovery'].log_path})")
+            try:
+                query_registry(server, swarm, key, timeout=0.2, attempts=1)
+                break
+            except QueryTimeout:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"discovery server on {server} does not answer after 20 s") from None
+        endpoints: tuple[str, ...] = ()
+        if pose_feed == "edge":  # the feed runs on the edge router; nodes keep one static link to it
+            endpoints = (self._start_router(pose_feed, swarm),)
+        return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=("tcp/127.0.0.1:0",),
+                             pose_feed=pose_feed, options={"server": server, "key": key, "period": period})
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:
@@ -124,8 +168,9 @@ class ProcessRuntime:
         return {n: c.proc.pid for n, c in self.children.items()}
 
     def stop(self, grace: float = 5.0) -> dict[str, int]:
-        """SIGTERM every UAV, then the router; SIGKILL whatever is left after ``grace``."""
-        order = [n for n in self.children if n != "router"] + (["router"] if "router" in self.children else [])
+        """SIGTERM every UAV, then the router and discovery server; SIGKILL whatever is left after ``grace``."""
+        helpers = [n for n in ("router", "discovery") if n in self.children]
+        order = [n for n in self.children if n not in helpers] + helpers
         for n in order:
             c = self.children[n]
             if c.proc.poll() is None:

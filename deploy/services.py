@@ -13,12 +13,14 @@ starts and calls :meth:`NetworkPlan.uav_network` to build the UAVs' ``NetworkCon
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 from dataclasses import dataclass, field
 
 from uav_stack.config import NetworkConfig
 
 ROUTER_PORT = 7447  # Zenoh's registered port
 UAV_PORT = 7447  # each UAV container listens on its own IP
+DISCOVERY_PORT = 7450  # discovery server (UDP beacons, docs/discovery.md)
 
 
 @dataclass(frozen=True)
@@ -43,16 +45,46 @@ class NetworkPlan:
 
 
 def network_plan(connectivity: str = "rendezvous", mode: str = "peer", pose_feed: str = "direct",
-                 swarm: str = "*") -> NetworkPlan:
+                 swarm: str = "*", discovery: dict[str, Any] | None = None, with_router: bool = False) -> NetworkPlan:
+    """The services and the UAVs' network config for a connectivity.
+
+    ``discovery`` (for ``connectivity: discovery``) holds ``key`` (required: the runtime
+    draws one per run if the scenario has none), ``period`` and ``ttl``. ``with_router``
+    also runs the edge router beside the discovery server, and every UAV keeps one link to
+    it: the way in for ground stations and runners outside the UAVs' network (they join as
+    Zenoh clients of the router). UAV-to-UAV data still flows peer to peer.
+    """
+    router_argv = ["python3", "-m", "discovery.rendezvous", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}"]
+    if pose_feed == "edge":
+        router_argv += ["--feed", swarm]
+    router = Service("router", tuple(router_argv), ROUTER_PORT)
     if connectivity == "rendezvous":
-        argv = ["python3", "-m", "discovery.rendezvous", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}"]
-        if pose_feed == "edge":
-            argv += ["--feed", swarm]
-        router = Service("router", tuple(argv), ROUTER_PORT)
 
         def make(addr: dict[str, str]) -> NetworkConfig:
             return NetworkConfig(connectivity="rendezvous", endpoints=(f"tcp/{addr['router']}:{ROUTER_PORT}",), mode=mode,
                                  listen=(f"tcp/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed)
 
         return NetworkPlan((router,), make)
-    raise ValueError(f"connectivity {connectivity!r} has no container deployment yet (deploy/services.py)")
+    if connectivity == "discovery":
+        opts = dict(discovery or {})
+        key = opts.get("key")
+        if not key:
+            raise ValueError("discovery needs a key (the runtime draws one per run if the scenario sets none)")
+        server = Service("discovery", ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}",
+                                       "--key", f"{swarm}={key}", "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000"),
+                         DISCOVERY_PORT, proto="udp")
+        routed = pose_feed == "edge" or with_router
+        services = (server, router) if routed else (server,)
+
+        def make_d(addr: dict[str, str]) -> NetworkConfig:
+            # UAVs listen on their own address; the proxy drops loopback locators since the
+            # server is remote, so peers dial each other's container (or task) address
+            return NetworkConfig(
+                connectivity="discovery",
+                endpoints=(f"tcp/{addr['router']}:{ROUTER_PORT}",) if routed else (),
+                mode="peer", listen=(f"tcp/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed,
+                options={"server": f"{addr['discovery']}:{DISCOVERY_PORT}", "key": key, "period": float(opts.get("period", 1.0))},
+            )
+
+        return NetworkPlan(services, make_d)
+    raise ValueError(f"connectivity {connectivity!r} has no container deployment (deploy/services.py)")

@@ -64,7 +64,14 @@ def fleet_configs(scn: Any, opts: StackOptions) -> tuple[list[dict[str, Any]], A
     elif len(scn.uav_list()) < opts.uavs:
         raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {opts.uavs}")
     net = scn.network
-    plan = network_plan(net.connectivity, net.mode, net.pose_feed, scn.swarm)
+    disc: dict[str, Any] = {}
+    if net.connectivity == "discovery":
+        from discovery.protocol import new_key
+
+        disc = net.discovery.model_dump()
+        disc["key"] = disc.get("key") or new_key()  # a fresh key per deployment unless the scenario sets one
+    # the edge router runs beside the discovery server: ground stations join through it
+    plan = network_plan(net.connectivity, net.mode, net.pose_feed, scn.swarm, disc, with_router=True)
     netcfg = plan.uav_network({s.name: s.name for s in plan.services})
     cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[: opts.uavs]
     if opts.autostart:

@@ -68,8 +68,13 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))
 
+    p = sub.add_parser("discovery", help="discovery server (serve), registry (nodes), probe node, keygen", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("discovery.cli", "main", a.rest))
+    p = sub.add_parser("netlab", help="routed network-namespace lab without multicast (up/down/list; root)", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("discovery.netlab", "main", a.rest))
+
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem"):
+    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem", "discovery", "netlab"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

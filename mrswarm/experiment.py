@@ -133,7 +133,8 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
-        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
+        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
+                                         connectivity=scn.network.connectivity, discovery=scn.network.discovery.model_dump())
         # how other tools reach this run's swarm (e.g. `mrswarm netem set --run <dir>`)
         (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
@@ -143,7 +144,9 @@ class Experiment:
         self.run_info["pids"] = self.runtime.pids()
         kind = "containers" if self.runtime.name == "docker" else "processes"
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
-        obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client")
+        # the runner joins as a client of the edge router if there is one (rendezvous, or
+        # discovery with the router beside it), else as a discovery peer (role "observer")
+        obs_net = NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)

@@ -86,8 +86,20 @@ class Flight(_Model):
         return self
 
 
+class Discovery(_Model):
+    key: str | None = Field(None, min_length=16, description="the swarm's discovery key; default: a fresh one per run")
+    period: float = Field(1.0, ge=0.2, le=10, description="seconds between beacons")
+    ttl: float = Field(3.0, gt=0, le=60, description="the server forgets nodes silent this long, s")
+
+    @model_validator(mode="after")
+    def _ttl(self) -> Discovery:
+        if self.ttl < 2 * self.period:
+            raise ValueError("ttl must be at least two beacon periods")
+        return self
+
+
 class Network(_Model):
-    connectivity: Literal["rendezvous"] = "rendezvous"
+    connectivity: Literal["discovery", "rendezvous"] = "discovery"
     mode: Literal["peer", "client"] = "peer"
     pose_feed: Literal["direct", "edge"] = "direct"
     netem: dict[str, Any] | None = Field(None, description="netem shim: per-link impairments (docs/netem.md)")
@@ -103,6 +115,22 @@ class Network(_Model):
             except NetemConfigError as exc:  # reads "network.netem: v2v.loss.p: must be ..."
                 raise PydanticCustomError("netem_config", "{error}", {"error": str(exc)}) from None
         return v
+
+    discovery: Discovery = Discovery()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_connectivity(cls, data: Any) -> Any:
+        # client mode means "through the edge router": it implies the rendezvous topology
+        if isinstance(data, dict) and "connectivity" not in data and data.get("mode") == "client":
+            data = {**data, "connectivity": "rendezvous"}
+        return data
+
+    @model_validator(mode="after")
+    def _client_needs_router(self) -> Network:
+        if self.mode == "client" and self.connectivity != "rendezvous":
+            raise ValueError("mode 'client' routes through the edge router: set connectivity: rendezvous")
+        return self
 
 
 class Spawn(_Model):

@@ -135,6 +135,9 @@ class SwarmNode:
         if self.session is not None:
             return self
         ident = self.identity
+        bind = getattr(self.connectivity, "bind", None)
+        if callable(bind):  # strategies that announce the node (discovery) take its identity
+            bind(ident)
         self.session = s = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))
         try:
             k = self.keys

@@ -89,3 +89,20 @@ def test_per_uav_configs_round_trip_through_json() -> None:
     back = VirtualUavConfig.from_dict(__import__("json").loads(cfgs[1].to_json()))
     assert back == cfgs[1]
     assert back.agent.mission.goal == (-20.0, 0.0)
+
+
+def test_network_defaults_to_discovery_and_client_mode_needs_the_router(tmp_path: Path) -> None:
+    from mrswarm.scenario import Network
+
+    assert Network().connectivity == "discovery"
+    assert Network(mode="client").connectivity == "rendezvous"  # client mode implies the router
+    p = tmp_path / "s.yaml"
+    p.write_text((ROOT / "tests" / "scenarios" / "mini_coverage.yaml").read_text())
+    with pytest.raises(ScenarioError, match="connectivity: rendezvous"):
+        load_scenario(p, ["network.connectivity=discovery", "network.mode=client"])
+    with pytest.raises(ScenarioError, match="two beacon periods"):
+        load_scenario(p, ["network.discovery.period=2", "network.discovery.ttl=3"])
+    with pytest.raises(ScenarioError, match="network.discovery.key"):
+        load_scenario(p, ["network.discovery.key=short"])
+    scn = load_scenario(p, ["network.discovery.key=0123456789abcdef0123"])
+    assert scn.network.discovery.key == "0123456789abcdef0123"

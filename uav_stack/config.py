@@ -17,7 +17,7 @@ from uav_stack.geo import GeoPoint
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    connectivity: str = "rendezvous"  # rendezvous | static (discovery strategies plug in here)
+    connectivity: str = "rendezvous"  # rendezvous | static | discovery (options: server, key/key_file, advertise, period)
     endpoints: tuple[str, ...] = ()
     mode: str = "peer"  # peer | client
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)

@@ -67,6 +67,10 @@ def make_connectivity(net: NetworkConfig) -> Connectivity:
         return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen))
     if net.connectivity == "static":
         return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen))
+    if net.connectivity == "discovery":  # beacon relay through a discovery server (discovery/proxy.py)
+        from discovery.proxy import BeaconDiscovery
+
+        return BeaconDiscovery.from_network(net)
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
@@ -181,6 +185,10 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pose-feed", default="direct", choices=["direct", "edge"],
                     help="edge: receive neighbour poses as batches from the edge router's feed")
     ap.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint (peer mode)")
+    ap.add_argument("--discovery", default=None, metavar="HOST:PORT",
+                    help="find the swarm through this discovery server (instead of --connect's router)")
+    ap.add_argument("--discovery-key-file", default=None, help="the swarm's discovery key (mrswarm discovery keygen)")
+    ap.add_argument("--advertise", action="append", default=[], help="announce this address/locator to peers (public IP)")
     ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
@@ -196,10 +204,16 @@ def agent_main(argv: list[str] | None = None) -> int:
             lat, lon, alt = (float(v) for v in args.origin.split(","))
         except ValueError:
             ap.error("--origin must be LAT,LON,ALT")
+        net = NetworkConfig(endpoints=tuple(args.connect), mode=args.mode, pose_feed=args.pose_feed,
+                            listen=tuple(args.listen or ["tcp/0.0.0.0:0"]))
+        if args.discovery:
+            if not args.discovery_key_file:
+                ap.error("--discovery needs --discovery-key-file")
+            net = NetworkConfig(connectivity="discovery", endpoints=net.endpoints, mode=args.mode, pose_feed=args.pose_feed,
+                                listen=net.listen, options={"server": args.discovery, "key_file": args.discovery_key_file,
+                                                            "advertise": list(args.advertise)})
         cfg = AgentConfig(
             swarm=args.swarm, uav=args.uav, origin=GeoPoint(lat, lon, alt), fcu=args.fcu, realm=args.realm,
-            autostart=args.autostart, record_dir=args.record_dir,
-            network=NetworkConfig(endpoints=tuple(args.connect), mode=args.mode, pose_feed=args.pose_feed,
-                                  listen=tuple(args.listen or ["tcp/0.0.0.0:0"])),
+            autostart=args.autostart, record_dir=args.record_dir, network=net,
         )
     return run_agent(cfg, stop, args.duration)

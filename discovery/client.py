@@ -1,0 +1,73 @@
+"""Reading the discovery server's registry (for ``mrswarm discovery nodes`` and ground stations).
+
+    nodes, stats = query_registry("10.0.0.2:7450", "alpha", key)
+
+A query is authenticated with the swarm's key like a beacon, and answers only for that
+swarm. The answer may span several datagrams; a lost one makes the query time out, and
+the caller simply asks again.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import time
+from typing import Any
+
+from discovery.protocol import (
+    MAX_DATAGRAM,
+    MsgType,
+    ProtocolError,
+    RegisteredNode,
+    ReplayGuard,
+    check_key,
+    parse_registry,
+    seal,
+    unseal,
+)
+from discovery.proxy import parse_server, resolve
+
+
+class QueryTimeout(TimeoutError):
+    pass
+
+
+def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1.0,
+                   attempts: int = 3) -> tuple[list[RegisteredNode], dict[str, Any]]:
+    """The swarm's current members and the server's counters; raises :class:`QueryTimeout`."""
+    addr = resolve(parse_server(server))
+    k = check_key(key)
+    fam = socket.AF_INET6 if ":" in addr[0] else socket.AF_INET
+    guard = ReplayGuard()
+    with socket.socket(fam, socket.SOCK_DGRAM) as s:
+        for _ in range(max(1, attempts)):
+            qid = int.from_bytes(os.urandom(4), "big")
+            s.sendto(seal(MsgType.QUERY, swarm, k, [qid]), addr)
+            parts: dict[int, list[RegisteredNode]] = {}
+            stats: dict[str, Any] = {}
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                ready, _, _ = select.select([s], [], [], max(0.0, deadline - time.monotonic()))
+                if not ready:
+                    break
+                data, src = s.recvfrom(MAX_DATAGRAM + 1)
+                if src[:2] != addr:
+                    continue
+                try:
+                    env = unseal(data, lambda sw: k if sw == swarm else None)
+                    guard.check(env)
+                    if env.type != MsgType.REGISTRY:
+                        continue
+                    rqid, part, n, rows, st = parse_registry(env.body, swarm)
+                except ProtocolError:
+                    continue
+                if rqid != qid:
+                    continue
+                parts[part] = rows
+                if st is not None:
+                    stats = st
+                if len(parts) == n:
+                    return [r for i in range(n) for r in parts[i]], stats
+    raise QueryTimeout(f"no answer from the discovery server at {server} for swarm {swarm!r} "
+                       f"(down, unreachable, or a different key)")

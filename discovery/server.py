@@ -1,0 +1,383 @@
+"""The discovery server: a registry of nodes per swarm, fed and read over authenticated UDP.
+
+Nodes' proxies beacon their Zenoh identity (ZID and locators) every period. The server
+keeps each swarm's members, forgets a member not heard for ``ttl`` seconds, and tells every
+member of a swarm about every other: a new or changed member is **pushed** to the others
+at once; a beacon is answered with a tiny ACK when the sender's view is current, or with
+a full snapshot when it is not. It holds no flight data and is not on the data path:
+once the nodes have dialled each other it may die, and on restart it rebuilds its
+registry from the next round of beacons.
+
+Bad input never crashes it: every datagram is size-checked, rate-limited per source
+address, authenticated (HMAC-SHA256 with the swarm's key) and replay-checked before its
+body is decoded, and every drop is counted under a reason (``stats``).
+
+Run: ``mrswarm discovery serve --listen 0.0.0.0:7450 --keys keys.txt``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import selectors
+import signal
+import socket
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from discovery.protocol import (
+    DEFAULT_PERIOD,
+    DEFAULT_PORT,
+    DEFAULT_TTL,
+    DEFAULT_WINDOW,
+    MAX_DATAGRAM,
+    Envelope,
+    MsgType,
+    NodeEntry,
+    Peers,
+    ProtocolError,
+    RegisteredNode,
+    ReplayGuard,
+    check_key,
+    chunk_entries,
+    parse_beacon,
+    parse_bye,
+    parse_query,
+    peers_body,
+    seal,
+    unseal,
+    view_digest,
+)
+
+log = logging.getLogger(__name__)
+
+Addr = tuple[str, int]
+
+
+@dataclass
+class Member:
+    entry: NodeEntry
+    addr: Addr
+    first_seen: float
+    last_seen: float
+    last_ts: float  # sender timestamp of the newest accepted beacon (older ones are replays)
+
+
+class TokenBucket:
+    """Per-source rate limit: ``rate`` datagrams/s with bursts of ``burst``."""
+
+    __slots__ = ("rate", "burst", "tokens", "t")
+
+    def __init__(self, rate: float, burst: float, now: float):
+        self.rate, self.burst, self.tokens, self.t = rate, burst, burst, now
+
+    def take(self, now: float) -> bool:
+        self.tokens = min(self.burst, self.tokens + (now - self.t) * self.rate)
+        self.t = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
+@dataclass
+class ServerConfig:
+    keys: dict[str, bytes]  # swarm -> HMAC key
+    ttl: float = DEFAULT_TTL
+    window: float = DEFAULT_WINDOW
+    rate: float = 100.0  # datagrams/s per source IP (a host running many nodes shares one budget)
+    burst: float = 200.0
+    sweep_period: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.keys:
+            raise ValueError("the discovery server needs at least one swarm key")
+        self.keys = {s: check_key(k, f"key of swarm {s!r}") for s, k in self.keys.items()}
+        if self.ttl <= 0 or self.window <= 0 or self.rate <= 0:
+            raise ValueError("ttl, window and rate must be > 0")
+
+
+@dataclass
+class DiscoveryServer:
+    """The registry and its protocol logic; :meth:`serve` drives it from a UDP socket."""
+
+    config: ServerConfig
+    sock: socket.socket | None = None
+    members: dict[str, dict[tuple[str, int], Member]] = field(default_factory=dict)
+    stats: Counter[str] = field(default_factory=Counter)
+    started: float = field(default_factory=time.time)
+
+    def __post_init__(self) -> None:
+        self.guard = ReplayGuard(self.config.window)
+        self.buckets: dict[str, TokenBucket] = {}
+        self._snap = int.from_bytes(os.urandom(4), "big") | 1
+
+    # ---- socket plumbing ---------------------------------------------------------------------------
+    def bind(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT) -> Addr:
+        fam = socket.AF_INET6 if ":" in host else socket.AF_INET
+        s = socket.socket(fam, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        s.bind((host, port))
+        s.setblocking(False)
+        self.sock = s
+        return s.getsockname()[:2]
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+    def _send(self, data: bytes, addr: Addr) -> None:
+        assert self.sock is not None
+        try:
+            self.sock.sendto(data, addr)
+            self.stats["tx"] += 1
+        except OSError as exc:  # unreachable peer, full buffer: count, never crash
+            self.stats["tx_error"] += 1
+            log.debug("send to %s failed: %s", addr, exc)
+
+    def serve(self, stop: threading.Event, duration: float | None = None) -> None:
+        assert self.sock is not None, "bind() first"
+        sel = selectors.DefaultSelector()
+        sel.register(self.sock, selectors.EVENT_READ)
+        end = time.monotonic() + duration if duration is not None else float("inf")
+        next_sweep = time.monotonic()
+        next_log = next_sweep + 30.0
+        logged: dict[str, int] = {}
+        try:
+            while not stop.is_set() and time.monotonic() < end:
+                now_m = time.monotonic()
+                if now_m >= next_sweep:
+                    self.sweep(time.time())
+                    next_sweep = now_m + self.config.sweep_period
+                if now_m >= next_log:  # a status line every 30 s, when something changed
+                    if dict(self.stats) != logged:
+                        logged = dict(self.stats)
+                        log.info("registry %s; counters %s", self.summary(), logged)
+                    next_log = now_m + 30.0
+                timeout = max(0.0, min(next_sweep, end) - time.monotonic())
+                if sel.select(min(timeout, 0.5)):
+                    self.drain()
+        finally:
+            sel.close()
+
+    def drain(self, max_datagrams: int = 4096) -> None:
+        assert self.sock is not None
+        for _ in range(max_datagrams):
+            try:
+                data, addr = self.sock.recvfrom(MAX_DATAGRAM + 1)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                self.stats["rx_error"] += 1
+                log.debug("recv failed: %s", exc)
+                return
+            self.handle(data, addr[:2], time.time())
+
+    # ---- protocol ------------------------------------------------------------------------------------
+    def handle(self, data: bytes, addr: Addr, now: float) -> None:
+        """Process one datagram. Never raises on bad input: drops it and counts why."""
+        st = self.stats
+        st["rx"] += 1
+        b = self.buckets.get(addr[0])
+        if b is None:
+            if len(self.buckets) > 10_000:  # many spoofed sources: forget idle buckets
+                self.buckets = {k: v for k, v in self.buckets.items() if now - v.t < 10.0}
+            b = self.buckets[addr[0]] = TokenBucket(self.config.rate, self.config.burst, now)
+        if not b.take(now):
+            st["drop_rate_limited"] += 1
+            return
+        try:
+            env = unseal(data, self.config.keys.get)
+            self.guard.check(env, now)
+            if env.type == MsgType.BEACON:
+                self._on_beacon(env, addr, now)
+            elif env.type == MsgType.BYE:
+                self._on_bye(env, addr)
+            elif env.type == MsgType.QUERY:
+                self._on_query(env, addr, now)
+            else:
+                raise ProtocolError("unexpected_type", env.type.name)
+        except ProtocolError as exc:
+            st["drop_" + exc.reason] += 1
+            log.debug("dropped datagram from %s:%s: %s", addr[0], addr[1], exc)
+        except Exception:  # a bug must not take the registry down; count it and go on
+            st["drop_internal_error"] += 1
+            log.exception("internal error on a datagram from %s", addr)
+
+    def _on_beacon(self, env: Envelope, addr: Addr, now: float) -> None:
+        b = parse_beacon(env.body)
+        e = b.entry
+        swarm = self.members.setdefault(env.swarm, {})
+        m = swarm.get(e.key)
+        if m is not None and env.ts <= m.last_ts:
+            raise ProtocolError("replayed", "older than the last beacon of this node")
+        changed = m is None or m.entry != e
+        if m is None:
+            swarm[e.key] = m = Member(e, addr, now, now, env.ts)
+            self.stats["registered"] += 1
+            log.info("%s: %s %d joined from %s:%d (zid %s, %s)", env.swarm, e.role, e.node, addr[0], addr[1], e.zid_hex,
+                     ", ".join(e.locators))
+        else:
+            if m.entry.zid != e.zid:
+                self.stats["restarted"] += 1
+                m.first_seen = now
+            m.entry, m.addr, m.last_seen, m.last_ts = e, addr, now, env.ts
+        self.stats["beacons"] += 1
+        key = self.config.keys[env.swarm]
+        if changed:  # tell every other member at once: they dial the newcomer without waiting
+            push = seal(MsgType.PEERS, env.swarm, key, peers_body(Peers(0, 0, 1, (e,))))
+            for other in swarm.values():
+                if other is not m:
+                    self._send(push, other.addr)
+                    self.stats["pushes"] += 1
+        others = [o.entry for o in swarm.values() if o is not m]
+        if b.view == view_digest(others):
+            self._send(seal(MsgType.ACK, env.swarm, key, [b.view]), addr)
+            self.stats["acks"] += 1
+        else:
+            self._send_snapshot(env.swarm, key, others, addr)
+
+    def _send_snapshot(self, swarm: str, key: bytes, entries: list[NodeEntry], addr: Addr) -> None:
+        self._snap = (self._snap + 1) & 0xFFFFFFFF or 1
+        groups = chunk_entries([e.to_wire() for e in entries])
+        for i, g in enumerate(groups):
+            body = [self._snap, i, len(groups), g]
+            self._send(seal(MsgType.PEERS, swarm, key, body), addr)
+        self.stats["snapshots"] += 1
+
+    def _remove(self, swarm: str, keys: list[tuple[str, int]], reason: str) -> None:
+        members = self.members.get(swarm, {})
+        gone = [k for k in keys if members.pop(k, None) is not None]
+        if not gone:
+            return
+        self.stats[reason] += len(gone)
+        log.info("%s: %s %s", swarm, reason, ", ".join(f"{r} {n}" for r, n in gone))
+        data = seal(MsgType.GONE, swarm, self.config.keys[swarm], [list(k) for k in gone])
+        for m in members.values():
+            self._send(data, m.addr)
+
+    def _on_bye(self, env: Envelope, addr: Addr) -> None:
+        k = parse_bye(env.body)
+        m = self.members.get(env.swarm, {}).get(k)
+        if m is not None and m.addr == addr:  # only the node itself can say goodbye
+            self._remove(env.swarm, [k], "left")
+        else:
+            self.stats["drop_bye_unknown"] += 1
+
+    def _on_query(self, env: Envelope, addr: Addr, now: float) -> None:
+        qid = parse_query(env.body)
+        rows = [[m.entry.to_wire(), m.first_seen, m.last_seen, f"{m.addr[0]}:{m.addr[1]}"]
+                for m in self.members.get(env.swarm, {}).values()]
+        groups = chunk_entries(rows)
+        key = self.config.keys[env.swarm]
+        stats = {k: v for k, v in self.stats.items()}
+        stats["uptime"] = round(now - self.started, 3)
+        for i, g in enumerate(groups):
+            last = i == len(groups) - 1
+            self._send(seal(MsgType.REGISTRY, env.swarm, key, [qid, i, len(groups), g, stats if last else None]), addr)
+        self.stats["queries"] += 1
+
+    def sweep(self, now: float) -> None:
+        """Forget members not heard within the TTL (and tell the others)."""
+        ttl = self.config.ttl
+        for swarm, members in self.members.items():
+            dead = [k for k, m in members.items() if now - m.last_seen > ttl]
+            if dead:
+                self._remove(swarm, dead, "expired")
+
+    def summary(self) -> dict[str, int]:
+        return {s: len(m) for s, m in self.members.items()}
+
+    def registry(self, swarm: str) -> list[RegisteredNode]:
+        return [RegisteredNode(swarm, m.entry, m.first_seen, m.last_seen, f"{m.addr[0]}:{m.addr[1]}")
+                for m in self.members.get(swarm, {}).values()]
+
+
+# ---- keys ----------------------------------------------------------------------------------------------
+def load_keys(path: str | Path) -> dict[str, str]:
+    """A keys file: one ``SWARM KEY`` per line (``#`` starts a comment), or a JSON object."""
+    text = Path(path).read_text()
+    if text.lstrip().startswith("{"):
+        data = json.loads(text)
+        if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+            raise ValueError(f"{path}: a JSON keys file maps swarm names to key strings")
+        return dict(data)
+    keys: dict[str, str] = {}
+    for i, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        if len(parts) != 2:
+            raise ValueError(f"{path}:{i}: expected 'SWARM KEY'")
+        keys[parts[0]] = parts[1]
+    return keys
+
+
+def parse_listen(text: str) -> Addr:
+    host, _, port = text.rpartition(":")
+    host = host.strip("[]") or "0.0.0.0"
+    try:
+        return host, int(port)
+    except ValueError:
+        raise ValueError(f"--listen {text!r}: expected HOST:PORT") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="mrswarm discovery serve", description=__doc__.splitlines()[0])
+    ap.add_argument("--listen", default=f"0.0.0.0:{DEFAULT_PORT}", help=f"UDP HOST:PORT (default 0.0.0.0:{DEFAULT_PORT})")
+    ap.add_argument("--keys", default=None, help="file with one 'SWARM KEY' per line (or a JSON object)")
+    ap.add_argument("--key", action="append", default=[], metavar="SWARM=KEY",
+                    help="a swarm key on the command line (visible to other users in ps; prefer --keys)")
+    ap.add_argument("--ttl", type=float, default=DEFAULT_TTL, help=f"forget nodes silent this long, s (default {DEFAULT_TTL})")
+    ap.add_argument("--window", type=float, default=DEFAULT_WINDOW, help="accepted clock difference, s")
+    ap.add_argument("--rate", type=float, default=100.0, help="datagrams/s accepted per source IP")
+    ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
+    ap.add_argument("--log-level", default="INFO")
+    ap.add_argument("--die-with-parent", action="store_true", help="exit when the launching process dies (runtimes)")
+    args = ap.parse_args(argv)
+    if args.die_with_parent and sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except OSError:
+            pass
+    logging.basicConfig(level=getattr(logging, args.log_level.upper(), logging.INFO), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        keys: dict[str, str] = load_keys(args.keys) if args.keys else {}
+        for kv in args.key:
+            s, sep, k = kv.partition("=")
+            if not sep:
+                raise ValueError(f"--key {kv!r}: expected SWARM=KEY")
+            keys[s] = k
+        cfg = ServerConfig(keys={s: k.encode() for s, k in keys.items()}, ttl=args.ttl, window=args.window,
+                           rate=args.rate, burst=2 * args.rate)
+        server = DiscoveryServer(cfg)
+        host, port = server.bind(*parse_listen(args.listen))
+    except (OSError, ValueError) as exc:
+        print(f"mrswarm discovery serve: error: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    print(f"discovery server on udp/{host}:{port} for swarms {', '.join(sorted(cfg.keys))} "
+          f"(period {DEFAULT_PERIOD:g} s, ttl {cfg.ttl:g} s)", flush=True)
+    try:
+        server.serve(stop, args.duration)
+    finally:
+        log.info("stopping; registry %s; counters %s", server.summary(), dict(server.stats))
+        server.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
