@@ -56,10 +56,14 @@ def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
     assert stack["networks"]["swarm"] == {"external": True, "name": "mrswarm-alpha"}
 
 
+EXAMPLE_KEY = "network.discovery.key=example-key-regenerate-for-real-deployments"
+
+
 def test_committed_stack_file_is_what_the_generator_makes(tmp_path: Path) -> None:
-    write_stack(load_scenario(COVERAGE), StackOptions(uavs=5, image=image_tag()), tmp_path)
+    # the committed example carries a fixed example key; real deployments draw a fresh one
+    write_stack(load_scenario(COVERAGE, [EXAMPLE_KEY]), StackOptions(uavs=5, image=image_tag()), tmp_path)
     assert (tmp_path / "stack.yml").read_text() == (ROOT / "deploy" / "stack.yml").read_text(), \
-        "regenerate: mrswarm deploy swarm up --uavs 5 --dry-run --out deploy/"
+        f"regenerate: mrswarm deploy swarm up --uavs 5 --dry-run --out deploy/ --set {EXAMPLE_KEY}"
     assert (tmp_path / "fleet.json").read_text() == (ROOT / "deploy" / "fleet.json").read_text()
     assert yaml.safe_load((ROOT / "deploy" / "stack.yml").read_text())["services"]["uav"]["deploy"]["replicas"] == 5
 

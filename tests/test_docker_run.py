@@ -51,11 +51,13 @@ def test_coverage_in_five_containers_covers_without_collisions_and_leaves_nothin
     assert summary["separation"]["min_m"] > 1.0
     assert summary["rtf"]["min"] > 0.8
     assert summary["network"]["pose_age_ms"]["n"] > 100
-    # really containers: one per UAV plus the router, each with its own IP, multicast sealed
+    # really containers: one per UAV plus the discovery server and the edge router (the runner's
+    # way in), each with its own IP, multicast sealed. UAVs reach each other only through what
+    # the discovery server relays: gossip is off and 1.9+ routers do not relay between peers.
     manifest = json.loads((run_dir / "containers.json").read_text())
     boxes = manifest["containers"]
-    assert set(boxes) == {"router", "uav1", "uav2", "uav3", "uav4", "uav5"}
-    assert len({b["ip"] for b in boxes.values()}) == 6
+    assert set(boxes) == {"discovery", "router", "uav1", "uav2", "uav3", "uav4", "uav5"}
+    assert len({b["ip"] for b in boxes.values()}) == 7
     assert manifest["multicast_sealed"] is True
     assert manifest["exit_codes"] == {n: 0 for n in boxes}  # every UAV stopped cleanly on SIGTERM
     for n in boxes:
