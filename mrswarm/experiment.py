@@ -134,12 +134,15 @@ class Experiment:
     def _fly(self) -> None:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm)
+        # how a ground station reaches this run: `mrswarm gcs watch --run <run dir>` (docs/gcs.md)
+        (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
             self.runtime.start_uav(c)
         self.run_info["pids"] = self.runtime.pids()
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV processes, results in {self.run_dir}")
+        self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         obs_net = NetworkConfig(connectivity=net.connectivity, endpoints=net.endpoints, mode="client")
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
         n = len(ids)

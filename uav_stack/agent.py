@@ -27,6 +27,7 @@ from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirecti
 from uav_stack.config import AgentConfig
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
+from uav_stack.mav import mavlink
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,32 @@ class Phase:
     LANDING = "landing"
     LANDED = "landed"
     ERROR = "error"
+    # ground-station overrides (docs/gcs.md): the behaviour's setpoints are suspended until "resume"
+    HOLD = "hold"  # holding a point under our control (OFFBOARD, still avoiding neighbours)
+    GOTO = "goto"  # flying to an operator's point, then holding there
+    RTL = "rtl"  # the FCU returns to launch on our command; no setpoints
+    KILLED = "killed"  # motors stopped on the operator's command
+
+
+# airborne phases in which the agent streams setpoints (and so must notice a human taking over)
+CONTROLLED = (Phase.HOVER, Phase.MISSION, Phase.DONE, Phase.HOLD, Phase.GOTO)
+# modes a PX4 / ArduPilot FCU passes through while the agent takes off and enters OFFBOARD/GUIDED
+_CLIMB_MODES = {"px4": frozenset({"TAKEOFF", "LOITER", "OFFBOARD", "READY"}), "ardupilot": frozenset({"GUIDED"})}
+DEFERRED_ACK_TIMEOUT = 4.0  # s: an override the FCU must confirm is acked as failed after this
+HOLD_GAIN = 0.8  # 1/s: velocity towards a hold/goto point = gain * distance (capped)
+ARRIVED_M = 1.0
+
+
+@dataclass
+class _DeferredAck:
+    """A command acknowledged once the FCU has answered the MAVLink command it caused."""
+
+    cmd_id: int
+    verb: str
+    handle: CommandHandle
+    ok_message: str
+    sent_at: float
+    on_fail: Any = None  # () -> None: undo what the agent did in anticipation
 
 
 @dataclass
@@ -63,6 +90,18 @@ class Own:
     vy: float = 0.0
     vz: float = 0.0
     yaw: float = 0.0  # ENU
+
+
+OVERRIDE_VERBS = ("hold", "resume", "goto", "rtl", "arm", "disarm", "kill")
+
+
+def _number(args: dict[str, Any], name: str) -> float:
+    if not isinstance(args, dict) or name not in args:
+        raise ValueError(f"missing argument {name!r}")
+    v = args[name]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"argument {name}={v!r} is not a finite number")
+    return float(v)
 
 
 def make_mission(cfg: AgentConfig) -> Any:
@@ -85,10 +124,11 @@ def make_mission(cfg: AgentConfig) -> Any:
 
 
 class Agent:
-    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink):
+    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: Any = None):
         self.cfg = cfg
         self.node = node
         self.link = link
+        self.router = router  # uav_stack.mavlink_router.MavlinkRouter, or None
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
@@ -116,6 +156,14 @@ class Agent:
         self._offboard_stream_since: float | None = None
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
+        self.alt_target = cfg.altitude  # m above the swarm origin
+        self.hold_point: tuple[float, float] = (math.nan, math.nan)
+        self.goto_target: tuple[float, float] = (math.nan, math.nan)
+        g = cfg.gcs
+        self.fence = g.geofence if g.geofence is not None else (cfg.mission.area if cfg.mission.type == "coverage" else None)
+        self._deferred: list[_DeferredAck] = []
+        self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
+        self._mode_at_phase = ""
         self.recorder: TrajectoryRecorder | None = None
         if cfg.record_dir:
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv")
@@ -126,6 +174,7 @@ class Agent:
             log.info("UAV %d: %s -> %s %s", self.cfg.uav, self.phase, phase, detail)
             self.phase = phase
             self._phase_since = self.clock()
+            self._mode_at_phase = self.link.state.mode
             self._next_state = 0.0  # publish the change now
         self.detail = detail
 
@@ -145,17 +194,25 @@ class Agent:
 
     @property
     def target_alt_amsl(self) -> float:
-        return self.cfg.origin.alt + self.cfg.altitude
+        return self.cfg.origin.alt + self.alt_target
 
     # ---- the loop body --------------------------------------------------------------------
     def step(self, now: float) -> None:
         link, node = self.link, self.node
         link.poll()
         link.service()
+        router = self.router
+        if router is not None:
+            router.poll()  # ground stations -> FCU (sent by router.flush() below)
+            if router.takeover is not None:
+                self._gcs_takeover = router.takeover[1]
+                router.takeover = None
         have_pos = self._update_own()
         inbox = node.poll(now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
+        if self._deferred:
+            self._settle_acks(now)
         st = link.state
         # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
         # age at the neighbours is transport time, not the phase between two timers.
@@ -185,6 +242,8 @@ class Agent:
         if now >= self._next_stats:
             self._next_stats = now + 1.0
             self.write_stats(now)
+        if router is not None:
+            router.flush()
 
     @property
     def behaviour_name(self) -> str:
@@ -196,6 +255,21 @@ class Agent:
         self.counters["commands"] += 1
         verb = cmd.verb
         ok, msg = True, ""
+        if verb in OVERRIDE_VERBS:
+            try:
+                res = getattr(self, f"_cmd_{verb}")(cmd.args, now)
+            except Exception as exc:  # noqa: BLE001 - a bad command must never stop the agent
+                log.exception("UAV %d: command %s failed", self.cfg.uav, verb)
+                res = (False, f"{verb} failed in the agent: {type(exc).__name__}: {exc}")
+            if isinstance(res, _DeferredAck):
+                res.cmd_id = cmd.cmd_id
+                self._deferred.append(res)
+                return
+            ok, msg = res
+            if not ok:
+                self.counters["rejected_commands"] += 1
+            self.node.ack(cmd.cmd_id, ok, msg)
+            return
         if verb in ("takeoff", "start"):
             # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
             if verb == "start":
@@ -210,8 +284,17 @@ class Agent:
             else:
                 msg = f"already {self.phase}"
         elif verb in ("land", "stop"):
-            self._land()
-            msg = "landing"
+            if self.phase in (Phase.INIT, Phase.READY, Phase.LANDED, Phase.KILLED) and not self.link.state.armed:
+                msg = f"on the ground ({self.phase})"
+            elif self.phase in (Phase.LANDING, Phase.LANDED):
+                msg = "already landing"
+            else:
+                self._land()
+                self.override = "land" if verb == "land" and self.phase == Phase.LANDING else self.override
+                if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
+                    self._deferred.append(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
+                    return
+                msg = "landing"
         else:
             ok, msg = False, f"unknown command {verb!r}"
             self.counters["rejected_commands"] += 1
@@ -227,6 +310,166 @@ class Agent:
         self._handle = self.link.land()
         self._set_phase(Phase.LANDING)
 
+    # ---- ground-station overrides (docs/gcs.md) ----------------------------------------------
+    def _airborne(self) -> bool:
+        st = self.link.state
+        return st.armed and st.relative_alt == st.relative_alt and st.relative_alt > 1.0
+
+    def _cmd_hold(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
+        ph = self.phase
+        if ph in CONTROLLED:
+            self._hold_here()
+            x, y = self.hold_point
+            return True, f"holding at ({x:.1f}, {y:.1f}, {self.alt_target:.1f})"
+        if ph in (Phase.ARMING, Phase.TAKEOFF, Phase.OFFBOARD):
+            self.override = "hold"
+            return True, "will hold once airborne under swarm control"
+        if ph == Phase.YIELDED:
+            return False, f"yielded: the FCU is in {self.link.state.mode} (someone took over); send resume to take control back"
+        return False, f"cannot hold in phase {ph}"
+
+    def _hold_here(self) -> None:
+        o = self.own
+        self.hold_point = (o.x, o.y)
+        self.override = "hold"
+        self._set_phase(Phase.HOLD, "operator hold")
+
+    def _cmd_goto(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
+        try:
+            x, y = _number(args, "x"), _number(args, "y")
+            z = _number(args, "z") if args.get("z") is not None else self.alt_target
+        except ValueError as exc:
+            return False, f"goto: {exc}"
+        g = self.cfg.gcs
+        if not g.min_alt <= z <= g.max_alt:
+            return False, f"goto: altitude {z:g} m outside the allowed {g.min_alt:g}..{g.max_alt:g} m above the origin"
+        if self.fence is not None:
+            x0, x1, y0, y1 = self.fence
+            if not (x0 <= x <= x1 and y0 <= y <= y1):
+                return False, f"goto: ({x:g}, {y:g}) is outside the geofence x {x0:g}..{x1:g}, y {y0:g}..{y1:g}"
+        if self.phase not in CONTROLLED:
+            hint = " (someone took over; send resume first)" if self.phase == Phase.YIELDED else ""
+            return False, f"goto: not airborne under swarm control (phase {self.phase}){hint}"
+        self.goto_target = (x, y)
+        self.alt_target = z
+        self.override = "goto"
+        self._set_phase(Phase.GOTO, f"going to ({x:g}, {y:g}, {z:g})")
+        return True, f"going to ({x:g}, {y:g}, {z:g})"
+
+    def _cmd_resume(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
+        ph = self.phase
+        if ph in (Phase.HOLD, Phase.GOTO):
+            self.override = ""
+            self.alt_target = self.cfg.altitude
+            if self.mission_started_at is not None:
+                self._set_phase(Phase.MISSION, "resumed")
+            else:
+                self._set_phase(Phase.HOVER, "resumed")
+            return True, "behaviour resumed"
+        if ph in (Phase.YIELDED, Phase.RTL):
+            if not self._airborne():
+                return False, f"cannot resume: on the ground ({self.link.state.mode}); use start"
+            self.override = ""
+            self.alt_target = self.cfg.altitude
+            self._offboard_stream_since = now
+            self._handle = None
+            self._set_phase(Phase.OFFBOARD, "taking control back")
+            return True, f"taking control back from {self.link.state.mode}, then resuming"
+        if ph in (Phase.ARMING, Phase.TAKEOFF, Phase.OFFBOARD) and self.override == "hold":
+            self.override = ""
+            return True, "pending hold cancelled"
+        if ph in (Phase.HOVER, Phase.MISSION, Phase.DONE):
+            return True, f"nothing to resume ({ph})"
+        return False, f"cannot resume in phase {ph}"
+
+    def _cmd_rtl(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
+        if not self._airborne():
+            return False, f"rtl: not flying (phase {self.phase})"
+        prev, prev_override = self.phase, self.override
+        h = self.link.return_to_launch()
+        self.override = "rtl"
+        self._set_phase(Phase.RTL, "returning to launch (operator)")
+
+        def undo() -> None:
+            if self.phase == Phase.RTL:
+                self.override = prev_override
+                self._set_phase(prev if self.link.in_offboard else Phase.YIELDED, "RTL refused by the FCU")
+
+        return _DeferredAck(0, "rtl", h, "returning to launch", now, undo)
+
+    def _cmd_arm(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
+        if self.phase not in (Phase.READY, Phase.LANDED):
+            return False, f"arm: only on the ground when idle (phase {self.phase})"
+        if self.link.state.armed:
+            return True, "already armed"
+        return _DeferredAck(0, "arm", self.link.arm(True), "armed", now)
+
+    def _cmd_disarm(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
+        if not self.link.state.armed:
+            return True, "already disarmed"
+        if self._airborne():
+            return False, "disarm: in the air (the motors would stop); land first, or use kill"
+        return _DeferredAck(0, "disarm", self.link.arm(False), "disarmed", now)
+
+    def _cmd_kill(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
+        h = self.link.arm(False, force=True)
+        self.override = "kill"
+        self._set_phase(Phase.KILLED, "motors stopped by the operator")
+        return _DeferredAck(0, "kill", h, "motors stopped", now)
+
+    def _settle_acks(self, now: float) -> None:
+        keep: list[_DeferredAck] = []
+        for d in self._deferred:
+            h = d.handle
+            if not h.done and now - d.sent_at < DEFERRED_ACK_TIMEOUT:
+                keep.append(d)
+                continue
+            if h.accepted:
+                self.node.ack(d.cmd_id, True, d.ok_message)
+                continue
+            status = h.status if h.done else "no answer"
+            texts = self.link.state.statustext
+            why = f"FCU {status}" + (f" (last FCU message: {texts[-1]})" if texts and h.done else "")
+            if d.on_fail is not None:
+                d.on_fail()
+            self.counters["rejected_commands"] += 1
+            self.node.ack(d.cmd_id, False, f"{d.verb} failed: {why}")
+        self._deferred = keep
+
+    def _taken_over(self) -> tuple[str, str] | None:
+        """(override, detail) if a human or a failsafe took the FCU from us."""
+        st = self.link.state
+        if not st.armed:
+            return "fcu:disarmed", "FCU disarmed"
+        if not self.link.in_offboard:
+            return f"fcu:{st.mode}", f"FCU switched to {st.mode}"
+        if self._gcs_takeover is not None:
+            return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"
+        return None
+
+    def _taken_over_climbing(self) -> tuple[str, str] | None:
+        """The same while taking off / entering OFFBOARD, where other modes are expected."""
+        st = self.link.state
+        flavour = "ardupilot" if st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else "px4"
+        if st.mode not in _CLIMB_MODES[flavour] and st.mode != self._mode_at_phase:
+            return f"fcu:{st.mode}", f"FCU switched to {st.mode}"
+        if self._gcs_takeover is not None:
+            return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"
+        return None
+
+    def _yield(self, why: tuple[str, str]) -> None:
+        self.override = why[0][:32]
+        self._set_phase(Phase.YIELDED, f"{why[1]}; setpoints stopped")
+
+    def _towards(self, target: tuple[float, float]) -> tuple[float, float]:
+        o = self.own
+        ex, ey = target[0] - o.x, target[1] - o.y
+        d = math.hypot(ex, ey)
+        if not d > 0.2:  # also NaN
+            return 0.0, 0.0
+        v = min(self.cfg.speed, HOLD_GAIN * d, math.sqrt(2.0 * 1.5 * d))
+        return ex / d * v, ey / d * v
+
     # ---- the state machine ------------------------------------------------------------------
     def _control(self, now: float, have_pos: bool) -> None:
         link = self.link
@@ -241,14 +484,20 @@ class Agent:
             return
         if not link.connected and ph not in (Phase.READY, Phase.LANDED, Phase.ERROR):
             self.detail = "FCU link lost"
+        if ph in (Phase.TAKEOFF, Phase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
+            self._yield(why)
+            return
+        self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
         if ph == Phase.ARMING:
-            if st.armed:
+            # ArduPilot takes off only in GUIDED: switch first (PX4 takes off from any mode)
+            need_guided = st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and st.mode != "GUIDED"
+            if st.armed and not need_guided:
                 self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
                 self._set_phase(Phase.TAKEOFF)
-            elif self._handle is None or (self._handle.done and since > RETRY_AFTER):
+            elif self._handle is None or (self._handle.done and (self._handle.accepted or since > RETRY_AFTER)):
                 if self._handle is not None and self._handle.done and not self._handle.accepted:
-                    self.detail = f"arm {self._handle.status}"
-                self._handle = link.arm(True)
+                    self.detail = f"{'set GUIDED' if need_guided else 'arm'} {self._handle.status}"
+                self._handle = link.set_mode("GUIDED") if need_guided else link.arm(True)
                 self._phase_since = now
         elif ph == Phase.TAKEOFF:
             if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
@@ -260,20 +509,29 @@ class Agent:
         elif ph == Phase.OFFBOARD:
             self._send_velocity(0.0, 0.0)
             if link.in_offboard:
-                self._set_phase(Phase.HOVER)
+                if self.override == "hold":  # held while taking off
+                    self._hold_here()
+                elif self.mission_started_at is not None and self.go:  # control taken back: resume the mission
+                    self._set_phase(Phase.MISSION, "resumed")
+                else:
+                    self._set_phase(Phase.HOVER)
             elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
                 self._handle = link.set_mode(link.offboard_mode)
-        elif ph == Phase.HOVER and self.go and link.in_offboard:
-            self.mission_started_at = now
-            self._set_phase(Phase.MISSION)
-            self._fly(now)
-        elif ph in (Phase.HOVER, Phase.MISSION, Phase.DONE):
-            if not link.in_offboard:
+        elif ph in CONTROLLED:
+            why = self._taken_over()
+            self._gcs_takeover = None
+            if why is not None:
                 # a human (or a failsafe) took over: stop fighting them, say so
-                self.override = f"fcu:{st.mode}"
-                self._set_phase(Phase.YIELDED, f"FCU switched to {st.mode}; setpoints stopped")
+                self._yield(why)
                 return
+            if ph == Phase.HOVER and self.go:
+                if self.mission_started_at is None:
+                    self.mission_started_at = now
+                self._set_phase(Phase.MISSION)
             self._fly(now)
+        elif ph in (Phase.YIELDED, Phase.RTL):
+            if not st.armed and st.relative_alt < 1.0:
+                self._set_phase(Phase.LANDED, "landed under FCU control")
         elif ph == Phase.LANDING:
             if not st.armed and st.relative_alt < 1.0:
                 self._set_phase(Phase.LANDED)
@@ -291,7 +549,13 @@ class Agent:
         me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
         self.counters["control_ticks"] += 1
         vx, vy = 0.0, 0.0
-        if self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
+        if self.phase == Phase.HOLD:
+            vx, vy = self._towards(self.hold_point)
+        elif self.phase == Phase.GOTO:
+            vx, vy = self._towards(self.goto_target)
+            if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M:
+                self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
+        elif self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
             if self.mission.done:
