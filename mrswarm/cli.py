@@ -55,9 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=lambda a: _delegate("uav_stack.fcu.__main__", "main", a.rest))
     p = sub.add_parser("router", help="a Zenoh rendezvous/edge router", add_help=False)
     p.set_defaults(func=lambda a: _delegate("discovery.rendezvous", "main", a.rest))
+    p = sub.add_parser("gcs", help="ground station: watch, telemetry, overrides, record (docs/gcs.md)", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router"):
+    if args.command in ("agent", "uav", "fcu", "router", "gcs"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")
