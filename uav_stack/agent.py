@@ -605,6 +605,7 @@ class Agent:
             "agent": dict(self.counters),
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
+            "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
             "net": self.node.stats.to_dict(),
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
