@@ -553,8 +553,10 @@ class Agent:
             vx, vy = self._towards(self.hold_point)
         elif self.phase == Phase.GOTO:
             vx, vy = self._towards(self.goto_target)
-            if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M:
+            if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M \
+                    and not self.detail.startswith("arrived"):
                 self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
+                self._next_state = 0.0  # tell the ground station now
         elif self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
