@@ -93,6 +93,15 @@ def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp
         res = gcs(["telemetry", "--run", str(rdir), "--uav", "2", "--json"])
         assert res.returncode == 0, res.stderr
         assert '"mode": "RTL"' in res.stdout and '"phase": "yielded"' in res.stdout
+        res = gcs(["nodes", "--run", str(rdir), "--json"])
+        assert res.returncode == 0, res.stderr
+        nodes = [__import__("json").loads(line) for line in res.stdout.splitlines()]
+        assert sorted(n["id"] for n in nodes if n["role"] == "uav") == [1, 2, 3]
+        assert all(n["realm"] == "virtual" and n["alive"] and n["last_seen"] for n in nodes if n["role"] == "uav")
+        res = gcs(["watch", "--run", str(rdir), "--once", "--filter", "override"])
+        assert res.returncode == 0, res.stderr
+        table = [line.split() for line in res.stdout.splitlines() if line.split() and line.split()[0].isdigit()]
+        assert [row[:3] for row in table] == [["2", "V", "yielded"]], res.stdout
         stats_file = rdir / "uav2.json"
         tx = __import__("json").loads(stats_file.read_text())["fcu_link"]["tx_setpoints"]
         time.sleep(2.5)
