@@ -43,8 +43,8 @@ def _free_udp_block(n: int) -> int:
     raise RuntimeError("no free UDP port block")
 
 
-@pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is in the test extra")
 def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp_path: Path) -> None:
+    assert MAVPROXY is not None, "mavproxy.py not found: MAVProxy is in the test extra (pip install -e '.[test]')"
     base = _free_udp_block(3)
     run = start_run(SCENARIO, tmp_path, [f"gcs.listen_base={base}"])
     mp: subprocess.Popen[str] | None = None

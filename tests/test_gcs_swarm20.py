@@ -58,8 +58,8 @@ def _rows(screen: str) -> dict[int, list[str]]:
     return out
 
 
-@pytest.mark.skipif(TMUX is None, reason="tmux is installed by .ci/run")
 def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) -> None:
+    assert TMUX is not None, "tmux not found: .ci/run installs it (apt-get install tmux)"
     run = start_run(SCENARIO, tmp_path, [])
     tmux = Tmux(f"mrswarm-gcs-{os.getpid()}")
     rec: subprocess.Popen[str] | None = None
