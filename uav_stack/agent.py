@@ -263,7 +263,7 @@ class Agent:
                 res = (False, f"{verb} failed in the agent: {type(exc).__name__}: {exc}")
             if isinstance(res, _DeferredAck):
                 res.cmd_id = cmd.cmd_id
-                self._deferred.append(res)
+                self._defer(res)
                 return
             ok, msg = res
             if not ok:
@@ -292,7 +292,7 @@ class Agent:
                 self._land()
                 self.override = "land" if verb == "land" and self.phase == Phase.LANDING else self.override
                 if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
-                    self._deferred.append(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
+                    self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
                     return
                 msg = "landing"
         else:
@@ -416,6 +416,14 @@ class Agent:
         self.override = "kill"
         self._set_phase(Phase.KILLED, "motors stopped by the operator")
         return _DeferredAck(0, "kill", h, "motors stopped", now)
+
+    def _defer(self, d: _DeferredAck) -> None:
+        # FcuLink keeps one pending handle per MAVLink command: a newer one (kill after disarm)
+        # replaces the older, which would never resolve. Both acks follow the newer answer.
+        for old in self._deferred:
+            if old.handle.command == d.handle.command and not old.handle.done:
+                old.handle = d.handle
+        self._deferred.append(d)
 
     def _settle_acks(self, now: float) -> None:
         keep: list[_DeferredAck] = []

@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 MAX_DATAGRAM = 1400
 MAX_PEERS = 4  # server endpoints: ground stations answered at once
 PEER_TIMEOUT = 30.0  # s: a silent server-endpoint peer is forgotten
+MAX_SOURCES = 1024  # (sysid, compid) pairs remembered per channel
 _M = mavlink
 
 # Commands from a ground station that move the vehicle or change its mode: when one passes
@@ -98,7 +99,7 @@ class Channel:
     seen_sys: set[int] = field(default_factory=set)
 
     def learn(self, src: tuple[int, int]) -> None:
-        if src not in self.seen:
+        if src not in self.seen and len(self.seen) < MAX_SOURCES:  # bounded: spoofed ids cannot grow it forever
             self.seen.add(src)
             self.seen_sys.add(src[0])
 
