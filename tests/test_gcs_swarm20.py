@@ -96,8 +96,12 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
         rows = _rows(screen)
         assert "20 UAVs seen, 20 alive" in screen
         first = {u: r[5:7] for u, r in rows.items()}  # x, y: the table is live, positions change
-        time.sleep(2.0)
-        assert sum(_rows(tmux.screen())[u][5:7] != first[u] for u in IDS) >= 15, tmux.screen()
+
+        def moved() -> int:
+            now = _rows(tmux.screen())
+            return sum(u in now and now[u][5:7] != first[u] for u in IDS)
+
+        assert wait_for(lambda: moved() >= 15, 8, 0.5), tmux.screen()
         tmux.keys("s")  # next sort column: phase
         assert wait_for(lambda: "sort phase" in tmux.screen(), 5, 0.2), tmux.screen()
 
@@ -149,7 +153,8 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
         assert res.returncode == 0, res.stdout + res.stderr
         acks = [json.loads(line) for line in res.stdout.splitlines()]
         assert sorted(a["uav"] for a in acks) == IDS
-        assert all(a["status"] == "ok" and a["message"] == "landing" for a in acks), acks
+        # "already landing": the answer to the CLI's re-send, if a busy machine delayed the first ack
+        assert all(a["status"] == "ok" and a["message"] in ("landing", "already landing") for a in acks), acks
         assert wait_for(lambda: all_in("landed"), 90, 0.2), {u: phase(u) for u in IDS}
         assert wait_for(lambda: sum(r[2] == "landed" for r in _rows(tmux.screen()).values()) == 20, 10, 0.3), tmux.screen()
         tmux.keys("q")  # quits (keys typed in the same read would be swallowed: wait for the shell)
