@@ -82,14 +82,52 @@ class RawGcs:
         self.sock.close()
 
 
+class QgcLike:
+    """A ground station on one shared port that, like QGroundControl's UDP link, sends every
+    message to every address it has heard from (so each router sees traffic for other vehicles)."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.mav = mavlink.MAVLink(None, 255, 190)
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.vehicles: dict[int, tuple[str, int]] = {}
+
+    def wait_vehicles(self, sysids: set[int], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not sysids <= set(self.vehicles):
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except socket.timeout:
+                continue
+            for m in self.parser.parse_buffer(data) or []:
+                if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1:
+                    self.vehicles[m.get_srcSystem()] = addr
+        return sysids <= set(self.vehicles)
+
+    def set_mode_everywhere(self, target: int, custom_mode: int) -> None:
+        hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3).pack(self.mav)
+        msg = mavlink.MAVLink_set_mode_message(target, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode).pack(self.mav)
+        for addr in set(self.vehicles.values()):
+            self.sock.sendto(hb + msg, addr)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
 def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None:
-    p1, p2 = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    p2 = free_port(socket.SOCK_DGRAM)
+    qgc = QgcLike()  # one shared ground-station port, like QGroundControl's 14550
+    shared = f"udpout:127.0.0.1:{qgc.port}"
     procs = [
-        start_virtual_uav(tmp_path, router, uav=1, endpoints=(f"udpin:127.0.0.1:{p1}",), autostart=True),
-        start_virtual_uav(tmp_path, router, uav=2, endpoints=(f"udpin:127.0.0.1:{p2}",), autostart=True, flavour="ardupilot"),
+        start_virtual_uav(tmp_path, router, uav=1, endpoints=(shared,), autostart=True),
+        start_virtual_uav(tmp_path, router, uav=2, endpoints=(shared, f"udpin:127.0.0.1:{p2}"), autostart=True, flavour="ardupilot"),
     ]
     obs = SwarmObserver("gcs", Rendezvous((router,), mode="client"), role="gcs", name="test").open()
-    gcs1, gcs2 = RawGcs(p1), RawGcs(p2)
+    gcs2 = RawGcs(p2)
     try:
         for u in (1, 2):  # both flavours take off and fly the mission on their own (ArduPilot: GUIDED first)
             assert wait_for(lambda u=u: _phase_is(obs, u, "mission"), 90, 0.1), _state(obs, u)
@@ -126,16 +164,16 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
         assert wait_for(lambda: _phase_is(obs, 1, "mission"), 5, 0.1)
         del frame
 
-        # ---- PX4: a human switches the FCU to HOLD through the router -> the agent yields -------------
-        gcs1.wait_for("HEARTBEAT", lambda m: m.get_srcSystem() == 1)
-        gcs1.send(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
-                                                      mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, 3, 0, 0, 0, 0))
-        ack = gcs1.wait_for("COMMAND_ACK", lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE and m.target_system == 255)
-        assert ack.result == mavlink.MAV_RESULT_ACCEPTED
+        # ---- PX4: a human switches UAV 1 to HOLD, QGroundControl's way: the SET_MODE message, sent to
+        # every vehicle address on the shared port. UAV 1's agent yields; UAV 2's router drops it.
+        assert qgc.wait_vehicles({1, 2}, 10), qgc.vehicles
+        qgc.set_mode_everywhere(1, 4 << 16 | 3 << 24)  # PX4 AUTO.LOITER
         assert wait_for(lambda: _phase_is(obs, 1, "yielded"), 10, 0.1), _state(obs, 1)
+        assert _phase_is(obs, 2, "mission")
+        assert wait_for(lambda: json.loads((tmp_path / "uav2.json").read_text())["mavlink_router"]["dropped_unknown_target"] >= 1, 3, 0.2)
         st = _state(obs, 1)
         # whichever the agent noticed first: the command passing its router, or the FCU's new mode
-        assert st.override in ("gcs:DO_SET_MODE", "fcu:LOITER") and "setpoints stopped" in st.detail
+        assert st.override in ("gcs:SET_MODE", "fcu:LOITER") and "setpoints stopped" in st.detail
         time.sleep(1.5)
         tx = _tx_setpoints(tmp_path, 1)
         time.sleep(2.2)
@@ -168,7 +206,7 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
         ok, msg = _cmd(obs, 2, "resume")
         assert not ok and "cannot resume" in msg
     finally:
-        gcs1.close()
+        qgc.close()
         gcs2.close()
         obs.close()
         for p in procs:

@@ -118,10 +118,11 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
         assert wait_for(lambda: sum(r[2] == "hold" and r[3] == "hold" for r in _rows(tmux.screen()).values()) == 2, 10, 0.3), tmux.screen()
         # Held UAVs stop following their lanes and stay at their hold points. Collision avoidance
         # still runs (a safety layer, not the swarm behaviour): a neighbour whose lane crosses the
-        # hold point pushes the held UAV aside for a while, and it comes back afterwards.
+        # hold point pushes the held UAV ahead of it (ORCA: the held UAV takes its half of every
+        # avoidance), tens of metres at worst, and it comes back once the lane is clear.
         settled: dict[int, float] = {}
         excursion = {u: 0.0 for u in held_ids}
-        deadline = time.monotonic() + 25.0
+        deadline = time.monotonic() + 45.0
         while time.monotonic() < deadline and len(settled) < len(held_ids):
             time.sleep(0.25)
             obs.poll()
@@ -133,7 +134,7 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
                 if d < 1.5 and math.hypot(p.vx, p.vy) < 0.5 and u not in settled:
                     settled[u] = d
         assert set(settled) == set(held_ids), (settled, excursion)
-        assert max(excursion.values()) < 25.0, excursion  # a lane UAV would have flown 100 m in that time
+        assert max(excursion.values()) < 80.0, excursion  # pushed, never wandering off with the mission
         assert all(phase(u) == "mission" for u in IDS if u not in held_ids)  # the rest carries on
         res = gcs(["resume", "--run", str(rdir), "--uav", "1,20"])
         assert res.returncode == 0, res.stdout + res.stderr
