@@ -216,6 +216,15 @@ def agent_main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     stop = StopFlag().install()
     setup_logging(args.log_level)
+    if not 0 <= args.sysid <= 250:
+        ap.error("--sysid must be in 1..250 (0: from the UAV id)")
+    for spec in args.mavlink_endpoint:
+        from uav_stack.mavlink_router import parse_endpoint
+
+        try:
+            parse_endpoint(spec)
+        except ValueError as exc:
+            ap.error(str(exc))
     if args.config:
         cfg = AgentConfig.from_dict(json.loads(Path(args.config).read_text()))
     else:
