@@ -134,7 +134,7 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         if args.sub == "nodes":
             return _nodes(obs, args, console)
         if args.sub == "watch":
-            from mrswarm.gcs.watch import WatchView, run_watch
+            from mrswarm.gcs.watch import run_watch
 
             view = WatchView(target.swarm, args.sort, args.reverse, filt)
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
