@@ -92,7 +92,7 @@ class ProcessRuntime:
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
         ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
-        router when the pose feed needs it.
+        router (pose feed, and the way in for ground stations).
         """
         if connectivity == "discovery":
             return self._start_discovery(swarm, pose_feed, discovery or {})
@@ -135,9 +135,12 @@ class ProcessRuntime:
             except QueryTimeout:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"discovery server on {server} does not answer after 20 s") from None
-        endpoints: tuple[str, ...] = ()
-        if pose_feed == "edge":  # the feed runs on the edge router; nodes keep one static link to it
-            endpoints = (self._start_router(pose_feed, swarm),)
+        # The edge router runs beside the discovery server, and every node keeps one static link
+        # to it: it carries the edge pose feed (if on) and is the way in for ground stations and
+        # other tools (`mrswarm gcs`, `mrswarm netem set`), which join as its Zenoh clients.
+        # Routing is interest-based, so it carries nothing until someone subscribes through it;
+        # UAV-to-UAV data flows peer to peer over the links discovery introduced.
+        endpoints = (self._start_router(pose_feed, swarm),)
         return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=("tcp/127.0.0.1:0",),
                              pose_feed=pose_feed, options={"server": server, "key": key, "period": period})
 

@@ -135,7 +135,8 @@ class Experiment:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
                                          connectivity=scn.network.connectivity, discovery=scn.network.discovery.model_dump())
-        # how other tools reach this run's swarm (e.g. `mrswarm netem set --run <dir>`)
+        # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
+        # `mrswarm netem set --run <dir>`
         (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
@@ -144,6 +145,7 @@ class Experiment:
         self.run_info["pids"] = self.runtime.pids()
         kind = "containers" if self.runtime.name == "docker" else "processes"
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
+        self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
         obs_net = NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net

@@ -16,7 +16,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from uav_stack.config import AgentConfig, AvoidanceConfig, MissionConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.config import AgentConfig, AvoidanceConfig, GcsConfig, MissionConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.geo import GeoPoint, LocalFrame
 
 
@@ -144,6 +144,7 @@ class Fleet(_Model):
     first_id: int = Field(1, ge=1, le=65535)
     spawn: Spawn = Spawn()
     rtf: float = Field(1.0, gt=0, le=1.0, description="target real-time factor of the virtual FCUs")
+    flavour: Literal["px4", "ardupilot"] = Field("px4", description="autopilot the virtual FCUs emulate")
 
 
 class Uav(_Model):
@@ -152,6 +153,18 @@ class Uav(_Model):
     goal: tuple[float, float] | None = None
     rtf: float = Field(1.0, gt=0, le=1.0)
     heading: float = Field(0.0, description="initial heading, degrees from north")
+    flavour: Literal["px4", "ardupilot"] = Field("px4", description="px4, or ardupilot for MAVProxy users (docs/gcs.md)")
+
+
+class Gcs(_Model):
+    """Ground-station access (docs/gcs.md): each agent's MAVLink router and the override limits."""
+
+    mavlink: bool = Field(False, description="route every UAV's FCU to ground stations")
+    host: str = Field("127.0.0.1", min_length=1, max_length=253, description="where the ground station (QGC) listens")
+    port: int | None = Field(14550, ge=1, le=65535, description="UAVs of shard k (ids 240k+1..240k+240) send to port + k")
+    listen_base: int | None = Field(None, ge=1, le=65535, description="UAV i also listens on listen_base + i")
+    geofence: Area | None = Field(None, description="goto limits; default: the mission area, or starts and goals + 50 m")
+    max_alt: float = Field(120.0, gt=2, le=1000, description="highest goto altitude above the origin, m")
 
 
 class Docker(_Model):
@@ -177,6 +190,7 @@ class Scenario(_Model):
     mission: Mission
     fleet: Fleet | None = None
     uavs: list[Uav] | None = None
+    gcs: Gcs = Gcs()
     runtime: Literal["process", "docker"] = "process"
     docker: Docker = Docker()
 
@@ -204,6 +218,16 @@ class Scenario(_Model):
         if max(ids) > 65535:
             raise ValueError("UAV ids must stay <= 65535")
         self._check_spawn_spacing()
+        g = self.gcs
+        if g.mavlink:
+            from uav_stack.sysid import allocate_sysid
+
+            if g.port is not None and g.port + allocate_sysid(max(ids))[0] > 65535:
+                raise ValueError("gcs.port + the highest shard is above 65535")
+            if g.listen_base is not None and g.listen_base + max(ids) > 65535:
+                raise ValueError(f"gcs.listen_base + the highest UAV id ({max(ids)}) is above 65535")
+            if g.port is None and g.listen_base is None:
+                raise ValueError("gcs.mavlink needs gcs.port or gcs.listen_base")
         return self
 
     def _check_spawn_spacing(self) -> None:
@@ -221,7 +245,32 @@ class Scenario(_Model):
             return list(self.uavs)
         f = self.fleet
         assert f is not None
-        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf) for i, p in enumerate(spawn_points(f.count, f.spawn))]
+        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(spawn_points(f.count, f.spawn))]
+
+    def geofence(self) -> tuple[float, float, float, float]:
+        """Where a ground station may send a UAV (goto): gcs.geofence, else the mission area, else
+        the box around every start and goal plus 50 m."""
+        if self.gcs.geofence is not None:
+            return self.gcs.geofence.as_tuple()
+        if self.mission.area is not None:
+            return self.mission.area.as_tuple()
+        pts = [u.start for u in self.uav_list()] + [u.goal for u in self.uav_list() if u.goal is not None]
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        return (min(xs) - 50.0, max(xs) + 50.0, min(ys) - 50.0, max(ys) + 50.0)
+
+    def mavlink_endpoints(self, uav: int) -> tuple[str, ...]:
+        """The router endpoints of one UAV (docs/gcs.md, "System ids and ports")."""
+        g = self.gcs
+        if not g.mavlink:
+            return ()
+        from uav_stack.sysid import allocate_sysid
+
+        out = []
+        if g.port is not None:
+            out.append(f"udpout:{g.host}:{g.port + allocate_sysid(uav)[0]}")
+        if g.listen_base is not None:
+            out.append(f"udpin:{g.host}:{g.listen_base + uav}")
+        return tuple(out)
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None) -> list[VirtualUavConfig]:
@@ -246,8 +295,10 @@ class Scenario(_Model):
                 seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
                 avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon),
                 network=network,
+                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt),
             )
-            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf, heading=math.radians(u.heading)))
+            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf, heading=math.radians(u.heading),
+                                        flavour=u.flavour))
         return out
 
 

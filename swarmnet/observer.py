@@ -68,6 +68,9 @@ class SwarmObserver:
         self.pending: dict[int, PendingCommand] = {}
         self._ids = itertools.count(int(clock() * 1000) % 1_000_000)
         self._subs: dict[str, Any] = {}
+        # optional sink for everything poll() receives, as (kind, message): "pose", "telemetry",
+        # "state", "ack", "joined"/"left" (liveliness keys). Used by `mrswarm gcs record`.
+        self.tap: Callable[[str, Any], None] | None = None
 
     @property
     def stats(self):  # noqa: ANN201 - NodeStats
@@ -122,7 +125,13 @@ class SwarmObserver:
         """Drain everything; return the poses that arrived (newest per UAV is kept in ``uavs``)."""
         now = self.clock()
         before = {u: n.received for u, n in ((n.uav, n) for n in self.node.neighbours)}
-        self.node.poll(now)
+        inbox = self.node.poll(now)
+        tap = self.tap
+        if tap is not None:
+            for key in inbox.joined:
+                tap("joined", key)
+            for key in inbox.left:
+                tap("left", key)
         fresh: list[Pose] = []
         for n in self.node.neighbours:
             if n.received != before.get(n.uav):
@@ -131,12 +140,20 @@ class SwarmObserver:
                     v.pose, v.pose_recv = n.pose, n.last_recv
                     v.poses = n.received
                     fresh.append(n.pose)
+                    if tap is not None:
+                        tap("pose", n.pose)
         for _, t in self._drain("telemetry", decode_telemetry):
             self.view(t.uav).telemetry = t
+            if tap is not None:
+                tap("telemetry", t)
         for _, st in self._drain("state", decode_state):
             v = self.view(st.uav)
             v.state, v.state_recv = st, now
+            if tap is not None:
+                tap("state", st)
         for _, ack in self._drain("ack", decode_ack):
+            if tap is not None:
+                tap("ack", ack)
             p = self.pending.get(ack.cmd_id)
             if p is not None and ack.uav in p.targets:
                 p.acks[ack.uav] = ack

@@ -58,7 +58,8 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     assert summary["network"]["pose_age_ms"]["n"] > 100
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
     run = json.loads((run_dir / "run.json").read_text())
-    assert set(run["pids"]) == {"discovery", "uav1", "uav2", "uav3", "uav4"}  # discovery is the default
+    # discovery is the default; the edge router runs beside it as the way in for ground stations
+    assert set(run["pids"]) == {"discovery", "router", "uav1", "uav2", "uav3", "uav4"}
     assert not [n for n, pid in run["pids"].items() if alive(pid)], "processes left behind"
     assert "coverage" in res.stdout and "collisions" in res.stdout  # the printed summary
 

@@ -27,6 +27,8 @@ from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirecti
 from uav_stack.config import AgentConfig
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
+from uav_stack.mav import mavlink
+from uav_stack.overrides import ARRIVED_M, CONTROLLED, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.pose_age import PoseAgeLog
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
 
@@ -51,6 +53,11 @@ class Phase:
     LANDING = "landing"
     LANDED = "landed"
     ERROR = "error"
+    # ground-station overrides (uav_stack/overrides.py, docs/gcs.md)
+    HOLD = "hold"  # holding a point under our control (OFFBOARD, still avoiding neighbours)
+    GOTO = "goto"  # flying to an operator's point, then holding there
+    RTL = "rtl"  # the FCU returns to launch on our command; no setpoints
+    KILLED = "killed"  # motors stopped on the operator's command
 
 
 @dataclass
@@ -85,11 +92,12 @@ def make_mission(cfg: AgentConfig) -> Any:
     raise ValueError(f"unknown mission type {m.type!r}")
 
 
-class Agent:
-    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink):
+class Agent(OverridesMixin):
+    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: Any = None):
         self.cfg = cfg
         self.node = node
         self.link = link
+        self.router = router  # uav_stack.mavlink_router.MavlinkRouter, or None
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
@@ -117,6 +125,14 @@ class Agent:
         self._offboard_stream_since: float | None = None
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
+        self.alt_target = cfg.altitude  # m above the swarm origin
+        self.hold_point: tuple[float, float] = (math.nan, math.nan)
+        self.goto_target: tuple[float, float] = (math.nan, math.nan)
+        g = cfg.gcs
+        self.fence = g.geofence if g.geofence is not None else (cfg.mission.area if cfg.mission.type == "coverage" else None)
+        self._deferred: list[_DeferredAck] = []
+        self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
+        self._mode_at_phase = ""
         self.recorder: TrajectoryRecorder | None = None
         self.age_log: PoseAgeLog | None = None
         if cfg.record_dir:
@@ -129,6 +145,7 @@ class Agent:
             log.info("UAV %d: %s -> %s %s", self.cfg.uav, self.phase, phase, detail)
             self.phase = phase
             self._phase_since = self.clock()
+            self._mode_at_phase = self.link.state.mode
             self._next_state = 0.0  # publish the change now
         self.detail = detail
 
@@ -148,17 +165,25 @@ class Agent:
 
     @property
     def target_alt_amsl(self) -> float:
-        return self.cfg.origin.alt + self.cfg.altitude
+        return self.cfg.origin.alt + self.alt_target
 
     # ---- the loop body --------------------------------------------------------------------
     def step(self, now: float) -> None:
         link, node = self.link, self.node
         link.poll()
         link.service()
+        router = self.router
+        if router is not None:
+            router.poll()  # ground stations -> FCU (sent by router.flush() below)
+            if router.takeover is not None:
+                self._gcs_takeover = router.takeover[1]
+                router.takeover = None
         have_pos = self._update_own()
         inbox = node.poll(now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
+        if self._deferred:
+            self._settle_acks(now)
         st = link.state
         # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
         # age at the neighbours is transport time, not the phase between two timers.
@@ -188,6 +213,8 @@ class Agent:
         if now >= self._next_stats:
             self._next_stats = now + 1.0
             self.write_stats(now)
+        if router is not None:
+            router.flush()
 
     @property
     def behaviour_name(self) -> str:
@@ -199,6 +226,21 @@ class Agent:
         self.counters["commands"] += 1
         verb = cmd.verb
         ok, msg = True, ""
+        if verb in OVERRIDE_VERBS:
+            try:
+                res = getattr(self, f"_cmd_{verb}")(cmd.args, now)
+            except Exception as exc:  # noqa: BLE001 - a bad command must never stop the agent
+                log.exception("UAV %d: command %s failed", self.cfg.uav, verb)
+                res = (False, f"{verb} failed in the agent: {type(exc).__name__}: {exc}")
+            if isinstance(res, _DeferredAck):
+                res.cmd_id = cmd.cmd_id
+                self._defer(res)
+                return
+            ok, msg = res
+            if not ok:
+                self.counters["rejected_commands"] += 1
+            self.node.ack(cmd.cmd_id, ok, msg)
+            return
         if verb in ("takeoff", "start"):
             # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
             if verb == "start":
@@ -213,8 +255,17 @@ class Agent:
             else:
                 msg = f"already {self.phase}"
         elif verb in ("land", "stop"):
-            self._land()
-            msg = "landing"
+            if self.phase in (Phase.INIT, Phase.READY, Phase.LANDED, Phase.KILLED) and not self.link.state.armed:
+                msg = f"on the ground ({self.phase})"
+            elif self.phase in (Phase.LANDING, Phase.LANDED):
+                msg = "already landing"
+            else:
+                self._land()
+                self.override = "land" if verb == "land" and self.phase == Phase.LANDING else self.override
+                if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
+                    self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
+                    return
+                msg = "landing"
         else:
             ok, msg = False, f"unknown command {verb!r}"
             self.counters["rejected_commands"] += 1
@@ -244,14 +295,20 @@ class Agent:
             return
         if not link.connected and ph not in (Phase.READY, Phase.LANDED, Phase.ERROR):
             self.detail = "FCU link lost"
+        if ph in (Phase.TAKEOFF, Phase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
+            self._yield(why)
+            return
+        self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
         if ph == Phase.ARMING:
-            if st.armed:
+            # ArduPilot takes off only in GUIDED: switch first (PX4 takes off from any mode)
+            need_guided = st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and st.mode != "GUIDED"
+            if st.armed and not need_guided:
                 self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
                 self._set_phase(Phase.TAKEOFF)
-            elif self._handle is None or (self._handle.done and since > RETRY_AFTER):
+            elif self._handle is None or (self._handle.done and (self._handle.accepted or since > RETRY_AFTER)):
                 if self._handle is not None and self._handle.done and not self._handle.accepted:
-                    self.detail = f"arm {self._handle.status}"
-                self._handle = link.arm(True)
+                    self.detail = f"{'set GUIDED' if need_guided else 'arm'} {self._handle.status}"
+                self._handle = link.set_mode("GUIDED") if need_guided else link.arm(True)
                 self._phase_since = now
         elif ph == Phase.TAKEOFF:
             if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
@@ -263,20 +320,29 @@ class Agent:
         elif ph == Phase.OFFBOARD:
             self._send_velocity(0.0, 0.0)
             if link.in_offboard:
-                self._set_phase(Phase.HOVER)
+                if self.override == "hold":  # held while taking off
+                    self._hold_here()
+                elif self.mission_started_at is not None and self.go:  # control taken back: resume the mission
+                    self._set_phase(Phase.MISSION, "resumed")
+                else:
+                    self._set_phase(Phase.HOVER)
             elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
                 self._handle = link.set_mode(link.offboard_mode)
-        elif ph == Phase.HOVER and self.go and link.in_offboard:
-            self.mission_started_at = now
-            self._set_phase(Phase.MISSION)
-            self._fly(now)
-        elif ph in (Phase.HOVER, Phase.MISSION, Phase.DONE):
-            if not link.in_offboard:
+        elif ph in CONTROLLED:
+            why = self._taken_over()
+            self._gcs_takeover = None
+            if why is not None:
                 # a human (or a failsafe) took over: stop fighting them, say so
-                self.override = f"fcu:{st.mode}"
-                self._set_phase(Phase.YIELDED, f"FCU switched to {st.mode}; setpoints stopped")
+                self._yield(why)
                 return
+            if ph == Phase.HOVER and self.go:
+                if self.mission_started_at is None:
+                    self.mission_started_at = now
+                self._set_phase(Phase.MISSION)
             self._fly(now)
+        elif ph in (Phase.YIELDED, Phase.RTL):
+            if not st.armed and st.relative_alt < 1.0:
+                self._set_phase(Phase.LANDED, "landed under FCU control")
         elif ph == Phase.LANDING:
             if not st.armed and st.relative_alt < 1.0:
                 self._set_phase(Phase.LANDED)
@@ -294,7 +360,15 @@ class Agent:
         me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
         self.counters["control_ticks"] += 1
         vx, vy = 0.0, 0.0
-        if self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
+        if self.phase == Phase.HOLD:
+            vx, vy = self._towards(self.hold_point)
+        elif self.phase == Phase.GOTO:
+            vx, vy = self._towards(self.goto_target)
+            if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M \
+                    and not self.detail.startswith("arrived"):
+                self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
+                self._next_state = 0.0  # tell the ground station now
+        elif self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
             if self.mission.done:
@@ -344,6 +418,7 @@ class Agent:
             "agent": dict(self.counters),
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
+            "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
             "net": self.node.stats.to_dict(),
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,

@@ -46,6 +46,17 @@ class AvoidanceConfig:
 
 
 @dataclass(frozen=True)
+class GcsConfig:
+    """Ground-station access: the agent's MAVLink router and the limits of override commands."""
+
+    mavlink_endpoints: tuple[str, ...] = ()  # udpout:HOST:PORT / udpin:HOST:PORT; empty = no router
+    sysid: int = 0  # MAVLink sysid of this UAV's FCU; 0 = uav_stack.sysid.allocate_sysid(uav)
+    geofence: tuple[float, float, float, float] | None = None  # goto limits x_min, x_max, y_min, y_max (ENU m); None = mission area
+    min_alt: float = 2.0  # goto altitude limits above the swarm origin, m
+    max_alt: float = 120.0
+
+
+@dataclass(frozen=True)
 class AgentConfig:
     swarm: str
     uav: int
@@ -64,6 +75,14 @@ class AgentConfig:
     mission: MissionConfig = field(default_factory=MissionConfig)
     avoidance: AvoidanceConfig = field(default_factory=AvoidanceConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
+    gcs: GcsConfig = field(default_factory=GcsConfig)
+
+    @property
+    def mavlink_sysid(self) -> int:
+        """The FCU's (and the companion's) MAVLink system id (docs/gcs.md, "System ids")."""
+        from uav_stack.sysid import allocate_sysid
+
+        return self.gcs.sysid or allocate_sysid(self.uav)[1]
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -83,6 +102,12 @@ class AgentConfig:
             if k in n:
                 n[k] = tuple(n[k])
         d["network"] = NetworkConfig(**n)
+        g = dict(d.get("gcs", {}))
+        if "mavlink_endpoints" in g:
+            g["mavlink_endpoints"] = tuple(g["mavlink_endpoints"])
+        if g.get("geofence") is not None:
+            g["geofence"] = tuple(g["geofence"])
+        d["gcs"] = GcsConfig(**g)
         return cls(**d)
 
 

@@ -254,6 +254,8 @@ class FcuLink:
             self.counts["bad"] += 1
             return
         self.counts["rx"] += 1
+        if self.on_message is not None:  # e.g. the MAVLink router: every frame, before any filtering
+            self.on_message(msg)
         st = self.state
         src = msg.get_srcSystem()
         if self.target_system is not None and src != self.target_system and mtype != "HEARTBEAT":
@@ -298,6 +300,10 @@ class FcuLink:
             if msg.name.rstrip("\x00") == "RTF":
                 st.rtf_reported = msg.value
         elif mtype == "COMMAND_ACK":
+            # only ACKs addressed to us: a ground station's commands (through the router) are
+            # acknowledged on this link too, and must not resolve our own command of that number
+            if msg.target_system not in (0, self.source_system) or msg.target_component not in (0, self.source_component):
+                return
             h = self.pending.get(msg.command)
             if h is not None:
                 h.result = msg.result
@@ -305,8 +311,6 @@ class FcuLink:
                     del self.pending[msg.command]
         elif mtype == "STATUSTEXT":
             st.statustext.append(msg.text)
-        if self.on_message is not None:
-            self.on_message(msg)
 
     # ---- send ---------------------------------------------------------------------------
     def service(self) -> None:
@@ -328,6 +332,10 @@ class FcuLink:
                     h.attempts += 1
                     h.sent_at = now
                     self._send_command_long(cmd, h.params, confirmation=h.attempts - 1)
+
+    def write(self, data: bytes) -> None:
+        """Raw MAVLink frames to the FCU as they are (the router forwards ground-station traffic)."""
+        self.conn.write(data)
 
     def _send_command_long(self, command: int, params: tuple[float, ...], confirmation: int = 0) -> None:
         p = list(params) + [math.nan] * (7 - len(params))

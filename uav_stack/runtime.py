@@ -23,7 +23,7 @@ from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from uav_stack.agent import Agent
-from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.config import AgentConfig, GcsConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
 from uav_stack.geo import GeoPoint
 
@@ -80,6 +80,25 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
+def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, object | None]:
+    """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router."""
+    sysid = cfg.mavlink_sysid
+    link = FcuLink(url, source_system=sysid)
+    router = None
+    if cfg.gcs.mavlink_endpoints:
+        from uav_stack.mavlink_router import MavlinkRouter
+
+        router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component)).open()
+        link.on_message = router.from_fcu
+    try:
+        link.open()
+    except BaseException:
+        if router is not None:
+            router.close()
+        raise
+    return link, router
+
+
 def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None,
              tick_hz: float = TICK_HZ) -> None:
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
@@ -118,35 +137,39 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     a = cfg.agent
     fcu = VirtualFcu(
         FcuConfig(
-            vehicles=[VehicleConfig(sysid=min(a.uav, 250), home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
+            vehicles=[VehicleConfig(sysid=a.mavlink_sysid, home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
             physics_hz=cfg.physics_hz,
             target_rtf=cfg.target_rtf,
         )
     )
     (host, port), = fcu.open()
-    link = FcuLink(f"udpout:{host}:{port}", source_system=min(a.uav, 250)).open()
+    link, router = open_fcu_link(a, f"udpout:{host}:{port}")
     node = make_node(a).open()
-    agent = Agent(a, node, link)
+    agent = Agent(a, node, link, router=router)
     try:
         run_loop(agent, stop, fcu, cfg.duration)
     finally:
         agent.close(time.time())
         node.close()
         link.close()
+        if router is not None:
+            router.close()  # type: ignore[attr-defined]
         fcu.close()
     return 0
 
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
-    link = FcuLink(cfg.fcu, source_system=min(cfg.uav, 250)).open()
+    link, router = open_fcu_link(cfg, cfg.fcu)
     node = make_node(cfg).open()
-    agent = Agent(cfg, node, link)
+    agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
     finally:
         agent.close(time.time())
         node.close()
         link.close()
+        if router is not None:
+            router.close()  # type: ignore[attr-defined]
     return 0
 
 
@@ -192,11 +215,23 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
+    ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
+                    help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen); repeatable")
+    ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
     stop = StopFlag().install()
     setup_logging(args.log_level)
+    if not 0 <= args.sysid <= 250:
+        ap.error("--sysid must be in 1..250 (0: from the UAV id)")
+    for spec in args.mavlink_endpoint:
+        from uav_stack.mavlink_router import parse_endpoint
+
+        try:
+            parse_endpoint(spec)
+        except ValueError as exc:
+            ap.error(str(exc))
     if args.config:
         cfg = AgentConfig.from_dict(json.loads(Path(args.config).read_text()))
     else:
@@ -215,5 +250,6 @@ def agent_main(argv: list[str] | None = None) -> int:
         cfg = AgentConfig(
             swarm=args.swarm, uav=args.uav, origin=GeoPoint(lat, lon, alt), fcu=args.fcu, realm=args.realm,
             autostart=args.autostart, record_dir=args.record_dir, network=net,
+            gcs=GcsConfig(mavlink_endpoints=tuple(args.mavlink_endpoint), sysid=args.sysid),
         )
     return run_agent(cfg, stop, args.duration)

@@ -1,0 +1,265 @@
+"""``mrswarm gcs``: argument parsing and the subcommands (docs/gcs.md has the reference)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from typing import Any
+
+from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("where the swarm is")
+    g.add_argument("--run", metavar="RUN_DIR", help="a folder of a running `mrswarm run` (reads its network.json)")
+    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="Zenoh endpoint of the edge/rendezvous router, e.g. tcp/10.0.0.1:7447 (repeatable)")
+    g.add_argument("--swarm", help="swarm name (default: the run's)")
+
+
+def _targets(p: argparse.ArgumentParser) -> None:
+    t = p.add_mutually_exclusive_group(required=True)
+    t.add_argument("--uav", metavar="IDS", help="one UAV or a list: 3, 1,2,5-7")
+    t.add_argument("--all", action="store_true", help="every UAV alive in the swarm")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for every acknowledgement (default 5)")
+    p.add_argument("--json", action="store_true", help="one JSON line per UAV instead of a table")
+
+
+def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=prog, description="Ground station: live swarm telemetry and overrides (docs/gcs.md).")
+    sub = ap.add_subparsers(dest="sub", required=True, metavar="SUBCOMMAND")
+
+    p = sub.add_parser("nodes", help="who is alive: id, role, realm, version, address, last seen")
+    _common(p)
+    p.add_argument("--wait", type=float, default=2.0, help="seconds to listen before listing (default 2)")
+    p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("watch", help="live table of every UAV (q quits; s sort, f filter, n/p page)")
+    _common(p)
+    p.add_argument("--sort", default="id", help="id, phase, mode, alt, speed, battery, rtf, age, seen or loss")
+    p.add_argument("--reverse", action="store_true")
+    p.add_argument("--filter", action="append", default=[], metavar="KEY[=VALUE]",
+                   help="id=1-20, phase=mission, mode=RTL, realm=physical, override, stale (repeatable: all must hold)")
+    p.add_argument("--refresh", type=float, default=4.0, help="redraws per second (at least 2; default 4)")
+    p.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
+    p.add_argument("--once", action="store_true", help="print one snapshot of every row and exit")
+
+    p = sub.add_parser("telemetry", help="one UAV's telemetry, for scripts")
+    _common(p)
+    p.add_argument("--uav", type=int, required=True)
+    p.add_argument("--follow", action="store_true", help="keep printing as updates arrive (Ctrl-C stops)")
+    p.add_argument("--json", action="store_true", help="JSON lines")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the first telemetry")
+    p.add_argument("--duration", type=float, default=None, help="with --follow: stop after this many seconds")
+
+    helps = {
+        "hold": "suspend the swarm behaviour and hold position (until resume)",
+        "resume": "give control back to the swarm behaviour (also after a human took over)",
+        "land": "land where they are",
+        "rtl": "return to launch and land",
+        "goto": "fly to X Y Z (m east, north, up from the swarm origin) and hold there",
+        "arm": "arm the motors (on the ground)",
+        "disarm": "disarm (on the ground)",
+        "kill": "EMERGENCY: stop the motors now, also in flight (asks for confirmation)",
+    }
+    for verb, h in helps.items():
+        p = sub.add_parser(verb, help=h)
+        _common(p)
+        _targets(p)
+        if verb == "goto":
+            p.add_argument("xyz", nargs=3, type=float, metavar="X/Y/Z")
+        if verb == "kill":
+            p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
+
+    p = sub.add_parser("record", help="append everything the ground station sees to FILE (JSON lines)")
+    _common(p)
+    p.add_argument("file")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--quiet", action="store_true")
+
+    p = sub.add_parser("plot", help="draw a recording: trajectories, altitude, battery, phases")
+    p.add_argument("file")
+    p.add_argument("--out", default=None, help="PNG path (default: FILE with .png)")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rich.console import Console
+
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    console = Console()
+    err = Console(stderr=True)
+    try:
+        return _dispatch(args, console)
+    except GcsError as exc:
+        err.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return 130
+
+
+def _dispatch(args: argparse.Namespace, console: Any) -> int:
+    if args.sub == "plot":
+        from mrswarm.gcs.record import plot_recording
+
+        try:
+            out, info = plot_recording(args.file, args.out)
+        except (OSError, ValueError) as exc:
+            raise GcsError(str(exc)) from None
+        console.print(f"{out}: {info['uavs']} UAVs, {info['messages']} messages", highlight=False)
+        return EXIT_OK
+    if args.sub == "watch":  # validate options before connecting
+        from mrswarm.gcs.watch import Filter, WatchView
+
+        if args.refresh < 2.0:
+            raise GcsError("--refresh must be at least 2 per second")
+        filt = Filter.parse(args.filter)
+    ids = parse_ids(args.uav) if getattr(args, "uav", None) is not None and isinstance(args.uav, str) else None
+    if args.sub == "goto":
+        from mrswarm.gcs.commands import goto_args
+
+        goto_args(args.xyz)
+    target = resolve_target(args.run, args.connect, args.swarm)
+
+    from mrswarm.gcs.session import open_observer
+
+    obs = open_observer(target)
+    try:
+        if args.sub == "nodes":
+            return _nodes(obs, args, console)
+        if args.sub == "watch":
+            from mrswarm.gcs.watch import run_watch
+
+            view = WatchView(target.swarm, args.sort, args.reverse, filt)
+            return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
+        if args.sub == "telemetry":
+            return _telemetry(obs, args, console)
+        if args.sub == "record":
+            from mrswarm.gcs.record import run_record
+
+            counts = run_record(obs, args.file, duration=args.duration, quiet=args.quiet)
+            console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+            return EXIT_OK
+        return _command(obs, args, ids, console)
+    finally:
+        obs.close()
+
+
+def _nodes(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    from rich.table import Table
+
+    from mrswarm.gcs.directory import LivelinessDirectory
+    from mrswarm.gcs.session import wait_alive
+
+    wait_alive(obs, None, args.wait)
+    deadline = time.monotonic() + min(args.wait, 1.5)  # a little longer, for realm and last-seen data
+    while time.monotonic() < deadline:
+        obs.poll()
+        time.sleep(0.05)
+    nodes = LivelinessDirectory(obs).nodes()
+    now = time.time()
+    if args.json:
+        for n in nodes:
+            d = dict(n.__dict__)
+            d["last_seen"] = None if math.isnan(n.last_seen) else n.last_seen
+            sys.stdout.write(json.dumps(d) + "\n")
+        return EXIT_OK
+    t = Table(title=f"swarm {obs.keys.swarm}: {sum(n.role == 'uav' and n.alive for n in nodes)} UAVs alive", title_justify="left")
+    for c in ("id", "role", "realm", "version", "address", "last seen", "alive"):
+        t.add_column(c)
+    for n in nodes:
+        seen = "-" if math.isnan(n.last_seen) else f"{max(0.0, now - n.last_seen):.1f} s ago"
+        t.add_row(str(n.id), n.role, n.realm, n.version, n.address, seen, "yes" if n.alive else "[red]no[/]")
+    console.print(t)
+    return EXIT_OK
+
+
+def telemetry_record(obs: Any, uav: int, now: float) -> dict[str, Any] | None:
+    v = obs.uavs.get(uav)
+    if v is None or (v.telemetry is None and v.pose is None):
+        return None
+    d: dict[str, Any] = {"uav": uav, "t": round(now, 3)}
+    if v.telemetry is not None:
+        t = v.telemetry
+        d.update(realm=t.realm.label, mode=t.mode, armed=t.armed, lat=t.lat, lon=t.lon, alt_amsl=t.alt,
+                 battery=t.battery, voltage=t.voltage, rtf=t.rtf, telemetry_age_s=round(max(0.0, now - t.t_wall), 3))
+    if v.pose is not None:
+        p = v.pose
+        d.update(x=p.x, y=p.y, z=p.z, vx=p.vx, vy=p.vy, vz=p.vz, yaw=p.yaw, speed=round(math.sqrt(p.vx ** 2 + p.vy ** 2 + p.vz ** 2), 2),
+                 pose_age_ms=round(max(0.0, v.pose_recv - p.t_wall) * 1000, 1))
+    if v.state is not None:
+        d.update(phase=v.state.phase, override=v.state.override, behaviour=v.state.behaviour, detail=v.state.detail)
+    return d
+
+
+def _telemetry(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    from mrswarm.gcs.session import wait_alive
+
+    uav = args.uav
+    if not 1 <= uav <= 65535:
+        raise GcsError(f"--uav {uav}: ids are 1..65535")
+    alive = wait_alive(obs, {uav}, min(args.timeout, 3.0))
+    if uav not in alive:
+        raise GcsError(f"unknown UAV id {uav}: not alive in swarm '{obs.keys.swarm}' (alive: {format_ids(alive)})")
+    deadline = time.monotonic() + args.timeout
+    while time.monotonic() < deadline:
+        obs.poll()
+        v = obs.uavs.get(uav)
+        if v is not None and v.telemetry is not None and v.state is not None:
+            break
+        time.sleep(0.05)
+    rec = telemetry_record(obs, uav, time.time())
+    if rec is None:
+        console.print(f"[red]no telemetry from UAV {uav} within {args.timeout:g} s[/]")
+        return EXIT_FAILED
+    _print_telemetry(rec, args.json, console)
+    if not args.follow:
+        return EXIT_OK
+    end = math.inf if args.duration is None else time.monotonic() + args.duration
+    last_seq = None
+    while time.monotonic() < end:
+        obs.poll()
+        v = obs.uavs[uav]
+        seq = (v.telemetry.seq if v.telemetry else None, v.state.seq if v.state else None)
+        if seq != last_seq:
+            last_seq = seq
+            rec = telemetry_record(obs, uav, time.time())
+            if rec is not None:
+                _print_telemetry(rec, args.json, console)
+        time.sleep(0.05)
+    return EXIT_OK
+
+
+def _print_telemetry(rec: dict[str, Any], as_json: bool, console: Any) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps(rec) + "\n")
+        sys.stdout.flush()
+        return
+    parts = [f"uav {rec['uav']}"]
+    for k, fmt in (("phase", "{}"), ("override", "{}"), ("mode", "{}"), ("armed", "{}"), ("x", "{:.1f}"), ("y", "{:.1f}"),
+                   ("z", "{:.1f}"), ("speed", "{:.1f}"), ("battery", "{:.0%}"), ("rtf", "{:.2f}"), ("pose_age_ms", "{:.0f}")):
+        if rec.get(k) not in (None, ""):
+            parts.append(f"{k}={fmt.format(rec[k])}")
+    console.print(" ".join(parts), highlight=False)
+
+
+def _command(obs: Any, args: argparse.Namespace, ids: list[int] | None, console: Any) -> int:
+    from mrswarm.gcs.commands import confirm_kill, goto_args, print_results, resolve_targets, send_and_collect
+
+    verb = args.sub
+    targets, _ = resolve_targets(obs, ids, wait=2.0 if ids is None else 3.0)
+    cmd_args = goto_args(args.xyz) if verb == "goto" else None
+    if verb == "kill" and not confirm_kill(targets, args.yes, console=console):
+        console.print("not confirmed: nothing sent")
+        return EXIT_FAILED
+    if args.timeout <= 0:
+        raise GcsError("--timeout must be > 0")
+    results = send_and_collect(obs, verb, targets, cmd_args, to_all=args.all, timeout=args.timeout)
+    print_results(results, verb, console, args.json)
+    return EXIT_OK if all(r.status == "ok" for r in results) else EXIT_FAILED

@@ -1,0 +1,118 @@
+"""Connecting the ground station to a swarm, and resolving UAV target lists."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from swarmnet.connectivity import Rendezvous
+from swarmnet.keyspace import check_swarm
+from swarmnet.observer import SwarmObserver
+
+DISCOVERY_WAIT = 2.0  # s: how long liveliness may take to list every UAV
+
+
+class GcsError(Exception):
+    """A usage problem the CLI reports in one line, with exit code 2."""
+
+
+@dataclass(frozen=True)
+class Target:
+    swarm: str
+    endpoints: tuple[str, ...]
+
+
+def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Target:
+    """``--run DIR`` (reads DIR/network.json written by ``mrswarm run``) or ``--connect EP --swarm NAME``."""
+    if run:
+        path = Path(run) / "network.json"
+        try:
+            data = json.loads(path.read_text())
+            sw, eps = data["swarm"], tuple(data["endpoints"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise GcsError(f"--run {run}: cannot read {path} ({exc.__class__.__name__}); is it a folder of `mrswarm run`?") from None
+        swarm = swarm or sw
+        connect = list(connect) or list(eps)
+    if not connect:
+        raise GcsError("where is the swarm? give --run RUN_DIR, or --connect tcp/HOST:PORT (the edge router) and --swarm NAME")
+    if not swarm:
+        raise GcsError("--swarm NAME is required with --connect")
+    try:
+        check_swarm(swarm)
+    except ValueError as exc:
+        raise GcsError(str(exc)) from None
+    for ep in connect:
+        if "/" not in ep:
+            raise GcsError(f"--connect {ep!r}: expected a Zenoh endpoint such as tcp/127.0.0.1:7447")
+    return Target(swarm, tuple(connect))
+
+
+def open_observer(target: Target, name: str = "gcs") -> SwarmObserver:
+    """A client-mode observer with the role ``gcs`` (its liveliness token is alive/gcs/<id>)."""
+    import zenoh
+
+    node_id = os.getpid() % 65535 + 1
+    try:
+        return SwarmObserver(target.swarm, Rendezvous(target.endpoints, mode="client"), node_id=node_id, role="gcs",
+                             name=name).open()
+    except zenoh.ZError as exc:
+        raise GcsError(f"cannot reach the swarm's router at {', '.join(target.endpoints)} (is the run still going?): "
+                       f"{str(exc).split(' at ')[0]}") from None
+
+
+def parse_ids(text: str) -> list[int]:
+    """``3``, ``1,2,5-7`` -> sorted unique ids; raises GcsError on anything else."""
+    out: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                a, b = (int(x) for x in part.split("-", 1))
+                if b < a or b - a > 65535:
+                    raise ValueError
+                out.update(range(a, b + 1))
+            else:
+                out.add(int(part))
+        except ValueError:
+            raise GcsError(f"bad UAV list {text!r}: use ids and ranges like 3 or 1,2,5-7") from None
+    bad = [u for u in out if not 1 <= u <= 65535]
+    if bad or not out:
+        raise GcsError(f"bad UAV list {text!r}: ids are 1..65535")
+    return sorted(out)
+
+
+def format_ids(ids: list[int] | set[int]) -> str:
+    """[1,2,3,7] -> '1-3,7'."""
+    s = sorted(ids)
+    parts: list[str] = []
+    i = 0
+    while i < len(s):
+        j = i
+        while j + 1 < len(s) and s[j + 1] == s[j] + 1:
+            j += 1
+        parts.append(str(s[i]) if i == j else f"{s[i]}-{s[j]}")
+        i = j + 1
+    return ",".join(parts) or "-"
+
+
+def wait_alive(obs: SwarmObserver, want: set[int] | None, timeout: float = DISCOVERY_WAIT) -> set[int]:
+    """Poll until every wanted UAV is alive (or, with ``want=None``, until the set stops growing)."""
+    deadline = time.monotonic() + timeout
+    last: set[int] = set()
+    stable_since = time.monotonic()
+    while time.monotonic() < deadline:
+        obs.poll()
+        alive = obs.alive_uavs()
+        if want is not None and want <= alive:
+            return alive
+        if alive != last:
+            last, stable_since = set(alive), time.monotonic()
+        elif want is None and alive and time.monotonic() - stable_since > 0.5:
+            return alive
+        time.sleep(0.05)
+    return obs.alive_uavs()

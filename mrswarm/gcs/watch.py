@@ -1,0 +1,341 @@
+"""``mrswarm gcs watch``: a live table of every UAV of a swarm.
+
+The loop only drains ring channels (``SwarmObserver.poll``), so a slow or silent UAV can
+never block it: its row just ages and turns dim, then red. Only the rows that fit the
+terminal are rendered, so hundreds of UAVs cost no more than a screenful. Keys (in a
+terminal): ``q`` quit, ``s``/``S`` next/previous sort column, ``r`` reverse, ``f`` cycle a
+phase filter, ``n``/``p`` (PgDn/PgUp, arrows) page, ``c`` clear the filters.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from mrswarm.gcs.session import GcsError, format_ids, parse_ids
+from swarmnet.observer import SwarmObserver
+
+STALE_S = 3.0  # no data for this long: the row is dim
+LOST_S = 10.0  # ... and red after this
+SORT_KEYS = ("id", "phase", "mode", "alt", "speed", "battery", "rtf", "age", "seen", "loss")
+
+
+@dataclass
+class Row:
+    id: int
+    realm: str = "-"
+    phase: str = "-"
+    override: str = ""
+    mode: str = "-"
+    armed: bool | None = None
+    x: float = math.nan
+    y: float = math.nan
+    alt: float = math.nan
+    speed: float = math.nan
+    battery: float = math.nan  # 0..1
+    rtf: float = math.nan
+    age: float = math.nan  # pose age at arrival, s
+    seen: float = math.nan  # s since anything arrived from it
+    rate: float = math.nan  # poses/s
+    loss: float = math.nan  # fraction of poses lost
+
+    def get(self, key: str) -> Any:
+        return self.phase + self.override if key == "phase" else getattr(self, key)
+
+
+def rows_from(obs: SwarmObserver, now: float) -> list[Row]:
+    rows = []
+    for uav, v in obs.uavs.items():
+        r = Row(uav)
+        times = []
+        if v.pose is not None:
+            p = v.pose
+            r.realm = p.realm.label
+            r.x, r.y, r.alt = p.x, p.y, p.z
+            r.speed = math.sqrt(p.vx * p.vx + p.vy * p.vy + p.vz * p.vz)
+            r.age = max(0.0, v.pose_recv - p.t_wall)
+            times.append(v.pose_recv)
+            n = obs.node.neighbours.get(uav)
+            if n is not None:
+                r.rate, r.loss = n.rate, n.loss
+        if v.telemetry is not None:
+            t = v.telemetry
+            r.realm = t.realm.label
+            r.mode, r.armed = t.mode, t.armed
+            r.battery = t.battery if t.battery >= 0 else math.nan
+            r.rtf = t.rtf if t.rtf > 0 else math.nan
+            times.append(t.t_wall)
+        if v.state is not None:
+            r.phase, r.override = v.state.phase, v.state.override
+            times.append(v.state_recv)
+        r.seen = now - max(times) if times else math.nan
+        rows.append(r)
+    return rows
+
+
+@dataclass
+class Filter:
+    """Row filters from ``--filter KEY=VALUE`` (repeatable, all must hold)."""
+
+    ids: set[int] | None = None
+    phase: str | None = None
+    mode: str | None = None
+    realm: str | None = None
+    override: bool = False  # only rows with an override
+    stale: bool = False  # only rows silent for STALE_S
+
+    @classmethod
+    def parse(cls, items: list[str]) -> Filter:
+        f = cls()
+        for it in items:
+            key, _, val = it.partition("=")
+            key = key.strip().lower()
+            if key == "id":
+                f.ids = set(parse_ids(val))
+            elif key in ("phase", "mode", "realm"):
+                if not val:
+                    raise GcsError(f"--filter {it!r}: give a value, e.g. {key}=...")
+                setattr(f, key, val.lower())
+            elif key in ("override", "stale") and not val:
+                setattr(f, key, True)
+            else:
+                raise GcsError(f"--filter {it!r}: use id=1-20, phase=NAME, mode=NAME, realm=virtual|physical, override or stale")
+        return f
+
+    def match(self, r: Row) -> bool:
+        if self.ids is not None and r.id not in self.ids:
+            return False
+        if self.phase is not None and r.phase.lower() != self.phase:
+            return False
+        if self.mode is not None and r.mode.lower() != self.mode:
+            return False
+        if self.realm is not None and r.realm != self.realm:
+            return False
+        if self.override and not r.override:
+            return False
+        if self.stale and not (r.seen > STALE_S or math.isnan(r.seen)):
+            return False
+        return True
+
+    def describe(self) -> str:
+        parts = []
+        if self.ids is not None:
+            parts.append(f"id={format_ids(self.ids)}")
+        for k in ("phase", "mode", "realm"):
+            if getattr(self, k) is not None:
+                parts.append(f"{k}={getattr(self, k)}")
+        parts += [k for k in ("override", "stale") if getattr(self, k)]
+        return " ".join(parts) or "none"
+
+
+def sort_rows(rows: list[Row], key: str, reverse: bool = False) -> list[Row]:
+    if key not in SORT_KEYS:
+        raise GcsError(f"--sort {key!r}: one of {', '.join(SORT_KEYS)}")
+
+    def k(r: Row) -> tuple[int, Any, int]:
+        v = r.get(key)
+        missing = v is None or (isinstance(v, float) and math.isnan(v))
+        return (1 if missing else 0, "" if missing else v, r.id)
+
+    out = sorted(rows, key=k)
+    if reverse:  # missing values stay last
+        have = [r for r in out if k(r)[0] == 0][::-1]
+        out = have + [r for r in out if k(r)[0] == 1]
+    return out
+
+
+# column -> (justify, minimum width); in the order shown
+COLUMNS: dict[str, tuple[str, int]] = {
+    "id": ("right", 3), "R": ("left", 1), "phase": ("left", 7), "override": ("left", 8), "mode": ("left", 8),
+    "arm": ("left", 3), "x": ("right", 6), "y": ("right", 6), "alt": ("right", 5), "m/s": ("right", 4),
+    "bat%": ("right", 4), "rtf": ("right", 4), "age ms": ("right", 6), "Hz": ("right", 4), "loss%": ("right", 5),
+    "seen s": ("right", 6),
+}
+# dropped first when the terminal is narrow (the realm is R: V = virtual, P = physical)
+_DROP_ORDER = ("loss%", "Hz", "R", "arm", "rtf", "m/s")
+
+
+def fit_columns(width: int) -> list[str]:
+    cols = list(COLUMNS)
+    need = lambda cs: sum(max(COLUMNS[c][1], len(c)) + 1 for c in cs) + 8  # noqa: E731 - cells a bit wider than minimums
+    for c in _DROP_ORDER:
+        if need(cols) <= width:
+            break
+        cols.remove(c)
+    return cols
+
+
+def _f(v: float, fmt: str) -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
+
+
+class WatchView:
+    """Sorting, filtering, paging and rendering (separate from the terminal loop)."""
+
+    def __init__(self, swarm: str, sort: str = "id", reverse: bool = False, filt: Filter | None = None):
+        sort_rows([], sort)  # validates
+        self.swarm = swarm
+        self.sort = sort
+        self.reverse = reverse
+        self.filter = filt or Filter()
+        self.page = 0
+        self.started = time.time()
+
+    def render(self, obs: SwarmObserver, now: float, height: int, width: int = 200) -> Group:
+        rows = rows_from(obs, now)
+        total = len(rows)
+        shown = sort_rows([r for r in rows if self.filter.match(r)], self.sort, self.reverse)
+        per_page = max(1, height - 9)
+        pages = max(1, math.ceil(len(shown) / per_page))
+        self.page = min(self.page, pages - 1)
+        page_rows = shown[self.page * per_page:(self.page + 1) * per_page]
+        phases: dict[str, int] = {}
+        for r in rows:
+            phases[r.phase] = phases.get(r.phase, 0) + 1
+        stale = sum(1 for r in rows if r.seen > STALE_S)
+        overrides = sum(1 for r in rows if r.override)
+        alive = len(obs.alive_uavs())
+        head = Text.assemble(
+            (f"swarm {self.swarm}", "bold"), f"  {total} UAVs seen, {alive} alive, {stale} stale, {overrides} overridden  ",
+            ("phases: ", "dim"), ", ".join(f"{k} {v}" for k, v in sorted(phases.items())) or "-",
+        )
+        cols = fit_columns(width)
+        t = Table(box=None, pad_edge=False, header_style="bold", expand=False, padding=(0, 1))
+        for name in cols:
+            just, min_w = COLUMNS[name]
+            t.add_column(name, justify=just, no_wrap=True, min_width=min_w)
+        for r in page_rows:
+            style = ""
+            if r.seen > LOST_S:
+                style = "red"
+            elif r.seen > STALE_S:
+                style = "dim"
+            elif r.override:
+                style = "yellow"
+            cells = {
+                "id": str(r.id), "R": r.realm[:1].upper() if r.realm != "-" else "-", "phase": r.phase,
+                "override": r.override or "", "mode": r.mode, "arm": "-" if r.armed is None else ("yes" if r.armed else "no"),
+                "x": _f(r.x, ".1f"), "y": _f(r.y, ".1f"), "alt": _f(r.alt, ".1f"), "m/s": _f(r.speed, ".1f"),
+                "bat%": _f(r.battery * 100 if r.battery == r.battery else math.nan, ".0f"), "rtf": _f(r.rtf, ".2f"),
+                "age ms": _f(r.age * 1000 if r.age == r.age else math.nan, ".0f"), "Hz": _f(r.rate, ".1f"),
+                "loss%": _f(r.loss * 100 if r.loss == r.loss else math.nan, ".1f"), "seen s": _f(r.seen, ".1f"),
+            }
+            t.add_row(*(cells[c] for c in cols), style=style)
+        foot = Text(
+            f"sort {self.sort}{' (reversed)' if self.reverse else ''} | filter {self.filter.describe()} | "
+            f"rows {len(shown)} of {total}, page {self.page + 1}/{pages} | "
+            "q quit  s/S sort  r reverse  f phase  c clear  n/p page", style="dim")
+        return Group(head, t, foot)
+
+    # ---- keys -------------------------------------------------------------------------------
+    def key(self, k: str, obs: SwarmObserver) -> bool:
+        """Apply one key; False means quit."""
+        if k in ("q", "Q", "\x03"):
+            return False
+        if k == "s":
+            self.sort = SORT_KEYS[(SORT_KEYS.index(self.sort) + 1) % len(SORT_KEYS)]
+        elif k == "S":
+            self.sort = SORT_KEYS[(SORT_KEYS.index(self.sort) - 1) % len(SORT_KEYS)]
+        elif k == "r":
+            self.reverse = not self.reverse
+        elif k in ("n", "PGDN", "DOWN", " ", "j"):
+            self.page += 1
+        elif k in ("p", "PGUP", "UP", "k"):
+            self.page = max(0, self.page - 1)
+        elif k == "c":
+            self.filter = Filter()
+        elif k == "f":
+            phases = sorted({v.state.phase for v in obs.uavs.values() if v.state is not None})
+            cur = self.filter.phase
+            if not phases:
+                self.filter.phase = None
+            elif cur is None or cur not in phases:
+                self.filter.phase = phases[0]
+            else:
+                i = phases.index(cur) + 1
+                self.filter.phase = phases[i] if i < len(phases) else None
+            self.page = 0
+        return True
+
+
+_ESC = {"\x1b[5~": "PGUP", "\x1b[6~": "PGDN", "\x1b[A": "UP", "\x1b[B": "DOWN"}
+
+
+def split_keys(data: str) -> list[str]:
+    out = []
+    i = 0
+    while i < len(data):
+        for seq, name in _ESC.items():
+            if data.startswith(seq, i):
+                out.append(name)
+                i += len(seq)
+                break
+        else:
+            out.append(data[i])
+            i += 1
+    return out
+
+
+@contextmanager
+def cbreak(fd: int | None) -> Iterator[None]:
+    if fd is None:
+        yield
+        return
+    import termios
+    import tty
+
+    old = termios.tcgetattr(fd)
+    try:
+        tty.setcbreak(fd)
+        yield
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, old)
+
+
+def run_watch(obs: SwarmObserver, view: WatchView, console: Console, *, refresh_hz: float = 4.0,
+              duration: float | None = None, once: bool = False, clock: Callable[[], float] = time.time) -> int:
+    if once:  # one snapshot for scripts: wait briefly for data, print, exit
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            obs.poll()
+            if obs.uavs and all(v.state is not None and v.telemetry is not None for v in obs.uavs.values()) and \
+                    len(obs.uavs) >= len(obs.alive_uavs()):
+                break
+            time.sleep(0.1)
+        if not console.is_terminal:  # a pipe or a file: do not squeeze columns to 80
+            console = Console(file=console.file, width=max(console.width, 160))
+        console.print(view.render(obs, clock(), 10_000, console.width))
+        return 0
+    fd = sys.stdin.fileno() if sys.stdin is not None and sys.stdin.isatty() else None
+    period = 1.0 / max(2.0, refresh_hz)
+    end = math.inf if duration is None else time.monotonic() + duration
+    with cbreak(fd), Live(console=console, auto_refresh=False, screen=False, transient=False,
+                          vertical_overflow="crop") as live:
+        next_draw = 0.0
+        while time.monotonic() < end:
+            obs.poll()
+            if fd is not None:
+                r, _, _ = select.select([fd], [], [], 0)
+                if r:
+                    data = os.read(fd, 64).decode(errors="ignore")
+                    if not all(view.key(k, obs) for k in split_keys(data)):
+                        break
+                    next_draw = 0.0
+            now_m = time.monotonic()
+            if now_m >= next_draw:
+                next_draw = now_m + period
+                live.update(view.render(obs, clock(), console.size.height, console.size.width), refresh=True)
+            time.sleep(0.05)
+    return 0

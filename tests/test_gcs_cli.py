@@ -1,0 +1,149 @@
+"""`mrswarm gcs` pieces that need no running swarm: ids, filters, sorting, layout, recordings, usage errors."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrswarm.gcs.commands import confirm_kill, goto_args
+from mrswarm.gcs.record import Recorder, plot_recording, read_recording
+from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+from mrswarm.gcs.watch import Filter, Row, fit_columns, sort_rows, split_keys
+from mrswarm.scenario import ScenarioError, load_scenario
+from swarmnet.messages import AgentState, Pose, Realm, Telemetry
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_id_lists() -> None:
+    assert parse_ids("3") == [3]
+    assert parse_ids("1,2,5-7, 7") == [1, 2, 5, 6, 7]
+    assert format_ids([1, 2, 3, 7, 9, 10]) == "1-3,7,9-10"
+    for bad in ("x", "5-2", "0", "70000", "", "1-"):
+        with pytest.raises(GcsError):
+            parse_ids(bad)
+
+
+def test_filters_sorting_and_narrow_terminals() -> None:
+    rows = [Row(1, phase="mission", mode="OFFBOARD", battery=0.5, seen=0.1), Row(2, phase="hold", override="hold", battery=0.9, seen=0.2),
+            Row(3, phase="yielded", override="fcu:RTL", mode="RTL", seen=5.0), Row(10, realm="physical", phase="mission", seen=0.1)]
+    f = Filter.parse(["phase=mission"])
+    assert [r.id for r in rows if f.match(r)] == [1, 10]
+    assert [r.id for r in rows if Filter.parse(["override"]).match(r)] == [2, 3]
+    assert [r.id for r in rows if Filter.parse(["stale"]).match(r)] == [3]
+    assert [r.id for r in rows if Filter.parse(["id=2-10", "realm=physical"]).match(r)] == [10]
+    assert [r.id for r in rows if Filter.parse(["mode=rtl"]).match(r)] == [3]
+    for bad in (["colour=red"], ["phase="], ["id=abc"]):
+        with pytest.raises(GcsError):
+            Filter.parse(bad)
+    assert [r.id for r in sort_rows(rows, "battery")] == [1, 2, 3, 10]  # unknown values last
+    assert [r.id for r in sort_rows(rows, "battery", reverse=True)] == [2, 1, 3, 10]
+    assert [r.id for r in sort_rows(rows, "phase")] == [2, 1, 10, 3]
+    with pytest.raises(GcsError):
+        sort_rows(rows, "colour")
+    assert fit_columns(200)[:3] == ["id", "R", "phase"]
+    narrow = fit_columns(80)
+    assert {"id", "phase", "override", "mode", "x", "y", "alt", "bat%", "age ms"} <= set(narrow)
+    assert split_keys("q\x1b[6~s") == ["q", "PGDN", "s"]
+
+
+def test_goto_args_and_kill_confirmation() -> None:
+    assert goto_args([1.0, -2.0, 10.0]) == {"x": 1.0, "y": -2.0, "z": 10.0}
+    with pytest.raises(GcsError):
+        goto_args([1.0, math.nan, 10.0])
+    assert confirm_kill([1], yes=True)
+    with pytest.raises(GcsError, match="--yes"):
+        confirm_kill([1], yes=False, stdin=io.StringIO("kill\n"))  # not a terminal
+
+
+def test_recording_survives_a_torn_last_line_and_plots(tmp_path: Path) -> None:
+    path = tmp_path / "rec.jsonl"
+    t = [1000.0]
+    rec = Recorder(path, clock=lambda: t[0])
+    for i in range(50):
+        t[0] += 0.1
+        for u in (1, 2):
+            rec("pose", Pose(u, Realm.VIRTUAL, i, i * 0.1, t[0], float(i), float(u * 5), 10.0, 1.0, 0.0, 0.0, 0.0))
+        if i % 10 == 0:
+            rec("telemetry", Telemetry(1, Realm.VIRTUAL, i, t[0], "OFFBOARD", True, 0.9 - i / 1000, 16.0, 47.0, 8.0, 500.0, 1.0))
+            rec("state", AgentState(1, Realm.VIRTUAL, i, t[0], "hold" if i > 20 else "mission", "coverage", "hold" if i > 20 else ""))
+        rec.maybe_flush()
+    rec.close()
+    with open(path, "a") as f:
+        f.write('{"t": 1, "kind": "pose", "uav": 1, "x": 1')  # a crash mid-write
+    lines = list(read_recording(path))
+    assert len(lines) == 100 + 5 + 5
+    assert lines[0]["kind"] == "pose" and lines[0]["realm"] == "virtual"
+    out, info = plot_recording(path)
+    assert out.exists() and out.stat().st_size > 10_000 and info["uavs"] == 2
+    (tmp_path / "junk.jsonl").write_text("junk\n")
+    with pytest.raises(ValueError, match="no recorded messages"):
+        plot_recording(tmp_path / "junk.jsonl")
+
+
+def test_recorder_flushes_within_a_second(tmp_path: Path) -> None:
+    path = tmp_path / "r.jsonl"
+    t = [0.0]
+    rec = Recorder(path, clock=lambda: t[0])
+    rec("joined", "mrs/a/alive/uav/1")
+    rec.maybe_flush()
+    assert path.read_text() == ""  # buffered...
+    t[0] = 1.0
+    rec.maybe_flush()
+    assert json.loads(path.read_text())["kind"] == "joined"  # ...on disk a second later, without close()
+    rec.close()
+
+
+def test_where_is_the_swarm(tmp_path: Path) -> None:
+    with pytest.raises(GcsError, match="--run RUN_DIR"):
+        resolve_target(None, [], None)
+    with pytest.raises(GcsError, match="network.json"):
+        resolve_target(str(tmp_path), [], None)
+    (tmp_path / "network.json").write_text(json.dumps({"swarm": "alpha", "endpoints": ["tcp/127.0.0.1:7447"]}))
+    t = resolve_target(str(tmp_path), [], None)
+    assert t.swarm == "alpha" and t.endpoints == ("tcp/127.0.0.1:7447",)
+    with pytest.raises(GcsError, match="--swarm"):
+        resolve_target(None, ["tcp/127.0.0.1:7447"], None)
+    with pytest.raises(GcsError):
+        resolve_target(None, ["127.0.0.1:7447"], "alpha")
+    with pytest.raises(GcsError):
+        resolve_target(None, ["tcp/127.0.0.1:7447"], "bad swarm!")
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["hold", "--uav", "3"], "where is the swarm"),
+    (["goto", "1", "nan", "3", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "not a finite number"),
+    (["watch", "--filter", "colour=red", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "--filter"),
+    (["watch", "--refresh", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "at least 2"),
+    (["hold", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "cannot reach the swarm"),
+    (["plot", "/nonexistent/rec.jsonl"], "No such file"),
+])
+def test_cli_usage_errors_exit_2_with_one_line(args: list[str], needle: str) -> None:
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", *args], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert needle in res.stderr and "Traceback" not in res.stderr
+
+
+def test_scenario_gcs_section(tmp_path: Path) -> None:
+    mini = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"
+    s = load_scenario(mini, ["gcs.mavlink=true", "gcs.listen_base=20000", "fleet.first_id=239", "fleet.flavour=ardupilot"])
+    from uav_stack.config import NetworkConfig
+
+    cfgs = s.virtual_uav_configs(NetworkConfig(), None)
+    eps = {c.agent.uav: c.agent.gcs.mavlink_endpoints for c in cfgs}
+    assert eps[239] == ("udpout:127.0.0.1:14550", "udpin:127.0.0.1:20239")
+    assert eps[241] == ("udpout:127.0.0.1:14551", "udpin:127.0.0.1:20241")  # the second 240-UAV network
+    assert {c.agent.mavlink_sysid for c in cfgs} == {239, 240, 1, 2}
+    assert all(c.flavour == "ardupilot" for c in cfgs)
+    assert cfgs[0].agent.gcs.geofence == (-30.0, 30.0, -20.0, 20.0)  # the mission area
+    assert load_scenario(mini).virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ()  # off by default
+    with pytest.raises(ScenarioError, match="listen_base"):
+        load_scenario(mini, ["gcs.mavlink=true", "gcs.listen_base=65534"])
+    with pytest.raises(ScenarioError, match="flavour"):
+        load_scenario(mini, ["fleet.flavour=betaflight"])

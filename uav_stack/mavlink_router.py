@@ -1,0 +1,366 @@
+"""The agent's MAVLink router: the FCU's stream to ground stations, their commands to the FCU.
+
+A companion computer normally runs mavlink-router so that QGroundControl, MAVProxy or a
+MAVSDK script can reach the flight controller next to the swarm agent. This module does the
+same job inside the agent's loop (no thread, no extra process): :meth:`MavlinkRouter.from_fcu`
+is :class:`~uav_stack.fcu_link.FcuLink`'s ``on_message`` hook, :meth:`MavlinkRouter.poll` reads
+the ground-station sockets and :meth:`MavlinkRouter.flush` sends what the tick collected.
+
+Frames are forwarded as received (``get_msgbuf()``), never re-encoded, so sequence numbers,
+CRCs and signatures stay the sender's. Within one tick the frames for one endpoint are
+coalesced into datagrams of at most 1400 bytes, as PX4 does; every MAVLink parser reads all
+frames of a datagram.
+
+Routing rules (mavlink.io's routing guide, as mavlink-router implements them):
+
+* every channel (the FCU, each endpoint) learns the ``(sysid, compid)`` pairs it *receives*;
+* a message is never sent to a channel that already knows its source (no echo, no loops,
+  even when two routers are cross-connected);
+* broadcasts (no target, or target system 0) go to every other channel; addressed messages
+  only to channels where the target system (and component, unless 0) has been seen;
+* messages addressed to the agent itself (its sysid and companion compid 191) stay here.
+
+The allocation of MAVLink system ids for more than 250 UAVs is :func:`allocate_sysid`.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from uav_stack.mav import mavlink
+from uav_stack.sysid import SHARD_SIZE, allocate_sysid  # noqa: F401 - re-exported
+
+log = logging.getLogger(__name__)
+
+MAX_DATAGRAM = 1400
+MAX_PEERS = 4  # server endpoints: ground stations answered at once
+PEER_TIMEOUT = 30.0  # s: a silent server-endpoint peer is forgotten
+MAX_SOURCES = 1024  # (sysid, compid) pairs remembered per channel
+_M = mavlink
+
+# Commands from a ground station that move the vehicle or change its mode: when one passes
+# through the router to our FCU, a human has taken over, even if the mode name stays the same
+# (ArduPilot GUIDED is both the agent's mode and MAVProxy's "guided").
+TAKEOVER_COMMANDS = frozenset({
+    _M.MAV_CMD_DO_REPOSITION, _M.MAV_CMD_DO_SET_MODE, _M.MAV_CMD_NAV_TAKEOFF, _M.MAV_CMD_NAV_LAND,
+    _M.MAV_CMD_NAV_RETURN_TO_LAUNCH, _M.MAV_CMD_NAV_LOITER_UNLIM, _M.MAV_CMD_COMPONENT_ARM_DISARM,
+    _M.MAV_CMD_MISSION_START, _M.MAV_CMD_DO_CHANGE_SPEED,
+})
+TAKEOVER_MESSAGES = frozenset({"SET_MODE", "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT",
+                               "SET_ATTITUDE_TARGET", "MANUAL_CONTROL"})
+
+
+def parse_endpoint(spec: str) -> tuple[str, str, int]:
+    """``udpout:HOST:PORT`` (send to a GCS that listens, e.g. QGC on 14550) or ``udpin:HOST:PORT``
+    (listen; answer whoever sends, like mavlink-router's server mode). Returns (mode, host, port)."""
+    parts = spec.split(":")
+    if len(parts) != 3 or parts[0] not in ("udpout", "udpin"):
+        raise ValueError(f"MAVLink endpoint {spec!r}: expected udpout:HOST:PORT or udpin:HOST:PORT")
+    mode, host, port_s = parts
+    try:
+        port = int(port_s)
+    except ValueError:
+        raise ValueError(f"MAVLink endpoint {spec!r}: port {port_s!r} is not a number") from None
+    if not (0 <= port <= 65535) or (mode == "udpout" and port == 0):
+        raise ValueError(f"MAVLink endpoint {spec!r}: port out of range")
+    if not host:
+        raise ValueError(f"MAVLink endpoint {spec!r}: empty host")
+    return mode, host, port
+
+
+@dataclass
+class RouterStats:
+    to_gcs: int = 0  # messages forwarded FCU -> endpoints (counted per endpoint)
+    to_fcu: int = 0  # messages forwarded endpoint -> FCU
+    gcs_to_gcs: int = 0
+    datagrams_out: int = 0
+    send_errors: int = 0
+    bad_datagrams: int = 0  # garbage, truncated or CRC-failing input from an endpoint
+    dropped_loop: int = 0  # the destination already knows the source: an echo or a routing loop
+    dropped_unknown_target: int = 0
+    dropped_for_us: int = 0  # addressed to the agent's own id
+    spoofed_own_id: int = 0  # a GCS frame claiming the agent's or the FCU's id
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class Channel:
+    """What one side of the router has shown us: the (sysid, compid) pairs it sent."""
+
+    name: str
+    seen: set[tuple[int, int]] = field(default_factory=set)
+    seen_sys: set[int] = field(default_factory=set)
+
+    def learn(self, src: tuple[int, int]) -> None:
+        if src not in self.seen and len(self.seen) < MAX_SOURCES:  # bounded: spoofed ids cannot grow it forever
+            self.seen.add(src)
+            self.seen_sys.add(src[0])
+
+    def accepts(self, src: tuple[int, int], tsys: int, tcomp: int) -> int:
+        """0 = send, 1 = loop (source known here), 2 = target unknown here."""
+        if src in self.seen:
+            return 1
+        if tsys == 0:
+            return 0
+        if tcomp == 0:
+            return 0 if tsys in self.seen_sys else 2
+        return 0 if (tsys, tcomp) in self.seen else 2
+
+
+class UdpEndpoint(Channel):
+    def __init__(self, spec: str, clock: Callable[[], float]):
+        super().__init__(spec)
+        self.spec = spec
+        self.mode, self.host, self.port = parse_endpoint(spec)
+        self.clock = clock
+        self.sock: socket.socket | None = None
+        self.dest: tuple[str, int] | None = None
+        self.peers: dict[tuple[str, int], float] = {}
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self._out: list[bytes] = []
+        self._out_len = 0
+        self.rx_datagrams = 0
+
+    def open(self) -> None:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if self.mode == "udpin":
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind((self.host, self.port))
+            else:
+                self.dest = (socket.gethostbyname(self.host), self.port)
+                s.bind(("0.0.0.0" if self.dest[0] != "127.0.0.1" else "127.0.0.1", 0))
+            s.setblocking(False)
+        except OSError:
+            s.close()
+            raise
+        self.sock = s
+
+    @property
+    def address(self) -> tuple[str, int]:
+        assert self.sock is not None
+        return self.sock.getsockname()[:2]
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+    def recv(self, max_datagrams: int = 64) -> list[bytes]:
+        out: list[bytes] = []
+        s = self.sock
+        if s is None:
+            return out
+        for _ in range(max_datagrams):
+            try:
+                data, addr = s.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # ECONNREFUSED for an earlier send to a GCS that is not running
+                continue
+            if self.mode == "udpin":
+                a = (addr[0], addr[1])
+                if a not in self.peers and len(self.peers) >= MAX_PEERS:
+                    del self.peers[min(self.peers, key=self.peers.__getitem__)]
+                self.peers[a] = self.clock()
+            self.rx_datagrams += 1
+            out.append(data)
+        return out
+
+    def targets(self) -> list[tuple[str, int]]:
+        if self.mode == "udpout":
+            return [self.dest] if self.dest else []
+        now = self.clock()
+        stale = [a for a, t in self.peers.items() if now - t > PEER_TIMEOUT]
+        for a in stale:
+            del self.peers[a]
+        return list(self.peers)
+
+    def queue(self, buf: bytes, stats: RouterStats) -> None:
+        if self._out_len + len(buf) > MAX_DATAGRAM:
+            self.flush(stats)
+        self._out.append(buf)
+        self._out_len += len(buf)
+
+    def flush(self, stats: RouterStats) -> None:
+        if not self._out:
+            return
+        data = b"".join(self._out)
+        self._out.clear()
+        self._out_len = 0
+        s = self.sock
+        if s is None:
+            return
+        for addr in self.targets():
+            try:
+                s.sendto(data, addr)
+                stats.datagrams_out += 1
+            except OSError:  # nobody listening, buffer full: drop, like UDP
+                stats.send_errors += 1
+
+
+class MavlinkRouter:
+    """Routes between one FCU (through the agent's :class:`FcuLink`) and ground-station endpoints.
+
+    ``write_fcu`` sends raw bytes to the FCU (``FcuLink.write``); ``own`` is the agent's
+    (sysid, compid) on the FCU link.
+    """
+
+    def __init__(self, endpoints: list[str] | tuple[str, ...], write_fcu: Callable[[bytes], None], *,
+                 own: tuple[int, int] = (1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER), clock: Callable[[], float] = time.time):
+        self.endpoints = [UdpEndpoint(e, clock) for e in endpoints]
+        self.write_fcu = write_fcu
+        self.own = own
+        self.clock = clock
+        self.fcu = Channel("fcu")
+        self.stats = RouterStats()
+        # the latest ground-station command that moves our vehicle or changes its mode:
+        # (wall time, description); the agent treats it as a human taking over
+        self.takeover: tuple[float, str] | None = None
+        self._to_fcu: list[bytes] = []
+        self._to_fcu_len = 0
+
+    # ---- lifecycle ----------------------------------------------------------------------
+    def open(self) -> MavlinkRouter:
+        try:
+            for ep in self.endpoints:
+                ep.open()
+        except OSError:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        for ep in self.endpoints:
+            ep.close()
+
+    def addresses(self) -> dict[str, tuple[str, int]]:
+        return {ep.spec: ep.address for ep in self.endpoints if ep.sock is not None}
+
+    # ---- FCU -> ground stations (FcuLink's on_message hook) ---------------------------------
+    def from_fcu(self, msg: Any) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        self.fcu.learn(src)
+        tsys = getattr(msg, "target_system", 0)
+        tcomp = getattr(msg, "target_component", 0)
+        if tsys == self.own[0] and tcomp == self.own[1]:
+            self.stats.dropped_for_us += 1
+            return
+        buf = msg.get_msgbuf()
+        stats = self.stats
+        for ep in self.endpoints:
+            verdict = ep.accepts(src, tsys, tcomp)
+            if verdict == 0:
+                ep.queue(buf, stats)
+                stats.to_gcs += 1
+            elif verdict == 1:
+                stats.dropped_loop += 1
+            else:
+                stats.dropped_unknown_target += 1
+
+    # ---- ground stations -> FCU (and to each other) -----------------------------------------
+    def poll(self) -> int:
+        """Read every endpoint (bounded, non-blocking) and route what arrived; returns messages routed."""
+        n = 0
+        for ep in self.endpoints:
+            for data in ep.recv():
+                n += self._route_datagram(ep, data)
+        return n
+
+    def _route_datagram(self, ep: UdpEndpoint, data: bytes) -> int:
+        p = ep.parser
+        try:
+            msgs = p.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - a decoder failure is bad input, never a crash
+            msgs = []
+            self.stats.bad_datagrams += 1
+        # a datagram holds whole frames: never carry a partial frame into the next one
+        p.buf = bytearray()
+        p.buf_index = 0
+        p.expected_length = mavlink.HEADER_LEN_V1 + 2
+        p.have_prefix_error = False
+        n = 0
+        bad = False
+        for m in msgs:
+            if isinstance(m, mavlink.MAVLink_bad_data):
+                bad = True
+                continue
+            self._route_from_gcs(ep, m)
+            n += 1
+        if bad or (not msgs and data):
+            self.stats.bad_datagrams += 1
+        return n
+
+    def _route_from_gcs(self, ep: UdpEndpoint, m: Any) -> None:
+        stats = self.stats
+        src = (m.get_srcSystem(), m.get_srcComponent())
+        if src == self.own or src in self.fcu.seen:
+            stats.spoofed_own_id += 1  # an echo of the FCU's own stream, or a GCS using our ids
+            return
+        ep.learn(src)
+        tsys = getattr(m, "target_system", 0)
+        tcomp = getattr(m, "target_component", 0)
+        buf = m.get_msgbuf()
+        if tsys == self.own[0] and tcomp == self.own[1]:
+            stats.dropped_for_us += 1
+            return
+        verdict = self.fcu.accepts(src, tsys, tcomp)
+        if verdict == 0:
+            if self._to_fcu_len + len(buf) > MAX_DATAGRAM:
+                self._flush_fcu()
+            self._to_fcu.append(buf)
+            self._to_fcu_len += len(buf)
+            stats.to_fcu += 1
+            if tsys != 0:
+                self._note_takeover(m)
+        elif verdict == 2:
+            stats.dropped_unknown_target += 1
+        for other in self.endpoints:
+            if other is ep:
+                continue
+            if other.accepts(src, tsys, tcomp) == 0:
+                other.queue(buf, stats)
+                stats.gcs_to_gcs += 1
+
+    def _note_takeover(self, m: Any) -> None:
+        mtype = m.get_type()
+        what = None
+        if mtype in ("COMMAND_LONG", "COMMAND_INT"):
+            if m.command in TAKEOVER_COMMANDS:
+                what = _command_name(m.command)
+        elif mtype in TAKEOVER_MESSAGES:
+            what = mtype
+        elif mtype in ("MISSION_ITEM", "MISSION_ITEM_INT") and m.current == 2:
+            what = "guided " + mtype
+        if what is not None:
+            self.takeover = (self.clock(), what)
+
+    def flush(self) -> None:
+        """Send everything this tick collected (one datagram per endpoint, usually)."""
+        self._flush_fcu()
+        for ep in self.endpoints:
+            ep.flush(self.stats)
+
+    def _flush_fcu(self) -> None:
+        if self._to_fcu:
+            data = b"".join(self._to_fcu)
+            self._to_fcu.clear()
+            self._to_fcu_len = 0
+            try:
+                self.write_fcu(data)
+            except OSError as exc:
+                self.stats.send_errors += 1
+                log.debug("router -> fcu: %s", exc)
+
+
+def _command_name(cmd: int) -> str:
+    e = mavlink.enums["MAV_CMD"].get(cmd)
+    return e.name.removeprefix("MAV_CMD_") if e is not None else str(cmd)
