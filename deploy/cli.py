@@ -54,17 +54,24 @@ def _ps(args: argparse.Namespace) -> int:
         w = [max(len(str(r[i])) for r in rows + [("RUN", "ROLE", "UAV", "NAME", "STATUS", "IP")]) for i in range(6)]
         for r in [("RUN", "ROLE", "UAV", "NAME", "STATUS", "IP")] + sorted(rows):
             print("  ".join(str(v).ljust(w[i]) for i, v in enumerate(r)).rstrip())
-    try:
-        services = cl.services.list(filters={"label": L_RUN})
-    except Exception:  # noqa: BLE001 - not a swarm manager
-        services = []
-    for s in services:
+    for s in _services(cl):
         tasks = [t for t in s.tasks() if t["DesiredState"] == "running"]
         up = sum(1 for t in tasks if t["Status"]["State"] == "running")
         print(f"service {s.name}: {up}/{len(tasks)} running")
     for n in cl.networks.list(filters={"label": L_RUN}):
         print(f"network {n.name} ({n.attrs.get('Driver')})")
     return 0
+
+
+def _services(cl: Any) -> list[Any]:
+    """mrswarm's swarm services, or none when this engine is not a swarm manager."""
+    import docker.errors
+    try:
+        return list(cl.services.list(filters={"label": L_RUN}))
+    except docker.errors.APIError as e:
+        if "not a swarm manager" in str(e) or "swarm" in str(e).lower():
+            return []
+        raise
 
 
 def _find(cl: Any, name: str, run: str | None) -> Any:
@@ -88,7 +95,7 @@ def _logs(args: argparse.Namespace) -> int:
         if args.run:
             raise
     # a swarm service (e.g. `uav` of mrswarm-alpha)
-    for s in cl.services.list(filters={"label": L_RUN}):
+    for s in _services(cl):
         if s.name == args.name or s.name.endswith(f"_{args.name}"):
             for chunk in s.logs(stdout=True, stderr=True, tail=args.tail or "all"):
                 sys.stdout.write(chunk.decode(errors="replace"))

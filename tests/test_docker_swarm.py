@@ -125,7 +125,7 @@ def test_swarm_stack_with_five_replicas_discovers_flies_and_goes_down_cleanly(
                     "--out", str(tmp_path / "stack"))
     try:
         assert up.returncode == 0, up.stdout[-3000:] + up.stderr[-3000:]
-        assert json.loads(up.stdout)["services"] == {f"{stack}_router": 1, f"{stack}_uav": 5}
+        assert json.loads(up.stdout)["services"] == {f"{stack}_discovery": 1, f"{stack}_router": 1, f"{stack}_uav": 5}
         stack_yml = (tmp_path / "stack" / "stack.yml").read_text()
         assert "{{.Task.Slot}}" in stack_yml and "replicas: 5" in stack_yml
         # cellular realism on the overlay: no multicast, no discovery by scouting; unicast works
