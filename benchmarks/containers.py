@@ -114,7 +114,7 @@ def _med(values: list[float]) -> float:
 
 def run_one(n: int, runtime: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     sampler = ContainerSampler(args.warmup, args.window)
-    scn = scenario_for(n, args.warmup + args.window + 2.0, "peer", "direct")
+    scn = scenario_for(n, args.warmup + args.window + 2.0, "discovery-direct")
     scn = scn.model_copy(update={"runtime": runtime, "name": f"{scn.name}-{runtime}"})
     if args.image:
         scn = scn.model_copy(update={"docker": scn.docker.model_copy(update={"image": args.image})})

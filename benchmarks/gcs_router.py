@@ -72,7 +72,7 @@ class Sink:
 
 def run_once(n: int, routed: bool, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     sampler = Sampler(args.warmup, args.window)
-    scn = scenario_for(n, args.warmup + args.window + 2.0, "client", "edge")
+    scn = scenario_for(n, args.warmup + args.window + 2.0, "discovery-direct")
     with Sink() as sink:
         if routed:
             scn = scn.model_copy(update={"gcs": Gcs(mavlink=True, port=sink.port)})

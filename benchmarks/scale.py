@@ -12,8 +12,10 @@ mission starts, then measures every process over ``--window`` seconds:
 
     python benchmarks/scale.py --sizes 1 10 25 50 --out benchmarks/results
 
-writes ``scale.json``, ``scale.csv`` and ``scale.png`` (medians per N, side by side).
-The machine is noisy: numbers are medians over the UAV processes of one run per N.
+flies every network configuration of ``--configs`` at every N (interleaved, so that all
+configurations share the machine's load of the moment) and writes ``scale.json``,
+``scale.csv`` and ``scale.png`` (medians per N and configuration, side by side).
+The machine is noisy: numbers are medians over the UAV processes of one run per cell.
 """
 
 from __future__ import annotations
@@ -38,7 +40,17 @@ from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario  # noqa: E402
 
 
-def scenario_for(n: int, duration: float, mode: str, feed: str) -> Scenario:
+# name -> (network.connectivity, network.mode, network.pose_feed)
+CONFIGS: dict[str, tuple[str, str, str]] = {
+    "discovery-direct": ("discovery", "peer", "direct"),  # the default: beacon relay, peer mesh, every pose direct
+    "discovery-edge": ("discovery", "peer", "edge"),      # beacon relay, poses batched by the edge router
+    "client-edge": ("rendezvous", "client", "edge"),      # every UAV a client of the edge router, batched poses
+    "rendezvous-direct": ("rendezvous", "peer", "direct"),
+}
+
+
+def scenario_for(n: int, duration: float, config: str) -> Scenario:
+    connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
     cols = math.ceil(math.sqrt(n))
     return Scenario.model_validate({
@@ -47,7 +59,7 @@ def scenario_for(n: int, duration: float, mode: str, feed: str) -> Scenario:
         "seed": 1,
         "duration": duration,
         "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
-        "network": {"connectivity": "rendezvous", "mode": mode, "pose_feed": feed},
+        "network": {"connectivity": connectivity, "mode": mode, "pose_feed": feed},
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "random",
                     "area": {"x_min": -side / 2, "x_max": side / 2, "y_min": -side / 2, "y_max": side / 2}, "sensor_radius": 10},
@@ -92,9 +104,9 @@ class Sampler:
                     self.result[name] = {"cpu_pct": math.nan, "rss_mb": math.nan, "uss_mb": math.nan, "pss_mb": math.nan, "threads": 0}
 
 
-def run_size(n: int, args: argparse.Namespace, console: Console) -> dict[str, Any]:
+def run_size(n: int, config: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     sampler = Sampler(args.warmup, args.window)
-    scn = scenario_for(n, args.warmup + args.window + 2.0, args.mode, args.feed)
+    scn = scenario_for(n, args.warmup + args.window + 2.0, config)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
     summary = exp.run()
@@ -107,8 +119,10 @@ def run_size(n: int, args: argparse.Namespace, console: Console) -> dict[str, An
     age = summary.get("network", {}).get("pose_age_ms", {})
     row = {
         "n": n,
-        "mode": args.mode,
-        "feed": args.feed,
+        "config": config,
+        "connectivity": CONFIGS[config][0],
+        "mode": CONFIGS[config][1],
+        "feed": CONFIGS[config][2],
         "cpu_pct_median": round(med("cpu_pct"), 3),
         "cpu_pct_max": round(mx("cpu_pct"), 3),
         "rss_mb_median": round(med("rss_mb"), 1),
@@ -122,6 +136,7 @@ def run_size(n: int, args: argparse.Namespace, console: Console) -> dict[str, An
         "pose_age_p99_ms": age.get("p99"),
         "pose_loss": summary.get("network", {}).get("pose_loss"),
         "router_cpu_pct": round(sampler.result.get("router", {}).get("cpu_pct", math.nan), 2),
+        "discovery_cpu_pct": round(sampler.result.get("discovery", {}).get("cpu_pct", math.nan), 2),
         "runner_cpu_pct": round(sampler.result.get("runner", {}).get("cpu_pct", math.nan), 2),
         "collisions": summary.get("separation", {}).get("collisions"),
         "wall_s": round(time.time() - t0, 1),
@@ -137,30 +152,32 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ns = [r["n"] for r in rows]
-    fig, ax = plt.subplots(1, 4, figsize=(17, 4))
-    ax[0].plot(ns, [r["cpu_pct_median"] for r in rows], "o-", label="median")
-    ax[0].plot(ns, [r["cpu_pct_max"] for r in rows], "x--", label="max")
+    fig, ax = plt.subplots(1, 4, figsize=(18, 4.2))
+    configs = list(dict.fromkeys(r["config"] for r in rows))
+    for i, cfg in enumerate(configs):
+        rs = sorted((r for r in rows if r["config"] == cfg), key=lambda r: r["n"])
+        ns = [r["n"] for r in rs]
+        c = f"C{i}"
+        ax[0].plot(ns, [r["cpu_pct_median"] for r in rs], "o-", color=c, label=cfg)
+        ax[1].plot(ns, [r["rss_mb_median"] for r in rs], "o-", color=c, label=f"{cfg} RSS")
+        ax[1].plot(ns, [r["pss_mb_median"] for r in rs], "s:", color=c, alpha=0.6, label=f"{cfg} PSS")
+        ax[2].plot(ns, [r["rtf_min"] for r in rs], "o-", color=c, label=f"{cfg} (min)")
+        ax[3].plot(ns, [r["pose_age_p50_ms"] for r in rs], "o-", color=c, label=f"{cfg} p50")
+        ax[3].plot(ns, [r["pose_age_p99_ms"] for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} p99")
     ax[0].axhline(2.0, color="r", ls=":", label="budget 2 %")
-    ax[0].set_title("CPU per UAV process (% of one core)")
-    ax[1].plot(ns, [r["rss_mb_median"] for r in rows], "o-", label="RSS")
-    ax[1].plot(ns, [r["pss_mb_median"] for r in rows], "s-", label="PSS")
-    ax[1].plot(ns, [r["uss_mb_median"] for r in rows], "^-", label="USS")
+    ax[0].set_title("CPU per UAV process, median (% of one core)")
     ax[1].axhline(60.0, color="r", ls=":", label="budget 60 MB RSS")
-    ax[1].set_title("memory per UAV process (MB)")
-    ax[2].plot(ns, [r["rtf_mean"] for r in rows], "o-", label="mean")
-    ax[2].plot(ns, [r["rtf_min"] for r in rows], "x--", label="min")
+    ax[1].set_title("memory per UAV process, median (MB)")
     ax[2].axhline(0.98, color="r", ls=":", label="0.98")
-    ax[2].set_ylim(0, 1.05)
-    ax[2].set_title("real-time factor")
-    ax[3].plot(ns, [r["pose_age_p50_ms"] for r in rows], "o-", label="p50")
-    ax[3].plot(ns, [r["pose_age_p99_ms"] for r in rows], "x--", label="p99")
+    ax[2].set_ylim(0.8, 1.02)
+    ax[2].set_title("real-time factor, slowest UAV")
+    ax[3].set_yscale("log")
     ax[3].set_title("pose age at the receivers (ms)")
     for a in ax:
         a.set_xlabel("virtual UAVs (N)")
-        a.legend(fontsize=8)
+        a.legend(fontsize=7)
         a.grid(alpha=0.3)
-    fig.suptitle(f"mrswarm scaling, process runtime, {rows[0]['mode']} mode, {rows[0]['feed']} pose feed, {psutil.cpu_count()} cores")
+    fig.suptitle(f"mrswarm scaling, process runtime, one run per cell, {psutil.cpu_count()} cores")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -170,15 +187,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 25, 50])
     ap.add_argument("--warmup", type=float, default=8.0, help="seconds after the mission starts before measuring")
     ap.add_argument("--window", type=float, default=30.0, help="measurement window, s")
-    ap.add_argument("--mode", choices=["peer", "client"], default="peer")
-    ap.add_argument("--feed", choices=["direct", "edge"], default="direct", help="pose feed (edge: batches from the router)")
+    ap.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=["discovery-direct", "discovery-edge", "client-edge"],
+                    help="network configurations (connectivity-feed), all flown at every N")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
-    rows = [run_size(n, args, console) for n in args.sizes]
-    tag = f"scale-{args.mode}-{args.feed}"
+    rows = [run_size(n, cfg, args, console) for n in args.sizes for cfg in args.configs]
+    tag = "scale"
     (out / f"{tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
     with open(out / f"{tag}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
