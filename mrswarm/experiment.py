@@ -137,7 +137,14 @@ class Experiment:
                                          connectivity=scn.network.connectivity, discovery=scn.network.discovery.model_dump())
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`
-        (self.run_dir / "network.json").write_text(json.dumps({"swarm": scn.swarm, "endpoints": list(net.endpoints)}))
+        network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints)}
+        if net.connectivity == "discovery" and net.options.get("server") and net.options.get("key"):
+            # `mrswarm gcs nodes` completes its list from the registry (version, locators)
+            key_file = self.run_dir / "discovery.keys"
+            key_file.write_text(f"{scn.swarm} {net.options['key']}\n")
+            key_file.chmod(0o600)
+            network_info["discovery"] = {"server": net.options["server"], "key_file": key_file.name}
+        (self.run_dir / "network.json").write_text(json.dumps(network_info))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:

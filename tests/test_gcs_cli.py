@@ -123,6 +123,9 @@ def test_where_is_the_swarm(tmp_path: Path) -> None:
     (["watch", "--refresh", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "at least 2"),
     (["hold", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "cannot reach the swarm"),
     (["plot", "/nonexistent/rec.jsonl"], "No such file"),
+    (["nodes", "--connect", "tcp/127.0.0.1:1", "--swarm", "a", "--discovery", "127.0.0.1:7450"], "go together"),
+    (["nodes", "--connect", "tcp/127.0.0.1:1", "--swarm", "a", "--discovery", "127.0.0.1:7450",
+      "--discovery-key-file", "/nonexistent/keys"], "--discovery-key-file"),
 ])
 def test_cli_usage_errors_exit_2_with_one_line(args: list[str], needle: str) -> None:
     res = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", *args], cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -147,3 +150,24 @@ def test_scenario_gcs_section(tmp_path: Path) -> None:
         load_scenario(mini, ["gcs.mavlink=true", "gcs.listen_base=65534"])
     with pytest.raises(ScenarioError, match="flavour"):
         load_scenario(mini, ["fleet.flavour=betaflight"])
+
+
+def test_node_list_merges_liveliness_with_the_discovery_registry(tmp_path: Path) -> None:
+    from mrswarm.gcs.directory import NodeInfo, merge
+
+    live = [NodeInfo(1, "uav", "virtual", last_seen=100.0), NodeInfo(2, "uav", alive=True), NodeInfo(9, "gcs")]
+    reg = [NodeInfo(1, "uav", "virtual", "mrswarm/0.1.0", "tcp/127.0.0.1:4001", last_seen=50.0),
+           NodeInfo(2, "uav", "physical", "mrswarm/0.1.0", "tcp/10.0.0.2:7447", last_seen=60.0),
+           NodeInfo(3, "uav", "virtual", "mrswarm/0.1.0", "tcp/127.0.0.1:4003", last_seen=70.0)]
+    got = {(n.role, n.id): n for n in merge(live, reg)}
+    assert [k for k in got] == [("uav", 1), ("uav", 2), ("uav", 3), ("gcs", 9)]
+    assert got[("uav", 1)].version == "mrswarm/0.1.0" and got[("uav", 1)].address == "tcp/127.0.0.1:4001"
+    assert got[("uav", 1)].last_seen == 100.0  # this machine's clock wins over the server's
+    assert got[("uav", 2)].realm == "physical" and got[("uav", 2)].last_seen == 60.0
+    assert got[("uav", 3)].alive and got[("gcs", 9)].version == "-"
+    # a discovery run's folder names its server and key file; the ground station picks them up
+    (tmp_path / "discovery.keys").write_text("alpha k3y\n")
+    (tmp_path / "network.json").write_text(json.dumps({"swarm": "alpha", "endpoints": ["tcp/127.0.0.1:7447"],
+                                                       "discovery": {"server": "127.0.0.1:7450", "key_file": "discovery.keys"}}))
+    t = resolve_target(str(tmp_path), [], None)
+    assert t.discovery == ("127.0.0.1:7450", "k3y") and t.endpoints == ("tcp/127.0.0.1:7447",)

@@ -38,6 +38,9 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--wait", type=float, default=2.0, help="seconds to listen before listing (default 2)")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--discovery", metavar="HOST:PORT",
+                   help="the swarm's discovery server, for versions and locators (--run finds it by itself)")
+    p.add_argument("--discovery-key-file", metavar="FILE", help="the swarm's key (`SWARM KEY` lines, as the server's)")
 
     p = sub.add_parser("watch", help="live table of every UAV (q quits; s sort, f filter, n/p page)")
     _common(p)
@@ -126,13 +129,15 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
 
         goto_args(args.xyz)
     target = resolve_target(args.run, args.connect, args.swarm)
+    if args.sub == "nodes" and (args.discovery or args.discovery_key_file):
+        target = _with_registry(target, args.discovery, args.discovery_key_file)
 
     from mrswarm.gcs.session import open_observer
 
     obs = open_observer(target)
     try:
         if args.sub == "nodes":
-            return _nodes(obs, args, console)
+            return _nodes(obs, args, console, target)
         if args.sub == "watch":
             from mrswarm.gcs.watch import run_watch
 
@@ -151,7 +156,23 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         obs.close()
 
 
-def _nodes(obs: Any, args: argparse.Namespace, console: Any) -> int:
+def _with_registry(target: Any, server: str | None, key_file: str | None) -> Any:
+    from dataclasses import replace
+
+    from discovery.server import load_keys
+
+    if not server or not key_file:
+        raise GcsError("--discovery HOST:PORT and --discovery-key-file FILE go together")
+    try:
+        key = load_keys(key_file).get(target.swarm)
+    except (OSError, ValueError) as exc:
+        raise GcsError(f"--discovery-key-file {key_file}: {exc}") from None
+    if not key:
+        raise GcsError(f"--discovery-key-file {key_file}: no key for swarm {target.swarm!r}")
+    return replace(target, discovery=(server, key))
+
+
+def _nodes(obs: Any, args: argparse.Namespace, console: Any, target: Any = None) -> int:
     from rich.table import Table
 
     from mrswarm.gcs.directory import LivelinessDirectory
@@ -163,6 +184,16 @@ def _nodes(obs: Any, args: argparse.Namespace, console: Any) -> int:
         obs.poll()
         time.sleep(0.05)
     nodes = LivelinessDirectory(obs).nodes()
+    if target is not None and target.discovery is not None:
+        from discovery.client import QueryTimeout
+        from mrswarm.gcs.directory import RegistryDirectory, merge
+
+        server, key = target.discovery
+        try:
+            nodes = merge(nodes, RegistryDirectory(server, obs.keys.swarm, key).nodes())
+        except QueryTimeout:
+            print(f"warning: the discovery server {server} did not answer; versions and locators are unknown",
+                  file=sys.stderr)
     now = time.time()
     if args.json:
         for n in nodes:

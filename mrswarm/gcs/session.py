@@ -23,6 +23,7 @@ class GcsError(Exception):
 class Target:
     swarm: str
     endpoints: tuple[str, ...]
+    discovery: tuple[str, str] | None = None  # (server HOST:PORT, swarm key): the registry, when known
 
 
 def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Target:
@@ -36,6 +37,21 @@ def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Ta
             raise GcsError(f"--run {run}: cannot read {path} ({exc.__class__.__name__}); is it a folder of `mrswarm run`?") from None
         swarm = swarm or sw
         connect = list(connect) or list(eps)
+        disc = data.get("discovery")
+        if isinstance(disc, dict) and swarm == sw:
+            try:
+                from discovery.server import load_keys
+
+                key = load_keys(Path(run) / str(disc["key_file"])).get(sw)
+                registry = (str(disc["server"]), key) if key else None
+            except (OSError, ValueError, KeyError):
+                registry = None  # the list then comes from liveliness alone
+            if registry:
+                return _checked(swarm, connect, registry)
+    return _checked(swarm, connect, None)
+
+
+def _checked(swarm: str | None, connect: list[str], registry: tuple[str, str] | None) -> Target:
     if not connect:
         raise GcsError("where is the swarm? give --run RUN_DIR, or --connect tcp/HOST:PORT (the edge router) and --swarm NAME")
     if not swarm:
@@ -47,7 +63,7 @@ def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Ta
     for ep in connect:
         if "/" not in ep:
             raise GcsError(f"--connect {ep!r}: expected a Zenoh endpoint such as tcp/127.0.0.1:7447")
-    return Target(swarm, tuple(connect))
+    return Target(swarm, tuple(connect), registry)
 
 
 def open_observer(target: Target, name: str = "gcs") -> SwarmObserver:
