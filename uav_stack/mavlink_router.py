@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uav_stack.mav import mavlink
+from uav_stack.udp import drain
 from uav_stack.sysid import SHARD_SIZE, allocate_sysid  # noqa: F401 - re-exported
 
 log = logging.getLogger(__name__)
@@ -156,18 +157,8 @@ class UdpEndpoint(Channel):
 
     def recv(self, max_datagrams: int = 64) -> list[bytes]:
         out: list[bytes] = []
-        s = self.sock
-        if s is None:
-            return out
-        for _ in range(max_datagrams):
-            try:
-                data, addr = s.recvfrom(65535)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:  # ECONNREFUSED for an earlier send to a GCS that is not running
-                continue
+        for data, a in drain(self.sock, max_datagrams):
             if self.mode == "udpin":
-                a = (addr[0], addr[1])
                 if a not in self.peers and len(self.peers) >= MAX_PEERS:
                     del self.peers[min(self.peers, key=self.peers.__getitem__)]
                 self.peers[a] = self.clock()

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.mav import mavlink
+from uav_stack.udp import drain
 
 Addr = tuple[str, int]
 MAX_DATAGRAM = 1400  # bytes: stays under a 1500-byte MTU with IP/UDP headers
@@ -61,19 +62,7 @@ class UdpLink:
 
     def recv(self, max_datagrams: int = 256) -> list[tuple[bytes, Addr]]:
         """Every pending datagram (bounded), without blocking."""
-        out: list[tuple[bytes, Addr]] = []
-        s = self.sock
-        if s is None:
-            return out
-        for _ in range(max_datagrams):
-            try:
-                data, addr = s.recvfrom(65535)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:  # e.g. ECONNREFUSED reported for an earlier send: ignore
-                continue
-            out.append((data, (addr[0], addr[1])))
-        return out
+        return drain(self.sock, max_datagrams)
 
     def note_peer(self, addr: Addr, wall: float) -> bool:
         """Remember a peer we heard from; True if it is new."""
