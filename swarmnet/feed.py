@@ -22,8 +22,9 @@ from typing import Any
 
 import zenoh
 
-from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key, uav_from_key
-from swarmnet.messages import DecodeError, PoseBatch, decode_pose, encode_pose_batch
+from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
+from swarmnet.messages import PoseBatch, encode_pose_batch
+from swarmnet.node import accept_pose
 from swarmnet.stats import NodeStats
 
 DEFAULT_PERIOD = 0.04
@@ -59,13 +60,8 @@ class PoseFeed:
                     break
                 key = str(sample.key_expr)
                 data = sample.payload.to_bytes()
-                try:
-                    pose = decode_pose(data)
-                except DecodeError as exc:
-                    stats.reject(exc.reason, key, exc.detail)
-                    continue
-                if uav_from_key(key) != pose.uav:
-                    stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
+                pose = accept_pose(key, data, stats)
+                if pose is None:
                     continue
                 swarm = swarm_from_key(key)
                 assert swarm is not None  # the subscription only matches mrs/<swarm>/...

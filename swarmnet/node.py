@@ -79,6 +79,22 @@ class Inbox:
     left: list[str] = field(default_factory=list)  # ... and disappeared
 
 
+
+def accept_pose(key: str, data: bytes, stats: NodeStats) -> Pose | None:
+    """A pose sample as published under ``mrs/<swarm>/<uav>/pose``, or None (rejected and counted).
+
+    The payload must decode and name the UAV its key names: a node cannot speak for another.
+    """
+    try:
+        pose = decode_pose(data)
+    except DecodeError as exc:
+        stats.reject(exc.reason, key, exc.detail)
+        return None
+    if uav_from_key(key) != pose.uav:
+        stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
+        return None
+    return pose
+
 class SwarmNode:
     """A UAV's (or ground station's) presence in the swarm.
 
@@ -283,13 +299,8 @@ class SwarmNode:
             budget -= 1
             key = str(sample.key_expr)
             data = sample.payload.to_bytes()
-            try:
-                pose = decode_pose(data)
-            except DecodeError as exc:
-                stats.reject(exc.reason, key, exc.detail)
-                continue
-            if uav_from_key(key) != pose.uav:
-                stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
+            pose = accept_pose(key, data, stats)
+            if pose is None:
                 continue
             if shim is None or pose.uav == me:
                 self._apply_pose(pose, now, key)
