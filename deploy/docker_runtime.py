@@ -279,8 +279,8 @@ class DockerRuntime:
 
     # ---- shutdown --------------------------------------------------------------------------
     def stop(self, grace: float = 5.0) -> dict[str, int]:
-        """SIGTERM every UAV, then the services; SIGKILL what is left after ``grace``; save the
-        logs; remove containers, network and multicast rules. A second Ctrl-C cannot cut it short."""
+        """SIGTERM every UAV and wait for them, then the services; SIGKILL whatever is left
+        ``grace`` seconds after its own SIGTERM; save the logs; remove containers, network and multicast rules. A second Ctrl-C cannot cut it short."""
         old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
         try:
             return self._stop(grace)
@@ -291,18 +291,21 @@ class DockerRuntime:
     def _stop(self, grace: float) -> dict[str, int]:
         import docker
 
-        order = [n for n, b in self.boxes.items() if b.role == "uav"] + [n for n, b in self.boxes.items() if b.role != "uav"]
-        for n in order:
-            try:
-                self.boxes[n].container.kill(signal="SIGTERM")
-            except docker.errors.APIError:
-                pass  # not running
+        uavs = [n for n, b in self.boxes.items() if b.role == "uav"]
+        services = [n for n, b in self.boxes.items() if b.role != "uav"]
         codes: dict[str, int] = {}
-        deadline = time.monotonic() + grace
-        for n in order:
-            c = self.boxes[n].container
-            codes[n] = self._wait(c, max(0.5, deadline - time.monotonic()))
-        for n in order:
+        # The UAVs first, and only then the services: a router told to stop while every
+        # UAV is closing its session at the same moment may not close its own in time.
+        for group in (uavs, services):
+            for n in group:
+                try:
+                    self.boxes[n].container.kill(signal="SIGTERM")
+                except docker.errors.APIError:
+                    pass  # not running
+            deadline = time.monotonic() + grace
+            for n in group:
+                codes[n] = self._wait(self.boxes[n].container, max(0.5, deadline - time.monotonic()))
+        for n in uavs + services:
             self._save_log(n)
         self._write_manifest(codes)
         self._remove_all()
