@@ -46,7 +46,7 @@ class ImageError(DeployError):
 
 
 def image_tag() -> str:
-    from mrswarm import __version__
+    from swarmnet.version import __version__
 
     return f"mrswarm:{__version__}"
 

@@ -35,7 +35,7 @@ from typing import Any
 
 import zenoh
 
-from mrswarm import __version__
+from swarmnet.version import __version__
 from discovery.protocol import (
     DEFAULT_PERIOD,
     DEFAULT_PORT,

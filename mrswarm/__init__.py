@@ -1,3 +1,5 @@
 """mrswarm: mixed-reality drone-swarm experiments over cellular edge networks."""
 
-__version__ = "0.1.0"
+from swarmnet.version import __version__
+
+__all__ = ["__version__"]

@@ -91,7 +91,7 @@ def _delegate(module: str, func: str, argv: list[str]) -> int:
 
 
 def _version() -> str:
-    from mrswarm import __version__
+    from swarmnet.version import __version__
 
     return __version__
 
