@@ -23,8 +23,8 @@ from typing import Any
 import zenoh
 
 from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
-from swarmnet.messages import PoseBatch, encode_pose_batch
-from swarmnet.node import accept_pose
+from swarmnet.messages import PoseBatch, accept_pose, encode_pose_batch
+from swarmnet.receive import DRAIN_BUDGET, receive
 from swarmnet.stats import NodeStats
 
 DEFAULT_PERIOD = 0.04
@@ -50,23 +50,16 @@ class PoseFeed:
         ]
         self.next_flush = clock()
 
-    def poll(self) -> None:
-        """Drain and validate the poses that arrived; keep the newest per UAV."""
+    def poll(self, max_samples: int = DRAIN_BUDGET) -> None:
+        """Drain the poses that arrived (at most ``max_samples`` per swarm subscription) and keep
+        the newest payload per UAV; each must pass :func:`~swarmnet.messages.accept_pose`."""
         stats = self.stats
-        for sub in self._subs:
-            while True:
-                sample = sub.try_recv()
-                if sample is None:
-                    break
-                key = str(sample.key_expr)
-                data = sample.payload.to_bytes()
-                pose = accept_pose(key, data, stats)
-                if pose is None:
-                    continue
+        for ring in self._subs:
+            for key, pose, payload in receive(ring, accept_pose, stats, max_samples):
                 swarm = swarm_from_key(key)
                 assert swarm is not None  # the subscription only matches mrs/<swarm>/...
                 stats.received["pose"] += 1
-                self._latest.setdefault(swarm, {})[pose.uav] = data
+                self._latest.setdefault(swarm, {})[pose.uav] = payload
 
     def flush(self) -> int:
         """Publish one batch per swarm with the poses received since the last flush."""
