@@ -4,11 +4,12 @@ With direct pose keys every UAV receives a message per neighbour per pose period
 messages a second each at N = 50, and Zenoh's receive path alone then costs ~2-4 % of a
 core per UAV before any Python runs (docs/benchmarks.md). A cellular downlink also prefers
 few full packets to many tiny ones. The feed runs on the edge (inside the rendezvous/edge
-router process): it subscribes to ``mrs/<swarm>/*/pose``, validates every pose, keeps the
-latest per UAV, and every ``period`` publishes the new ones as one ``PoseBatch`` on
-``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
+router process): it subscribes to ``mrs/<swarm>/*/pose``, accepts every pose with the rule
+a UAV applies to direct poses (:func:`~swarmnet.messages.accept_pose`: it decodes and names
+the UAV of its key), keeps the latest per UAV, and every ``period`` s publishes the new ones
+as one ``PoseBatch`` on ``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
 
-Each pose in a batch is still the UAV's own 48-byte payload with its own timestamps, so
+Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps, so
 receivers validate it again and measure its age exactly as for a direct pose; the batching
 adds on average half a period of age.
 """
@@ -31,7 +32,10 @@ DEFAULT_PERIOD = 0.04
 
 
 class PoseFeed:
-    """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session."""
+    """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session.
+
+    ``period``: seconds between batches (default 40 ms, one UAV tick at 25 Hz).
+    """
 
     def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), period: float = DEFAULT_PERIOD,
                  clock: Callable[[], float] = time.time):

@@ -65,6 +65,11 @@ class PendingCommand:
 
 
 class SwarmObserver:
+    """Watches one swarm and commands it; ``node_id`` is unique among nodes of the same ``role``.
+
+    Not thread-safe: one owner thread calls :meth:`poll` and :meth:`command`.
+    """
+
     def __init__(self, swarm: str, connectivity: Connectivity, *, node_id: int = 1, role: str = "observer",
                  name: str = "observer", clock: Callable[[], float] = time.time):
         self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock)
@@ -111,13 +116,19 @@ class SwarmObserver:
 
     def _receive(self, name: str, accept: Accept[T]) -> Iterator[T]:
         """The accepted messages of stream ``name`` (telemetry, state, ack), counted as received."""
+        ring = self._subs.get(name)
+        if ring is None:  # not open
+            return
         received = self.stats.received
-        for arrival in receive(self._subs[name], accept, self.stats):
+        for arrival in receive(ring, accept, self.stats):
             received[name] += 1
             yield arrival.item
 
     def poll(self) -> list[Pose]:
-        """Drain everything; return the poses that arrived (newest per UAV is kept in ``uavs``)."""
+        """Drain everything that arrived; return the new poses (the newest per UAV is kept in ``uavs``).
+
+        At most :data:`~swarmnet.receive.DRAIN_BUDGET` samples per subscription per call.
+        """
         now = self.clock()
         before = {u: n.received for u, n in ((n.uav, n) for n in self.node.neighbours)}
         inbox = self.node.poll(now)
