@@ -77,10 +77,15 @@ def to_zenoh(cfg: dict[str, Any]) -> zenoh.Config:
 
 @dataclass(frozen=True)
 class Rendezvous:
-    """Meet through a Zenoh router used as gossip rendezvous (research note zenoh.md §1.2).
+    """Meet through a Zenoh router used as a gossip rendezvous.
 
-    ``mode="peer"``: the router tells each node the others' locators and the nodes form a
-    direct peer-to-peer mesh; data never goes through the router, which may even die.
+    ``mode="peer"``: Zenoh's gossip scouting runs over the links that already exist (no UDP,
+    no multicast): the router sends every newcomer the locators of the nodes it knows and
+    forwards the newcomer's own, and each peer dials the ones it learns (``greater-zid``: one
+    link per pair). The nodes form a direct peer-to-peer mesh; data never goes through the
+    router, which may even die. Two peers that cannot reach each other get no data at all:
+    since the regions rework of Zenoh 1.9 (eclipse-zenoh/zenoh#2096) a router no longer relays
+    between its peers.
     ``mode="client"``: every node keeps one link to the router, which forwards all data
     (for UAVs behind carrier NAT that cannot accept connections).
     """

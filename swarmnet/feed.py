@@ -4,11 +4,12 @@ With direct pose keys every UAV receives a message per neighbour per pose period
 messages a second each at N = 50, and Zenoh's receive path alone then costs ~2-4 % of a
 core per UAV before any Python runs (docs/benchmarks.md). A cellular downlink also prefers
 few full packets to many tiny ones. The feed runs on the edge (inside the rendezvous/edge
-router process): it subscribes to ``mrs/<swarm>/*/pose``, validates every pose, keeps the
-latest per UAV, and every ``period`` publishes the new ones as one ``PoseBatch`` on
-``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
+router process): it subscribes to ``mrs/<swarm>/*/pose``, accepts every pose with the rule
+a UAV applies to direct poses (:func:`~swarmnet.messages.accept_pose`: it decodes and names
+the UAV of its key), keeps the latest per UAV, and every ``period`` s publishes the new ones
+as one ``PoseBatch`` on ``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
 
-Each pose in a batch is still the UAV's own 48-byte payload with its own timestamps, so
+Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps, so
 receivers validate it again and measure its age exactly as for a direct pose; the batching
 adds on average half a period of age.
 """
@@ -23,15 +24,18 @@ from typing import Any
 import zenoh
 
 from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
-from swarmnet.messages import PoseBatch, encode_pose_batch
-from swarmnet.node import accept_pose
+from swarmnet.messages import PoseBatch, accept_pose, encode_pose_batch
+from swarmnet.receive import DRAIN_BUDGET, receive
 from swarmnet.stats import NodeStats
 
 DEFAULT_PERIOD = 0.04
 
 
 class PoseFeed:
-    """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session."""
+    """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session.
+
+    ``period``: seconds between batches (default 40 ms, one UAV tick at 25 Hz).
+    """
 
     def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), period: float = DEFAULT_PERIOD,
                  clock: Callable[[], float] = time.time):
@@ -50,23 +54,16 @@ class PoseFeed:
         ]
         self.next_flush = clock()
 
-    def poll(self) -> None:
-        """Drain and validate the poses that arrived; keep the newest per UAV."""
+    def poll(self, max_samples: int = DRAIN_BUDGET) -> None:
+        """Drain the poses that arrived (at most ``max_samples`` per swarm subscription) and keep
+        the newest payload per UAV; each must pass :func:`~swarmnet.messages.accept_pose`."""
         stats = self.stats
-        for sub in self._subs:
-            while True:
-                sample = sub.try_recv()
-                if sample is None:
-                    break
-                key = str(sample.key_expr)
-                data = sample.payload.to_bytes()
-                pose = accept_pose(key, data, stats)
-                if pose is None:
-                    continue
+        for ring in self._subs:
+            for key, pose, payload in receive(ring, accept_pose, stats, max_samples):
                 swarm = swarm_from_key(key)
                 assert swarm is not None  # the subscription only matches mrs/<swarm>/...
                 stats.received["pose"] += 1
-                self._latest.setdefault(swarm, {})[pose.uav] = data
+                self._latest.setdefault(swarm, {})[pose.uav] = payload
 
     def flush(self) -> int:
         """Publish one batch per swarm with the poses received since the last flush."""

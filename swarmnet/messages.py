@@ -4,8 +4,14 @@ Every message is a msgpack array whose first element is a one-byte *tag*:
 ``tag = kind << 4 | version``. Decoding checks the tag, the array length, every field's
 type and range, and the payload size, and raises :class:`DecodeError` (with a short
 ``reason`` used as a counter name) for anything else. Nothing here raises any other
-exception on bad input; :class:`swarmnet.node.SwarmNode` catches ``DecodeError``, counts
-it and logs it, so bad input never reaches the agent.
+exception on bad input.
+
+Next to the codec live the *acceptance rules*: what a receiver takes from the network beyond
+a payload that decodes (the key names the payload's UAV, a message goes where its key says,
+a command targets this UAV, nobody else speaks with our id). Each rule is a small function
+raising :class:`Rejected` with a counter name (``DecodeError`` is one kind of rejection), and
+each ``accept_*`` function composes the rules of one stream. :mod:`swarmnet.receive` runs them
+on every sample and counts each rejection, so bad input never reaches the agent.
 
 The pose is the hot message (10 Hz from every UAV to every other UAV), so it is quantised
 to fixed-point integers, which msgpack stores in 1-5 bytes: at most **48 bytes** per pose
@@ -23,14 +29,20 @@ from typing import Any
 
 import msgpack
 
+from swarmnet.keyspace import uav_from_key
 
-class DecodeError(ValueError):
-    """A payload that is not a valid message; ``reason`` is a short counter name."""
+
+class Rejected(ValueError):
+    """A sample a receiver does not accept; ``reason`` is the counter name in ``NodeStats.rejected``."""
 
     def __init__(self, reason: str, detail: str = ""):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
         self.detail = detail
+
+
+class DecodeError(Rejected):
+    """A payload that is not a valid message (``malformed``, ``oversized``, ``wrong_type``, ...)."""
 
 
 class Kind(IntEnum):
@@ -477,3 +489,101 @@ def decode_pose_batch(data: bytes) -> PoseBatch:
         if type(p) is not bytes or len(p) > MAX_POSE_BYTES:
             raise DecodeError("bad_field", "a batched pose is not a <= 48-byte payload")
     return PoseBatch(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, poses=poses)
+
+
+# --- acceptance rules -------------------------------------------------------------------------
+# A rule raises Rejected(reason) for a sample that decodes but is out of place. An accept_*
+# function is decode + the rules of one stream; bound to its node's id, each has the shape
+# (key, payload) -> message that swarmnet.receive.receive takes.
+def check_key_names_uav(key: str, uav: int) -> None:
+    """A per-UAV key (``mrs/<swarm>/<uav>/pose``, ``telemetry``, ``state``, ``ack``) carries only
+    that UAV's messages: a node cannot speak for another (``key_mismatch``)."""
+    if uav_from_key(key) != uav:
+        raise Rejected("key_mismatch", f"payload says UAV {uav}")
+
+
+def check_not_own_id(uav: int, me: int) -> None:
+    """A UAV never hears its own poses from the network (its subscription takes remote samples
+    only), so one with its id comes from a misconfigured or spoofing node (``own_id``)."""
+    if uav == me:
+        raise Rejected("own_id", "another node publishes poses with our UAV id")
+
+
+def check_destination(key: str, dst: int, me: int) -> None:
+    """A swarm message goes where its key says: ``dst`` 0 on a broadcast key
+    (``mrs/<swarm>/msg/...``), this node's id on its unicast key (``mrs/<swarm>/<me>/msg/...``)."""
+    addressee = uav_from_key(key)
+    if addressee is None:
+        if dst != 0:
+            raise Rejected("wrong_destination", "unicast payload on a broadcast key")
+    elif dst != me or addressee != me:
+        raise Rejected("wrong_destination", f"dst {dst}")
+
+
+def check_command_target(target: int, me: int) -> None:
+    """A command is for this UAV or (``target`` 0) the whole swarm (``wrong_destination``)."""
+    if target != 0 and target != me:
+        raise Rejected("wrong_destination", f"command for UAV {target}")
+
+
+def accept_pose(key: str, data: bytes) -> Pose:
+    """A pose on ``mrs/<swarm>/<uav>/pose``: it decodes and names the UAV its key names."""
+    pose = decode_pose(data)
+    check_key_names_uav(key, pose.uav)
+    return pose
+
+
+def accept_neighbour_pose(key: str, data: bytes, me: int) -> Pose:
+    """A pose a UAV ``me`` takes from its neighbours: :func:`accept_pose`, and not our own id."""
+    pose = accept_pose(key, data)
+    check_not_own_id(pose.uav, me)
+    return pose
+
+
+def accept_pose_batch(key: str, data: bytes) -> PoseBatch:
+    """An edge-feed batch on ``mrs/<swarm>/feed/poses``: the envelope decodes (its poses are
+    accepted one by one with :func:`accept_batched_pose`)."""
+    return decode_pose_batch(data)
+
+
+def accept_batched_pose(key: str, data: bytes) -> Pose:
+    """The batch rule: a pose inside an edge-feed batch must decode. ``key`` is the feed's key,
+    which names no UAV; the edge accepted every pose on its own key (:func:`accept_pose`)
+    before batching it."""
+    return decode_pose(data)
+
+
+def accept_telemetry(key: str, data: bytes) -> Telemetry:
+    """Telemetry on ``mrs/<swarm>/<uav>/telemetry``: it decodes and names the key's UAV."""
+    t = decode_telemetry(data)
+    check_key_names_uav(key, t.uav)
+    return t
+
+
+def accept_state(key: str, data: bytes) -> AgentState:
+    """An agent state on ``mrs/<swarm>/<uav>/state``: it decodes and names the key's UAV."""
+    st = decode_state(data)
+    check_key_names_uav(key, st.uav)
+    return st
+
+
+def accept_ack(key: str, data: bytes) -> CommandAck:
+    """A command ack on ``mrs/<swarm>/<uav>/ack``: it decodes and names the key's UAV."""
+    a = decode_ack(data)
+    check_key_names_uav(key, a.uav)
+    return a
+
+
+def accept_swarm_message(key: str, data: bytes, me: int, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> SwarmMessage:
+    """A broadcast or unicast swarm message for node ``me``: it decodes within ``max_bytes``
+    (bytes) and goes where its key says (:func:`check_destination`)."""
+    msg = decode_swarm_message(data, max_bytes)
+    check_destination(key, msg.dst, me)
+    return msg
+
+
+def accept_command(key: str, data: bytes, me: int) -> Command:
+    """A command on ``mrs/<swarm>/<me>/cmd`` or ``mrs/<swarm>/cmd``: it decodes and targets ``me`` or all."""
+    cmd = decode_command(data)
+    check_command_target(cmd.target, me)
+    return cmd

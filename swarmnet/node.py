@@ -1,39 +1,47 @@
 """SwarmNode: one Zenoh session per agent, speaking the swarm key space.
 
-Receiving never runs Python code on Zenoh's threads. Every subscription uses a bounded
-``RingChannel`` (the oldest sample is dropped when full) which the owner drains with
-:meth:`SwarmNode.poll` from its own loop. A slow agent therefore loses old poses instead of
-stalling the whole Zenoh connection, which is what a slow zenoh-python *callback* does
-(research note zenoh.md §6: one slow callback delayed an unrelated topic by 11 s). Draining
-in batches is also much cheaper than waking a Python thread per message.
+Receiving never runs Python code on Zenoh's threads: every subscription is a bounded
+``RingChannel`` that :meth:`SwarmNode.poll` drains from the owner's loop through the one
+receive path of :mod:`swarmnet.receive` (a slow zenoh-python callback stalls the whole session;
+a slow owner only loses its oldest samples). ``poll`` reads top to bottom:
+
+1. runtime netem changes (``mrs/<swarm>/netem/set``), so a change applies to this poll;
+2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
+   messages, commands), rejections counted in :attr:`SwarmNode.stats`;
+3. edge-feed batches unpacked into the poses they carry;
+4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
+5. delivery: poses into the neighbour table, messages and commands into the :class:`Inbox`;
+6. liveliness changes, and neighbours silent too long forgotten.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
-from swarmnet.keyspace import SwarmKeys, check_swarm, uav_from_key
+from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
     AgentState,
     Command,
     CommandAck,
-    DecodeError,
     Pose,
     Realm,
     SwarmMessage,
     Telemetry,
-    decode_command,
-    decode_pose,
-    decode_pose_batch,
-    decode_swarm_message,
+    accept_batched_pose,
+    accept_command,
+    accept_neighbour_pose,
+    accept_pose,
+    accept_pose_batch,
+    accept_swarm_message,
     encode_ack,
     encode_pose,
     encode_state,
@@ -41,17 +49,21 @@ from swarmnet.messages import (
     encode_telemetry,
 )
 from swarmnet.neighbours import NeighbourTable
+from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, accept_each, drain, receive
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
     from swarmnet.netem import NetemShim
+    from swarmnet.netem.control import NetemSet
+    from swarmnet.netem.shim import Link
+    from swarmnet.receive import Ring
 
 log = logging.getLogger(__name__)
 
 ROLES = ("uav", "gcs", "edge", "observer")
-# what the netem shim holds: kinds of delayed items (swarmnet/netem, docs/netem.md)
-_POSE, _BROADCAST, _UNICAST, _CMD = 0, 1, 2, 3
-_MSG_KIND = {"broadcast": _BROADCAST, "unicast": _UNICAST}
+# Where an accepted item goes; also the ``kind`` the netem shim keeps with an item it holds.
+POSE, MESSAGE, COMMAND = 0, 1, 2
+_BATCH = 3  # an edge-feed batch: unpacked into POSE items before the shim
 
 
 @dataclass(frozen=True)
@@ -79,21 +91,11 @@ class Inbox:
     left: list[str] = field(default_factory=list)  # ... and disappeared
 
 
+def _accept_netem_set(key: str, data: bytes) -> NetemSet:
+    from swarmnet.netem.control import decode_netem_set
 
-def accept_pose(key: str, data: bytes, stats: NodeStats) -> Pose | None:
-    """A pose sample as published under ``mrs/<swarm>/<uav>/pose``, or None (rejected and counted).
+    return decode_netem_set(data)
 
-    The payload must decode and name the UAV its key names: a node cannot speak for another.
-    """
-    try:
-        pose = decode_pose(data)
-    except DecodeError as exc:
-        stats.reject(exc.reason, key, exc.detail)
-        return None
-    if uav_from_key(key) != pose.uav:
-        stats.reject("key_mismatch", key, f"payload says UAV {pose.uav}")
-        return None
-    return pose
 
 class SwarmNode:
     """A UAV's (or ground station's) presence in the swarm.
@@ -133,8 +135,10 @@ class SwarmNode:
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
         self.session: zenoh.Session | None = None
-        self._decl: list[Any] = []
-        self._subs: dict[str, Any] = {}
+        # the data streams poll() drains, in order: (where accepted items go, ring, acceptance rule)
+        self._streams: list[tuple[int, Ring, Accept[Any]]] = []
+        self._alive_ring: Ring | None = None
+        self._netem_ring: Ring | None = None
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
         self._next_pose = 0.0
@@ -158,25 +162,33 @@ class SwarmNode:
         try:
             k = self.keys
             ring = zenoh.handlers.RingChannel
+            me = ident.uav
+            streams = self._streams
             if ident.role == "uav":
-                u = ident.uav
                 self._pubs["pose"] = s.declare_publisher(
-                    k.pose(u), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
+                    k.pose(me), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
                 )
-                self._pubs["telemetry"] = s.declare_publisher(k.telemetry(u))
-                self._pubs["state"] = s.declare_publisher(k.state(u))
-                self._pubs["ack"] = s.declare_publisher(k.ack(u), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
-                self._subs["unicast"] = s.declare_subscriber(k.all_unicast(u), ring(64))
-                self._subs["cmd"] = s.declare_subscriber(k.cmd(u), ring(64))
-                self._subs["swarm_cmd"] = s.declare_subscriber(k.swarm_cmd, ring(64))
+                self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me))
+                self._pubs["state"] = s.declare_publisher(k.state(me))
+                self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
+            # poses first: the hot path
             if self.pose_feed == "edge":  # one batch per edge tick instead of a message per neighbour
-                self._subs["pose_batch"] = s.declare_subscriber(k.pose_feed, ring(64))
+                streams.append((_BATCH, s.declare_subscriber(k.pose_feed, ring(64)), accept_pose_batch))
             else:
-                self._subs["pose"] = s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE)
-            self._subs["broadcast"] = s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE)
-            self._subs["alive"] = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
+                pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
+                streams.append((POSE, s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE),
+                                pose_rule))
+            message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
+            streams.append((MESSAGE, s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE),
+                            message_rule))
+            if ident.role == "uav":
+                streams.append((MESSAGE, s.declare_subscriber(k.all_unicast(me), ring(64)), message_rule))
+                command_rule = partial(accept_command, me=me)
+                streams.append((COMMAND, s.declare_subscriber(k.cmd(me), ring(64)), command_rule))
+                streams.append((COMMAND, s.declare_subscriber(k.swarm_cmd, ring(64)), command_rule))
+            self._alive_ring = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
             if self.netem_control:
-                self._subs["netem"] = s.declare_subscriber(k.netem_set, ring(16))
+                self._netem_ring = s.declare_subscriber(k.netem_set, ring(16))
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
             self.connectivity.attach(s)
         except BaseException:
@@ -191,7 +203,8 @@ class SwarmNode:
             self.connectivity.detach()
         finally:
             s, self.session = self.session, None
-            self._subs.clear()
+            self._streams.clear()
+            self._alive_ring = self._netem_ring = None
             self._pubs.clear()
             try:
                 s.close()
@@ -275,112 +288,100 @@ class SwarmNode:
         self.stats.sent["ack"] += 1
 
     # ---- receiving ----------------------------------------------------------------------
-    def poll(self, now: float | None = None, max_samples: int = 10_000) -> Inbox:
-        """Drain everything that arrived; update the neighbour table; return the rest."""
-        if now is None:
-            now = self.clock()
+    def poll(self, now: float | None = None, max_samples: int = DRAIN_BUDGET) -> Inbox:
+        """Take in what arrived since the last poll: poses into :attr:`neighbours`, the rest returned.
+
+        ``now`` is the local wall-clock time in s (default: the node's clock). At most
+        ``max_samples`` samples are drained per subscription per call; the rest wait for the
+        next poll. Rejected samples are counted in ``stats.rejected`` and never returned.
+        """
+        now = self.clock() if now is None else now
         inbox = Inbox()
-        subs = self._subs
-        if not subs:
+        if self.session is None:
             return inbox
-        stats = self.stats
-        me = self.identity.uav
-        if "netem" in subs:
-            self._drain_netem_control(subs["netem"], now)
+        self._apply_netem_sets(now, max_samples)  # first, so a change applies to what this poll drains
+        arrivals = self._unbatch(self._arrivals(max_samples))
+        for kind, item in self._through_netem(arrivals, now):
+            self._deliver(kind, item, now, inbox)
+        self._track_liveliness(inbox, max_samples)
+        self.neighbours.expire(now)
+        return inbox
+
+    def _arrivals(self, budget: int) -> Iterator[tuple[int, Accepted[Any]]]:
+        """Every accepted sample of the data streams, stream by stream (poses first)."""
+        for kind, ring, accept in self._streams:
+            for arrival in receive(ring, accept, self.stats, budget):
+                yield kind, arrival
+
+    def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
+        """An edge-feed batch becomes the poses it carries, each accepted on its own
+        (:func:`~swarmnet.messages.accept_batched_pose`: a bad one is counted, the others kept)."""
+        own = self.identity.uav if self.identity.role == "uav" else None
+        for kind, arrival in arrivals:
+            if kind != _BATCH:
+                yield kind, arrival
+                continue
+            self.stats.received["pose_batch"] += 1
+            carried = ((arrival.key, data) for data in arrival.item.poses)
+            for pose in accept_each(carried, accept_batched_pose, self.stats):
+                if pose.item.uav != own:  # our own pose comes back in the swarm's batch: not a neighbour
+                    yield POSE, pose
+
+    def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any]]:
+        """The netem shim as a filter (docs/netem.md): the one place items are offered to it and released.
+
+        Without a shim every item passes. With one, each item crosses the link from its sender
+        (:meth:`_netem_link`): a pass-through link delivers it at once; otherwise the shim holds
+        it until its time to send, or drops it. Items due at ``now`` follow the fresh ones.
+        """
         shim = self.netem
-        t_in = shim.arrival_time(now) if shim is not None else now
-        # poses: the hot path
-        pose_sub = subs.get("pose")
-        budget = max_samples
-        while pose_sub is not None and budget:
-            sample = pose_sub.try_recv()
-            if sample is None:
-                break
-            budget -= 1
-            key = str(sample.key_expr)
-            data = sample.payload.to_bytes()
-            pose = accept_pose(key, data, stats)
-            if pose is None:
-                continue
-            if shim is None or pose.uav == me:
-                self._apply_pose(pose, now, key)
-            else:
-                self._shim_pose(shim, pose, t_in, now, key, len(data))
-        batch_sub = subs.get("pose_batch")
-        while batch_sub is not None:
-            sample = batch_sub.try_recv()
-            if sample is None:
-                break
-            key = str(sample.key_expr)
-            try:
-                batch = decode_pose_batch(sample.payload.to_bytes())
-            except DecodeError as exc:
-                stats.reject(exc.reason, key, exc.detail)
-                continue
-            stats.received["pose_batch"] += 1
-            for data in batch.poses:
-                try:
-                    pose = decode_pose(data)
-                except DecodeError as exc:
-                    stats.reject(exc.reason, key, exc.detail)
-                    continue
-                if pose.uav == me and self.identity.role == "uav":
-                    continue  # our own pose comes back in the swarm's batch
-                if shim is None:
-                    self._apply_pose(pose, now, key)
-                else:
-                    self._shim_pose(shim, pose, t_in, now, key, len(data))
-        # swarm messages
-        for name in ("broadcast", "unicast"):
-            sub = subs.get(name)
-            while sub is not None:
-                sample = sub.try_recv()
-                if sample is None:
-                    break
-                key = str(sample.key_expr)
-                try:
-                    msg = decode_swarm_message(sample.payload.to_bytes(), self.max_message_bytes)
-                except DecodeError as exc:
-                    stats.reject(exc.reason, key, exc.detail)
-                    continue
-                if name == "unicast" and msg.dst != me:
-                    stats.reject("wrong_destination", key, f"dst {msg.dst}")
-                    continue
-                if uav_from_key(key) is None and msg.dst != 0:
-                    stats.reject("wrong_destination", key, "unicast payload on a broadcast key")
-                    continue
-                if shim is not None and msg.src != me and not shim.offer(
-                        shim.link(msg.src), t_in, _MSG_KIND[name], msg, key, len(sample.payload)):
-                    continue  # delayed or dropped by the netem shim
-                stats.received[name] += 1
-                inbox.messages.append(msg)
-        # commands
-        for name in ("cmd", "swarm_cmd"):
-            sub = subs.get(name)
-            while sub is not None:
-                sample = sub.try_recv()
-                if sample is None:
-                    break
-                key = str(sample.key_expr)
-                try:
-                    cmd = decode_command(sample.payload.to_bytes())
-                except DecodeError as exc:
-                    stats.reject(exc.reason, key, exc.detail)
-                    continue
-                if cmd.target not in (0, me):
-                    stats.reject("wrong_destination", key, f"command for UAV {cmd.target}")
-                    continue
-                if shim is not None and not shim.config.exempt_commands and not shim.offer(
-                        shim.link(f"gcs:{cmd.sender}"), t_in, _CMD, cmd, key, len(sample.payload)):
-                    continue  # delayed or dropped by the netem shim
-                stats.received["cmd"] += 1
-                inbox.commands.append(cmd)
-        # liveliness
-        sub = subs["alive"]
-        while True:
-            sample = sub.try_recv()
-            if sample is None:
-                break
+        if shim is None:
+            for kind, arrival in arrivals:
+                yield kind, arrival.item
+            return
+        t_in = shim.arrival_time(now)
+        for kind, arrival in arrivals:
+            item = arrival.item
+            link = self._netem_link(shim, kind, item)
+            if link is None or shim.offer(link, t_in, kind, item, arrival.key, len(arrival.payload)):
+                yield kind, item
+        for kind, item, _key in shim.release(now):
+            yield kind, item
+
+    def _netem_link(self, shim: NetemShim, kind: int, item: Any) -> Link | None:
+        """The link ``item`` crossed to reach this node (None: a link the shim never impairs)."""
+        if kind == POSE:
+            link = shim.links.get(item.uav)
+            if link is None or link.realm is not item.realm:
+                link = shim.link(item.uav, item.realm)
+            if link.distance is not None:
+                link.pos = (item.x, item.y, item.z)  # the sender's position when it sent this pose
+            return link
+        if kind == MESSAGE:
+            if item.src == self.identity.uav and self.identity.role == "uav":
+                return None  # a UAV's message to itself crossed no link
+            return shim.link(item.src)
+        return None if shim.config.exempt_commands else shim.link(f"gcs:{item.sender}")
+
+    def _deliver(self, kind: int, item: Any, now: float, inbox: Inbox) -> None:
+        """Count ``item`` as received and hand it over: a pose to the neighbour table, the rest to ``inbox``."""
+        stats = self.stats
+        if kind == POSE:
+            stats.received["pose"] += 1
+            if self.neighbours.update(item, now):
+                stats.pose_age.add(now - item.t_wall)
+        elif kind == MESSAGE:
+            stats.received["broadcast" if item.dst == 0 else "unicast"] += 1
+            inbox.messages.append(item)
+        else:
+            stats.received["cmd"] += 1
+            inbox.commands.append(item)
+
+    def _track_liveliness(self, inbox: Inbox, budget: int) -> None:
+        """Update :attr:`alive` from the liveliness tokens that appeared or disappeared."""
+        if self._alive_ring is None:
+            return
+        for sample in drain(self._alive_ring, budget):
             key = str(sample.key_expr)
             if sample.kind == zenoh.SampleKind.PUT:
                 if key not in self.alive:
@@ -389,38 +390,8 @@ class SwarmNode:
             elif key in self.alive:
                 self.alive.discard(key)
                 inbox.left.append(key)
-        if shim is not None:
-            for kind, item, key in shim.release(now):
-                if kind == _POSE:
-                    self._apply_pose(item, now, key)
-                elif kind == _CMD:
-                    stats.received["cmd"] += 1
-                    inbox.commands.append(item)
-                else:
-                    stats.received["broadcast" if kind == _BROADCAST else "unicast"] += 1
-                    inbox.messages.append(item)
-        self.neighbours.expire(now)
-        return inbox
-
-    def _apply_pose(self, pose: Pose, now: float, key: str) -> None:
-        stats = self.stats
-        if pose.uav == self.identity.uav and self.identity.role == "uav":
-            stats.reject("own_id", key, "another node publishes poses with our UAV id")
-            return
-        stats.received["pose"] += 1
-        if self.neighbours.update(pose, now):
-            stats.pose_age.add(now - pose.t_wall)
 
     # ---- netem shim (docs/netem.md) ----------------------------------------------------------
-    def _shim_pose(self, shim: NetemShim, pose: Pose, t_in: float, now: float, key: str, size: int) -> None:
-        link = shim.links.get(pose.uav)
-        if link is None or link.realm is not pose.realm:
-            link = shim.link(pose.uav, pose.realm)
-        if link.distance is not None:
-            link.pos = (pose.x, pose.y, pose.z)  # the sender's position when it sent this pose
-        if shim.offer(link, t_in, _POSE, pose, key, size):
-            self._apply_pose(pose, now, key)
-
     def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,
                   msg_id: int | None = None) -> str:
         """Apply a netem configuration (the ``network.netem`` mapping; None: no shim at all, and
@@ -451,26 +422,20 @@ class SwarmNode:
         del self.netem_changes[:-50]  # a bounded history
         return desc
 
-    def _drain_netem_control(self, sub: Any, now: float) -> None:
+    def _apply_netem_sets(self, now: float, budget: int) -> None:
+        """Apply the runtime changes that arrived on ``mrs/<swarm>/netem/set``, each acked (ok or not)."""
+        if self._netem_ring is None:
+            return
         from swarmnet.netem import NetemConfigError
-        from swarmnet.netem.control import decode_netem_set
 
-        while True:
-            sample = sub.try_recv()
-            if sample is None:
-                return
-            key = str(sample.key_expr)
-            try:
-                m = decode_netem_set(sample.payload.to_bytes())
-            except DecodeError as exc:
-                self.stats.reject(exc.reason, key, exc.detail)
-                continue
+        for arrival in receive(self._netem_ring, _accept_netem_set, self.stats, budget):
+            m = arrival.item
             if m.targets is not None and self.identity.uav not in m.targets:
-                continue
+                continue  # a change for other UAVs
             try:
                 desc = self.set_netem(m.config, source=m.sender, now=now, msg_id=m.id)
             except (NetemConfigError, ValueError, TypeError, KeyError, RecursionError) as exc:  # bad input never crashes the UAV
-                self.stats.reject("bad_netem_config", key, str(exc))
+                self.stats.reject("bad_netem_config", arrival.key, str(exc))
                 if "ack" in self._pubs:
                     self.ack(m.id, False, f"netem: {exc}"[:200])
                 continue

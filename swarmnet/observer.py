@@ -1,36 +1,43 @@
 """A non-flying participant that watches a swarm and commands it (runner, ground station).
 
 It reads every UAV's pose, telemetry, agent state and command acks, and sends commands to
-one UAV or the whole swarm. Like SwarmNode it never runs Python on Zenoh's threads: all
-subscriptions are ring channels drained by :meth:`SwarmObserver.poll`.
+one UAV or the whole swarm. Poses, liveliness and swarm messages come through its
+:class:`~swarmnet.node.SwarmNode`; telemetry, agent states and acks through ring channels of
+its own. :meth:`SwarmObserver.poll` drains all of them through the one receive path
+(:mod:`swarmnet.receive`) with the same rules as a UAV: a message on a per-UAV key must name
+that UAV (``key_mismatch`` otherwise).
 """
 
 from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import zenoh
 
 from swarmnet.connectivity import Connectivity
-from swarmnet.keyspace import uav_from_key
 from swarmnet.messages import (
     AgentState,
     Command,
     CommandAck,
-    DecodeError,
     Pose,
     Telemetry,
-    decode_ack,
-    decode_pose,
-    decode_state,
-    decode_telemetry,
+    accept_ack,
+    accept_state,
+    accept_telemetry,
     encode_command,
 )
 from swarmnet.node import NodeIdentity, SwarmNode
+from swarmnet.receive import Accept, receive
+from swarmnet.stats import NodeStats
+
+if TYPE_CHECKING:
+    from swarmnet.receive import Ring
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -58,6 +65,11 @@ class PendingCommand:
 
 
 class SwarmObserver:
+    """Watches one swarm and commands it; ``node_id`` is unique among nodes of the same ``role``.
+
+    Not thread-safe: one owner thread calls :meth:`poll` and :meth:`command`.
+    """
+
     def __init__(self, swarm: str, connectivity: Connectivity, *, node_id: int = 1, role: str = "observer",
                  name: str = "observer", clock: Callable[[], float] = time.time):
         self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock)
@@ -67,13 +79,13 @@ class SwarmObserver:
         self.uavs: dict[int, UavView] = {}
         self.pending: dict[int, PendingCommand] = {}
         self._ids = itertools.count(int(clock() * 1000) % 1_000_000)
-        self._subs: dict[str, Any] = {}
+        self._subs: dict[str, Ring] = {}  # telemetry, state, ack
         # optional sink for everything poll() receives, as (kind, message): "pose", "telemetry",
         # "state", "ack", "joined"/"left" (liveliness keys). Used by `mrswarm gcs record`.
         self.tap: Callable[[str, Any], None] | None = None
 
     @property
-    def stats(self):  # noqa: ANN201 - NodeStats
+    def stats(self) -> NodeStats:
         return self.node.stats
 
     def open(self) -> SwarmObserver:
@@ -102,27 +114,21 @@ class SwarmObserver:
             v = self.uavs[uav] = UavView(uav)
         return v
 
-    def _drain(self, name: str, decode: Callable[[bytes], Any]) -> list[tuple[str, Any]]:
-        out = []
-        sub = self._subs[name]
-        while True:
-            sample = sub.try_recv()
-            if sample is None:
-                return out
-            key = str(sample.key_expr)
-            try:
-                msg = decode(sample.payload.to_bytes())
-            except DecodeError as exc:
-                self.stats.reject(exc.reason, key, exc.detail)
-                continue
-            if uav_from_key(key) != msg.uav:
-                self.stats.reject("key_mismatch", key, f"payload says UAV {msg.uav}")
-                continue
-            self.stats.received[name] += 1
-            out.append((key, msg))
+    def _receive(self, name: str, accept: Accept[T]) -> Iterator[T]:
+        """The accepted messages of stream ``name`` (telemetry, state, ack), counted as received."""
+        ring = self._subs.get(name)
+        if ring is None:  # not open
+            return
+        received = self.stats.received
+        for arrival in receive(ring, accept, self.stats):
+            received[name] += 1
+            yield arrival.item
 
     def poll(self) -> list[Pose]:
-        """Drain everything; return the poses that arrived (newest per UAV is kept in ``uavs``)."""
+        """Drain everything that arrived; return the new poses (the newest per UAV is kept in ``uavs``).
+
+        At most :data:`~swarmnet.receive.DRAIN_BUDGET` samples per subscription per call.
+        """
         now = self.clock()
         before = {u: n.received for u, n in ((n.uav, n) for n in self.node.neighbours)}
         inbox = self.node.poll(now)
@@ -142,16 +148,16 @@ class SwarmObserver:
                     fresh.append(n.pose)
                     if tap is not None:
                         tap("pose", n.pose)
-        for _, t in self._drain("telemetry", decode_telemetry):
+        for t in self._receive("telemetry", accept_telemetry):
             self.view(t.uav).telemetry = t
             if tap is not None:
                 tap("telemetry", t)
-        for _, st in self._drain("state", decode_state):
+        for st in self._receive("state", accept_state):
             v = self.view(st.uav)
             v.state, v.state_recv = st, now
             if tap is not None:
                 tap("state", st)
-        for _, ack in self._drain("ack", decode_ack):
+        for ack in self._receive("ack", accept_ack):
             if tap is not None:
                 tap("ack", ack)
             p = self.pending.get(ack.cmd_id)

@@ -18,6 +18,7 @@ from swarmnet.messages import (
     Kind,
     Pose,
     Realm,
+    Rejected,
     SwarmMessage,
     Telemetry,
     decode_ack,
@@ -34,6 +35,7 @@ from swarmnet.messages import (
     encode_telemetry,
     tag,
 )
+from swarmnet import messages as M
 
 
 def pose(**kw: object) -> Pose:
@@ -173,3 +175,43 @@ def test_swarm_message_limits() -> None:
     bad_topic = msgpack.packb([tag(Kind.SWARM_MESSAGE), 1, 0, "../etc", 1, 1, None])
     with pytest.raises(DecodeError):
         decode_swarm_message(bad_topic)
+
+
+def test_acceptance_rules_reject_a_valid_payload_in_the_wrong_place_with_a_reason() -> None:
+    """Each rule names its counter; a decode failure is one kind of rejection."""
+    def reason(accept, *args) -> str:  # type: ignore[no-untyped-def]
+        with pytest.raises(Rejected) as exc:
+            accept(*args)
+        return exc.value.reason
+
+    p7 = encode_pose(pose(uav=7))
+    assert M.accept_pose("mrs/a/7/pose", p7).uav == 7
+    assert reason(M.accept_pose, "mrs/a/8/pose", p7) == "key_mismatch"  # UAV 8's key, UAV 7's payload
+    assert reason(M.accept_pose, "mrs/a/7/pose", b"\xc1") == "malformed"
+    assert issubclass(DecodeError, Rejected)
+    assert M.accept_neighbour_pose("mrs/a/7/pose", p7, me=3).uav == 7
+    assert reason(M.accept_neighbour_pose, "mrs/a/7/pose", p7, 7) == "own_id"
+    assert M.accept_batched_pose("mrs/a/feed/poses", p7).uav == 7  # the feed key names no UAV: decoding is the rule
+
+    t = Telemetry(4, Realm.VIRTUAL, 1, time.time(), "GUIDED", True, 0.5, 12.0, 1.0, 2.0, 3.0, 1.0)
+    assert M.accept_telemetry("mrs/a/4/telemetry", encode_telemetry(t)) == decode_telemetry(encode_telemetry(t))
+    assert reason(M.accept_telemetry, "mrs/a/5/telemetry", encode_telemetry(t)) == "key_mismatch"
+    st = AgentState(4, Realm.VIRTUAL, 1, time.time(), "mission", "coverage")
+    assert reason(M.accept_state, "mrs/a/5/state", encode_state(st)) == "key_mismatch"
+    ack = CommandAck(4, 9, True, "", time.time())
+    assert reason(M.accept_ack, "mrs/a/5/ack", encode_ack(ack)) == "key_mismatch"
+
+    bcast = encode_swarm_message(SwarmMessage(2, 0, "chat", 1, time.time(), "hi"))
+    direct = encode_swarm_message(SwarmMessage(2, 3, "chat", 1, time.time(), "hi"))
+    assert M.accept_swarm_message("mrs/a/msg/chat", bcast, 3).dst == 0
+    assert M.accept_swarm_message("mrs/a/3/msg/chat", direct, 3).dst == 3
+    assert reason(M.accept_swarm_message, "mrs/a/msg/chat", direct, 3) == "wrong_destination"  # unicast on a broadcast key
+    assert reason(M.accept_swarm_message, "mrs/a/3/msg/chat", bcast, 3) == "wrong_destination"  # broadcast on a unicast key
+    assert reason(M.accept_swarm_message, "mrs/a/3/msg/chat", direct, 4) == "wrong_destination"  # for someone else
+    assert reason(M.accept_swarm_message, "mrs/a/msg/chat", bcast, 3, 16) == "oversized"
+
+    for_all = encode_command(Command("gcs", 1, 0, "land", {}, time.time()))
+    for_5 = encode_command(Command("gcs", 2, 5, "hold", {}, time.time()))
+    assert M.accept_command("mrs/a/cmd", for_all, 3).verb == "land"
+    assert M.accept_command("mrs/a/5/cmd", for_5, 5).verb == "hold"
+    assert reason(M.accept_command, "mrs/a/3/cmd", for_5, 3) == "wrong_destination"

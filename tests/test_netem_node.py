@@ -248,3 +248,17 @@ def test_swarm_messages_go_through_the_same_link_as_poses(rendezvous: Rendezvous
     assert min(got.values()) - sent >= 0.3 - TICK
     ls = link_stats(b, 1)
     assert ls["sent"] == ls["delivered"] == 2 and b.stats.received["broadcast"] == b.stats.received["unicast"] == 1
+
+
+def test_a_ground_station_impairs_the_uav_that_shares_its_node_id(rendezvous: Rendezvous, opened: list[Any]) -> None:
+    """Node ids of different roles are separate: a gcs with id 1 still hears UAV 1 through the shim."""
+    uav = node(rendezvous, 1)
+    gcs = SwarmObserver("alpha", rendezvous, node_id=1, role="gcs", name="gcs").open()
+    opened += [uav, gcs]
+    gcs.node.set_netem({"ground": {"delay": {"ms": 300}}}, source="test")
+    assert wait_for(lambda: (gcs.poll(), 1 in gcs.alive_uavs())[1], 10.0)
+    fly([uav], [gcs.node], 2.0)
+    ls = link_stats(gcs.node, 1)
+    assert ls["class"] == "ground" and ls["sent"] == ls["delivered"] >= 15
+    assert ls["delay"]["total"] / ls["delay"]["n"] == pytest.approx(0.3)
+    assert gcs.stats.rejected == {}  # the same id in another role is not our own id

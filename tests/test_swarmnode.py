@@ -11,8 +11,9 @@ import zenoh
 
 from swarmnet.connectivity import Rendezvous, to_zenoh
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Command, Kind, Realm, encode_command, encode_pose, Pose, tag
+from swarmnet.messages import Command, Kind, Pose, Realm, Telemetry, encode_command, encode_pose, encode_telemetry, tag
 from swarmnet.node import NodeIdentity, SwarmNode
+from swarmnet.observer import SwarmObserver
 from tests.conftest import wait_for
 
 
@@ -163,3 +164,39 @@ def test_stale_neighbours_are_hidden_then_forgotten(rendezvous: Rendezvous) -> N
         time.sleep(0.5)
         a.poll()
         assert 2 not in a.neighbours
+
+
+def test_poll_drains_at_most_max_samples_per_stream_and_keeps_the_rest_in_order(nodes: list[SwarmNode]) -> None:
+    a, b = nodes[0], nodes[1]
+    for i in range(50):
+        a.send("count", i)
+    time.sleep(0.3)
+    got = [m.body for m in b.poll(max_samples=20).messages]
+    assert got == list(range(20))  # one call never drains more than its budget
+    sizes: list[int] = []
+
+    def drained() -> bool:
+        batch = b.poll(max_samples=20).messages
+        sizes.append(len(batch))
+        got.extend(m.body for m in batch)
+        return len(got) >= 50
+
+    assert wait_for(drained, 3.0)
+    assert got == list(range(50)) and max(sizes) <= 20  # nothing lost, nothing reordered
+
+
+def test_the_observer_applies_the_same_key_rule_to_telemetry(rendezvous: Rendezvous) -> None:
+    keys = SwarmKeys("alpha")
+
+    def telemetry(uav: int) -> bytes:
+        return encode_telemetry(Telemetry(uav, Realm.VIRTUAL, 1, time.time(), "GUIDED", True, 0.5, 12.0, 1.0, 2.0, 3.0, 1.0))
+
+    with SwarmObserver("alpha", rendezvous) as obs, zenoh.open(to_zenoh(rendezvous.zenoh_config())) as attacker:
+        time.sleep(0.4)
+        attacker.put(keys.telemetry(5), telemetry(2))  # UAV 2's telemetry on UAV 5's key: spoofing
+        attacker.put(keys.telemetry(5), b"\xc1")
+        attacker.put(keys.telemetry(6), telemetry(6))
+        assert wait_for(lambda: (obs.poll(), 6 in obs.uavs)[1], 3.0)
+        assert sorted(obs.uavs) == [6] and obs.uavs[6].telemetry is not None
+        assert obs.stats.rejected["key_mismatch"] == 1 and obs.stats.rejected["malformed"] == 1
+        assert obs.stats.received["telemetry"] == 1
