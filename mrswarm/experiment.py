@@ -28,7 +28,7 @@ from rich.progress_bar import ProgressBar
 from rich.table import Table
 
 from deploy.runtimes import make_runtime
-from mrswarm.results import analyze
+from mrswarm.results import summarise_run
 from mrswarm.scenario import Scenario
 from swarmnet.observer import SwarmObserver
 from uav_stack.config import NetworkConfig
@@ -126,10 +126,7 @@ class Experiment:
             self.run_info["stopped"] = time.time()
             (self.run_dir / "run.json").write_text(json.dumps(self.run_info, indent=2))
             signal.signal(signal.SIGTERM, old)
-        summary = analyze(self.run_dir, self.scn)
-        summary["aborted"] = self.run_info.get("aborted")
-        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-        return summary
+        return summarise_run(self.run_dir, self.scn).to_dict()
 
     def _fly(self) -> None:
         scn = self.scn
