@@ -313,8 +313,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if not tracks:
         summary.error = "no trajectory was recorded"
         return summary, None
-    t_first = min(tr.t[0] for tr in tracks.values())
-    t_last = max(tr.t[-1] for tr in tracks.values())
+    t_first = float(min(tr.t[0] for tr in tracks.values()))
+    t_last = float(max(tr.t[-1] for tr in tracks.values()))
     t0 = info.mission_start or t_first
     t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
     grid, pos, ids = resample(tracks, t_first, t_last)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
+import numpy as np
 from msgspec import UNSET, Struct, UnsetType
 
 # ---- run.json ---------------------------------------------------------------------------------
@@ -240,7 +241,7 @@ class RunSummary(Struct):
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object as plain Python values (what ``json.load`` of summary.json gives)."""
-        out: dict[str, Any] = msgspec.to_builtins(self)
+        out: dict[str, Any] = msgspec.to_builtins(self, enc_hook=_numpy_scalar)
         return out
 
     def write(self, path: Path) -> None:
@@ -251,9 +252,16 @@ class RunSummary(Struct):
         return msgspec.json.decode(path.read_bytes(), type=cls)
 
 
+def _numpy_scalar(o: Any) -> Any:
+    """A numpy number that slipped into a record is written as the Python number it holds."""
+    if isinstance(o, np.generic):
+        return o.item()
+    raise NotImplementedError(f"cannot write {type(o).__name__} to JSON")
+
+
 def write_json_atomic(path: Path, record: Struct) -> None:
     """Write ``record`` as indented JSON to ``path``: temporary file, fsync, rename, fsync the folder."""
-    data = msgspec.json.format(msgspec.json.encode(record), indent=2) + b"\n"
+    data = msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as f:

@@ -119,6 +119,14 @@ def test_coverage_summary_counts_only_cells_seen_while_working(tmp_path: Path) -
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
 
 
+def test_a_run_interrupted_before_its_mission_is_analysed_from_its_first_record(head_on_dir: Path) -> None:
+    RunInfo(scenario="head_on", started=T0 - 20, interrupted=True).write(head_on_dir / "run.json")  # no mission_start
+    s = rebuild_results(head_on_dir)
+    assert s.interrupted and s.separation and s.separation.min_at_s == pytest.approx(4.0, abs=0.1)
+    assert s.duration_s == pytest.approx(9.9, abs=0.01)
+    assert json.loads((head_on_dir / "summary.json").read_text())["interrupted"] is True
+
+
 def test_a_figure_that_cannot_be_written_does_not_lose_the_numbers(head_on_dir: Path) -> None:
     (head_on_dir / "head_on.png").mkdir()  # savefig cannot replace a folder
     s = summarise_run(head_on_dir, load_scenario(head_on_dir / "scenario.yaml"))
