@@ -30,12 +30,6 @@ def test_id_lists() -> None:
             parse_ids(bad)
 
 
-def test_a_phase_filter_takes_the_agents_phase_names_only() -> None:
-    assert Filter.parse(["phase=Landed"]).phase == "landed"
-    with pytest.raises(GcsError, match=r"unknown phase .*mission"):  # a typo gets the list of names
-        Filter.parse(["phase=misson"])
-
-
 def test_filters_sorting_and_narrow_terminals() -> None:
     rows = [Row(1, phase="mission", mode="OFFBOARD", battery=0.5, seen=0.1), Row(2, phase="hold", override="hold", battery=0.9, seen=0.2),
             Row(3, phase="yielded", override="fcu:RTL", mode="RTL", seen=5.0), Row(10, realm="physical", phase="mission", seen=0.1)]
@@ -177,3 +171,9 @@ def test_node_list_merges_liveliness_with_the_discovery_registry(tmp_path: Path)
                                                        "discovery": {"server": "127.0.0.1:7450", "key_file": "discovery.keys"}}))
     t = resolve_target(str(tmp_path), [], None)
     assert t.discovery == ("127.0.0.1:7450", "k3y") and t.endpoints == ("tcp/127.0.0.1:7447",)
+
+
+def test_a_phase_filter_takes_the_agents_phase_names_only() -> None:
+    assert Filter.parse(["phase=Landed"]).phase == "landed"
+    with pytest.raises(GcsError, match=r"unknown phase .*mission"):  # a typo gets the list of names
+        Filter.parse(["phase=misson"])

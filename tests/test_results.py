@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -113,7 +114,7 @@ def test_coverage_summary_counts_only_cells_seen_while_working(tmp_path: Path) -
     # where it started working (x = 0) on: 3 x 10 cells, and at most 2 per row behind it within its radius.
     assert 110 / 260 <= cov.final <= 116 / 260
     curve = [c for _, c in cov.curve]
-    assert all(b >= a for a, b in zip(curve, curve[1:], strict=False)) and cov.time_to_90_s is None
+    assert all(b >= a for a, b in pairwise(curve)) and cov.time_to_90_s is None
     assert s.separation and s.separation.min_m == pytest.approx(30.0) and s.separation.collisions == 0
     assert not s.goals and not s.encounter  # not a goto mission
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
