@@ -6,7 +6,7 @@ is a Unix wall-clock time in seconds; a ``*_s`` time is measured from the missio
 runner's ``start`` command), negative before it. A section that does not apply to a run
 (``coverage`` for a goto mission, ``goals`` for a coverage mission, ``netem`` without a netem
 configuration, ``error`` when nothing went wrong) is left out of the JSON rather than written
-as ``null`` (:data:`msgspec.UNSET`).
+as ``null`` (:data:`msgspec.UNSET`); ``aborted`` is always there, ``null`` unless the runner gave up.
 
 Both files are written atomically (temporary file, fsync, rename): a reader never sees half a
 file, even if the runner is killed while writing.
