@@ -9,6 +9,7 @@ the field. ``mrswarm results`` then runs as a user would, as a real subprocess.
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from itertools import pairwise
@@ -16,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from mrswarm.results import ResultsError, rebuild_results, summarise_run
 from mrswarm.scenario import Scenario, load_scenario
@@ -48,17 +48,18 @@ def stats(run_dir: Path, uav: int, ages_s: list[float], lost: int, received: int
     }))
 
 
-def save_scenario(run_dir: Path, scn: Scenario) -> None:
+def save_scenario(run_dir: Path, source: Path) -> Scenario:
+    """The run folder's scenario.yaml: the scenario file itself (the runner saves the validated scenario; both load alike)."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scn.model_dump(mode="json"), sort_keys=False))
+    shutil.copy(source, run_dir / "scenario.yaml")
+    return load_scenario(run_dir / "scenario.yaml")
 
 
 @pytest.fixture
 def head_on_dir(tmp_path: Path) -> Path:
     """Two UAVs flying at each other at 5 m/s along y = +-0.3 m: they pass 0.6 m apart at t = 4 s, at x = 0."""
-    scn = load_scenario(ROOT / "scenarios" / "head_on.yaml")
     run_dir = tmp_path / "head_on-run"
-    save_scenario(run_dir, scn)
+    scn = save_scenario(run_dir, ROOT / "scenarios" / "head_on.yaml")
     t = T0 + np.arange(0.0, 10.0, 0.1)
     x = -20.0 + 5.0 * (t - T0)
     for uav, sign in ((1, 1.0), (2, -1.0)):
@@ -96,9 +97,8 @@ def test_head_on_summary_reports_the_collision_where_and_when_it_happened(head_o
 
 def test_coverage_summary_counts_only_cells_seen_while_working(tmp_path: Path) -> None:
     """Two UAVs fly along y = -15 and y = +15 across the 60 x 40 m field; UAV 2 reports HOVER (not working) for its first half."""
-    scn = load_scenario(ROOT / "tests" / "scenarios" / "mini_coverage.yaml")
     run_dir = tmp_path / "cov-run"
-    save_scenario(run_dir, scn)
+    scn = save_scenario(run_dir, ROOT / "tests" / "scenarios" / "mini_coverage.yaml")
     t = T0 + np.arange(0.0, 12.0, 0.1)
     x = -30.0 + 5.0 * (t - T0)
     record(run_dir, 1, np.stack([x, np.full_like(t, -15.0), np.full_like(t, 6.0)], axis=1), [AgentPhase.MISSION] * len(t), t)
@@ -138,7 +138,7 @@ def test_a_figure_that_cannot_be_written_does_not_lose_the_numbers(head_on_dir: 
 
 def test_a_folder_without_trajectories_says_so(tmp_path: Path) -> None:
     run_dir = tmp_path / "empty-run"
-    save_scenario(run_dir, load_scenario(ROOT / "scenarios" / "head_on.yaml"))
+    save_scenario(run_dir, ROOT / "scenarios" / "head_on.yaml")
     RunInfo(scenario="head_on", started=T0, aborted="timed out after 31 s waiting for ready").write(run_dir / "run.json")
     s = rebuild_results(run_dir)
     assert s.error == "no trajectory was recorded" and s.aborted == "timed out after 31 s waiting for ready"
