@@ -120,7 +120,7 @@ def run_one(n: int, runtime: str, args: argparse.Namespace, console: Console) ->
         scn = scn.model_copy(update={"docker": scn.docker.model_copy(update={"image": args.image})})
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
-    summary = exp.run()
+    summary = exp.run().to_dict()
     uavs = {k: v for k, v in sampler.result.items() if k.startswith("uav")}
     if not uavs:
         raise SystemExit(f"N={n} {runtime}: no measurement (run aborted? {summary.get('aborted')})")

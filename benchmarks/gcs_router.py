@@ -79,7 +79,7 @@ def run_once(n: int, routed: bool, args: argparse.Namespace, console: Console) -
         exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
         t0 = time.time()
         d0 = b0 = 0
-        summary = exp.run()
+        summary = exp.run().to_dict()
         wall = time.time() - t0
         d0, b0 = sink.datagrams, sink.bytes
     uavs = {k: v for k, v in sampler.result.items() if k.startswith("uav")}

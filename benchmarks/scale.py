@@ -109,7 +109,7 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console) ->
     scn = scenario_for(n, args.warmup + args.window + 2.0, config)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
-    summary = exp.run()
+    summary = exp.run().to_dict()
     uavs = {k: v for k, v in sampler.result.items() if k.startswith("uav")}
     if not uavs:
         raise SystemExit(f"N={n}: no measurement (run aborted? {summary.get('aborted')})")

@@ -14,8 +14,9 @@ from pathlib import Path
 def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from mrswarm.experiment import Experiment, print_summary
+    from mrswarm.experiment import Experiment
     from mrswarm.scenario import ScenarioError, load_scenario
+    from mrswarm.summary_table import print_summary
 
     console = Console()
     try:
@@ -30,11 +31,27 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     summary = exp.run()
     print_summary(console, summary)
-    if exp.run_info.get("interrupted"):
+    if summary.interrupted:
         return 130
-    if summary.get("aborted") or summary.get("error"):
+    if summary.aborted or summary.error:
         return 1
     return 0
+
+
+def _results(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from mrswarm.results import ResultsError, rebuild_results
+    from mrswarm.summary_table import print_summary
+
+    console = Console()
+    try:
+        summary = rebuild_results(Path(args.run_dir))
+    except ResultsError as exc:
+        console.print(f"[red]error:[/] {exc}", highlight=False)
+        return 2
+    print_summary(console, summary)
+    return 1 if summary.error else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,6 +69,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runtime", choices=["process", "docker"], default=None,
                    help="one OS process or one Docker container per virtual UAV (default: the scenario's, else process)")
     p.set_defaults(func=_run)
+
+    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder from its recorded files")
+    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000")
+    p.set_defaults(func=_results)
 
     p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "agent_main", a.rest))

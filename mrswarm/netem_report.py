@@ -1,4 +1,4 @@
-"""Run analysis of the netem shim: per-link statistics and pose age over time (summary.json + PNG).
+"""The netem shim's statistics and the pose age over time, for summary.json (the plot: mrswarm/plots.py).
 
 Inputs are what every UAV writes while flying: the ``netem`` section of ``uav<N>.json``
 (per-link counters and delay histograms, the history of configuration changes) and
@@ -10,11 +10,13 @@ from __future__ import annotations
 import csv
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mrswarm.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
 from swarmnet.stats import LogHistogram
 
 _COUNTERS = ("sent", "delivered", "duplicated", "reordered", "jumps")
@@ -31,14 +33,15 @@ def _hist(d: dict[str, Any] | None) -> LogHistogram:
         return LogHistogram()
 
 
-def _delay(h: LogHistogram) -> dict[str, Any]:
-    return {"mean": _ms(h.mean), "p50": _ms(h.percentile(50)), "p99": _ms(h.percentile(99)), "max": _ms(h.max) if h.n else None}
+def _delay(h: LogHistogram) -> Delay:
+    return Delay(mean=_ms(h.mean), p50=_ms(h.percentile(50)), p99=_ms(h.percentile(99)), max=_ms(h.max) if h.n else None)
 
 
-def netem_report(stats: dict[int, dict[str, Any]]) -> dict[str, Any] | None:
-    """Per-link rows, totals per link class and overall, and the configuration changes."""
-    links: list[dict[str, Any]] = []
-    classes: dict[str, dict[str, Any]] = {}
+def netem_report(stats: dict[int, dict[str, Any]]) -> Netem | None:
+    """Per-link rows, totals per link class and overall, and the configuration changes (None: netem never configured)."""
+    links: list[NetemLink] = []
+    counts: dict[str, dict[str, int]] = {}  # per class: links, the counters, dropped
+    dropped_by: dict[str, dict[str, int]] = {}
     class_hist: dict[str, LogHistogram] = {}
     changes: dict[tuple[Any, str, str], dict[str, Any]] = {}
     configs: dict[str, list[int]] = {}
@@ -50,46 +53,50 @@ def netem_report(stats: dict[int, dict[str, Any]]) -> dict[str, Any] | None:
         for c in ne.get("changes", []):
             key = (c.get("id"), str(c.get("source")), str(c.get("config")))
             ch = changes.setdefault(key, {"id": c.get("id"), "source": c.get("source"), "preset": c.get("preset"),
-                                          "config": c.get("config"), "t_sent": c.get("t_sent"), "applied": []})
+                                          "config": str(c.get("config")), "t_sent": c.get("t_sent"), "applied": []})
             ch["applied"].append(float(c.get("t", 0.0)))
         for src, lk in (ne.get("links") or {}).items():
             cls = lk.get("class") or "unimpaired"
             h = _hist(lk.get("delay"))
             dropped = {k: int(v) for k, v in (lk.get("dropped") or {}).items() if v}
-            row = {"link": f"{src}->{uav}", "class": cls, **{k: int(lk.get(k, 0)) for k in _COUNTERS},
-                   "dropped": sum(dropped.values()), "dropped_by": dropped, "delay_ms": _delay(h)}
-            links.append(row)
-            tot = classes.setdefault(cls, {"links": 0, **{k: 0 for k in _COUNTERS}, "dropped": 0, "dropped_by": {}})
+            n = {k: int(lk.get(k, 0)) for k in _COUNTERS}
+            n["dropped"] = sum(dropped.values())
+            links.append(NetemLink(link=f"{src}->{uav}", cls=cls, **n, dropped_by=dropped, delay_ms=_delay(h)))
+            tot = counts.setdefault(cls, dict.fromkeys(("links", *_COUNTERS, "dropped"), 0))
             tot["links"] += 1
-            for k in (*_COUNTERS, "dropped"):
-                tot[k] += row[k]
+            for k, v in n.items():
+                tot[k] += v
+            by = dropped_by.setdefault(cls, {})
             for k, v in dropped.items():
-                tot["dropped_by"][k] = tot["dropped_by"].get(k, 0) + v
+                by[k] = by.get(k, 0) + v
             class_hist.setdefault(cls, LogHistogram()).merge(h)
     if not configs:
         return None
     all_h = LogHistogram()
-    for cls, tot in classes.items():
-        tot["loss"] = round(tot["dropped"] / (tot["sent"] + tot["duplicated"]), 5) if tot["sent"] else 0.0
-        tot["delay_ms"] = _delay(class_hist[cls])
+    classes: dict[str, NetemClass] = {}
+    for cls, tot in counts.items():
+        classes[cls] = NetemClass(**tot, dropped_by=dropped_by[cls], loss=_loss(tot), delay_ms=_delay(class_hist[cls]))
         all_h.merge(class_hist[cls])
-    total = {k: sum(t[k] for t in classes.values()) for k in (*_COUNTERS, "dropped")}
-    total["loss"] = round(total["dropped"] / (total["sent"] + total["duplicated"]), 5) if total["sent"] else 0.0
-    total["delay_ms"] = _delay(all_h)
+    total = {k: sum(t[k] for t in counts.values()) for k in (*_COUNTERS, "dropped")}
     change_list = []
     for ch in sorted(changes.values(), key=lambda c: min(c["applied"])):
         ap = ch.pop("applied")
-        ch.update(uavs=len(ap), applied_first=min(ap), applied_last=max(ap))
+        change = NetemChange(**ch, uavs=len(ap), applied_first=min(ap), applied_last=max(ap))
         if ch.get("t_sent"):
-            ch["latency_max_s"] = round(max(ap) - ch["t_sent"], 4)
-        change_list.append(ch)
-    return {
-        "configs": [{"config": c, "uavs": u} for c, u in configs.items()],
-        "changes": change_list,
-        "total": total,
-        "classes": classes,
-        "links": sorted(links, key=lambda r: (r["class"], r["link"])),
-    }
+            change.latency_max_s = round(max(ap) - ch["t_sent"], 4)
+        change_list.append(change)
+    return Netem(
+        configs=[NetemConfigUse(config=c, uavs=u) for c, u in configs.items()],
+        changes=change_list,
+        total=NetemTotals(**total, loss=_loss(total), delay_ms=_delay(all_h)),
+        classes=classes,
+        links=sorted(links, key=lambda r: (r.cls, r.link)),
+    )
+
+
+def _loss(n: dict[str, int]) -> float:
+    """Dropped share of what the shim was offered (a duplicate is offered too)."""
+    return round(n["dropped"] / (n["sent"] + n["duplicated"]), 5) if n["sent"] else 0.0
 
 
 def load_age_series(run_dir: Path) -> dict[int, dict[str, np.ndarray]]:
@@ -113,9 +120,19 @@ def load_age_series(run_dir: Path) -> dict[int, dict[str, np.ndarray]]:
     return out
 
 
-def pose_age_report(run_dir: Path, t0: float, t_end: float, changes: list[dict[str, Any]] | None,
-                    plot_path: Path | None) -> dict[str, Any] | None:
-    """Swarm-wide pose age per second (medians over UAVs) and, if ``plot_path``, the plot."""
+@dataclass
+class PoseAgeSeries:
+    """The per-second pose-age series behind :class:`PoseAgeOverTime`, kept for the plot."""
+
+    grid: np.ndarray  # s since mission start, one per second
+    series: dict[int, dict[str, np.ndarray]]  # per UAV: the columns of age_uav<N>.csv
+    t0: float  # wall time of the mission start
+    age_med: np.ndarray  # ms, median over UAVs, per grid second (NaN: no UAV had a value)
+    aoi_med: np.ndarray  # ms
+
+
+def pose_age_report(run_dir: Path, t0: float, t_end: float) -> tuple[PoseAgeOverTime, PoseAgeSeries] | None:
+    """Swarm-wide pose age per second (medians over UAVs); None if no UAV wrote ``age_uav<N>.csv``."""
     series = load_age_series(run_dir)
     if not series:
         return None
@@ -138,48 +155,10 @@ def pose_age_report(run_dir: Path, t0: float, t_end: float, changes: list[dict[s
         aoi_med = np.nanmedian(aoi, axis=0)
         aoi_max = np.nanmax(on_grid("aoi_max_ms"), axis=0)
     keep = ~np.isnan(age_med) | ~np.isnan(aoi_med)
-    r = lambda a: [None if v != v else round(float(v), 1) for v in a[keep]]  # noqa: E731
-    out: dict[str, Any] = {"t_s": [float(t) for t in grid[keep]], "age_mean_ms": r(age_med), "aoi_mean_ms": r(aoi_med),
-                           "aoi_max_ms": r(aoi_max)}
-    if plot_path is not None:
-        try:
-            plot_pose_age(plot_path, grid, series, t0, age_med, aoi_med, changes or [])
-            out["plot"] = str(plot_path)
-        except Exception as exc:  # a plotting failure must not lose the numbers
-            out["plot_error"] = repr(exc)
-    return out
 
+    def r(a: np.ndarray) -> list[float | None]:
+        return [None if v != v else round(float(v), 1) for v in a[keep]]
 
-def plot_pose_age(path: Path, grid: np.ndarray, series: dict[int, dict[str, np.ndarray]], t0: float,
-                  age_med: np.ndarray, aoi_med: np.ndarray, changes: list[dict[str, Any]]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
-    for uav, s in series.items():
-        t = s["t_wall"] - t0
-        ax1.plot(t, s["age_mean_ms"], lw=0.6, alpha=0.45)
-        ax2.plot(t, s["aoi_mean_ms"], lw=0.6, alpha=0.45)
-    ax1.plot(grid, age_med, color="k", lw=2, label="median over UAVs")
-    ax2.plot(grid, aoi_med, color="k", lw=2, label="median over UAVs")
-    ax1.set_ylabel("pose age on arrival,\nmean per second (ms)")
-    ax2.set_ylabel("age of information, mean over\nneighbours (ms)")
-    ax2.set_xlabel("time since mission start (s)")
-    for ax in (ax1, ax2):
-        ax.axvline(0.0, color="tab:green", lw=1, ls=":")
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-    for ch in changes:
-        x = float(ch["applied_first"]) - t0
-        for ax in (ax1, ax2):
-            ax.axvline(x, color="tab:red", lw=1, ls="--")
-        label = f"netem ({ch.get('source')}): {ch.get('preset') or 'custom'}"
-        ax1.annotate(label, (x, 0.04), xycoords=("data", "axes fraction"), xytext=(3, 0), textcoords="offset points",
-                     rotation=90, va="bottom", ha="left", fontsize=8, color="tab:red")
-    ax1.legend(loc="upper left", fontsize=8)
-    ax1.set_title(f"pose age over time ({len(series)} UAVs; thin lines: each UAV, per second)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    report = PoseAgeOverTime(t_s=[float(t) for t in grid[keep]], age_mean_ms=r(age_med), aoi_mean_ms=r(aoi_med),
+                             aoi_max_ms=r(aoi_max))
+    return report, PoseAgeSeries(grid=grid, series=series, t0=t0, age_med=age_med, aoi_med=aoi_med)

@@ -171,3 +171,9 @@ def test_node_list_merges_liveliness_with_the_discovery_registry(tmp_path: Path)
                                                        "discovery": {"server": "127.0.0.1:7450", "key_file": "discovery.keys"}}))
     t = resolve_target(str(tmp_path), [], None)
     assert t.discovery == ("127.0.0.1:7450", "k3y") and t.endpoints == ("tcp/127.0.0.1:7447",)
+
+
+def test_a_phase_filter_takes_the_agents_phase_names_only() -> None:
+    assert Filter.parse(["phase=Landed"]).phase == "landed"
+    with pytest.raises(GcsError, match=r"unknown phase .*mission"):  # a typo gets the list of names
+        Filter.parse(["phase=misson"])

@@ -26,6 +26,7 @@ from rich.text import Text
 
 from mrswarm.gcs.session import GcsError, format_ids, parse_ids
 from swarmnet.observer import SwarmObserver
+from uav_stack.phases import AgentPhase
 
 STALE_S = 3.0  # no data for this long: the row is dim
 LOST_S = 10.0  # ... and red after this
@@ -108,6 +109,8 @@ class Filter:
                 if not val:
                     raise GcsError(f"--filter {it!r}: give a value, e.g. {key}=...")
                 setattr(f, key, val.lower())
+                if key == "phase" and f.phase not in set(AgentPhase):
+                    raise GcsError(f"--filter {it!r}: unknown phase (one of: {', '.join(AgentPhase)})")
             elif key in ("override", "stale") and not val:
                 setattr(f, key, True)
             else:

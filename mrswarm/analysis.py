@@ -1,0 +1,372 @@
+"""The numbers of a run: from the files in a run folder to a :class:`~mrswarm.summary.RunSummary`.
+
+Inputs, written by the UAVs while flying (uav_stack/recorder.py): ``uav<N>.csv`` trajectories
+(wall and simulated time, FCU position in the swarm frame, agent phase, RTF) and ``uav<N>.json``
+counters; by the runner: ``run.json``. Separation and coverage come from the UAVs' own
+flight-controller positions, not from the poses they exchanged, so network impairments cannot
+hide a collision. Positions are resampled on a common 10 Hz grid of wall time.
+
+No plotting here (mrswarm/plots.py draws the figures from :class:`RunData`), so the numbers can
+be computed where matplotlib is not installed or fails.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
+from mrswarm.scenario import Scenario
+from mrswarm.summary import CollisionPair, Coverage, Encounter, Goal, Network, PoseAge, Rtf, RunInfo, RunSummary, Separation
+from swarmnet.stats import LogHistogram
+from uav_stack.phases import WORKING
+
+GRID_HZ = 10.0  # resampling rate of the trajectories
+AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
+GOAL_RADIUS = 2.0  # m (horizontal): a goto UAV this close to its goal has reached it
+
+
+@dataclass
+class Track:
+    """One UAV's recorded trajectory, sorted by wall time."""
+
+    uav: int
+    t: np.ndarray  # wall time, s
+    t_sim: np.ndarray  # simulated time, s
+    xyz: np.ndarray  # (n, 3) east, north, up, m
+    phase: list[str]  # the agent's phase (uav_stack.phases.AgentPhase values)
+    rtf: np.ndarray
+
+
+@dataclass
+class SeparationSteps:
+    """Minimum pairwise distance per grid step and overall (see :func:`separation`)."""
+
+    per_step: np.ndarray  # m per grid step, inf where fewer than two UAVs are airborne
+    min: float | None  # m
+    min_pair: list[int] | None
+    min_at: float | None  # wall
+    collisions: int
+    collision_pairs: list[CollisionPair]
+
+
+@dataclass
+class CoverageMap:
+    """When each cell of the mission area was first seen, and the coverage over the mission."""
+
+    first_visit: np.ndarray  # (ny, nx) wall time of the first visit, NaN: never seen
+    xs: np.ndarray  # cell centres east, m
+    ys: np.ndarray  # cell centres north, m
+    t: np.ndarray  # s since mission start
+    fraction: np.ndarray  # covered fraction at each t
+
+
+@dataclass
+class RunData:
+    """What the figures need besides the summary: the resampled trajectories and their derived series."""
+
+    tracks: dict[int, Track]
+    grid: np.ndarray  # wall time, GRID_HZ
+    pos: np.ndarray  # (n_uav, n_grid, 3), NaN where a UAV has no data
+    ids: list[int]  # UAV id of each row of pos
+    min_separation: np.ndarray  # m per grid step
+    t0: float  # wall time of the mission start (else of the first record)
+    t_end: float  # wall time of the end of the analysed mission
+    coverage: CoverageMap | None
+    pose_age: PoseAgeSeries | None
+
+
+def load_tracks(run_dir: Path) -> dict[int, Track]:
+    tracks: dict[int, Track] = {}
+    for path in sorted(run_dir.glob("uav*.csv")):
+        try:
+            uav = int(path.stem[3:])
+        except ValueError:
+            continue
+        rows = []
+        with open(path, newline="") as f:
+            for r in csv.DictReader(f):
+                try:
+                    rows.append((float(r["t_wall"]), float(r["t_sim"]), float(r["x"]), float(r["y"]), float(r["z"]), r["phase"],
+                                 float(r["rtf"])))
+                except (KeyError, ValueError, TypeError):
+                    continue  # a line cut by a crash
+        if not rows:
+            continue
+        rows.sort(key=lambda r: r[0])
+        a = np.array([r[:5] for r in rows], dtype=float)
+        tracks[uav] = Track(uav, a[:, 0], a[:, 1], a[:, 2:5], [r[5] for r in rows], np.array([r[6] for r in rows]))
+    return tracks
+
+
+def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
+    """The last counters JSON of every UAV (``uav<N>.json``); unreadable files are skipped."""
+    out = {}
+    for path in sorted(run_dir.glob("uav*.json")):
+        try:
+            d = json.loads(path.read_text())
+            uav = int(path.stem[3:])
+        except (ValueError, OSError):
+            continue
+        if isinstance(d, dict):
+            out[uav] = d
+    return out
+
+
+def resample(tracks: dict[int, Track], t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Positions of every UAV on a common 10 Hz grid; NaN where a UAV has no data."""
+    grid = np.arange(t0, t1 + 1e-9, 1.0 / GRID_HZ)
+    ids = sorted(tracks)
+    pos = np.full((len(ids), len(grid), 3), np.nan)
+    for k, u in enumerate(ids):
+        tr = tracks[u]
+        if len(tr.t) < 2:
+            continue
+        inside = (grid >= tr.t[0]) & (grid <= tr.t[-1])
+        for d in range(3):
+            pos[k, inside, d] = np.interp(grid[inside], tr.t, tr.xyz[:, d])
+        # a gap in the log (process stalled or died) is not a straight line: blank it out
+        gaps = np.where(np.diff(tr.t) > 1.0)[0]
+        for g in gaps:
+            pos[k, (grid > tr.t[g]) & (grid < tr.t[g + 1]), :] = np.nan
+    return grid, pos, ids
+
+
+def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_distance: float) -> SeparationSteps:
+    """Minimum pairwise 3-D distance between airborne UAVs, per time step and overall."""
+    n = len(ids)
+    min_t = np.full(len(grid), np.inf)
+    best: tuple[float, int | None, int | None, float | None] = (math.inf, None, None, None)
+    collisions = 0
+    pairs_below: list[CollisionPair] = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = np.linalg.norm(pos[i] - pos[j], axis=1)
+            airborne = (pos[i, :, 2] > AIRBORNE_Z) & (pos[j, :, 2] > AIRBORNE_Z)
+            d = np.where(airborne & ~np.isnan(d), d, np.inf)
+            min_t = np.minimum(min_t, d)
+            k = int(np.argmin(d))
+            if d[k] < best[0]:
+                best = (float(d[k]), ids[i], ids[j], float(grid[k]))
+            below = d < collision_distance
+            onsets = int(np.count_nonzero(below[1:] & ~below[:-1]) + (1 if below.size and below[0] else 0))
+            if onsets:
+                collisions += onsets
+                pairs_below.append(CollisionPair(pair=[ids[i], ids[j]], onsets=onsets, min=float(d[k])))
+    return SeparationSteps(
+        per_step=min_t,
+        min=best[0] if best[0] != math.inf else None,
+        min_pair=[best[1], best[2]] if best[1] is not None and best[2] is not None else None,
+        min_at=best[3],
+        collisions=collisions,
+        collision_pairs=pairs_below,
+    )
+
+
+def coverage(grid: np.ndarray, pos: np.ndarray, active: np.ndarray, area: tuple[float, float, float, float],
+             radius: float) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Fraction of the area's cells seen (within ``radius`` m of an active UAV) by each grid time.
+
+    Cells are squares of half the sensor radius (at least 0.5 m). Returns (coverage per grid
+    step, first-visit wall time per cell or NaN, (cell x centres, cell y centres)).
+    """
+    x0, x1, y0, y1 = area
+    cell = max(radius / 2.0, 0.5)
+    xs = np.arange(x0 + cell / 2, x1, cell)
+    ys = np.arange(y0 + cell / 2, y1, cell)
+    cx, cy = np.meshgrid(xs, ys)
+    cells = np.stack([cx.ravel(), cy.ravel()], axis=1)
+    first = np.full(len(cells), np.inf)
+    r2 = radius * radius
+    n_uav, n_t, _ = pos.shape
+    for k in range(n_t):
+        pts = pos[:, k, :2][active[:, k]]
+        if len(pts) == 0:
+            continue
+        d2 = ((cells[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+        hit = (d2 <= r2) & (first == np.inf)
+        first[hit] = grid[k]
+    frac = np.searchsorted(np.sort(first), grid, side="right") / len(cells)
+    first_visit = np.where(np.isinf(first), np.nan, first).reshape(cy.shape)
+    return frac, first_visit, (xs, ys)
+
+
+def time_to(frac: np.ndarray, grid: np.ndarray, t0: float, level: float) -> float | None:
+    """Seconds from ``t0`` until ``frac`` first reaches ``level`` (None: never)."""
+    idx = np.nonzero(frac >= level)[0]
+    return float(grid[idx[0]] - t0) if len(idx) else None
+
+
+def working_mask(tracks: dict[int, Track], grid: np.ndarray, pos: np.ndarray, ids: list[int]) -> np.ndarray:
+    """(n_uav, n_grid): the UAV is recorded there and works on its mission (phase in ``AgentPhase`` WORKING)."""
+    active = np.zeros(pos.shape[:2], dtype=bool)
+    for k, u in enumerate(ids):
+        tr = tracks[u]
+        working = np.array([p in WORKING for p in tr.phase])
+        idx = np.clip(np.searchsorted(tr.t, grid, side="right") - 1, 0, len(tr.t) - 1)
+        active[k] = working[idx] & (grid >= tr.t[0]) & (grid <= tr.t[-1]) & ~np.isnan(pos[k, :, 0])
+    return active
+
+
+def goals_report(scenario: Scenario, tracks: dict[int, Track]) -> dict[str, Goal]:
+    out = {}
+    for u in scenario.uav_list():
+        tr = tracks.get(u.id)
+        if tr is None or u.goal is None:
+            out[str(u.id)] = Goal(reached=False, final_distance_m=None)
+            continue
+        d = np.hypot(tr.xyz[:, 0] - u.goal[0], tr.xyz[:, 1] - u.goal[1])
+        reached = np.nonzero(d <= GOAL_RADIUS)[0]
+        out[str(u.id)] = Goal(reached=bool(len(reached)), final_distance_m=float(d[-1]),
+                              reached_at_wall=float(tr.t[reached[0]]) if len(reached) else None)
+    return out
+
+
+def encounter_report(scenario: Scenario, grid: np.ndarray, pos: np.ndarray, ids: list[int],
+                     per_step: np.ndarray) -> Encounter | None:
+    """Where two UAVs flying at each other met: the midpoint at their closest approach (None: never both airborne)."""
+    k = int(np.argmin(per_step))
+    if not np.isfinite(per_step[k]):
+        return None
+    a, b = pos[0, k, :2], pos[1, k, :2]
+    mid = (a + b) / 2
+    starts = {u.id: np.array(u.start) for u in scenario.uav_list()}
+    return Encounter(
+        time_wall=float(grid[k]),
+        separation_m=float(per_step[k]),
+        meeting_point=[round(float(mid[0]), 2), round(float(mid[1]), 2)],
+        distance_from_start_m={str(u): round(float(np.linalg.norm(mid - starts[u])), 2) for u in ids},
+    )
+
+
+def rtf_report(tracks: dict[int, Track], t0: float, t1: float) -> Rtf:
+    """Simulated over wall time between the first and last record of each UAV within [t0, t1]."""
+    per: dict[str, float | None] = {}
+    for u, tr in tracks.items():
+        sel = (tr.t >= t0) & (tr.t <= t1)
+        if np.count_nonzero(sel) >= 2:
+            tw, ts = tr.t[sel], tr.t_sim[sel]
+            per[str(u)] = round(float((ts[-1] - ts[0]) / (tw[-1] - tw[0])), 4) if tw[-1] > tw[0] else None
+        else:
+            per[str(u)] = None
+    vals = [v for v in per.values() if v is not None]
+    return Rtf(per_uav=per, mean=float(np.mean(vals)) if vals else None, min=float(np.min(vals)) if vals else None)
+
+
+def network_report(stats: dict[int, dict[str, Any]]) -> Network:
+    """Pose age (merged histograms), message counters summed over UAVs, and pose loss from sequence gaps."""
+    h = LogHistogram()
+    sent: dict[str, int] = {}
+    recv: dict[str, int] = {}
+    rej: dict[str, int] = {}
+    lost = received = 0
+    for s in stats.values():
+        net = s.get("net", {})
+        try:
+            h.merge(LogHistogram.from_dict(net["pose_age"]))
+        except (KeyError, ValueError, TypeError):
+            pass
+        for src, dst in ((net.get("sent", {}), sent), (net.get("received", {}), recv), (net.get("rejected", {}), rej)):
+            for k, v in src.items():
+                dst[k] = dst.get(k, 0) + int(v)
+        for nb in s.get("neighbours", {}).values():
+            lost += int(nb.get("lost", 0))
+            received += int(nb.get("received", 0))
+
+    def ms(v: float) -> float | None:
+        return round(v * 1000.0, 2) if v == v else None
+
+    return Network(
+        pose_age_ms=PoseAge(p50=ms(h.percentile(50)), p99=ms(h.percentile(99)), mean=ms(h.mean), max=ms(h.max), n=h.n),
+        messages_sent=sent,
+        messages_received=recv,
+        messages_rejected=rej,
+        pose_loss=round(lost / (lost + received), 5) if lost + received else 0.0,
+    )
+
+
+def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
+    """The summary of a finished (or interrupted, or aborted) run, and the series its figures need.
+
+    The mission window is [``info.mission_start``, + ``scenario.duration``]; a run that never
+    started its mission is analysed from its first record to its last. RunData is None when no
+    UAV recorded a trajectory (the summary then carries ``error``).
+    """
+    tracks = load_tracks(run_dir)
+    stats = load_stats(run_dir)
+    fl = scenario.flight
+    summary = RunSummary(
+        scenario=scenario.name,
+        run_dir=str(run_dir),
+        uavs_planned=len(scenario.uav_list()),
+        uavs_recorded=len(tracks),
+        interrupted=info.interrupted,
+        processes=dict(info.exit_codes),
+        aborted=info.aborted,
+    )
+    if not tracks:
+        summary.error = "no trajectory was recorded"
+        return summary, None
+    t_first = float(min(tr.t[0] for tr in tracks.values()))
+    t_last = float(max(tr.t[-1] for tr in tracks.values()))
+    t0 = info.mission_start or t_first
+    t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
+    grid, pos, ids = resample(tracks, t_first, t_last)
+    sep = separation(grid, pos, ids, fl.collision_distance)
+    in_mission = (grid >= t0) & (grid <= t_end)
+    sep_mission = sep.per_step[in_mission]
+    finite = sep_mission[np.isfinite(sep_mission)]
+    summary.separation = Separation(
+        min_m=sep.min,
+        min_pair=sep.min_pair,
+        min_at_s=(sep.min_at - t0) if sep.min_at is not None else None,
+        min_during_mission_m=float(finite.min()) if finite.size else None,
+        safety_distance_m=fl.safety_distance,
+        time_below_safety_s=float(np.count_nonzero(finite < fl.safety_distance) / GRID_HZ),
+        collision_distance_m=fl.collision_distance,
+        collisions=sep.collisions,
+        collision_pairs=sep.collision_pairs,
+    )
+    m = scenario.mission
+    cov_map = None
+    if m.type == "coverage" and m.area is not None:
+        frac, first_visit, (xs, ys) = coverage(grid, pos, working_mask(tracks, grid, pos, ids), m.area.as_tuple(),
+                                               m.sensor_radius)
+        cov_map = CoverageMap(first_visit=first_visit, xs=xs, ys=ys, t=grid[in_mission] - t0, fraction=frac[in_mission])
+        summary.coverage = Coverage(
+            final=float(cov_map.fraction[-1]) if in_mission.any() else 0.0,
+            time_to_50_s=time_to(frac, grid, t0, 0.5),
+            time_to_90_s=time_to(frac, grid, t0, 0.9),
+            curve=[(round(float(t), 1), round(float(c), 4))
+                   for t, c in zip(cov_map.t, cov_map.fraction, strict=True)][:: int(GRID_HZ)],
+            sensor_radius_m=m.sensor_radius,
+            strategy=m.strategy,
+        )
+    if m.type == "goto":
+        summary.goals = goals_report(scenario, tracks)
+        if len(ids) == 2:
+            summary.encounter = encounter_report(scenario, grid, pos, ids, sep.per_step)
+    summary.rtf = rtf_report(tracks, t0, t_end)
+    network = network_report(stats)
+    ne = netem_report(stats)
+    if ne is not None:
+        network.netem = ne
+    age_series = None
+    try:
+        age = pose_age_report(run_dir, t0, t_end)
+    except Exception as exc:  # a bug here must not lose the other numbers
+        network.pose_age_over_time_error = repr(exc)
+    else:
+        if age is not None:
+            network.pose_age_over_time, age_series = age
+    summary.network = network
+    summary.duration_s = float(t_end - t0)
+    data = RunData(tracks=tracks, grid=grid, pos=pos, ids=ids, min_separation=sep.per_step, t0=t0, t_end=t_end,
+                   coverage=cov_map, pose_age=age_series)
+    return summary, data

@@ -1,0 +1,94 @@
+"""What the runner knows while a run flies: its stage, the mission clock, and live estimates.
+
+The live coverage and separation are estimates from the poses the runner receives over the
+network (they can miss poses); the numbers of record come afterwards from the UAVs' own
+trajectories (mrswarm/analysis.py).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from mrswarm.scenario import Scenario
+from swarmnet.messages import Pose
+from swarmnet.observer import SwarmObserver
+from uav_stack.phases import WORKING
+
+
+class RunStage(str, Enum):
+    """The runner's own sequence (not an agent's phase: see uav_stack.phases.AgentPhase)."""
+
+    STARTING = "starting"
+    WAITING = "waiting for UAVs"
+    TAKING_OFF = "taking off"
+    MISSION = "mission"
+    STOPPING = "stopping"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass
+class RunProgress:
+    """The runner's stage and, once the swarm got ``start``, the mission clock."""
+
+    duration: float  # s of mission the scenario asks for
+    stage: RunStage = RunStage.STARTING
+    mission_start: float | None = None  # wall time of the "start" command
+
+    def elapsed(self, now: float | None = None) -> float | None:
+        """Seconds since the mission started (None before)."""
+        if self.mission_start is None:
+            return None
+        return (time.time() if now is None else now) - self.mission_start
+
+
+@dataclass
+class LiveMetrics:
+    """Coverage and separation estimated live from the poses the runner's observer receives."""
+
+    scenario: Scenario
+    cells: np.ndarray | None = field(init=False, default=None)  # (n, 2) centres of the area's cells, m
+    covered: np.ndarray | None = field(init=False, default=None)  # per cell: seen by a working UAV
+    min_sep: float = field(init=False, default=math.inf)  # m, lowest seen so far
+    min_sep_now: float = field(init=False, default=math.inf)  # m, at the last update
+
+    def __post_init__(self) -> None:
+        m = self.scenario.mission
+        if m.type == "coverage" and m.area is not None:
+            x0, x1, y0, y1 = m.area.as_tuple()
+            c = max(m.sensor_radius / 2.0, 0.5)  # the analysis' cell size (mrswarm/analysis.py)
+            xs, ys = np.arange(x0 + c / 2, x1, c), np.arange(y0 + c / 2, y1, c)
+            gx, gy = np.meshgrid(xs, ys)
+            self.cells = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            self.covered = np.zeros(len(self.cells), dtype=bool)
+
+    def add_poses(self, obs: SwarmObserver, fresh: list[Pose]) -> None:
+        """Mark the cells within the sensor radius of each fresh pose of a UAV working on its mission."""
+        if self.cells is None or self.covered is None or not fresh:
+            return
+        r2 = self.scenario.mission.sensor_radius ** 2
+        pts = [(p.x, p.y) for p in fresh if (v := obs.uavs.get(p.uav)) and v.state and v.state.phase in WORKING]
+        if pts:
+            a = np.array(pts)
+            d2 = ((self.cells[:, None, :] - a[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+            self.covered |= d2 <= r2
+
+    def update_separation(self, obs: SwarmObserver) -> None:
+        """Minimum 3-D distance between the latest poses of UAVs higher than 1 m."""
+        p = np.array([[v.pose.x, v.pose.y, v.pose.z] for v in obs.uavs.values() if v.pose is not None and v.pose.z > 1.0])
+        if len(p) >= 2:
+            d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=2)
+            d[np.diag_indices(len(p))] = np.inf
+            self.min_sep_now = float(d.min())
+            self.min_sep = min(self.min_sep, self.min_sep_now)
+
+    @property
+    def coverage(self) -> float | None:
+        """Fraction 0..1 of the mission area seen so far (None: not a coverage mission)."""
+        return float(self.covered.mean()) if self.covered is not None else None

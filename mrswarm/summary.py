@@ -1,0 +1,278 @@
+"""The records the runner keeps in a run folder: ``run.json`` (:class:`RunInfo`) and ``summary.json`` (:class:`RunSummary`).
+
+One typed tree per file, so every key of ``summary.json`` is declared here once, with its
+unit. Units are in the names: ``_m`` metres, ``_s`` seconds, ``_ms`` milliseconds; ``*_wall``
+is a Unix wall-clock time in seconds; a ``*_s`` time is measured from the mission start (the
+runner's ``start`` command), negative before it. A section that does not apply to a run
+(``coverage`` for a goto mission, ``goals`` for a coverage mission, ``netem`` without a netem
+configuration, ``error`` when nothing went wrong) is left out of the JSON rather than written
+as ``null`` (:data:`msgspec.UNSET`); ``aborted`` is always there, ``null`` unless the runner gave up.
+
+Both files are written atomically (temporary file, fsync, rename): a reader never sees half a
+file, even if the runner is killed while writing.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+from msgspec import UNSET, Struct, UnsetType
+
+# ---- run.json ---------------------------------------------------------------------------------
+
+
+class RunInfo(Struct):
+    """What the runner did, written when it stops (``run.json``); the analysis reads it back."""
+
+    scenario: str
+    started: float  # wall
+    interrupted: bool = False  # Ctrl-C or SIGTERM
+    aborted: str | None = None  # why the runner gave up (a UAV silent or refusing a command, a process died)
+    pids: dict[str, int] = {}  # process (or container's main process) per name: "uav3", "router", "discovery"
+    mission_start: float | None = None  # wall time of the "start" command; None if the mission never started
+    all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
+    exit_codes: dict[str, int | None] = {}
+    stopped: float | None = None  # wall
+
+    @classmethod
+    def load(cls, path: Path, scenario: str) -> RunInfo:
+        """Read ``run.json``; a folder without one (runner killed hard) gives an empty record."""
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            return cls(scenario=scenario, started=0.0)
+        try:
+            return msgspec.json.decode(data, type=cls)
+        except msgspec.DecodeError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    def write(self, path: Path) -> None:
+        write_json_atomic(path, self)
+
+
+# ---- summary.json -----------------------------------------------------------------------------
+
+
+class CollisionPair(Struct):
+    pair: list[int]  # the two UAV ids
+    onsets: int  # times their distance fell below the collision distance
+    min: float  # closest distance between them, m
+
+
+class Separation(Struct):
+    """Minimum 3-D distance between airborne UAVs, from their own FCU positions (10 Hz grid)."""
+
+    min_m: float | None  # over the whole recording (takeoff included); None with fewer than two airborne UAVs
+    min_pair: list[int] | None
+    min_at_s: float | None
+    min_during_mission_m: float | None
+    safety_distance_m: float
+    time_below_safety_s: float  # during the mission
+    collision_distance_m: float
+    collisions: int  # onsets of a pair closer than collision_distance_m
+    collision_pairs: list[CollisionPair]
+
+
+class Coverage(Struct):
+    """Share of the mission area's cells seen by a UAV working on its mission (coverage missions)."""
+
+    final: float  # fraction 0..1 at the end of the mission
+    time_to_50_s: float | None
+    time_to_90_s: float | None
+    curve: list[tuple[float, float]]  # (s since mission start, fraction), 1 per second
+    sensor_radius_m: float
+    strategy: str
+
+
+class Goal(Struct):
+    reached: bool  # came within 2 m (horizontally) of its goal
+    final_distance_m: float | None
+    reached_at_wall: float | None = None
+
+
+class Encounter(Struct):
+    """Where two UAVs flying at each other met: the midpoint at their closest approach (goto, 2 UAVs)."""
+
+    time_wall: float
+    separation_m: float
+    meeting_point: list[float]  # x east, y north, m
+    distance_from_start_m: dict[str, float]  # per UAV id
+
+
+class Rtf(Struct):
+    """Real-time factor per UAV over the mission: simulated seconds per wall second."""
+
+    per_uav: dict[str, float | None]
+    mean: float | None
+    min: float | None
+
+
+class PoseAge(Struct):
+    """Pose age on arrival (receive wall time minus the sender's stamp), merged over every UAV, ms."""
+
+    p50: float | None
+    p99: float | None
+    mean: float | None
+    max: float | None
+    n: int  # poses
+
+
+class Delay(Struct):
+    """Delay the netem shim added to delivered messages, ms."""
+
+    mean: float | None
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+class NetemConfigUse(Struct):
+    config: str  # the configuration's description
+    uavs: list[int]
+
+
+class NetemChange(Struct):
+    """One configuration change and the UAVs that applied it."""
+
+    id: int | None  # message id of a ``mrswarm netem set`` (None for the scenario's configuration)
+    source: str | None
+    preset: str | None
+    config: str
+    t_sent: float | None  # wall, when published
+    uavs: int
+    applied_first: float  # wall
+    applied_last: float  # wall
+    latency_max_s: float | UnsetType = UNSET  # published -> applied on the last UAV (only when t_sent is known)
+
+
+class NetemTotals(Struct):
+    sent: int
+    delivered: int
+    duplicated: int
+    reordered: int
+    jumps: int
+    dropped: int
+    loss: float  # dropped / (sent + duplicated)
+    delay_ms: Delay
+
+
+class NetemClass(Struct):
+    links: int
+    sent: int
+    delivered: int
+    duplicated: int
+    reordered: int
+    jumps: int
+    dropped: int
+    dropped_by: dict[str, int]  # reason -> messages
+    loss: float
+    delay_ms: Delay
+
+
+class NetemLink(Struct):
+    link: str  # "<sender>-><receiver>"
+    cls: str = msgspec.field(name="class")  # v2v, v2edge, ... or "unimpaired"
+    sent: int
+    delivered: int
+    duplicated: int
+    reordered: int
+    jumps: int
+    dropped: int
+    dropped_by: dict[str, int]  # reason -> messages
+    delay_ms: Delay
+
+
+class Netem(Struct):
+    """The netem shim's statistics (docs/netem.md)."""
+
+    configs: list[NetemConfigUse]
+    changes: list[NetemChange]
+    total: NetemTotals
+    classes: dict[str, NetemClass]
+    links: list[NetemLink]
+
+
+class PoseAgeOverTime(Struct):
+    """Per second since the mission start: medians over UAVs (pose age, age of information) and the max AoI, ms."""
+
+    t_s: list[float]
+    age_mean_ms: list[float | None]
+    aoi_mean_ms: list[float | None]
+    aoi_max_ms: list[float | None]
+    plot: str | UnsetType = UNSET  # pose_age.png
+    plot_error: str | UnsetType = UNSET
+
+
+class Network(Struct):
+    pose_age_ms: PoseAge
+    messages_sent: dict[str, int]  # per message kind, summed over UAVs
+    messages_received: dict[str, int]
+    messages_rejected: dict[str, int]  # per reason
+    pose_loss: float  # fraction of neighbours' poses lost (sequence gaps)
+    netem: Netem | UnsetType = UNSET
+    pose_age_over_time: PoseAgeOverTime | UnsetType = UNSET
+    pose_age_over_time_error: str | UnsetType = UNSET
+
+
+class RunSummary(Struct):
+    """``summary.json``: the outcome of one run, computed from the files its UAVs recorded."""
+
+    scenario: str
+    run_dir: str
+    uavs_planned: int
+    uavs_recorded: int
+    interrupted: bool
+    error: str | UnsetType = UNSET  # nothing to analyse (no trajectory recorded)
+    separation: Separation | UnsetType = UNSET
+    coverage: Coverage | UnsetType = UNSET
+    goals: dict[str, Goal] | UnsetType = UNSET  # per UAV id
+    encounter: Encounter | None | UnsetType = UNSET  # goto with 2 UAVs; None: they were never airborne together
+    rtf: Rtf | UnsetType = UNSET
+    network: Network | UnsetType = UNSET
+    processes: dict[str, int | None] = {}  # exit code per process
+    duration_s: float | UnsetType = UNSET  # mission time analysed
+    plot: str | UnsetType = UNSET  # <scenario>.png
+    plot_error: str | UnsetType = UNSET
+    aborted: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object as plain Python values (what ``json.load`` of summary.json gives)."""
+        out: dict[str, Any] = msgspec.to_builtins(self, enc_hook=_numpy_scalar)
+        return out
+
+    def write(self, path: Path) -> None:
+        write_json_atomic(path, self)
+
+    @classmethod
+    def load(cls, path: Path) -> RunSummary:
+        return msgspec.json.decode(path.read_bytes(), type=cls)
+
+
+def _numpy_scalar(o: Any) -> Any:
+    """A numpy number that slipped into a record is written as the Python number it holds."""
+    if isinstance(o, np.generic):
+        return o.item()
+    raise NotImplementedError(f"cannot write {type(o).__name__} to JSON")
+
+
+def write_json_atomic(path: Path, record: Struct) -> None:
+    """Write ``record`` as indented JSON to ``path``: temporary file, fsync, rename, fsync the folder."""
+    data = msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n"
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -1,0 +1,49 @@
+"""The summary printed at the end of ``mrswarm run`` (and by ``mrswarm results``): a rich table of summary.json."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.table import Table
+
+from mrswarm.summary import RunSummary
+
+
+def summary_table(s: RunSummary) -> Table:
+    t = Table(title=f"summary: {s.scenario}", show_header=False)
+    t.add_column(style="bold")
+    t.add_column()
+    if s.error:
+        t.add_row("error", s.error)
+    if cov := s.coverage:
+        t.add_row("coverage", f"{100 * cov.final:.1f} % (50 % at {_fmt(cov.time_to_50_s)} s, 90 % at {_fmt(cov.time_to_90_s)} s)")
+    if e := s.encounter:
+        t.add_row("encounter", f"closest {e.separation_m:.2f} m at {e.meeting_point}, from starts {e.distance_from_start_m}")
+    if s.goals:
+        t.add_row("goals reached", ", ".join(f"UAV {u}: {'yes' if g.reached else 'no'}" for u, g in s.goals.items()))
+    if sep := s.separation:
+        t.add_row("min separation", f"{_fmt(sep.min_m)} m (safety {sep.safety_distance_m} m)")
+        t.add_row("collisions", str(sep.collisions))
+    if (rtf := s.rtf) and rtf.mean is not None and rtf.min is not None:
+        t.add_row("RTF", f"mean {rtf.mean:.3f}, min {rtf.min:.3f}")
+    if net := s.network:
+        age = net.pose_age_ms
+        t.add_row("pose age", f"p50 {_fmt(age.p50)} ms, p99 {_fmt(age.p99)} ms over {age.n} poses")
+        t.add_row("messages", f"sent {sum(net.messages_sent.values())}, received {sum(net.messages_received.values())}, "
+                              f"rejected {sum(net.messages_rejected.values())}, pose loss {100 * net.pose_loss:.2f} %")
+        for cls, c in (net.netem.classes if net.netem else {}).items():  # docs/netem.md
+            t.add_row(f"netem {cls}", f"{c.links} links: delay mean {_fmt(c.delay_ms.mean)} ms, p99 "
+                                      f"{_fmt(c.delay_ms.p99)} ms, lost {100 * c.loss:.2f} %, reordered {c.reordered}")
+    t.add_row("results", f"{s.run_dir}/summary.json" + (f", {s.plot}" if s.plot else ""))
+    if s.plot_error:
+        t.add_row("plot failed", s.plot_error)
+    if s.aborted:
+        t.add_row("aborted", s.aborted)
+    return t
+
+
+def print_summary(console: Console, s: RunSummary) -> None:
+    console.print(summary_table(s))
+
+
+def _fmt(v: float | int | None) -> str:
+    return "-" if v is None else (f"{v:.1f}" if isinstance(v, float) else str(v))
