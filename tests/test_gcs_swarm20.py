@@ -59,7 +59,7 @@ def _rows(screen: str) -> dict[int, list[str]]:
 
 
 def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) -> None:
-    assert TMUX is not None, "tmux not found: .ci/run installs it (apt-get install tmux)"
+    assert TMUX is not None, "tmux not found: scripts/test installs it (apt-get install tmux)"
     run = start_run(SCENARIO, tmp_path, [])
     tmux = Tmux(f"mrswarm-gcs-{os.getpid()}")
     rec: subprocess.Popen[str] | None = None
