@@ -51,7 +51,7 @@ def scout(port: int, timeout: float = 3.0, src: str = "127.0.0.1") -> tuple[byte
             try:
                 data, src = s.recvfrom(65535)
                 return data, src[:2]
-            except socket.timeout:
+            except TimeoutError:
                 continue
     raise AssertionError(f"no Hello from 127.0.0.1:{port}")
 

@@ -128,7 +128,8 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     fly([a], [b], 2.0)
     assert b.stats.pose_age.percentile(50) >= 0.3 - TICK
     # an invalid config: refused, counted, nacked; the old one stays
-    publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(), config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))
+    publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(),
+                                     config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))
     assert wait_for(lambda: (b.poll(), b.stats.rejected["bad_netem_config"] == 1)[1], 5.0)
     assert wait_for(lambda: ack_seen(78, False), 5.0)
     assert "v2v.loss.p" in [x for x in got if x.cmd_id == 78][0].message
@@ -136,7 +137,8 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     # garbage on the key and a change for someone else
     publish_set(rendezvous, b"{not json")
     publish_set(rendezvous, NetemSet(id=79, sender="test", t_wall=time.time(), targets=(1,), config={"preset": "none"}))
-    assert wait_for(lambda: (b.poll(), a.poll(), b.stats.rejected["malformed"] == 1 and a.stats.received["netem_set"] == 2)[2], 5.0)
+    assert wait_for(lambda: (b.poll(), a.poll(),
+                             b.stats.rejected["malformed"] == 1 and a.stats.received["netem_set"] == 2)[2], 5.0)
     assert b.stats.received["netem_set"] == 1 and "delay 300ms" in b.netem.config.describe()  # type: ignore[union-attr]
     assert a.netem is not None and a.netem.config.preset == "none"
 

@@ -11,7 +11,7 @@ import zenoh
 
 from swarmnet.connectivity import Rendezvous, to_zenoh
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Command, Kind, Realm, encode_command, encode_pose, Pose, tag
+from swarmnet.messages import Command, Kind, Pose, Realm, encode_command, encode_pose, tag
 from swarmnet.node import NodeIdentity, SwarmNode
 from tests.conftest import wait_for
 
@@ -128,7 +128,8 @@ def test_bad_input_is_counted_not_raised(nodes: list[SwarmNode], rendezvous: Ren
 
 
 def test_a_node_that_stops_polling_loses_old_data_but_never_stalls_the_link(rendezvous: Rendezvous) -> None:
-    with SwarmNode(NodeIdentity("alpha", 1), rendezvous, ring_size=64) as slow, SwarmNode(NodeIdentity("alpha", 2), rendezvous) as fast:
+    with (SwarmNode(NodeIdentity("alpha", 1), rendezvous, ring_size=64) as slow,
+          SwarmNode(NodeIdentity("alpha", 2), rendezvous) as fast):
         assert wait_for(lambda: len(fast.peers()) >= 1, 5.0)
         for i in range(3000):  # flood broadcasts while nobody drains them
             fast.send("flood", i)
