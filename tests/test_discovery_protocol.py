@@ -341,7 +341,8 @@ def test_a_flood_from_one_address_is_rate_limited_and_service_resumes() -> None:
             for _ in range(500):
                 s.sendto(b"flood", target)
         assert wait_for(lambda: srv.stats["rx"] >= 400, 3.0)
-        assert srv.stats["drop_rate_limited"] >= 400
+        # the server may still be draining its socket: rx >= 400 alone does not imply 400 drops yet
+        assert wait_for(lambda: srv.stats["drop_rate_limited"] >= 400, 3.0), srv.stats
         time.sleep(1.0)  # the bucket refills
         rows, _ = query_registry("{}:{}".format(*target), "alpha", KA)
         assert rows == []

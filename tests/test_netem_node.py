@@ -37,6 +37,20 @@ def meshed(nodes: list[SwarmNode], ids: set[int]) -> None:
     assert wait_for(lambda: all((n.poll(), ids <= n.alive_uavs())[1] for n in nodes), 10.0), "nodes did not see each other"
 
 
+def settle(nodes: list[SwarmNode], seconds: float) -> None:
+    """Poll every TICK for ``seconds``, as the UAV loop does, ending with a poll.
+
+    The shim dates an arrival at a random instant since the node's previous poll, so a node
+    left unpolled for 0.3 s could date a message sent just now up to 0.3 s in the past."""
+    end = time.time() + seconds
+    while time.time() < end:
+        for n in nodes:
+            n.poll(time.time())
+        time.sleep(TICK)
+    for n in nodes:
+        n.poll(time.time())
+
+
 def fly(pubs: list[SwarmNode], subs: list[SwarmNode], seconds: float, rate_hz: float = 10.0, drain: float = 1.0) -> None:
     """Publishers send poses at ``rate_hz``; receivers poll at the UAV tick; then drain ``drain`` s more."""
     t0 = time.time()
@@ -151,7 +165,7 @@ def test_commands_are_exempt_by_default_and_delayed_when_not(rendezvous: Rendezv
     opened += [exempt, impaired, obs]
     meshed([exempt, impaired], {1, 2})
     assert wait_for(lambda: (obs.poll(), {1, 2} <= obs.alive_uavs())[1], 10.0)
-    time.sleep(0.3)
+    settle([exempt, impaired], 0.3)
     sent = time.time()
     obs.command("land", [1, 2])
     arrived: dict[int, float] = {}
@@ -236,7 +250,7 @@ def test_swarm_messages_go_through_the_same_link_as_poses(rendezvous: Rendezvous
     b = node(rendezvous, 2, netem={"v2v": {"delay": {"ms": 300}}})
     opened += [a, b]
     meshed([a, b], {1, 2})
-    time.sleep(0.3)
+    settle([a, b], 0.3)
     sent = time.time()
     a.send("chat", {"hello": 1})
     a.send("direct", "hi", to=2)
