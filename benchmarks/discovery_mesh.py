@@ -65,7 +65,7 @@ def run_one(n: int, mode: str, workdir: Path, timeout: float) -> dict[str, Any]:
                     raise RuntimeError(f"router did not start: {p.log.read_text()[-2000:]}")
                 time.sleep(0.05)
         t_launch = time.time()
-        for i, (name, host) in enumerate(zip(names, hosts), 1):
+        for i, (name, host) in enumerate(zip(names, hosts, strict=True), 1):
             lab.start_probe(name, host, "bench", i, publish=0, connectivity=mode, connect=router,
                             extra_args=("--status-period", "0.5", "--poll", "0.1"))
 

@@ -31,9 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from scale import Sampler, scenario_for  # noqa: E402
+
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Gcs  # noqa: E402
-from scale import Sampler, scenario_for  # noqa: E402
 
 
 class Sink:
@@ -53,7 +54,7 @@ class Sink:
         while not self.stop.is_set():
             try:
                 data = self.sock.recv(65535)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             self.datagrams += 1
             self.bytes += len(data)

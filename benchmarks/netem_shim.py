@@ -69,7 +69,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def bench_poll(presets: list[str | None], batch: int, senders: int, repeats: int, rdv: Rendezvous) -> dict[str | None, dict[str, float]]:
+def bench_poll(presets: list[str | None], batch: int, senders: int, repeats: int,
+               rdv: Rendezvous) -> dict[str | None, dict[str, float]]:
     """Median seconds per pose of SwarmNode.poll for one receiver per preset, all fed the same poses.
 
     All receivers subscribe to the same publishers and are polled one after the other in each
@@ -88,7 +89,7 @@ def bench_poll(presets: list[str | None], batch: int, senders: int, repeats: int
         per: dict[str | None, list[float]] = {p: [] for p in presets}
         k = 0
         order = list(presets)
-        for rnd in range(repeats):
+        for _ in range(repeats):
             for j in range(batch):
                 p = pubs[j % senders]
                 p._next_pose = 0.0
@@ -105,7 +106,7 @@ def bench_poll(presets: list[str | None], batch: int, senders: int, repeats: int
                 per[name].append((time.perf_counter() - t0) / batch)
         out: dict[str | None, dict[str, float]] = {}
         for name in presets:
-            diffs = [a - b for a, b in zip(per[name], per[presets[0]])]
+            diffs = [a - b for a, b in zip(per[name], per[presets[0]], strict=True)]
             rx = rxs[name]
             out[name] = {"per_msg": statistics.median(per[name]), "added": statistics.median(diffs),
                          "received": rx.stats.received["pose"], "rejected": sum(rx.stats.rejected.values())}

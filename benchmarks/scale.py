@@ -39,7 +39,6 @@ sys.path.insert(0, str(ROOT))
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario  # noqa: E402
 
-
 # name -> (network.connectivity, network.mode, network.pose_feed)
 CONFIGS: dict[str, tuple[str, str, str]] = {
     "discovery-direct": ("discovery", "peer", "direct"),  # the default: beacon relay, peer mesh, every pose direct
@@ -52,7 +51,6 @@ CONFIGS: dict[str, tuple[str, str, str]] = {
 def scenario_for(n: int, duration: float, config: str) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
-    cols = math.ceil(math.sqrt(n))
     return Scenario.model_validate({
         "name": f"scale{n}",
         "swarm": f"bench{n}",
@@ -101,7 +99,8 @@ class Sampler:
                         "threads": p.num_threads(),
                     }
                 except psutil.NoSuchProcess:
-                    self.result[name] = {"cpu_pct": math.nan, "rss_mb": math.nan, "uss_mb": math.nan, "pss_mb": math.nan, "threads": 0}
+                    self.result[name] = {"cpu_pct": math.nan, "rss_mb": math.nan, "uss_mb": math.nan, "pss_mb": math.nan,
+                                         "threads": 0}
 
 
 def run_size(n: int, config: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:

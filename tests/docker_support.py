@@ -1,7 +1,7 @@
 """Fixtures of the container tests: a reachable docker engine and the stack image.
 
 Container tests never skip silently. Without a docker engine they **fail** with a message
-that says how to get one (`.ci/run` installs docker.io and starts dockerd). Only an explicit
+that says how to get one (`scripts/test` installs docker.io and starts dockerd). Only an explicit
 ``MRSWARM_SKIP_DOCKER=1`` skips them, and pytest's summary (``-ra``) lists each skip.
 """
 
@@ -38,7 +38,7 @@ def docker_image() -> str:
         cl.images.get(base)
     except docker.errors.ImageNotFound:
         pytest.fail(f"no base image ({base}) and no registry: run `mrswarm deploy base-image` (debootstrap) "
-                    f"or `.ci/run`, which makes {BASE_TAG}", pytrace=False)
+                    f"or `scripts/test`, which makes {BASE_TAG}", pytrace=False)
     try:
         return ensure_image(base=base, log=lambda m: None).tag
     except ImageError as exc:

@@ -29,12 +29,9 @@ def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoint
     cfg = VirtualUavConfig(agent=agent, home=HOME, flavour=flavour)
     path = tmp / f"uav{uav}.config.json"
     path.write_text(cfg.to_json())
-    log = open(tmp / f"uav{uav}.log", "ab")
-    try:
+    with open(tmp / f"uav{uav}.log", "ab") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen([sys.executable, "-m", "mrswarm", "uav", "--config", str(path), "--log-level", "INFO"],
                                 cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    finally:
-        log.close()
 
 
 def stop_process(proc: subprocess.Popen[bytes] | subprocess.Popen[str], grace: float = 10.0) -> None:
@@ -59,11 +56,8 @@ def start_run(scenario: Path, out: Path, sets: list[str]) -> subprocess.Popen[st
     args = [sys.executable, "-m", "mrswarm", "run", str(scenario), "--out", str(out), "--no-live", "--log-level", "INFO"]
     for s in sets:
         args += ["--set", s]
-    log = open(out / "run.stdout", "a")
-    try:
+    with open(out / "run.stdout", "a") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen(args, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    finally:
-        log.close()
 
 
 def stop_run(proc: subprocess.Popen[str], timeout: float = 60.0) -> None:

@@ -91,7 +91,7 @@ class PointMassSim:
     # -- network -----------------------------------------------------------------------------
     def _broadcast(self) -> None:
         lo, hi = self.cfg.delay
-        for i, a in enumerate(self.agents):
+        for i in range(len(self.agents)):
             if not self.alive[i]:
                 continue
             p = (float(self.pos[i, 0]), float(self.pos[i, 1]))

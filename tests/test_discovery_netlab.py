@@ -152,7 +152,7 @@ def test_node_behind_a_nat_is_reachable_only_when_it_advertises_the_public_addre
                      ["-A", "FORWARD", "-p", "tcp", "-d", h1, "--dport", "7447", "-m", "conntrack", "--ctorigdst", h1,
                       "-j", "DROP"]):
             res = lab.lab.run("core", ["iptables", *rule])
-            assert res.returncode == 0, f"iptables (installed by .ci/run) failed: {res.stderr}"
+            assert res.returncode == 0, f"iptables (installed by scripts/test) failed: {res.stderr}"
         lab.start_server()
         lab.start_probe("n2", "h2", "alpha", 2)
         lab.start_probe("n3", "h3", "alpha", 3)

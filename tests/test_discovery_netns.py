@@ -5,7 +5,7 @@ Every node is a real process (``mrswarm discovery probe``: a SwarmNode with Beac
 publishing 10 Hz poses) started with ``ip netns exec``; the tests read what each node
 reports (its Zenoh peers and when they appeared, poses received per sender with arrival
 gaps, liveliness) and ask the server's registry from the edge host. Needs root (tests run as
-root in CI, see .ci/run).
+root in CI, see scripts/test).
 """
 
 from __future__ import annotations

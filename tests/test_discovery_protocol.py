@@ -68,7 +68,7 @@ class FakeNode:
         while time.monotonic() < deadline:
             try:
                 data, _ = self.sock.recvfrom(MAX_DATAGRAM + 1)
-            except socket.timeout:
+            except TimeoutError:
                 if got:
                     break
                 continue
@@ -256,11 +256,11 @@ def test_swarms_are_isolated_and_a_wrong_key_is_never_listed(server: DiscoverySe
         a.recv(0.3)
         assert [e.key for e in a.view] == []  # beta's members never reach alpha
         assert [e.key for e in b.view] == [("uav", 2)]
-        rows, stats = query_registry("%s:%d" % addr(server), "alpha", KA)
+        rows, stats = query_registry("{}:{}".format(*addr(server)), "alpha", KA)
         assert [(r.entry.role, r.entry.node) for r in rows] == [("uav", 1)]
         assert stats["drop_bad_mac"] == 1
         with pytest.raises(QueryTimeout):  # a wrong key cannot even read the registry
-            query_registry("%s:%d" % addr(server), "alpha", KB, timeout=0.3, attempts=1)
+            query_registry("{}:{}".format(*addr(server)), "alpha", KB, timeout=0.3, attempts=1)
         b2.close()
     finally:
         a.close()
@@ -273,7 +273,7 @@ def _any_reply(n: FakeNode) -> bool:
         n.sock.settimeout(0.3)
         n.sock.recvfrom(MAX_DATAGRAM)
         return True
-    except socket.timeout:
+    except TimeoutError:
         return False
 
 
@@ -325,7 +325,7 @@ def test_server_survives_every_kind_of_bad_input_and_counts_it(server: Discovery
                    "unexpected_type", "invalid_entry"):
         assert st["drop_" + reason] >= 1, (reason, dict(st))
     assert st["drop_internal_error"] == 0
-    rows, stats = query_registry("%s:%d" % target, "alpha", KA)  # still serving
+    rows, stats = query_registry("{}:{}".format(*target), "alpha", KA)  # still serving
     assert rows == [] and stats["queries"] >= 1
 
 
@@ -341,9 +341,10 @@ def test_a_flood_from_one_address_is_rate_limited_and_service_resumes() -> None:
             for _ in range(500):
                 s.sendto(b"flood", target)
         assert wait_for(lambda: srv.stats["rx"] >= 400, 3.0)
-        assert srv.stats["drop_rate_limited"] >= 400
+        # the server may still be draining its socket: rx >= 400 alone does not imply 400 drops yet
+        assert wait_for(lambda: srv.stats["drop_rate_limited"] >= 400, 3.0), srv.stats
         time.sleep(1.0)  # the bucket refills
-        rows, _ = query_registry("%s:%d" % target, "alpha", KA)
+        rows, _ = query_registry("{}:{}".format(*target), "alpha", KA)
         assert rows == []
     finally:
         stop.set()

@@ -74,7 +74,8 @@ def test_clean_exit_says_bye_and_peers_forget_the_node(server: str) -> None:
     try:
         assert wait_for(lambda: len(a.peers()) == 1, 5.0)
         b.close()
-        assert wait_for(lambda: ("uav", 2) not in {(r.entry.role, r.entry.node) for r in query_registry(server, "alpha", KEY)[0]}, 1.0)
+        assert wait_for(lambda: ("uav", 2) not in {(r.entry.role, r.entry.node)
+                                                   for r in query_registry(server, "alpha", KEY)[0]}, 1.0)
         assert wait_for(lambda: a.connectivity.status()["members"] == {"alpha": []}, 2.0)  # type: ignore[attr-defined]
     finally:
         a.close()
@@ -85,7 +86,7 @@ def test_proxy_survives_garbage_from_the_server_address_and_elsewhere() -> None:
     fake = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # plays the discovery server
     fake.bind(("127.0.0.1", 0))
     fake.settimeout(3)
-    srv = "%s:%d" % fake.getsockname()
+    srv = "{}:{}".format(*fake.getsockname())
     a, b = node(srv, 1).open(), node(srv, 2).open()
     try:
         beacons = {}

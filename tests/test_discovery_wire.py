@@ -1,6 +1,7 @@
 """Zenoh's scouting wire format, pinned against live zenoh sessions on 127.0.0.1.
 
-The discovery proxy relies on zenoh 1.10 details (research note zenoh.md §1.1): a session
+The discovery proxy relies on zenoh 1.10 details (its scouting orchestrator,
+``zenoh/src/net/runtime/orchestrator.rs``, and the Scout/Hello codec): a session
 whose scouting address is a *unicast loopback* address answers a Scout sent there with
 its Hello, from its scouting socket, and dials the locators of any Hello it receives on
 that socket. If a zenoh upgrade changes any of this, these tests fail first.
@@ -50,7 +51,7 @@ def scout(port: int, timeout: float = 3.0, src: str = "127.0.0.1") -> tuple[byte
             try:
                 data, src = s.recvfrom(65535)
                 return data, src[:2]
-            except socket.timeout:
+            except TimeoutError:
                 continue
     raise AssertionError(f"no Hello from 127.0.0.1:{port}")
 

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -46,7 +47,7 @@ def test_coverage_in_five_containers_covers_without_collisions_and_leaves_nothin
     cov = summary["coverage"]
     curve = [c for _, c in cov["curve"]]
     assert cov["final"] > 0.0
-    assert curve[-1] > curve[0] and all(b >= a for a, b in zip(curve, curve[1:]))  # coverage only grows
+    assert curve[-1] > curve[0] and all(b >= a for a, b in pairwise(curve))  # coverage only grows
     assert summary["separation"]["collisions"] == 0
     assert summary["separation"]["min_m"] > 1.0
     assert summary["rtf"]["min"] > 0.8

@@ -184,8 +184,9 @@ def test_offboard_strict_stream_rule_when_configured(px4) -> None:
 def test_set_mode_message_qgc_style(px4) -> None:
     ft, c = px4
     for main, sub, name in ((3, 0, "POSCTL"), (4, 4, "MISSION"), (4, 3, "HOLD")):
-        c.send(c.mav.set_mode_encode(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, px4_custom_mode(main, sub)))
-        hb = c.recv_match("HEARTBEAT", 1.5, lambda m, cm=px4_custom_mode(main, sub): m.custom_mode == cm)
+        want = px4_custom_mode(main, sub)
+        c.send(c.mav.set_mode_encode(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, want))
+        hb = c.recv_match("HEARTBEAT", 1.5, lambda m, cm=want: m.custom_mode == cm)
         assert hb is not None, name
         assert ft.fcu.truth().mode == name
     assert c.recv_match("COMMAND_ACK", 0.3) is None  # SET_MODE is never ACKed

@@ -114,8 +114,9 @@ def test_agent_link_px4_sitl_style_udpin() -> None:
 def test_standalone_agent_flies_a_standalone_fcu(tmp_path: Path, router: str) -> None:
     """`mrswarm fcu` + `mrswarm agent --autostart`: how a real UAV's companion runs the stack."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    fcu = subprocess.Popen([sys.executable, "-m", "mrswarm", "fcu", "--listen", "127.0.0.1:0", "--home", f"{HOME.lat},{HOME.lon},{HOME.alt}",
-                            "--duration", "60"], cwd=ROOT, stdout=subprocess.PIPE, text=True, env=env)
+    fcu = subprocess.Popen([sys.executable, "-m", "mrswarm", "fcu", "--listen", "127.0.0.1:0",
+                            "--home", f"{HOME.lat},{HOME.lon},{HOME.alt}", "--duration", "60"],
+                           cwd=ROOT, stdout=subprocess.PIPE, text=True, env=env)
     agent = None
     try:
         line = fcu.stdout.readline()  # type: ignore[union-attr]

@@ -69,7 +69,8 @@ def test_request_message_autopilot_version_home_and_unknown(px4) -> None:
     av = c.recv_match("AUTOPILOT_VERSION", 2.0)
     assert av is not None
     for cap in (M.MAV_PROTOCOL_CAPABILITY_MAVLINK2, M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT,
-                M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED, M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE):  # fmt: skip
+                M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED,
+                M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE):
         assert av.capabilities & cap
     assert c.command_long(M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1) == M.MAV_RESULT_ACCEPTED
     assert c.recv_match("AUTOPILOT_VERSION", 2.0) is not None
@@ -340,8 +341,8 @@ def test_fuzzed_messages_never_break_the_vehicle() -> None:
                 c = rng.choice(clients)
                 mid = rng.choice(focus) if rng.random() < 0.85 else rng.choice(list(M.mavlink_map))
                 cls = M.mavlink_map[mid]
-                lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths))  # wire order
-                kw = {f: _random_value(rng, t, lengths[f]) for f, t in zip(cls.fieldnames, cls.fieldtypes)}
+                lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))  # wire order
+                kw = {f: _random_value(rng, t, lengths[f]) for f, t in zip(cls.fieldnames, cls.fieldtypes, strict=True)}
                 if "target_system" in kw and rng.random() < 0.8:
                     kw["target_system"] = c.target_sysid
                 if "target_component" in kw and rng.random() < 0.8:

@@ -51,7 +51,8 @@ def test_global_int_setpoint() -> None:
     sp = decode_global(m, frame, HOME.alt)
     assert np.allclose(sp.pos, [6.0, -4.0, -3.0], atol=0.02) and sp.yaw == 1.0
     m = MAV.set_position_target_global_int_encode(0, 1, 1, M.MAV_FRAME_GLOBAL_INT, POS_YAW,
-                                                  round(lat * 1e7), round(lon * 1e7), HOME.alt + 3.0, 0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
+                                                  round(lat * 1e7), round(lon * 1e7), HOME.alt + 3.0,
+                                                  0, 0, 0, 0, 0, 0, 0, 0)
     assert np.allclose(decode_global(m, frame, HOME.alt).pos, [6.0, -4.0, -3.0], atol=0.02)
 
 
@@ -84,7 +85,8 @@ def test_global_setpoints_home_speed_and_data_stream_over_udp() -> None:
         frame = LocalFrame(HOME)
         lat, lon, _ = frame.to_geodetic(5.0, 0.0, 0.0)
         c.send(MAV.set_position_target_global_int_encode(0, 1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, POS_YAW,
-                                                         round(lat * 1e7), round(lon * 1e7), 2.0, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
+                                                         round(lat * 1e7), round(lon * 1e7), 2.0,
+                                                         0, 0, 0, 0, 0, 0, 0, 0))
         assert c.wait(lambda: v.setpoints.latest is not None, 2.0)
         assert np.allclose(v.setpoints.latest.pos, [0.0, 5.0, -2.0], atol=0.02)
         # DO_SET_HOME with a location (COMMAND_INT, relative altitude), answered by HOME_POSITION

@@ -71,7 +71,7 @@ class RawGcs:
             self.heartbeat()
             try:
                 data = self.sock.recv(65535)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             for m in self.parser.parse_buffer(data) or []:
                 if m.get_type() == mtype and pred(m):
@@ -101,7 +101,7 @@ class QgcLike:
         while time.monotonic() < deadline and not sysids <= set(self.vehicles):
             try:
                 data, addr = self.sock.recvfrom(65535)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             for m in self.parser.parse_buffer(data) or []:
                 if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1:
@@ -124,7 +124,8 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
     shared = f"udpout:127.0.0.1:{qgc.port}"
     procs = [
         start_virtual_uav(tmp_path, router, uav=1, endpoints=(shared,), autostart=True),
-        start_virtual_uav(tmp_path, router, uav=2, endpoints=(shared, f"udpin:127.0.0.1:{p2}"), autostart=True, flavour="ardupilot"),
+        start_virtual_uav(tmp_path, router, uav=2, endpoints=(shared, f"udpin:127.0.0.1:{p2}"), autostart=True,
+                          flavour="ardupilot"),
     ]
     obs = SwarmObserver("gcs", Rendezvous((router,), mode="client"), role="gcs", name="test").open()
     gcs2 = RawGcs(p2)
@@ -170,7 +171,8 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
         qgc.set_mode_everywhere(1, 4 << 16 | 3 << 24)  # PX4 AUTO.LOITER
         assert wait_for(lambda: _phase_is(obs, 1, "yielded"), 10, 0.1), _state(obs, 1)
         assert _phase_is(obs, 2, "mission")
-        assert wait_for(lambda: json.loads((tmp_path / "uav2.json").read_text())["mavlink_router"]["dropped_unknown_target"] >= 1, 3, 0.2)
+        assert wait_for(lambda: json.loads((tmp_path / "uav2.json").read_text())["mavlink_router"]["dropped_unknown_target"] >= 1,
+                        3, 0.2)
         st = _state(obs, 1)
         # whichever the agent noticed first: the command passing its router, or the FCU's new mode
         assert st.override in ("gcs:SET_MODE", "fcu:LOITER") and "setpoints stopped" in st.detail
@@ -189,7 +191,8 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
 
         # ---- ArduPilot: a GCS reposition keeps the mode GUIDED, the router still tells the agent ---------
         gcs2.wait_for("HEARTBEAT", lambda m: m.get_srcSystem() == 2)
-        gcs2.send(mavlink.MAVLink_command_int_message(2, 1, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_DO_REPOSITION,
+        gcs2.send(mavlink.MAVLink_command_int_message(2, 1, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                                     mavlink.MAV_CMD_DO_REPOSITION,
                                                      0, 0, -1, 0, 0, 0, int(HOME.lat * 1e7), int(HOME.lon * 1e7), 15.0))
         ack = gcs2.wait_for("COMMAND_ACK", lambda m: m.command == mavlink.MAV_CMD_DO_REPOSITION and m.target_system == 255)
         assert ack.result == mavlink.MAV_RESULT_ACCEPTED

@@ -31,8 +31,10 @@ def test_id_lists() -> None:
 
 
 def test_filters_sorting_and_narrow_terminals() -> None:
-    rows = [Row(1, phase="mission", mode="OFFBOARD", battery=0.5, seen=0.1), Row(2, phase="hold", override="hold", battery=0.9, seen=0.2),
-            Row(3, phase="yielded", override="fcu:RTL", mode="RTL", seen=5.0), Row(10, realm="physical", phase="mission", seen=0.1)]
+    rows = [Row(1, phase="mission", mode="OFFBOARD", battery=0.5, seen=0.1),
+            Row(2, phase="hold", override="hold", battery=0.9, seen=0.2),
+            Row(3, phase="yielded", override="fcu:RTL", mode="RTL", seen=5.0),
+            Row(10, realm="physical", phase="mission", seen=0.1)]
     f = Filter.parse(["phase=mission"])
     assert [r.id for r in rows if f.match(r)] == [1, 10]
     assert [r.id for r in rows if Filter.parse(["override"]).match(r)] == [2, 3]
@@ -72,7 +74,8 @@ def test_recording_survives_a_torn_last_line_and_plots(tmp_path: Path) -> None:
             rec("pose", Pose(u, Realm.VIRTUAL, i, i * 0.1, t[0], float(i), float(u * 5), 10.0, 1.0, 0.0, 0.0, 0.0))
         if i % 10 == 0:
             rec("telemetry", Telemetry(1, Realm.VIRTUAL, i, t[0], "OFFBOARD", True, 0.9 - i / 1000, 16.0, 47.0, 8.0, 500.0, 1.0))
-            rec("state", AgentState(1, Realm.VIRTUAL, i, t[0], "hold" if i > 20 else "mission", "coverage", "hold" if i > 20 else ""))
+            rec("state", AgentState(1, Realm.VIRTUAL, i, t[0], "hold" if i > 20 else "mission", "coverage",
+                                    "hold" if i > 20 else ""))
         rec.maybe_flush()
     rec.close()
     with open(path, "a") as f:

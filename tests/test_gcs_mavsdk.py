@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import free_port, wait_for
-from tests.gcs_helpers import agent_stats, start_virtual_uav, stop_process
-
 # MAVSDK-Python 4.x is in the test extra (pip install -e '.[test]'); a missing one is a failure, not a skip
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk  # noqa: E402
 from mavsdk.asyncio.plugins.action import ActionAsync  # noqa: E402
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync  # noqa: E402
+
+from tests.conftest import free_port, wait_for
+from tests.gcs_helpers import agent_stats, start_virtual_uav, stop_process
 
 pytestmark = pytest.mark.e2e
 

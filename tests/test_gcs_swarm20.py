@@ -59,7 +59,7 @@ def _rows(screen: str) -> dict[int, list[str]]:
 
 
 def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) -> None:
-    assert TMUX is not None, "tmux not found: .ci/run installs it (apt-get install tmux)"
+    assert TMUX is not None, "tmux not found: scripts/test installs it (apt-get install tmux)"
     run = start_run(SCENARIO, tmp_path, [])
     tmux = Tmux(f"mrswarm-gcs-{os.getpid()}")
     rec: subprocess.Popen[str] | None = None
@@ -85,7 +85,8 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
 
         # ---- watch, live in a terminal -------------------------------------------------------------
         tmux.start()
-        cmd = f"cd {shlex.quote(str(ROOT))} && PYTHONPATH={shlex.quote(str(ROOT))} {shlex.quote(sys.executable)} -m mrswarm gcs watch --run {shlex.quote(str(rdir))}"
+        root, python = shlex.quote(str(ROOT)), shlex.quote(sys.executable)
+        cmd = f"cd {root} && PYTHONPATH={root} {python} -m mrswarm gcs watch --run {shlex.quote(str(rdir))}"
         tmux.keys(cmd, "Enter")
         def live_rows() -> bool:
             rows = _rows(tmux.screen())
@@ -115,7 +116,8 @@ def test_gcs_watches_holds_resumes_and_lands_a_20_uav_mission(tmp_path: Path) ->
         assert [(a["uav"], a["status"]) for a in acks] == [(1, "ok"), (20, "ok")]
         points = {a["uav"]: tuple(float(v) for v in a["message"].split("(")[1].rstrip(")").split(",")[:2]) for a in acks}
         # the watch shows the override (sorted by phase, the two held UAVs come first)
-        assert wait_for(lambda: sum(r[2] == "hold" and r[3] == "hold" for r in _rows(tmux.screen()).values()) == 2, 10, 0.3), tmux.screen()
+        assert wait_for(lambda: sum(r[2] == "hold" and r[3] == "hold" for r in _rows(tmux.screen()).values()) == 2, 10, 0.3), \
+            tmux.screen()
         # Held UAVs stop following their lanes and stay at their hold points. Collision avoidance
         # still runs (a safety layer, not the swarm behaviour): a neighbour whose lane crosses the
         # hold point pushes the held UAV ahead of it (ORCA: the held UAV takes its half of every

@@ -34,7 +34,7 @@ def recv_all(s: socket.socket, wait: float = 0.3) -> list[bytes]:
     while time.monotonic() < deadline:
         try:
             out.append(s.recv(65535))
-        except (socket.timeout, BlockingIOError):
+        except (TimeoutError, BlockingIOError):
             continue
     return out
 
@@ -81,7 +81,7 @@ class Rig:
             self.pump(0.02)
             try:
                 out.append(self.fcu.recv(65535))
-            except (socket.timeout, BlockingIOError):
+            except (TimeoutError, BlockingIOError):
                 pass
         return out
 
@@ -107,7 +107,8 @@ def test_frames_are_forwarded_byte_for_byte_both_ways(gcs_port: int) -> None:
     rig = Rig([f"udpout:127.0.0.1:{gcs_port}"])
     try:
         hb = heartbeat(rig.fcu_mav)
-        pos = mavlink.MAVLink_global_position_int_message(1000, 473977420, 85455940, 500000, 12000, 1, 2, 3, 9000).pack(rig.fcu_mav)
+        pos = mavlink.MAVLink_global_position_int_message(1000, 473977420, 85455940, 500000, 12000, 1, 2, 3,
+                                                          9000).pack(rig.fcu_mav)
         # a frame of a message outside our dialect (an ArduPilot-only id) is still routed, untouched
         unknown = bytes([0xFD, 3, 0, 0, 42, SYSID, 1, 0x0C, 0x2B, 0x00, 1, 2, 3, 0xAA, 0xBB])
         rig.fcu_send(hb, pos, unknown)
@@ -206,7 +207,8 @@ def test_ground_station_motion_commands_are_noted_as_a_takeover(gcs_port: int) -
     try:
         rig.fcu_send(heartbeat(rig.fcu_mav))
         rig.pump()
-        gcs.sendto(mavlink.MAVLink_command_long_message(SYSID, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0).pack(g), addr)
+        request = mavlink.MAVLink_command_long_message(SYSID, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
+        gcs.sendto(request.pack(g), addr)
         rig.pump()
         assert rig.router.takeover is None  # asking for data is not taking over
         gcs.sendto(mavlink.MAVLink_set_mode_message(SYSID, 1, 4 << 16 | 5 << 24).pack(g), addr)

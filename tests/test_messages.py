@@ -39,7 +39,8 @@ from swarmnet import messages as M
 
 
 def pose(**kw: object) -> Pose:
-    base = dict(uav=7, realm=Realm.VIRTUAL, seq=12, t_sim=35.2, t_wall=time.time(), x=12.34, y=-45.6, z=20.0, vx=4.9, vy=-0.1, vz=0.0, yaw=1.2)
+    base = dict(uav=7, realm=Realm.VIRTUAL, seq=12, t_sim=35.2, t_wall=time.time(), x=12.34, y=-45.6, z=20.0,
+                vx=4.9, vy=-0.1, vz=0.0, yaw=1.2)
     base.update(kw)
     return Pose(**base)  # type: ignore[arg-type]
 
@@ -152,7 +153,8 @@ def test_telemetry_state_command_ack_round_trip() -> None:
                   lat=46.6, lon=14.26, alt=470.5, rtf=0.97)
     t2 = decode_telemetry(encode_telemetry(t))
     assert (t2.uav, t2.realm, t2.mode, t2.armed, t2.battery, t2.rtf) == (3, Realm.PHYSICAL, "OFFBOARD", True, 0.8, 0.97)
-    s = AgentState(uav=3, realm=Realm.VIRTUAL, seq=1, t_wall=now, phase="mission", behaviour="lawnmower", override="", detail="strip 2/10")
+    s = AgentState(uav=3, realm=Realm.VIRTUAL, seq=1, t_wall=now, phase="mission", behaviour="lawnmower", override="",
+                   detail="strip 2/10")
     assert decode_state(encode_state(s)).detail == "strip 2/10"
     c = Command(sender="gcs", cmd_id=42, target=0, verb="goto", args={"x": 1.0, "y": 2.0, "z": 10.0}, t_wall=now)
     c2 = decode_command(encode_command(c))

@@ -37,6 +37,20 @@ def meshed(nodes: list[SwarmNode], ids: set[int]) -> None:
     assert wait_for(lambda: all((n.poll(), ids <= n.alive_uavs())[1] for n in nodes), 10.0), "nodes did not see each other"
 
 
+def settle(nodes: list[SwarmNode], seconds: float) -> None:
+    """Poll every TICK for ``seconds``, as the UAV loop does, ending with a poll.
+
+    The shim dates an arrival at a random instant since the node's previous poll, so a node
+    left unpolled for 0.3 s could date a message sent just now up to 0.3 s in the past."""
+    end = time.time() + seconds
+    while time.time() < end:
+        for n in nodes:
+            n.poll(time.time())
+        time.sleep(TICK)
+    for n in nodes:
+        n.poll(time.time())
+
+
 def fly(pubs: list[SwarmNode], subs: list[SwarmNode], seconds: float, rate_hz: float = 10.0, drain: float = 1.0) -> None:
     """Publishers send poses at ``rate_hz``; receivers poll at the UAV tick; then drain ``drain`` s more."""
     t0 = time.time()
@@ -128,7 +142,8 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     fly([a], [b], 2.0)
     assert b.stats.pose_age.percentile(50) >= 0.3 - TICK
     # an invalid config: refused, counted, nacked; the old one stays
-    publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(), config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))
+    publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(),
+                                     config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))
     assert wait_for(lambda: (b.poll(), b.stats.rejected["bad_netem_config"] == 1)[1], 5.0)
     assert wait_for(lambda: ack_seen(78, False), 5.0)
     assert "v2v.loss.p" in [x for x in got if x.cmd_id == 78][0].message
@@ -136,7 +151,8 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     # garbage on the key and a change for someone else
     publish_set(rendezvous, b"{not json")
     publish_set(rendezvous, NetemSet(id=79, sender="test", t_wall=time.time(), targets=(1,), config={"preset": "none"}))
-    assert wait_for(lambda: (b.poll(), a.poll(), b.stats.rejected["malformed"] == 1 and a.stats.received["netem_set"] == 2)[2], 5.0)
+    assert wait_for(lambda: (b.poll(), a.poll(),
+                             b.stats.rejected["malformed"] == 1 and a.stats.received["netem_set"] == 2)[2], 5.0)
     assert b.stats.received["netem_set"] == 1 and "delay 300ms" in b.netem.config.describe()  # type: ignore[union-attr]
     assert a.netem is not None and a.netem.config.preset == "none"
 
@@ -149,7 +165,7 @@ def test_commands_are_exempt_by_default_and_delayed_when_not(rendezvous: Rendezv
     opened += [exempt, impaired, obs]
     meshed([exempt, impaired], {1, 2})
     assert wait_for(lambda: (obs.poll(), {1, 2} <= obs.alive_uavs())[1], 10.0)
-    time.sleep(0.3)
+    settle([exempt, impaired], 0.3)
     sent = time.time()
     obs.command("land", [1, 2])
     arrived: dict[int, float] = {}
@@ -234,7 +250,7 @@ def test_swarm_messages_go_through_the_same_link_as_poses(rendezvous: Rendezvous
     b = node(rendezvous, 2, netem={"v2v": {"delay": {"ms": 300}}})
     opened += [a, b]
     meshed([a, b], {1, 2})
-    time.sleep(0.3)
+    settle([a, b], 0.3)
     sent = time.time()
     a.send("chat", {"hello": 1})
     a.send("direct", "hi", to=2)

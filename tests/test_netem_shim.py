@@ -220,12 +220,12 @@ def test_duplicate_rate() -> None:
 
 
 def test_duplicate_and_loss_follow_netems_count_rule() -> None:
-    d, l = 0.5, 0.2
-    shim, link = one_link({"delay": {"ms": 10}, "duplicate": d, "loss": {"model": "bernoulli", "p": l}})
+    d, p = 0.5, 0.2
+    shim, link = one_link({"delay": {"ms": 10}, "duplicate": d, "loss": {"model": "bernoulli", "p": p}})
     n = 100_000
     out = drive(shim, link, n)
     # count = 1 + dup - lost; the clone draws its own loss
-    expect = (1 - d) * (1 - l) + d * l + d * (1 - l) * (2 - l)
+    expect = (1 - d) * (1 - p) + d * p + d * (1 - p) * (2 - p)
     assert len(out) / n == pytest.approx(expect, rel=0.01)
     assert link.sent + link.duplicated == link.delivered + sum(link.dropped.values())
 
@@ -322,9 +322,9 @@ def test_log_distance_delivery_probability_against_distance() -> None:
     spec = link.distance
     assert spec is not None
     assert spec.ref_loss_db == pytest.approx(40.05, abs=0.01)  # Friis at 1 m, 2.4 GHz
-    assert spec.nominal_range_m() == pytest.approx(689, rel=0.01)  # research note §1.4 table
+    assert spec.nominal_range_m() == pytest.approx(689, rel=0.01)  # 10^((20 + 91 - 40.05) / 25) m
     n = 20_000
-    for d, expect in ((300.0, 0.93), (500.0, 0.72), (700.0, 0.49), (900.0, 0.31)):  # research note §1.4 worked example
+    for d, expect in ((300.0, 0.93), (500.0, 0.72), (700.0, 0.49), (900.0, 0.31)):  # worked example, sigma 6 dB
         mean_rx = 20 - (40.05 + 25 * math.log10(d))
         p = stats.norm.sf((-91 - mean_rx) / 6.0)
         assert spec.p_deliver(d) == pytest.approx(p, rel=1e-3)
@@ -369,7 +369,7 @@ def test_outage_hold_delivers_at_the_end_of_the_outage() -> None:
     out = drive(shim, link, 20_000, interval=0.01)
     assert len(out) == 20_000
     held = 0
-    for i, a, b in out:
+    for _, a, b in out:
         end = max(r.down_until(a) for r in link.radios)
         if end:
             held += 1
@@ -386,7 +386,7 @@ def test_outage_lookup_is_exact_in_any_query_order(every_s: float, lo_ms: float,
 
     spec = OutageSpec(every_s, lo_ms, hi_ms, "drop")
     ref = OutageSchedule(3, 1, spec)
-    raw = sorted(iv for w in range(-1, 7) for iv in zip(*ref._window(w)))
+    raw = sorted(iv for w in range(-1, 7) for iv in zip(*ref._window(w), strict=True))
     union: list[list[float]] = []
     for a, b in raw:
         if union and a <= union[-1][1]:

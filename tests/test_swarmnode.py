@@ -129,7 +129,8 @@ def test_bad_input_is_counted_not_raised(nodes: list[SwarmNode], rendezvous: Ren
 
 
 def test_a_node_that_stops_polling_loses_old_data_but_never_stalls_the_link(rendezvous: Rendezvous) -> None:
-    with SwarmNode(NodeIdentity("alpha", 1), rendezvous, ring_size=64) as slow, SwarmNode(NodeIdentity("alpha", 2), rendezvous) as fast:
+    with (SwarmNode(NodeIdentity("alpha", 1), rendezvous, ring_size=64) as slow,
+          SwarmNode(NodeIdentity("alpha", 2), rendezvous) as fast):
         assert wait_for(lambda: len(fast.peers()) >= 1, 5.0)
         for i in range(3000):  # flood broadcasts while nobody drains them
             fast.send("flood", i)
