@@ -24,12 +24,11 @@ from typing import Any
 from swarmnet.messages import Command, Realm
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
-from uav_stack.behaviours.base import Area, Neighbour, SelfState
+from uav_stack.behaviours.base import Behaviour, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
 from uav_stack.config import AgentConfig
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
-from uav_stack.mav import mavlink
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import PoseAgeLog
@@ -56,10 +55,11 @@ class Own:
     yaw: float = 0.0  # ENU
 
 
-def make_mission(cfg: AgentConfig) -> Any:
+def make_mission(cfg: AgentConfig) -> Behaviour | None:
+    """The mission behaviour the configuration asks for; None for an idle UAV (it hovers)."""
     m = cfg.mission
     if m.type == "coverage":
-        area = Area(*m.area)
+        area = Rect(*m.area)
         if m.strategy == "random":
             # stdlib Random, not numpy's Generator: numpy.random pulls in OpenSSL (~4 MB per process)
             return RandomDirectionCoverage(area, cfg.speed, random.Random(cfg.seed * 1_000_003 + cfg.uav))
@@ -141,7 +141,7 @@ class Agent(OverridesMixin):
         # The swarm lives in wall-clock time: a virtual FCU at RTF 0.4 that reports 5 m/s is
         # really covering 2 m/s of ground per wall second, and neighbours extrapolate with that.
         k = self.link.rtf.value
-        k = k if 0.0 < k < 1.0 else 1.0
+        k = k if 0.0 < k < 1.0 else 1.0  # also NaN (not measured yet): take the FCU's word
         o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
         o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
         return True
@@ -188,7 +188,7 @@ class Agent(OverridesMixin):
             rtf = link.rtf.value
             node.publish_telemetry(
                 mode=st.mode, armed=st.armed, battery=st.battery, voltage=st.voltage,
-                lat=st.lat, lon=st.lon, alt=st.alt, rtf=rtf if rtf == rtf else 0.0,
+                lat=st.lat, lon=st.lon, alt=st.alt, rtf=0.0 if math.isnan(rtf) else rtf,  # 0.0: unknown on the wire
             )
         if now >= self._next_state:
             self._next_state = now + 1.0
@@ -283,15 +283,15 @@ class Agent(OverridesMixin):
             return
         self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
         if ph == AgentPhase.ARMING:
-            # ArduPilot takes off only in GUIDED: switch first (PX4 takes off from any mode)
-            need_guided = st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and st.mode != "GUIDED"
-            if st.armed and not need_guided:
+            # some autopilots take off only in one mode (ArduPilot: GUIDED): switch to it first
+            need_mode = st.profile.takeoff_mode if st.profile.takeoff_mode not in (None, st.mode) else None
+            if st.armed and need_mode is None:
                 self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
                 self._set_phase(AgentPhase.TAKEOFF)
             elif self._handle is None or (self._handle.done and (self._handle.accepted or since > RETRY_AFTER)):
                 if self._handle is not None and self._handle.done and not self._handle.accepted:
-                    self.detail = f"{'set GUIDED' if need_guided else 'arm'} {self._handle.status}"
-                self._handle = link.set_mode("GUIDED") if need_guided else link.arm(True)
+                    self.detail = f"{'arm' if need_mode is None else 'set ' + need_mode} {self._handle.status}"
+                self._handle = link.arm(True) if need_mode is None else link.set_mode(need_mode)
                 self._phase_since = now
         elif ph == AgentPhase.TAKEOFF:
             if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
@@ -310,7 +310,7 @@ class Agent(OverridesMixin):
                 else:
                     self._set_phase(AgentPhase.HOVER)
             elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
-                self._handle = link.set_mode(link.offboard_mode)
+                self._handle = link.set_mode(st.profile.offboard_mode)
         elif ph in CONTROLLED:
             why = self._taken_over()
             self._gcs_takeover = None
@@ -368,7 +368,7 @@ class Agent(OverridesMixin):
             reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
             r2 = reach * reach
             neigh = [
-                Neighbour(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
+                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
                 for n in self.node.neighbours
                 if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
@@ -385,7 +385,7 @@ class Agent(OverridesMixin):
         st, o = self.link.state, self.own
         rtf = self.link.rtf.value
         self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode, int(st.armed),
-                                  rtf if rtf == rtf else -1.0))
+                                  -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
     def stats(self, now: float) -> dict[str, Any]:

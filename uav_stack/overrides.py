@@ -14,14 +14,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from uav_stack.fcu_link import CommandHandle
-from uav_stack.mav import mavlink
 from uav_stack.phases import CONTROLLED, AgentPhase
 
 log = logging.getLogger(__name__)
 
 
-# modes a PX4 / ArduPilot FCU passes through while the agent takes off and enters OFFBOARD/GUIDED
-_CLIMB_MODES = {"px4": frozenset({"TAKEOFF", "LOITER", "OFFBOARD", "READY"}), "ardupilot": frozenset({"GUIDED"})}
 DEFERRED_ACK_TIMEOUT = 4.0  # s: an override the FCU must confirm is acked as failed after this
 HOLD_GAIN = 0.8  # 1/s: velocity towards a hold/goto point = gain * distance (capped)
 ARRIVED_M = 1.0
@@ -201,8 +198,7 @@ class OverridesMixin:
     def _taken_over_climbing(self) -> tuple[str, str] | None:
         """The same while taking off / entering OFFBOARD, where other modes are expected."""
         st = self.link.state
-        flavour = "ardupilot" if st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else "px4"
-        if st.mode not in _CLIMB_MODES[flavour] and st.mode != self._mode_at_phase:
+        if st.mode not in st.profile.climb_modes and st.mode != self._mode_at_phase:
             return f"fcu:{st.mode}", f"FCU switched to {st.mode}"
         if self._gcs_takeover is not None:
             return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"

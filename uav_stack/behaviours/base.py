@@ -1,4 +1,4 @@
-"""Shared types for the swarm behaviours: own state, neighbours, areas, the Mission protocol.
+"""Shared types for the swarm behaviours: own state, neighbour views, rectangles, the Behaviour protocol.
 
 Everything is in the swarm's shared ENU frame (x east, y north, metres) and 2-D: the agent
 holds altitude separately.  Vectors are plain ``tuple[float, float]`` (alias ``Vec2``) so the
@@ -69,7 +69,10 @@ class SelfState:
 
 
 @dataclass(frozen=True, slots=True)
-class Neighbour:
+class NeighbourView:
+    """What collision avoidance sees of one neighbour (built by the agent from ``swarmnet``'s
+    neighbour table for each control tick)."""
+
     uav: int
     pos: Vec2  # as last received
     vel: Vec2
@@ -78,8 +81,8 @@ class Neighbour:
 
 
 @dataclass(frozen=True, slots=True)
-class Area:
-    """Axis-aligned rectangle in ENU metres."""
+class Rect:
+    """Axis-aligned rectangle in ENU metres: a coverage area, one UAV's strip of it."""
 
     x_min: float
     x_max: float
@@ -118,16 +121,17 @@ class Area:
         """Nearest point of the rectangle."""
         return (min(max(p[0], self.x_min), self.x_max), min(max(p[1], self.y_min), self.y_max))
 
-    def shrunk(self, margin: float) -> Area:
+    def shrunk(self, margin: float) -> Rect:
         """The rectangle inset by ``margin`` on every side (capped so it never inverts)."""
         mx = min(margin, 0.49 * self.width)
         my = min(margin, 0.49 * self.height)
-        return Area(self.x_min + mx, self.x_max - mx, self.y_min + my, self.y_max - my)
+        return Rect(self.x_min + mx, self.x_max - mx, self.y_min + my, self.y_max - my)
 
 
 @runtime_checkable
-class Mission(Protocol):
-    """Something that produces a preferred velocity at each control tick."""
+class Behaviour(Protocol):
+    """A mission behaviour (coverage, go-to): the preferred velocity at each control tick,
+    before collision avoidance adjusts it."""
 
     def velocity(self, me: SelfState, members: Sequence[int]) -> Vec2:
         """Preferred velocity (m/s). ``members`` = ids alive in the swarm, including ``me.uav``."""

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+from uav_stack.autopilot import ARDUPILOT_PROFILE, PX4_PROFILE, AutopilotProfile
 from uav_stack.mav import mavlink
 
 
@@ -80,21 +81,29 @@ ARDUPILOT_MODES: tuple[ModeSpec, ...] = (
 
 @dataclass(frozen=True)
 class Flavour:
-    """What differs between the emulated autopilots."""
+    """What differs between the emulated autopilots.
+
+    ``profile`` is what a companion computer expects of the autopilot this flavour emulates
+    (the agent picks it from our heartbeat's ``autopilot``); the rest is the emulation's own.
+    Mode names here are the autopilot's own (PX4 ``HOLD``, which pymavlink calls ``LOITER``).
+    """
 
     name: str  # "px4" | "ardupilot"
-    autopilot: int  # HEARTBEAT.autopilot
+    profile: AutopilotProfile
     modes: tuple[ModeSpec, ...]
     initial_mode: str
     hold_mode: str  # target of "hold"-type failsafes
-    offboard_mode: str
-    takeoff_mode: str | None  # PX4 has a TAKEOFF mode; ArduPilot takes off inside GUIDED
     bytewise_params: bool  # PX4 PARAM_ENCODE_BYTEWISE; ArduPilot C cast
     flight_sw_version: int
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_by_name", {m.name: m for m in self.modes})
         object.__setattr__(self, "_by_custom", {m.custom_mode: m for m in self.modes})
+
+    @property
+    def autopilot(self) -> int:
+        """HEARTBEAT.autopilot (MAV_AUTOPILOT_*)."""
+        return self.profile.autopilot
 
     @property
     def is_px4(self) -> bool:
@@ -121,24 +130,20 @@ class Flavour:
 
 PX4 = Flavour(
     name="px4",
-    autopilot=mavlink.MAV_AUTOPILOT_PX4,
+    profile=PX4_PROFILE,
     modes=PX4_MODES,
     initial_mode="HOLD",
     hold_mode="HOLD",
-    offboard_mode="OFFBOARD",
-    takeoff_mode="TAKEOFF",
     bytewise_params=True,
     flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 0xFF,  # v1.15.0 release
 )
 
 ARDUPILOT = Flavour(
     name="ardupilot",
-    autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+    profile=ARDUPILOT_PROFILE,
     modes=ARDUPILOT_MODES,
     initial_mode="STABILIZE",
     hold_mode="LOITER",
-    offboard_mode="GUIDED",
-    takeoff_mode=None,
     bytewise_params=False,
     flight_sw_version=(4 << 24) | (5 << 16) | (0 << 8) | 0xFF,  # v4.5.0 release
 )
