@@ -8,9 +8,9 @@ import time
 
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu
 from uav_stack.fcu.clock import SimClock
-from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.mav import mavlink as M
 from uav_stack.rtf import RtfMeter
 

@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import free_port, wait_for
+from tests.fcu_helpers import FcuThread
 from uav_stack.autopilot import PX4_PROFILE
 from uav_stack.fcu import FcuConfig, VehicleConfig
-from uav_stack.fcu.testing import FcuThread
 from uav_stack.fcu_link import FcuLink
 from uav_stack.geo import GeoPoint
 

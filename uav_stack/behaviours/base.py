@@ -17,31 +17,6 @@ Vec2 = tuple[float, float]
 
 
 # --- 2-D helpers (scalars, no allocation beyond the result tuple) ----------------------------
-def add(a: Vec2, b: Vec2) -> Vec2:
-    return (a[0] + b[0], a[1] + b[1])
-
-
-def sub(a: Vec2, b: Vec2) -> Vec2:
-    return (a[0] - b[0], a[1] - b[1])
-
-
-def scale(a: Vec2, k: float) -> Vec2:
-    return (a[0] * k, a[1] * k)
-
-
-def dot(a: Vec2, b: Vec2) -> float:
-    return a[0] * b[0] + a[1] * b[1]
-
-
-def cross(a: Vec2, b: Vec2) -> float:
-    """z component of a x b (positive if b is counter-clockwise of a)."""
-    return a[0] * b[1] - a[1] * b[0]
-
-
-def norm(a: Vec2) -> float:
-    return math.hypot(a[0], a[1])
-
-
 def dist(a: Vec2, b: Vec2) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1])
 
@@ -62,6 +37,8 @@ def is_finite(a: Vec2) -> bool:
 # --- state --------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class SelfState:
+    """The UAV's own state as the behaviours see it."""
+
     uav: int
     pos: Vec2  # ENU x (east), y (north), metres
     vel: Vec2  # m/s, wall-clock (what the vehicle really does, not what a slowed simulator thinks)

@@ -90,7 +90,6 @@ class VirtualFcu:
         self._next_hb_wall = math.inf
         self._next_peer_check = 0.0
         self._opened = False
-        self._closed = False
 
     # ----------------------------------------------------------- lifecycle
     def open(self) -> list[tuple[str, int]]:
@@ -125,7 +124,6 @@ class VirtualFcu:
         self._flush()
         for v in self.vehicles:
             v.link.close()
-        self._closed = True
 
     def __enter__(self) -> VirtualFcu:
         self.open()

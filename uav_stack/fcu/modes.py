@@ -1,8 +1,8 @@
 """Flight modes of the two autopilot flavours and their MAVLink ``custom_mode`` encodings.
 
 PX4: ``custom_mode = main << 16 | sub << 24`` (px4_custom_mode.h). ArduCopter: the mode
-number itself. Each mode maps to one of a few internal behaviours that the vehicle's
-guidance implements (mavlink.md section 2 and 4).
+number itself. Each mode maps to one of a few kinds of :class:`Guidance` that the vehicle
+implements (docs/fcu.md lists the modes and what each does).
 """
 
 from __future__ import annotations
@@ -15,7 +15,9 @@ from uav_stack.autopilot import ARDUPILOT_PROFILE, PX4_PROFILE, AutopilotProfile
 from uav_stack.mav import mavlink
 
 
-class Behaviour(str, Enum):
+class Guidance(str, Enum):
+    """What the vehicle does in a mode; several modes of an autopilot share one."""
+
     HOLD = "hold"  # hold position (or fly to a reposition target), brake to a stop on entry
     TAKEOFF = "takeoff"  # climb to the takeoff altitude, then HOLD (PX4) / guided hold (ArduPilot)
     LAND = "land"  # descend at the landing speed, auto-disarm on the ground
@@ -28,17 +30,14 @@ class Behaviour(str, Enum):
 class ModeSpec:
     name: str
     custom_mode: int
-    behaviour: Behaviour
+    guidance: Guidance  # what the vehicle does in this mode
     base_flags: int  # MAV_MODE_FLAG bits besides CUSTOM_MODE_ENABLED and SAFETY_ARMED
     can_arm: bool = True
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
+    """PX4's HEARTBEAT.custom_mode for a main and sub mode (px4_custom_mode.h)."""
     return (main & 0xFF) << 16 | (sub & 0xFF) << 24
-
-
-def px4_main_sub(custom_mode: int) -> tuple[int, int]:
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
 
 
 _AUTO = mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -46,7 +45,7 @@ _GUIDED = mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE
 _MANUAL = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 _ASSIST = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
 
-B = Behaviour
+B = Guidance
 PX4_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("MANUAL", px4_custom_mode(1), B.MANUAL, _MANUAL),
     ModeSpec("ALTCTL", px4_custom_mode(2), B.HOLD, _ASSIST),

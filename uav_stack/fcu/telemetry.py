@@ -33,7 +33,6 @@ SENSORS = (
 )
 PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
 FENCE = M.MAV_SYS_STATUS_GEOFENCE
-_RAD2CDEG = 18000.0 / math.pi
 
 
 def _ms(v: Vehicle) -> int:
