@@ -18,8 +18,7 @@ import math
 import random
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
+from typing import TYPE_CHECKING, Any
 
 from swarmnet.messages import Command, Realm
 from swarmnet.node import SwarmNode
@@ -34,11 +33,14 @@ from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import PoseAgeLog
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
 
+if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
+    from uav_stack.mavlink_router import MavlinkRouter
+
 log = logging.getLogger(__name__)
 
 ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * error)
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
-OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for OFFBOARD (PX4 needs > 1 s)
+OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
 
 
@@ -76,11 +78,17 @@ def make_mission(cfg: AgentConfig) -> Behaviour | None:
 
 
 class Agent(OverridesMixin):
-    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: Any = None):
+    """One UAV's swarm agent: its phase machine, mission behaviour, avoidance and reports.
+
+    The owner opens the FCU link and the swarm node, then calls :meth:`step` every tick and
+    :meth:`close` at the end; ground-station overrides come from :class:`OverridesMixin`.
+    """
+
+    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: MavlinkRouter | None = None):
         self.cfg = cfg
         self.node = node
         self.link = link
-        self.router = router  # uav_stack.mavlink_router.MavlinkRouter, or None
+        self.router = router
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)

@@ -69,6 +69,8 @@ def parse_fcu_url(url: str) -> tuple[str, int]:
 
 @dataclass
 class CommandHandle:
+    """One COMMAND_LONG in flight: resolved by its COMMAND_ACK or by running out of retries."""
+
     command: int
     params: tuple[float, ...]
     sent_at: float
@@ -167,9 +169,6 @@ class FcuLink:
                 self.conn.close()
             finally:
                 self.conn = None
-
-    def fileno(self) -> int:
-        return self.conn.fd if getattr(self.conn, "fd", None) is not None else self.conn.port.fileno()
 
     @property
     def connected(self) -> bool:

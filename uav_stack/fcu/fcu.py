@@ -1,8 +1,9 @@
 """VirtualFcu: a fleet of N virtual vehicles stepped together, one UDP socket per vehicle.
 
-Single-threaded and non-blocking. A host loop (the agent's ``selectors`` loop, or
-``run()``) calls ``poll_io()`` when a socket is readable and ``service()`` when the deadline
-it returned has come.
+Single-threaded and non-blocking. A host loop calls ``poll_io()`` when a socket is readable
+and ``service()`` when the deadline it returned has come (``run()`` does this with a
+selector); a virtual UAV process instead calls both once per tick of its fixed-rate loop
+(:func:`uav_stack.runtime.run_loop`), and the FCU catches up on the steps that fell due.
 """
 
 from __future__ import annotations
