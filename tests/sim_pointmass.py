@@ -23,14 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uav_stack.behaviours.avoidance import CollisionAvoidance
-from uav_stack.behaviours.base import Area, Mission, Neighbour, SelfState
+from uav_stack.behaviours.base import Behaviour, NeighbourView, Rect, SelfState
 
 
 @dataclass
 class SimAgent:
     uav: int
     start: tuple[float, float]
-    mission: Mission
+    mission: Behaviour
     avoidance: CollisionAvoidance | None = None
     rtf: float = 1.0
     reciprocal: bool = True  # how *others* see it
@@ -130,7 +130,7 @@ class PointMassSim:
                 age = self.t - stamp
                 if age <= self.cfg.member_timeout:
                     members.append(self.agents[i].uav)
-                nbs.append(Neighbour(self.agents[i].uav, p, v, age, self.agents[i].reciprocal))
+                nbs.append(NeighbourView(self.agents[i].uav, p, v, age, self.agents[i].reciprocal))
             pref = a.mission.velocity(me, members)
             if a.avoidance is not None:
                 res = a.avoidance.adjust(me, pref, nbs)
@@ -192,7 +192,7 @@ class PointMassSim:
 class CoverageGrid:
     """Cells of ``area`` (size ``cell``) seen by a disk footprint of radius ``radius``."""
 
-    def __init__(self, area: Area, cell: float, radius: float):
+    def __init__(self, area: Rect, cell: float, radius: float):
         self.area = area
         self.cell = cell
         self.radius = radius
@@ -215,7 +215,7 @@ class CoverageGrid:
             dy = (self.cy[j0:j1] - y)[None, :]
             self.seen[i0:i1, j0:j1] |= dx * dx + dy * dy <= r2
 
-    def fraction(self, sub: Area | None = None) -> float:
+    def fraction(self, sub: Rect | None = None) -> float:
         if sub is None:
             return float(self.seen.mean())
         mi = (self.cx >= sub.x_min) & (self.cx <= sub.x_max)

@@ -17,13 +17,13 @@ try:  # importable both as tests.sim_pointmass and (rootdir-less runs) as sim_po
 except ImportError:  # pragma: no cover
     from sim_pointmass import CoverageGrid, PointMassSim, SimAgent, SimConfig  # type: ignore[no-redef]
 from uav_stack.behaviours import (
-    Area,
+    Behaviour,
     CollisionAvoidance,
     GoTo,
     LawnmowerCoverage,
-    Mission,
-    Neighbour,
+    NeighbourView,
     RandomDirectionCoverage,
+    Rect,
     SelfState,
 )
 from uav_stack.behaviours.lp import HalfPlane, solve, solve_2d
@@ -44,19 +44,19 @@ def speed(v) -> float:
 # base types
 # =============================================================================================
 def test_area_validation_and_helpers():
-    a = Area(0, 100, -50, 50)
+    a = Rect(0, 100, -50, 50)
     assert (a.width, a.height, a.size, a.centre) == (100, 100, 10000, (50, 0))
     assert a.contains((0, 50)) and not a.contains((101, 0)) and a.contains((101, 0), tol=1.5)
     assert a.clamp((-5, 80)) == (0, 50)
-    assert a.shrunk(2.0) == Area(2, 98, -48, 48)
+    assert a.shrunk(2.0) == Rect(2, 98, -48, 48)
     assert a.shrunk(80.0).width > 0  # never inverts
     for bad in [(0, 0, 0, 1), (1, 0, 0, 1), (0, 1, 2, 1), (0, math.nan, 0, 1), (0, math.inf, 0, 1)]:
         with pytest.raises(ValueError):
-            Area(*bad)
+            Rect(*bad)
 
 
 def test_missions_hold_without_a_position_fix():
-    area = Area(0, 50, 0, 50)
+    area = Rect(0, 50, 0, 50)
     for m in (
         GoTo((1, 1), 2.0),
         RandomDirectionCoverage(area, 2.0, np.random.default_rng(0)),
@@ -68,13 +68,13 @@ def test_missions_hold_without_a_position_fix():
 
 
 def test_missions_satisfy_protocol():
-    area = Area(0, 10, 0, 10)
+    area = Rect(0, 10, 0, 10)
     for m in (
         GoTo((1, 1), 2.0),
         RandomDirectionCoverage(area, 2.0, np.random.default_rng(0)),
         LawnmowerCoverage(area, 2.0, 4.0),
     ):
-        assert isinstance(m, Mission)
+        assert isinstance(m, Behaviour)
 
 
 # =============================================================================================
@@ -175,8 +175,8 @@ def test_no_neighbours_passes_preferred_through_clipped():
 def test_far_or_diverging_neighbours_leave_velocity_alone():
     ca = CollisionAvoidance(SAFETY, VMAX)
     me = me_at((0, 0), (5, 0))
-    behind = Neighbour(2, (-20.0, 0.0), (-5.0, 0.0), 0.0)  # behind me, flying away
-    far = Neighbour(3, (200.0, 0.0), (-5.0, 0.0), 0.0)  # beyond neighbour_range
+    behind = NeighbourView(2, (-20.0, 0.0), (-5.0, 0.0), 0.0)  # behind me, flying away
+    far = NeighbourView(3, (200.0, 0.0), (-5.0, 0.0), 0.0)  # beyond neighbour_range
     r = ca.adjust(me, (5.0, 0.0), [behind, far])
     assert r.velocity == pytest.approx((5.0, 0.0)) and not r.active
     assert r.closest == pytest.approx(20.0) and r.considered == 1
@@ -184,8 +184,8 @@ def test_far_or_diverging_neighbours_leave_velocity_alone():
 
 def test_head_on_both_sides_turn_consistently():
     ca = CollisionAvoidance(SAFETY, VMAX)
-    a = ca.adjust(me_at((0, 0), (5, 0), uav=1), (5.0, 0.0), [Neighbour(2, (30.0, 0.0), (-5.0, 0.0), 0.0)])
-    b = ca.adjust(me_at((30, 0), (-5, 0), uav=2), (-5.0, 0.0), [Neighbour(1, (0.0, 0.0), (5.0, 0.0), 0.0)])
+    a = ca.adjust(me_at((0, 0), (5, 0), uav=1), (5.0, 0.0), [NeighbourView(2, (30.0, 0.0), (-5.0, 0.0), 0.0)])
+    b = ca.adjust(me_at((30, 0), (-5, 0), uav=2), (-5.0, 0.0), [NeighbourView(1, (0.0, 0.0), (5.0, 0.0), 0.0)])
     assert a.active and b.active
     # mirror images: each moves to its own right, so they pass left side to left side
     assert a.velocity[1] < -0.1 and b.velocity[1] > 0.1
@@ -204,8 +204,8 @@ def test_orca_pair_is_collision_free_over_the_horizon():
         if np.linalg.norm(pa - pb) <= SAFETY + 0.5:
             continue
         va, vb = rng.uniform(-3.5, 3.5, 2), rng.uniform(-3.5, 3.5, 2)
-        ra = ca.adjust(me_at(pa, va, 1), tuple(rng.uniform(-5, 5, 2)), [Neighbour(2, tuple(pb), tuple(vb), 0.0)])
-        rb = ca.adjust(me_at(pb, vb, 2), tuple(rng.uniform(-5, 5, 2)), [Neighbour(1, tuple(pa), tuple(va), 0.0)])
+        ra = ca.adjust(me_at(pa, va, 1), tuple(rng.uniform(-5, 5, 2)), [NeighbourView(2, tuple(pb), tuple(vb), 0.0)])
+        rb = ca.adjust(me_at(pb, vb, 2), tuple(rng.uniform(-5, 5, 2)), [NeighbourView(1, tuple(pa), tuple(va), 0.0)])
         if not (ra.feasible and rb.feasible):
             continue
         ts = np.linspace(0, tau, 200)[:, None]
@@ -221,7 +221,7 @@ def test_output_never_exceeds_max_speed():
     for _ in range(500):
         me = me_at(rng.uniform(-5, 5, 2), rng.uniform(-6, 6, 2))
         nbs = [
-            Neighbour(
+            NeighbourView(
                 int(k) + 2,
                 tuple(rng.uniform(-10, 10, 2)),
                 tuple(rng.uniform(-6, 6, 2)),
@@ -238,11 +238,11 @@ def test_output_never_exceeds_max_speed():
 def test_message_age_extrapolates_and_inflates():
     ca = CollisionAvoidance(SAFETY, VMAX, response_time=0.0)
     me = me_at((0, 0), (5, 0))
-    old = Neighbour(2, (30.0, 0.0), (-5.0, 0.0), 0.3)  # really at 28.5 now
+    old = NeighbourView(2, (30.0, 0.0), (-5.0, 0.0), 0.3)  # really at 28.5 now
     r = ca.adjust(me, (5.0, 0.0), [old])
     assert r.closest == pytest.approx(28.5)
     assert r.inflation == pytest.approx(10.0 * 0.3)  # |v_rel| * age
-    fresh = ca.adjust(me, (5.0, 0.0), [Neighbour(2, (28.5, 0.0), (-5.0, 0.0), 0.0)])
+    fresh = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, (28.5, 0.0), (-5.0, 0.0), 0.0)])
     assert fresh.inflation == 0.0
     # the bigger combined radius makes a bigger dodge
     assert abs(r.velocity[1]) > abs(fresh.velocity[1]) + 0.05
@@ -259,9 +259,9 @@ def test_inflation_bounded_stale_growth_and_forgetting():
     assert ca.inflation(3.0, 0.0) == pytest.approx(4.0)
     me = me_at((0, 0), (0, 0))
     near = (5.0, 0.0)
-    kept = ca.adjust(me, (2.0, 0.0), [Neighbour(2, near, (0.0, 0.0), 4.9)])
+    kept = ca.adjust(me, (2.0, 0.0), [NeighbourView(2, near, (0.0, 0.0), 4.9)])
     assert kept.considered == 1 and kept.inflation == pytest.approx(4.0) and kept.active
-    gone = ca.adjust(me, (2.0, 0.0), [Neighbour(2, near, (0.0, 0.0), 5.1)])
+    gone = ca.adjust(me, (2.0, 0.0), [NeighbourView(2, near, (0.0, 0.0), 5.1)])
     assert gone.considered == 0 and gone.closest == math.inf and not gone.active
 
 
@@ -279,19 +279,19 @@ def test_non_reciprocal_neighbour_gets_full_responsibility():
     ca = CollisionAvoidance(SAFETY, VMAX, bias_angle=0.0)
     me = me_at((0, 0), (5, 0))
     args = ((20.0, 1.0), (-5.0, 0.0), 0.0)
-    half = ca.adjust(me, (5.0, 0.0), [Neighbour(2, *args, reciprocal=True)])
-    full = ca.adjust(me, (5.0, 0.0), [Neighbour(2, *args, reciprocal=False)])
+    half = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, *args, reciprocal=True)])
+    full = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, *args, reciprocal=False)])
     dv_half = math.dist(half.velocity, me.vel)
     dv_full = math.dist(full.velocity, me.vel)
     assert dv_full == pytest.approx(2.0 * dv_half, rel=1e-6)
     # a stale neighbour counts as non-reciprocal too (apart from its bigger radius)
-    assert ca.adjust(me, (5.0, 0.0), [Neighbour(2, *args[:2], 0.0)]).velocity == half.velocity
+    assert ca.adjust(me, (5.0, 0.0), [NeighbourView(2, *args[:2], 0.0)]).velocity == half.velocity
 
 
 def test_keep_right_only_for_oncoming_traffic():
     me = me_at((0, 0), (0, 0))
-    oncoming = Neighbour(2, (8.0, 0.0), (-3.0, 0.0), 0.0)
-    parked = Neighbour(2, (8.0, 0.0), (0.0, 0.0), 0.0)
+    oncoming = NeighbourView(2, (8.0, 0.0), (-3.0, 0.0), 0.0)
+    parked = NeighbourView(2, (8.0, 0.0), (0.0, 0.0), 0.0)
     plain = CollisionAvoidance(SAFETY, VMAX, bias_angle=0.0)
     biased = CollisionAvoidance(SAFETY, VMAX)
     # head-on with an oncoming UAV: the keep-right rule adds a clockwise (here: southward) dodge
@@ -305,13 +305,13 @@ def test_keep_right_only_for_oncoming_traffic():
 def test_inside_safety_distance_moves_apart():
     ca = CollisionAvoidance(SAFETY, VMAX)
     for pref in [(5.0, 0.0), (0.0, 0.0), (0.0, 5.0)]:
-        r = ca.adjust(me_at((0, 0), (1, 0)), pref, [Neighbour(2, (2.0, 0.5), (0.0, 0.0), 0.0)])
+        r = ca.adjust(me_at((0, 0), (1, 0)), pref, [NeighbourView(2, (2.0, 0.5), (0.0, 0.0), 0.0)])
         assert r.active
         assert r.velocity[0] * 2.0 + r.velocity[1] * 0.5 < -0.5  # away from the neighbour
         assert speed(r.velocity) <= VMAX + 1e-9
     # coincident positions split by id in opposite directions
-    r1 = ca.adjust(me_at((0, 0), uav=1), (0.0, 0.0), [Neighbour(2, (0.0, 0.0), (0.0, 0.0), 0.0)])
-    r2 = ca.adjust(me_at((0, 0), uav=2), (0.0, 0.0), [Neighbour(1, (0.0, 0.0), (0.0, 0.0), 0.0)])
+    r1 = ca.adjust(me_at((0, 0), uav=1), (0.0, 0.0), [NeighbourView(2, (0.0, 0.0), (0.0, 0.0), 0.0)])
+    r2 = ca.adjust(me_at((0, 0), uav=2), (0.0, 0.0), [NeighbourView(1, (0.0, 0.0), (0.0, 0.0), 0.0)])
     assert r1.velocity[0] < -1.0 and r2.velocity[0] > 1.0
 
 
@@ -319,21 +319,21 @@ def test_bad_neighbour_data_is_ignored():
     ca = CollisionAvoidance(SAFETY, VMAX)
     me = me_at((0, 0), (5, 0))
     junk = [
-        Neighbour(1, (4.0, 0.0), (0.0, 0.0), 0.0),  # myself
-        Neighbour(2, (math.nan, 0.0), (0.0, 0.0), 0.0),
-        Neighbour(3, (4.0, 0.0), (math.inf, 0.0), 0.0),
-        Neighbour(4, (4.0, 0.0), (0.0, 0.0), math.nan),
+        NeighbourView(1, (4.0, 0.0), (0.0, 0.0), 0.0),  # myself
+        NeighbourView(2, (math.nan, 0.0), (0.0, 0.0), 0.0),
+        NeighbourView(3, (4.0, 0.0), (math.inf, 0.0), 0.0),
+        NeighbourView(4, (4.0, 0.0), (0.0, 0.0), math.nan),
     ]
     r = ca.adjust(me, (5.0, 0.0), junk)
     assert r.velocity == (5.0, 0.0) and r.considered == 0
     # negative age (clock skew) is treated as fresh
-    r = ca.adjust(me, (5.0, 0.0), [Neighbour(2, (20.0, 0.0), (-5.0, 0.0), -0.5)])
+    r = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, (20.0, 0.0), (-5.0, 0.0), -0.5)])
     assert r.closest == pytest.approx(20.0) and r.inflation == pytest.approx(ca.inflation(0.0, 10.0))
 
 
 def test_only_nearest_neighbours_are_used():
     ca = CollisionAvoidance(SAFETY, VMAX, max_neighbours=3)
-    nbs = [Neighbour(10 + k, (10.0 + 3 * k, 8.0), (0.0, 0.0), 0.0) for k in range(8)]
+    nbs = [NeighbourView(10 + k, (10.0 + 3 * k, 8.0), (0.0, 0.0), 0.0) for k in range(8)]
     r = ca.adjust(me_at((0, 0)), (5.0, 0.0), nbs)
     assert r.considered == 3 and r.closest == pytest.approx(math.hypot(10, 8))
 
@@ -373,7 +373,7 @@ def test_goto_slows_down_and_latches_done():
 
 
 def test_random_direction_legs_end_on_the_inner_boundary():
-    area = Area(0, 100, 0, 60)
+    area = Rect(0, 100, 0, 60)
     m = RandomDirectionCoverage(area, 5.0, np.random.default_rng(7), margin=2.0)
     inner = area.shrunk(2.0)
     path = follow(m, (50.0, 30.0), t_end=600.0)
@@ -389,7 +389,7 @@ def test_random_direction_legs_end_on_the_inner_boundary():
 
 
 def test_random_direction_headings_are_uniform_over_the_clear_sector():
-    area = Area(0, 100, 0, 100)
+    area = Rect(0, 100, 0, 100)
     inner = area.shrunk(2.0)
     headings = []
     for seed in range(400):
@@ -403,7 +403,7 @@ def test_random_direction_headings_are_uniform_over_the_clear_sector():
 
 
 def test_random_direction_enters_the_area_and_is_reproducible():
-    area = Area(0, 50, 0, 50)
+    area = Rect(0, 50, 0, 50)
     m = RandomDirectionCoverage(area, 5.0, np.random.default_rng(0))
     v = m.velocity(me_at((-20.0, 25.0)), [1])
     assert v[0] == pytest.approx(5.0) and m.target == pytest.approx((2.0, 25.0))
@@ -413,18 +413,18 @@ def test_random_direction_enters_the_area_and_is_reproducible():
 
 
 def test_lawnmower_strips_follow_sorted_ids():
-    area = Area(0, 90, 0, 50)
+    area = Rect(0, 90, 0, 50)
     m = LawnmowerCoverage(area, 5.0, 10.0)
-    assert m.strip_for(7, [3, 7, 12]) == Area(30, 60, 0, 50)
-    assert m.strip_for(12, [12, 3, 7]) == Area(60, 90, 0, 50)
-    assert m.strip_for(5, [3, 7]) == Area(30, 60, 0, 50)  # me is always a member
+    assert m.strip_for(7, [3, 7, 12]) == Rect(30, 60, 0, 50)
+    assert m.strip_for(12, [12, 3, 7]) == Rect(60, 90, 0, 50)
+    assert m.strip_for(5, [3, 7]) == Rect(30, 60, 0, 50)  # me is always a member
 
 
 def test_lawnmower_sweeps_its_strip_boustrophedon():
-    area = Area(0, 90, 0, 50)
+    area = Rect(0, 90, 0, 50)
     m = LawnmowerCoverage(area, 5.0, lane_spacing=8.0, waypoint_tolerance=0.5)
     path = follow(m, (30.0, 0.0), members=[1, 2, 3], uav=2)
-    assert m.done and m.strip == Area(30, 60, 0, 50)
+    assert m.done and m.strip == Rect(30, 60, 0, 50)
     assert m.velocity(me_at(tuple(path[-1]), uav=2), [1, 2, 3]) == (0.0, 0.0)
     # 30 m strip, spacing <= 8 -> 4 lanes 7.5 m apart at x = 33.75 .. 56.25, from y 4 to 46
     lanes = [33.75, 41.25, 48.75, 56.25]
@@ -443,15 +443,15 @@ def test_lawnmower_sweeps_its_strip_boustrophedon():
 
 
 def test_lawnmower_resplit_continues_from_nearest_point_and_skips_own_sweep():
-    area = Area(0, 100, 0, 100)
+    area = Rect(0, 100, 0, 100)
     m = LawnmowerCoverage(area, 5.0, lane_spacing=10.0, waypoint_tolerance=0.5)
     members = [1, 2]
     # sweep the west half until half way up the third lane, then member 2 disappears
     follow(m, (0.0, 0.0), members=members, stop=lambda t, p: abs(p[0] - 25.0) < 0.1 and p[1] > 40.0)
-    assert m.strip == Area(0, 50, 0, 100) and not m.done
+    assert m.strip == Rect(0, 50, 0, 100) and not m.done
     here = (25.0, 41.0)
     v = m.velocity(me_at(here), [1])
-    assert m.strip == Area(0, 100, 0, 100) and m.replans == 2
+    assert m.strip == Rect(0, 100, 0, 100) and m.replans == 2
     # continues from where it is (same lane, same direction) ...
     assert v[0] == pytest.approx(0.0, abs=1e-9) and v[1] > 0
     # ... and never re-plans the two lanes it already swept
@@ -559,7 +559,7 @@ def test_ten_agents_exactly_symmetric_do_not_deadlock():
 # =============================================================================================
 # closed loop: coverage, 10 agents, 200 x 200 m, 5 m/s, swath 20 m
 # =============================================================================================
-AREA = Area(0.0, 200.0, 0.0, 200.0)
+AREA = Rect(0.0, 200.0, 0.0, 200.0)
 N_COV, SWATH = 10, 20.0
 
 
@@ -568,7 +568,7 @@ def _coverage_run(kind: str, avoid: bool, t_end: float, seed: int = 0, dies: dic
     agents = []
     for i in range(N_COV):
         if kind == "lawnmower":
-            m: Mission = LawnmowerCoverage(AREA, VMAX, lane_spacing=SWATH * (1.0 - 0.0))
+            m: Behaviour = LawnmowerCoverage(AREA, VMAX, lane_spacing=SWATH * (1.0 - 0.0))
         else:
             m = RandomDirectionCoverage(AREA, VMAX, np.random.default_rng(1000 * seed + i))
         agents.append(
@@ -640,6 +640,6 @@ def test_lawnmower_resplits_when_a_member_disappears():
     assert len(survivors) == N_COV - 1
     assert all(a.mission.done for a in survivors)
     assert all(a.mission.members is not None and dead not in a.mission.members for a in survivors)
-    assert grid.fraction(Area(80.0, 100.0, 0.0, 200.0)) >= 0.95  # the lost strip got covered
+    assert grid.fraction(Rect(80.0, 100.0, 0.0, 200.0)) >= 0.95  # the lost strip got covered
     assert h[-1, 1] >= 0.95
     assert res.min_separation >= SAFETY

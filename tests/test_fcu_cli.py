@@ -11,9 +11,9 @@ import time
 
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import FcuConfig, VehicleConfig
 from uav_stack.fcu.__main__ import main
-from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.geo import GeoPoint
 from uav_stack.mav import mavlink as M
 

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import math
 import select
 import time
 
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu
-from uav_stack.fcu.clock import RtfMeter, SimClock
-from uav_stack.fcu.testing import FcuThread, MavClient
+from uav_stack.fcu.clock import SimClock
 from uav_stack.mav import mavlink as M
+from uav_stack.rtf import RtfMeter
 
 
 def test_sim_clock_paces_and_drops_backlog() -> None:
@@ -36,13 +38,30 @@ def test_sim_clock_paces_and_drops_backlog() -> None:
 
 def test_rtf_meter_window() -> None:
     m = RtfMeter(window_s=5.0)
-    m.reset(0.0, 0.0)
+    m.add(0.0, 0.0)
     for k in range(1, 41):  # 10 s at RTF 1, sampled every 0.25 s
-        m.sample(k * 0.25, k * 0.25)
-    assert m.rtf == pytest.approx(1.0)
+        m.add(k * 0.25, k * 0.25)
+    assert m.value == pytest.approx(1.0)
     for k in range(41, 81):  # then 10 s at RTF 0.4
-        m.sample(k * 0.25, 10.0 + (k - 40) * 0.25 * 0.4)
-    assert m.rtf == pytest.approx(0.4, abs=0.02)  # the window forgot the first phase
+        m.add(k * 0.25, 10.0 + (k - 40) * 0.25 * 0.4)
+    assert m.value == pytest.approx(0.4, abs=0.02)  # the window forgot the first phase
+    assert m.total() == pytest.approx(14.0 / 20.0)
+
+
+def test_rtf_meter_is_nan_until_measured_and_restarts_on_reboot() -> None:
+    m = RtfMeter(min_span_s=0.5)
+    assert math.isnan(m.value) and math.isnan(m.total())  # unknown, not "stopped"
+    m.add(100.0, 0.0)
+    m.add(100.3, 0.3)
+    assert math.isnan(m.value)  # 0.3 s of wall time is too short to tell
+    m.add(101.0, 0.0)  # a paused simulator is a real measurement: 0.0
+    assert m.value == 0.0
+    for k in range(1, 11):
+        m.add(101.0 + k * 0.2, 60.0 + k * 0.2)
+    m.add(104.0, 2.0)  # sim time went back by a minute: the FCU rebooted
+    assert math.isnan(m.value)
+    m.add(105.0, 2.5)
+    assert m.value == pytest.approx(0.5) and m.total() == pytest.approx(0.5)
 
 
 def _cfg(**kw) -> FcuConfig:

@@ -13,9 +13,9 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
 from uav_stack.fcu.modes import px4_custom_mode
-from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink as M
 

@@ -21,8 +21,9 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import free_port, wait_for
+from tests.fcu_helpers import FcuThread
+from uav_stack.autopilot import PX4_PROFILE
 from uav_stack.fcu import FcuConfig, VehicleConfig
-from uav_stack.fcu.testing import FcuThread
 from uav_stack.fcu_link import FcuLink
 from uav_stack.geo import GeoPoint
 
@@ -80,7 +81,7 @@ def fly_takeoff(link: FcuLink, alt: float = 3.0, timeout: float = 20.0) -> None:
         return False
 
     assert pump(lambda: link.connected and link.state.has_position), "no heartbeat/position from the FCU"
-    assert link.state.is_px4 and link.state.mode == "LOITER"
+    assert link.state.profile is PX4_PROFILE and link.state.mode == "LOITER"
     h = link.arm()
     assert pump(lambda: h.done) and h.accepted, h.status
     assert pump(lambda: link.state.armed)

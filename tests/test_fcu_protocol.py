@@ -9,9 +9,9 @@ import time
 
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import FcuConfig, VehicleConfig
 from uav_stack.fcu.modes import px4_custom_mode
-from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.mav import mavlink as M
 from uav_stack.mav import mavutil
 

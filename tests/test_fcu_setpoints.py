@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from tests.fcu_helpers import FcuThread, MavClient
 from uav_stack.fcu import FcuConfig, VehicleConfig
 from uav_stack.fcu.offboard import SetpointStream, decode_global, decode_local
-from uav_stack.fcu.testing import FcuThread, MavClient
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink as M
 

@@ -1,12 +1,14 @@
 """The agent: the same code on a real UAV's companion computer and in a virtual UAV.
 
-Data path, top to bottom, once per loop iteration (see :meth:`Agent.step`):
+Data path, top to bottom, once per tick (see :meth:`Agent.step`):
 
     FCU (MAVLink) -> FcuLink.poll -> own ENU pose from the swarm origin -> SwarmNode.publish_pose
     SwarmNode.poll -> neighbour table -> mission behaviour -> collision avoidance -> FcuLink setpoint
 
-The agent owns no thread: its owner calls :meth:`Agent.step` from a ``selectors`` loop
-(see :mod:`uav_stack.runtime`).
+The agent owns no thread and never blocks: its owner calls :meth:`Agent.step` once per tick
+of a fixed-rate sleep loop (:func:`uav_stack.runtime.run_loop`, 25 Hz by default); the
+control, telemetry, state and stats timers inside ``step`` run on their own rates and fire on
+the first tick at or after they are due.
 """
 
 from __future__ import annotations
@@ -16,48 +18,30 @@ import math
 import random
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
+from typing import TYPE_CHECKING, Any
 
 from swarmnet.messages import Command, Realm
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
-from uav_stack.behaviours.base import Area, Neighbour, SelfState
+from uav_stack.behaviours.base import Behaviour, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
 from uav_stack.config import AgentConfig
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
-from uav_stack.mav import mavlink
-from uav_stack.overrides import ARRIVED_M, CONTROLLED, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
+from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
+from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import PoseAgeLog
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
+
+if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
+    from uav_stack.mavlink_router import MavlinkRouter
 
 log = logging.getLogger(__name__)
 
 ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * error)
-MAX_CLIMB = 2.0
-OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for OFFBOARD (PX4 needs > 1 s)
-RETRY_AFTER = 1.5
-
-
-class Phase:
-    INIT = "init"  # waiting for the FCU's heartbeat and position
-    READY = "ready"  # FCU up, waiting for the "start" command
-    ARMING = "arming"
-    TAKEOFF = "takeoff"
-    OFFBOARD = "offboard"  # streaming setpoints before switching to OFFBOARD/GUIDED
-    HOVER = "hover"  # airborne under our control, waiting for "start" (the swarm begins together)
-    MISSION = "mission"
-    DONE = "done"  # mission complete, hovering
-    YIELDED = "yielded"  # someone else changed the FCU's mode: we stopped sending setpoints
-    LANDING = "landing"
-    LANDED = "landed"
-    ERROR = "error"
-    # ground-station overrides (uav_stack/overrides.py, docs/gcs.md)
-    HOLD = "hold"  # holding a point under our control (OFFBOARD, still avoiding neighbours)
-    GOTO = "goto"  # flying to an operator's point, then holding there
-    RTL = "rtl"  # the FCU returns to launch on our command; no setpoints
-    KILLED = "killed"  # motors stopped on the operator's command
+MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
+OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
+RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
 
 
 @dataclass
@@ -73,10 +57,11 @@ class Own:
     yaw: float = 0.0  # ENU
 
 
-def make_mission(cfg: AgentConfig) -> Any:
+def make_mission(cfg: AgentConfig) -> Behaviour | None:
+    """The mission behaviour the configuration asks for; None for an idle UAV (it hovers)."""
     m = cfg.mission
     if m.type == "coverage":
-        area = Area(*m.area)
+        area = Rect(*m.area)
         if m.strategy == "random":
             # stdlib Random, not numpy's Generator: numpy.random pulls in OpenSSL (~4 MB per process)
             return RandomDirectionCoverage(area, cfg.speed, random.Random(cfg.seed * 1_000_003 + cfg.uav))
@@ -93,16 +78,22 @@ def make_mission(cfg: AgentConfig) -> Any:
 
 
 class Agent(OverridesMixin):
-    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: Any = None):
+    """One UAV's swarm agent: its phase machine, mission behaviour, avoidance and reports.
+
+    The owner opens the FCU link and the swarm node, then calls :meth:`step` every tick and
+    :meth:`close` at the end; ground-station overrides come from :class:`OverridesMixin`.
+    """
+
+    def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: MavlinkRouter | None = None):
         self.cfg = cfg
         self.node = node
         self.link = link
-        self.router = router  # uav_stack.mavlink_router.MavlinkRouter, or None
+        self.router = router
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
         self.own = Own()
-        self.phase = Phase.INIT
+        self.phase = AgentPhase.INIT
         self.override = ""
         self.detail = ""
         self.mission = make_mission(cfg)
@@ -140,7 +131,7 @@ class Agent(OverridesMixin):
             self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node)
 
     # ---- helpers ------------------------------------------------------------------------
-    def _set_phase(self, phase: str, detail: str = "") -> None:
+    def _set_phase(self, phase: AgentPhase, detail: str = "") -> None:
         if phase != self.phase:
             log.info("UAV %d: %s -> %s %s", self.cfg.uav, self.phase, phase, detail)
             self.phase = phase
@@ -158,7 +149,7 @@ class Agent(OverridesMixin):
         # The swarm lives in wall-clock time: a virtual FCU at RTF 0.4 that reports 5 m/s is
         # really covering 2 m/s of ground per wall second, and neighbours extrapolate with that.
         k = self.link.rtf.value
-        k = k if 0.0 < k < 1.0 else 1.0
+        k = k if 0.0 < k < 1.0 else 1.0  # also NaN (not measured yet): take the FCU's word
         o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
         o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
         return True
@@ -205,7 +196,7 @@ class Agent(OverridesMixin):
             rtf = link.rtf.value
             node.publish_telemetry(
                 mode=st.mode, armed=st.armed, battery=st.battery, voltage=st.voltage,
-                lat=st.lat, lon=st.lon, alt=st.alt, rtf=rtf if rtf == rtf else 0.0,
+                lat=st.lat, lon=st.lon, alt=st.alt, rtf=0.0 if math.isnan(rtf) else rtf,  # 0.0: unknown on the wire
             )
         if now >= self._next_state:
             self._next_state = now + 1.0
@@ -245,23 +236,23 @@ class Agent(OverridesMixin):
             # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
             if verb == "start":
                 self.go = True
-            if self.phase in (Phase.INIT, Phase.READY):
+            if self.phase in (AgentPhase.INIT, AgentPhase.READY):
                 self.started_at = now
-                if self.phase == Phase.READY:
+                if self.phase == AgentPhase.READY:
                     self._begin_flight()
-                msg = "taking off" if self.phase != Phase.INIT else "will take off once the FCU is up"
-            elif self.phase == Phase.HOVER and self.go:
+                msg = "taking off" if self.phase != AgentPhase.INIT else "will take off once the FCU is up"
+            elif self.phase == AgentPhase.HOVER and self.go:
                 msg = "mission starting"
             else:
                 msg = f"already {self.phase}"
         elif verb in ("land", "stop"):
-            if self.phase in (Phase.INIT, Phase.READY, Phase.LANDED, Phase.KILLED) and not self.link.state.armed:
+            if self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED) and not self.link.state.armed:
                 msg = f"on the ground ({self.phase})"
-            elif self.phase in (Phase.LANDING, Phase.LANDED):
+            elif self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
                 msg = "already landing"
             else:
                 self._land()
-                self.override = "land" if verb == "land" and self.phase == Phase.LANDING else self.override
+                self.override = "land" if verb == "land" and self.phase == AgentPhase.LANDING else self.override
                 if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
                     self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
                     return
@@ -272,14 +263,14 @@ class Agent(OverridesMixin):
         self.node.ack(cmd.cmd_id, ok, msg)
 
     def _begin_flight(self) -> None:
-        self._set_phase(Phase.ARMING)
+        self._set_phase(AgentPhase.ARMING)
         self._handle = None
 
     def _land(self) -> None:
-        if self.phase in (Phase.LANDING, Phase.LANDED):
+        if self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
             return
         self._handle = self.link.land()
-        self._set_phase(Phase.LANDING)
+        self._set_phase(AgentPhase.LANDING)
 
     # ---- the state machine ------------------------------------------------------------------
     def _control(self, now: float, have_pos: bool) -> None:
@@ -287,47 +278,47 @@ class Agent(OverridesMixin):
         st = link.state
         ph = self.phase
         since = now - self._phase_since
-        if ph == Phase.INIT:
+        if ph == AgentPhase.INIT:
             if link.connected and have_pos:
-                self._set_phase(Phase.READY)
+                self._set_phase(AgentPhase.READY)
                 if self.go or self.started_at is not None:
                     self._begin_flight()
             return
-        if not link.connected and ph not in (Phase.READY, Phase.LANDED, Phase.ERROR):
+        if not link.connected and ph not in (AgentPhase.READY, AgentPhase.LANDED, AgentPhase.ERROR):
             self.detail = "FCU link lost"
-        if ph in (Phase.TAKEOFF, Phase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
+        if ph in (AgentPhase.TAKEOFF, AgentPhase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
             self._yield(why)
             return
         self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
-        if ph == Phase.ARMING:
-            # ArduPilot takes off only in GUIDED: switch first (PX4 takes off from any mode)
-            need_guided = st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and st.mode != "GUIDED"
-            if st.armed and not need_guided:
+        if ph == AgentPhase.ARMING:
+            # some autopilots take off only in one mode (ArduPilot: GUIDED): switch to it first
+            need_mode = st.profile.takeoff_mode if st.profile.takeoff_mode not in (None, st.mode) else None
+            if st.armed and need_mode is None:
                 self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
-                self._set_phase(Phase.TAKEOFF)
+                self._set_phase(AgentPhase.TAKEOFF)
             elif self._handle is None or (self._handle.done and (self._handle.accepted or since > RETRY_AFTER)):
                 if self._handle is not None and self._handle.done and not self._handle.accepted:
-                    self.detail = f"{'set GUIDED' if need_guided else 'arm'} {self._handle.status}"
-                self._handle = link.set_mode("GUIDED") if need_guided else link.arm(True)
+                    self.detail = f"{'arm' if need_mode is None else 'set ' + need_mode} {self._handle.status}"
+                self._handle = link.arm(True) if need_mode is None else link.set_mode(need_mode)
                 self._phase_since = now
-        elif ph == Phase.TAKEOFF:
+        elif ph == AgentPhase.TAKEOFF:
             if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
                 self._handle = link.takeoff(self.target_alt_amsl, self.cfg.altitude)
                 self._phase_since = now
             if st.alt >= self.target_alt_amsl - 1.0:
                 self._offboard_stream_since = now
-                self._set_phase(Phase.OFFBOARD)
-        elif ph == Phase.OFFBOARD:
+                self._set_phase(AgentPhase.OFFBOARD)
+        elif ph == AgentPhase.OFFBOARD:
             self._send_velocity(0.0, 0.0)
             if link.in_offboard:
                 if self.override == "hold":  # held while taking off
                     self._hold_here()
                 elif self.mission_started_at is not None and self.go:  # control taken back: resume the mission
-                    self._set_phase(Phase.MISSION, "resumed")
+                    self._set_phase(AgentPhase.MISSION, "resumed")
                 else:
-                    self._set_phase(Phase.HOVER)
+                    self._set_phase(AgentPhase.HOVER)
             elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
-                self._handle = link.set_mode(link.offboard_mode)
+                self._handle = link.set_mode(st.profile.offboard_mode)
         elif ph in CONTROLLED:
             why = self._taken_over()
             self._gcs_takeover = None
@@ -335,17 +326,17 @@ class Agent(OverridesMixin):
                 # a human (or a failsafe) took over: stop fighting them, say so
                 self._yield(why)
                 return
-            if ph == Phase.HOVER and self.go:
+            if ph == AgentPhase.HOVER and self.go:
                 if self.mission_started_at is None:
                     self.mission_started_at = now
-                self._set_phase(Phase.MISSION)
+                self._set_phase(AgentPhase.MISSION)
             self._fly(now)
-        elif ph in (Phase.YIELDED, Phase.RTL):
+        elif ph in (AgentPhase.YIELDED, AgentPhase.RTL):
             if not st.armed and st.relative_alt < 1.0:
-                self._set_phase(Phase.LANDED, "landed under FCU control")
-        elif ph == Phase.LANDING:
+                self._set_phase(AgentPhase.LANDED, "landed under FCU control")
+        elif ph == AgentPhase.LANDING:
             if not st.armed and st.relative_alt < 1.0:
-                self._set_phase(Phase.LANDED)
+                self._set_phase(AgentPhase.LANDED)
             elif self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
                 self._handle = link.land()
                 self._phase_since = now
@@ -360,32 +351,32 @@ class Agent(OverridesMixin):
         me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
         self.counters["control_ticks"] += 1
         vx, vy = 0.0, 0.0
-        if self.phase == Phase.HOLD:
+        if self.phase == AgentPhase.HOLD:
             vx, vy = self._towards(self.hold_point)
-        elif self.phase == Phase.GOTO:
+        elif self.phase == AgentPhase.GOTO:
             vx, vy = self._towards(self.goto_target)
             if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M \
                     and not self.detail.startswith("arrived"):
                 self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
                 self._next_state = 0.0  # tell the ground station now
-        elif self.mission is not None and self.phase in (Phase.MISSION, Phase.DONE):
+        elif self.mission is not None and self.phase in WORKING:
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
             if self.mission.done:
                 if self.cfg.mission.land_when_done:
                     self._land()
                     return
-                self._set_phase(Phase.DONE, "mission complete")
+                self._set_phase(AgentPhase.DONE, "mission complete")
                 vx, vy = 0.0, 0.0
-            elif self.phase == Phase.DONE:  # a re-split (a member left) gave us more to do
-                self._set_phase(Phase.MISSION, "more work after a re-split")
+            elif self.phase == AgentPhase.DONE:  # a re-split (a member left) gave us more to do
+                self._set_phase(AgentPhase.MISSION, "more work after a re-split")
         if self.avoidance is not None:
             # only neighbours that could matter (avoidance looks at most neighbour_range away);
             # at N = 50 this skips building ~40 views per tick
             reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
             r2 = reach * reach
             neigh = [
-                Neighbour(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
+                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
                 for n in self.node.neighbours
                 if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
@@ -402,7 +393,7 @@ class Agent(OverridesMixin):
         st, o = self.link.state, self.own
         rtf = self.link.rtf.value
         self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode, int(st.armed),
-                                  rtf if rtf == rtf else -1.0))
+                                  -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
     def stats(self, now: float) -> dict[str, Any]:

@@ -18,7 +18,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, profile_for
 from uav_stack.mav import mavlink, mavutil
+from uav_stack.rtf import RtfMeter
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +69,8 @@ def parse_fcu_url(url: str) -> tuple[str, int]:
 
 @dataclass
 class CommandHandle:
+    """One COMMAND_LONG in flight: resolved by its COMMAND_ACK or by running out of retries."""
+
     command: int
     params: tuple[float, ...]
     sent_at: float
@@ -96,7 +100,8 @@ class FcuState:
     """The latest telemetry, in the FCU's own terms (geodetic position, NED velocity)."""
 
     sysid: int = 0
-    autopilot: int = 0
+    autopilot: int = 0  # HEARTBEAT.autopilot (MAV_AUTOPILOT_*)
+    profile: AutopilotProfile = PX4_PROFILE  # chosen from ``autopilot`` at each heartbeat
     heartbeat_at: float = -math.inf  # wall time of the last heartbeat
     base_mode: int = 0
     custom_mode: int = 0
@@ -120,48 +125,8 @@ class FcuState:
     statustext: deque[str] = field(default_factory=lambda: deque(maxlen=20))
 
     @property
-    def is_px4(self) -> bool:
-        return self.autopilot == mavlink.MAV_AUTOPILOT_PX4
-
-    @property
     def has_position(self) -> bool:
         return not math.isnan(self.lat)
-
-
-class RtfMeter:
-    """Real-time factor from the FCU's ``time_boot_ms`` against our wall clock (any FCU)."""
-
-    def __init__(self, window: float = 5.0):
-        self.window = window
-        self._samples: deque[tuple[float, float]] = deque()
-        self.first: tuple[float, float] | None = None
-
-    def add(self, wall: float, boot_s: float) -> None:
-        s = self._samples
-        if s and boot_s < s[-1][1] - 1.0:  # FCU rebooted
-            s.clear()
-            self.first = None
-        if s and wall - s[-1][0] < 0.2:
-            return
-        s.append((wall, boot_s))
-        if self.first is None:
-            self.first = (wall, boot_s)
-        while len(s) > 2 and wall - s[0][0] > self.window:
-            s.popleft()
-
-    @property
-    def value(self) -> float:
-        s = self._samples
-        if len(s) < 2 or s[-1][0] - s[0][0] < 0.5:
-            return math.nan
-        return (s[-1][1] - s[0][1]) / (s[-1][0] - s[0][0])
-
-    def total(self, now_wall: float | None = None) -> float:
-        if self.first is None or len(self._samples) < 2:
-            return math.nan
-        last = self._samples[-1]
-        dw = last[0] - self.first[0]
-        return (last[1] - self.first[1]) / dw if dw > 0.5 else math.nan
 
 
 class FcuLink:
@@ -184,7 +149,7 @@ class FcuLink:
         self.clock = clock
         self.on_message = on_message
         self.state = FcuState()
-        self.rtf = RtfMeter()
+        self.rtf = RtfMeter()  # the FCU's time_boot_ms against our wall clock
         self.pending: dict[int, CommandHandle] = {}
         self.counts: dict[str, int] = {"rx": 0, "tx_setpoints": 0, "commands": 0, "bad": 0}
         self.conn: Any = None
@@ -204,9 +169,6 @@ class FcuLink:
                 self.conn.close()
             finally:
                 self.conn = None
-
-    def fileno(self) -> int:
-        return self.conn.fd if getattr(self.conn, "fd", None) is not None else self.conn.port.fileno()
 
     @property
     def connected(self) -> bool:
@@ -267,7 +229,9 @@ class FcuLink:
             if self.target_system is not None and src != self.target_system:
                 return
             st.sysid = src
-            st.autopilot = msg.autopilot
+            if msg.autopilot != st.autopilot:
+                st.autopilot = msg.autopilot
+                st.profile = profile_for(msg.autopilot)
             st.heartbeat_at = now
             st.base_mode = msg.base_mode
             st.custom_mode = msg.custom_mode
@@ -353,10 +317,9 @@ class FcuLink:
         return self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if arm else 0.0, 21196.0 if force else 0.0)
 
     def takeoff(self, alt_amsl: float, relative_alt: float) -> CommandHandle:
-        """PX4 wants p7 in metres AMSL, ArduPilot the altitude relative to home."""
-        if self.state.is_px4 or self.state.autopilot != mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-            return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, math.nan, 0, 0, math.nan, math.nan, math.nan, alt_amsl)
-        return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, relative_alt)
+        """Climb to ``alt_amsl`` (m AMSL), i.e. ``relative_alt`` m above home; the autopilot's
+        profile says which of the two NAV_TAKEOFF wants."""
+        return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, *self.state.profile.takeoff_params(alt_amsl, relative_alt))
 
     def land(self) -> CommandHandle:
         return self.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
@@ -365,25 +328,14 @@ class FcuLink:
         return self.command(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
 
     def set_mode(self, name: str) -> CommandHandle:
-        """Mode by name in the FCU's own flavour (PX4: OFFBOARD, LOITER, ...; ArduPilot: GUIDED, ...)."""
-        name = name.upper()
-        if self.state.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-            numbers = {v: k for k, v in mavutil.mode_mapping_acm.items()}
-            if name not in numbers:
-                raise ValueError(f"unknown ArduCopter mode {name!r}")
-            return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, numbers[name])
-        if name not in mavutil.px4_map:
-            raise ValueError(f"unknown PX4 mode {name!r}; known: {', '.join(mavutil.px4_map)}")
-        _, main, sub = mavutil.px4_map[name]
-        return self.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
-
-    @property
-    def offboard_mode(self) -> str:
-        return "GUIDED" if self.state.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else "OFFBOARD"
+        """Mode by name in the autopilot's own terms (PX4: OFFBOARD, LOITER, ...; ArduPilot:
+        GUIDED, ...); ValueError for a name the autopilot does not have."""
+        return self.command(mavlink.MAV_CMD_DO_SET_MODE, *self.state.profile.set_mode_params(name))
 
     @property
     def in_offboard(self) -> bool:
-        return self.state.mode == self.offboard_mode
+        """The FCU follows our setpoints (PX4 OFFBOARD, ArduPilot GUIDED)."""
+        return self.state.mode == self.state.profile.offboard_mode
 
     def send_velocity_ned(self, vn: float, ve: float, vd: float) -> None:
         """Velocity setpoint (OFFBOARD/GUIDED); stream it at >= 2 Hz or the FCU fails safe."""

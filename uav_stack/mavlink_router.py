@@ -20,7 +20,7 @@ Routing rules (mavlink.io's routing guide, as mavlink-router implements them):
   only to channels where the target system (and component, unless 0) has been seen;
 * messages addressed to the agent itself (its sysid and companion compid 191) stay here.
 
-The allocation of MAVLink system ids for more than 250 UAVs is :func:`allocate_sysid`.
+The allocation of MAVLink system ids for more than 250 UAVs is :func:`uav_stack.sysid.allocate_sysid`.
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from typing import Any
 
 from uav_stack.mav import mavlink
 from uav_stack.udp import drain
-from uav_stack.sysid import SHARD_SIZE, allocate_sysid  # noqa: F401 - re-exported
 
 log = logging.getLogger(__name__)
 

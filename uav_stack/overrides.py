@@ -14,34 +14,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from uav_stack.fcu_link import CommandHandle
-from uav_stack.mav import mavlink
+from uav_stack.phases import CONTROLLED, AgentPhase
 
 log = logging.getLogger(__name__)
 
 
-class Phase:
-    """The agent phases the overrides use (the same strings as uav_stack.agent.Phase)."""
-
-    READY = "ready"
-    ARMING = "arming"
-    TAKEOFF = "takeoff"
-    OFFBOARD = "offboard"
-    HOVER = "hover"
-    MISSION = "mission"
-    DONE = "done"
-    YIELDED = "yielded"
-    LANDING = "landing"
-    LANDED = "landed"
-    HOLD = "hold"
-    GOTO = "goto"
-    RTL = "rtl"
-    KILLED = "killed"
-
-
-# airborne phases in which the agent streams setpoints (and so must notice a human taking over)
-CONTROLLED = (Phase.HOVER, Phase.MISSION, Phase.DONE, Phase.HOLD, Phase.GOTO)
-# modes a PX4 / ArduPilot FCU passes through while the agent takes off and enters OFFBOARD/GUIDED
-_CLIMB_MODES = {"px4": frozenset({"TAKEOFF", "LOITER", "OFFBOARD", "READY"}), "ardupilot": frozenset({"GUIDED"})}
 DEFERRED_ACK_TIMEOUT = 4.0  # s: an override the FCU must confirm is acked as failed after this
 HOLD_GAIN = 0.8  # 1/s: velocity towards a hold/goto point = gain * distance (capped)
 ARRIVED_M = 1.0
@@ -84,10 +61,10 @@ class OverridesMixin:
             self._hold_here()
             x, y = self.hold_point
             return True, f"holding at ({x:.1f}, {y:.1f}, {self.alt_target:.1f})"
-        if ph in (Phase.ARMING, Phase.TAKEOFF, Phase.OFFBOARD):
+        if ph in (AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD):
             self.override = "hold"
             return True, "will hold once airborne under swarm control"
-        if ph == Phase.YIELDED:
+        if ph == AgentPhase.YIELDED:
             return False, f"yielded: the FCU is in {self.link.state.mode} (someone took over); send resume to take control back"
         return False, f"cannot hold in phase {ph}"
 
@@ -95,7 +72,7 @@ class OverridesMixin:
         o = self.own
         self.hold_point = (o.x, o.y)
         self.override = "hold"
-        self._set_phase(Phase.HOLD, "operator hold")
+        self._set_phase(AgentPhase.HOLD, "operator hold")
 
     def _cmd_goto(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
         try:
@@ -111,37 +88,37 @@ class OverridesMixin:
             if not (x0 <= x <= x1 and y0 <= y <= y1):
                 return False, f"goto: ({x:g}, {y:g}) is outside the geofence x {x0:g}..{x1:g}, y {y0:g}..{y1:g}"
         if self.phase not in CONTROLLED:
-            hint = " (someone took over; send resume first)" if self.phase == Phase.YIELDED else ""
+            hint = " (someone took over; send resume first)" if self.phase == AgentPhase.YIELDED else ""
             return False, f"goto: not airborne under swarm control (phase {self.phase}){hint}"
         self.goto_target = (x, y)
         self.alt_target = z
         self.override = "goto"
-        self._set_phase(Phase.GOTO, f"going to ({x:g}, {y:g}, {z:g})")
+        self._set_phase(AgentPhase.GOTO, f"going to ({x:g}, {y:g}, {z:g})")
         return True, f"going to ({x:g}, {y:g}, {z:g})"
 
     def _cmd_resume(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
         ph = self.phase
-        if ph in (Phase.HOLD, Phase.GOTO):
+        if ph in (AgentPhase.HOLD, AgentPhase.GOTO):
             self.override = ""
             self.alt_target = self.cfg.altitude
             if self.mission_started_at is not None:
-                self._set_phase(Phase.MISSION, "resumed")
+                self._set_phase(AgentPhase.MISSION, "resumed")
             else:
-                self._set_phase(Phase.HOVER, "resumed")
+                self._set_phase(AgentPhase.HOVER, "resumed")
             return True, "behaviour resumed"
-        if ph in (Phase.YIELDED, Phase.RTL):
+        if ph in (AgentPhase.YIELDED, AgentPhase.RTL):
             if not self._airborne():
                 return False, f"cannot resume: on the ground ({self.link.state.mode}); use start"
             self.override = ""
             self.alt_target = self.cfg.altitude
             self._offboard_stream_since = now
             self._handle = None
-            self._set_phase(Phase.OFFBOARD, "taking control back")
+            self._set_phase(AgentPhase.OFFBOARD, "taking control back")
             return True, f"taking control back from {self.link.state.mode}, then resuming"
-        if ph in (Phase.ARMING, Phase.TAKEOFF, Phase.OFFBOARD) and self.override == "hold":
+        if ph in (AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD) and self.override == "hold":
             self.override = ""
             return True, "pending hold cancelled"
-        if ph in (Phase.HOVER, Phase.MISSION, Phase.DONE):
+        if ph in (AgentPhase.HOVER, AgentPhase.MISSION, AgentPhase.DONE):
             return True, f"nothing to resume ({ph})"
         return False, f"cannot resume in phase {ph}"
 
@@ -151,17 +128,17 @@ class OverridesMixin:
         prev, prev_override = self.phase, self.override
         h = self.link.return_to_launch()
         self.override = "rtl"
-        self._set_phase(Phase.RTL, "returning to launch (operator)")
+        self._set_phase(AgentPhase.RTL, "returning to launch (operator)")
 
         def undo() -> None:
-            if self.phase == Phase.RTL:
+            if self.phase == AgentPhase.RTL:
                 self.override = prev_override
-                self._set_phase(prev if self.link.in_offboard else Phase.YIELDED, "RTL refused by the FCU")
+                self._set_phase(prev if self.link.in_offboard else AgentPhase.YIELDED, "RTL refused by the FCU")
 
         return _DeferredAck(0, "rtl", h, "returning to launch", now, undo)
 
     def _cmd_arm(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
-        if self.phase not in (Phase.READY, Phase.LANDED):
+        if self.phase not in (AgentPhase.READY, AgentPhase.LANDED):
             return False, f"arm: only on the ground when idle (phase {self.phase})"
         if self.link.state.armed:
             return True, "already armed"
@@ -177,7 +154,7 @@ class OverridesMixin:
     def _cmd_kill(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
         h = self.link.arm(False, force=True)
         self.override = "kill"
-        self._set_phase(Phase.KILLED, "motors stopped by the operator")
+        self._set_phase(AgentPhase.KILLED, "motors stopped by the operator")
         return _DeferredAck(0, "kill", h, "motors stopped", now)
 
     def _defer(self, d: _DeferredAck) -> None:
@@ -221,8 +198,7 @@ class OverridesMixin:
     def _taken_over_climbing(self) -> tuple[str, str] | None:
         """The same while taking off / entering OFFBOARD, where other modes are expected."""
         st = self.link.state
-        flavour = "ardupilot" if st.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA else "px4"
-        if st.mode not in _CLIMB_MODES[flavour] and st.mode != self._mode_at_phase:
+        if st.mode not in st.profile.climb_modes and st.mode != self._mode_at_phase:
             return f"fcu:{st.mode}", f"FCU switched to {st.mode}"
         if self._gcs_takeover is not None:
             return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"
@@ -230,7 +206,7 @@ class OverridesMixin:
 
     def _yield(self, why: tuple[str, str]) -> None:
         self.override = why[0][:32]
-        self._set_phase(Phase.YIELDED, f"{why[1]}; setpoints stopped")
+        self._set_phase(AgentPhase.YIELDED, f"{why[1]}; setpoints stopped")
 
     def _towards(self, target: tuple[float, float]) -> tuple[float, float]:
         o = self.own

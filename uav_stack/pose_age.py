@@ -6,7 +6,7 @@ row, flushed at once, so a crash loses at most a second:
 * ``poses``, ``age_p50_ms``, ``age_p99_ms``, ``age_mean_ms``: the poses applied to the
   neighbour table during that second and their age on arrival (now - the sender's sampling
   time), from the difference of two snapshots of the node's cumulative age histogram, so the
-  receive path pays nothing extra. Percentiles are bin centres (bins are 12 % wide).
+  receive path pays nothing extra. Percentiles are bin centres (bins are 4.7 % wide).
 * ``aoi_mean_ms``, ``aoi_max_ms``, ``neighbours``: the age of information at the sampling
   instant over every neighbour in the table (how old our knowledge of each one is now);
   unlike the arrival age it keeps growing while a link drops messages or is down.

@@ -32,7 +32,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from uav_stack.behaviours.base import Neighbour, SelfState, Vec2, clip_norm, is_finite
+from uav_stack.behaviours.base import NeighbourView, SelfState, Vec2, clip_norm, is_finite
 from uav_stack.behaviours.lp import HalfPlane, solve
 
 
@@ -188,7 +188,7 @@ class CollisionAvoidance:
         return HalfPlane((v_a[0] + share * ux, v_a[1] + share * uy), (nx, ny))
 
     # -- the public call ---------------------------------------------------------------------
-    def adjust(self, me: SelfState, preferred: Vec2, neighbours: Sequence[Neighbour]) -> AvoidanceResult:
+    def adjust(self, me: SelfState, preferred: Vec2, neighbours: Sequence[NeighbourView]) -> AvoidanceResult:
         """Safe velocity closest to ``preferred``; never faster than ``max_speed``."""
         pref = preferred if is_finite(preferred) else (0.0, 0.0)
         pref = clip_norm(pref, self.max_speed)

@@ -1,4 +1,4 @@
-"""Shared types for the swarm behaviours: own state, neighbours, areas, the Mission protocol.
+"""Shared types for the swarm behaviours: own state, neighbour views, rectangles, the Behaviour protocol.
 
 Everything is in the swarm's shared ENU frame (x east, y north, metres) and 2-D: the agent
 holds altitude separately.  Vectors are plain ``tuple[float, float]`` (alias ``Vec2``) so the
@@ -17,31 +17,6 @@ Vec2 = tuple[float, float]
 
 
 # --- 2-D helpers (scalars, no allocation beyond the result tuple) ----------------------------
-def add(a: Vec2, b: Vec2) -> Vec2:
-    return (a[0] + b[0], a[1] + b[1])
-
-
-def sub(a: Vec2, b: Vec2) -> Vec2:
-    return (a[0] - b[0], a[1] - b[1])
-
-
-def scale(a: Vec2, k: float) -> Vec2:
-    return (a[0] * k, a[1] * k)
-
-
-def dot(a: Vec2, b: Vec2) -> float:
-    return a[0] * b[0] + a[1] * b[1]
-
-
-def cross(a: Vec2, b: Vec2) -> float:
-    """z component of a x b (positive if b is counter-clockwise of a)."""
-    return a[0] * b[1] - a[1] * b[0]
-
-
-def norm(a: Vec2) -> float:
-    return math.hypot(a[0], a[1])
-
-
 def dist(a: Vec2, b: Vec2) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1])
 
@@ -62,6 +37,8 @@ def is_finite(a: Vec2) -> bool:
 # --- state --------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class SelfState:
+    """The UAV's own state as the behaviours see it."""
+
     uav: int
     pos: Vec2  # ENU x (east), y (north), metres
     vel: Vec2  # m/s, wall-clock (what the vehicle really does, not what a slowed simulator thinks)
@@ -69,7 +46,10 @@ class SelfState:
 
 
 @dataclass(frozen=True, slots=True)
-class Neighbour:
+class NeighbourView:
+    """What collision avoidance sees of one neighbour (built by the agent from ``swarmnet``'s
+    neighbour table for each control tick)."""
+
     uav: int
     pos: Vec2  # as last received
     vel: Vec2
@@ -78,8 +58,8 @@ class Neighbour:
 
 
 @dataclass(frozen=True, slots=True)
-class Area:
-    """Axis-aligned rectangle in ENU metres."""
+class Rect:
+    """Axis-aligned rectangle in ENU metres: a coverage area, one UAV's strip of it."""
 
     x_min: float
     x_max: float
@@ -118,16 +98,17 @@ class Area:
         """Nearest point of the rectangle."""
         return (min(max(p[0], self.x_min), self.x_max), min(max(p[1], self.y_min), self.y_max))
 
-    def shrunk(self, margin: float) -> Area:
+    def shrunk(self, margin: float) -> Rect:
         """The rectangle inset by ``margin`` on every side (capped so it never inverts)."""
         mx = min(margin, 0.49 * self.width)
         my = min(margin, 0.49 * self.height)
-        return Area(self.x_min + mx, self.x_max - mx, self.y_min + my, self.y_max - my)
+        return Rect(self.x_min + mx, self.x_max - mx, self.y_min + my, self.y_max - my)
 
 
 @runtime_checkable
-class Mission(Protocol):
-    """Something that produces a preferred velocity at each control tick."""
+class Behaviour(Protocol):
+    """A mission behaviour (coverage, go-to): the preferred velocity at each control tick,
+    before collision avoidance adjusts it."""
 
     def velocity(self, me: SelfState, members: Sequence[int]) -> Vec2:
         """Preferred velocity (m/s). ``members`` = ids alive in the swarm, including ``me.uav``."""

@@ -1,7 +1,7 @@
-"""Missions: preferred velocities for coverage (random direction, lawnmower) and go-to-goal.
+"""Mission behaviours: preferred velocities for coverage (random direction, lawnmower) and go-to-goal.
 
-Each mission is a small state machine driven by :meth:`velocity` at the agent's control rate.
-They produce the *preferred* velocity only; collision avoidance adjusts it afterwards
+Each is a :class:`~uav_stack.behaviours.base.Behaviour`: a small state machine driven by
+:meth:`velocity` at the agent's control rate. They produce the *preferred* velocity only; collision avoidance adjusts it afterwards
 (:class:`uav_stack.behaviours.avoidance.CollisionAvoidance`).
 """
 
@@ -13,7 +13,7 @@ from typing import Protocol
 from dataclasses import dataclass
 
 
-from uav_stack.behaviours.base import Area, SelfState, Vec2, dist, is_finite
+from uav_stack.behaviours.base import Rect, SelfState, Vec2, dist, is_finite
 
 _ZERO: Vec2 = (0.0, 0.0)
 
@@ -79,7 +79,7 @@ class GoTo:
 
 
 # --- CPSwarm random direction ---------------------------------------------------------------
-def _exit_distance(p: Vec2, d: Vec2, box: Area) -> float:
+def _exit_distance(p: Vec2, d: Vec2, box: Rect) -> float:
     """Distance along unit ``d`` from ``p`` (inside ``box``) to the box boundary."""
     t = math.inf
     if d[0] > 1e-12:
@@ -105,7 +105,7 @@ class RandomDirectionCoverage:
 
     def __init__(
         self,
-        area: Area,
+        area: Rect,
         speed: float,
         rng: UniformSource,
         margin: float = 2.0,
@@ -203,14 +203,14 @@ class LawnmowerCoverage:
     a later membership change can make it busy again.
     """
 
-    def __init__(self, area: Area, speed: float, lane_spacing: float, waypoint_tolerance: float = 2.0) -> None:
+    def __init__(self, area: Rect, speed: float, lane_spacing: float, waypoint_tolerance: float = 2.0) -> None:
         _check_positive(speed=speed, lane_spacing=lane_spacing, waypoint_tolerance=waypoint_tolerance)
         self.area = area
         self.speed = float(speed)
         self.lane_spacing = float(lane_spacing)
         self.waypoint_tolerance = float(waypoint_tolerance)
         self.members: tuple[int, ...] | None = None
-        self.strip: Area | None = None
+        self.strip: Rect | None = None
         self.plan: list[_Segment] = []
         self.replans = 0
         self._swept: list[_Band] = []
@@ -222,13 +222,13 @@ class LawnmowerCoverage:
         return self.members is not None and not self.plan
 
     # geometry -------------------------------------------------------------------------------
-    def strip_for(self, uav: int, members: Sequence[int]) -> Area:
+    def strip_for(self, uav: int, members: Sequence[int]) -> Rect:
         ids = sorted(set(members) | {uav})
         n, i = len(ids), ids.index(uav)
         w = self.area.width / n
         x0 = self.area.x_min + i * w
         x1 = self.area.x_max if i == n - 1 else x0 + w
-        return Area(x0, x1, self.area.y_min, self.area.y_max)
+        return Rect(x0, x1, self.area.y_min, self.area.y_max)
 
     def _lane_ends(self) -> tuple[float, float]:
         inset = min(0.5 * self.lane_spacing, 0.5 * self.area.height)
@@ -246,7 +246,7 @@ class LawnmowerCoverage:
                 return True
         return reach >= xr - 1e-6
 
-    def _unswept_segments(self, strip: Area) -> list[_Segment]:
+    def _unswept_segments(self, strip: Rect) -> list[_Segment]:
         n_lanes = max(1, math.ceil(strip.width / self.lane_spacing - 1e-9))
         s = strip.width / n_lanes
         ya, yb = self._lane_ends()

@@ -4,7 +4,7 @@ numpy multirotor dynamics for N vehicles, and a sim clock with a measurable real
 See docs/fcu.md for the supported messages, commands, modes, parameters and failsafes.
 """
 
-from uav_stack.fcu.clock import RtfMeter, SimClock
+from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
 from uav_stack.fcu.dynamics import MultirotorArray, MultirotorParams
 from uav_stack.fcu.fcu import VehicleTruth, VirtualFcu
@@ -16,7 +16,6 @@ __all__ = [
     "FcuStats",
     "MultirotorArray",
     "MultirotorParams",
-    "RtfMeter",
     "SimClock",
     "VehicleConfig",
     "VehicleTruth",

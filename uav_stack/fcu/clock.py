@@ -1,6 +1,7 @@
-"""Simulation clock: fixed sim-time steps paced against wall time, and RTF measurement.
+"""Simulation clock: fixed sim-time steps paced against wall time.
 
-RTF (real-time factor) = elapsed sim time / elapsed wall time, as in the paper's Figs. 7-8.
+RTF (real-time factor) = elapsed sim time / elapsed wall time (measured over a sliding window
+by :class:`uav_stack.rtf.RtfMeter`).
 A physics step of ``dt = 1/physics_hz`` sim seconds is due every ``dt / target_rtf`` wall
 seconds. The FCU may run several due steps in one wake-up (it plans its wake-ups with
 ``plan_wake``); when the caller comes back more than ``max_catchup_s`` of wall time after
@@ -11,7 +12,7 @@ every FCU timer runs on sim time.
 
 from __future__ import annotations
 
-from collections import deque
+import math
 from dataclasses import dataclass, field
 
 
@@ -84,37 +85,6 @@ class SimClock:
         self.next_step_wall += k * self.wall_per_step
 
     def rtf_total(self, wall_now: float) -> float:
+        """RTF since :meth:`start`; NaN before (the convention of :mod:`uav_stack.rtf`)."""
         el = wall_now - self.wall_start
-        return self.sim_time / el if self._started and el > 1e-6 else 0.0
-
-
-@dataclass
-class RtfMeter:
-    """Sliding-window RTF: (sim now - sim then) / (wall now - wall then) over ~``window_s``."""
-
-    window_s: float = 5.0
-    sample_every_s: float = 0.25
-    _samples: deque[tuple[float, float]] = field(default_factory=deque, repr=False)
-    _last: tuple[float, float] = (0.0, 0.0)
-
-    def reset(self, wall: float, sim: float) -> None:
-        self._samples.clear()
-        self._samples.append((wall, sim))
-        self._last = (wall, sim)
-
-    def sample(self, wall: float, sim: float) -> None:
-        self._last = (wall, sim)
-        s = self._samples
-        if not s or wall - s[-1][0] >= self.sample_every_s:
-            s.append((wall, sim))
-        # keep exactly one sample at or beyond the window edge
-        while len(s) > 2 and wall - s[1][0] >= self.window_s:
-            s.popleft()
-
-    @property
-    def rtf(self) -> float:
-        if not self._samples:
-            return 0.0
-        w0, s0 = self._samples[0]
-        w1, s1 = self._last
-        return (s1 - s0) / (w1 - w0) if w1 - w0 > 1e-6 else 0.0
+        return self.sim_time / el if self._started and el > 1e-6 else math.nan

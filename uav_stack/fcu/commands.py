@@ -31,7 +31,9 @@ Result = tuple[int, str]
 
 
 @dataclass
-class Command:
+class MavCommand:
+    """A received COMMAND_LONG or COMMAND_INT, in one shape (params 1-7, plus the frame for COMMAND_INT)."""
+
     command: int
     p1: float
     p2: float
@@ -49,12 +51,12 @@ class Command:
         return self.frame is not None
 
     @classmethod
-    def from_long(cls, m: M.MAVLink_message) -> Command:
+    def from_long(cls, m: M.MAVLink_message) -> MavCommand:
         return cls(m.command, m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7, None,
                    m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
 
     @classmethod
-    def from_int(cls, m: M.MAVLink_message) -> Command:
+    def from_int(cls, m: M.MAVLink_message) -> MavCommand:
         return cls(m.command, m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z, m.frame,
                    m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
 
@@ -94,7 +96,7 @@ def _finite(x: float) -> bool:
 
 
 # ------------------------------------------------------------------ handlers
-def cmd_arm_disarm(v: Vehicle, c: Command) -> Result:
+def cmd_arm_disarm(v: Vehicle, c: MavCommand) -> Result:
     force = _finite(c.p2) and int(c.p2) == FORCE_MAGIC
     if not _finite(c.p1):
         return DENIED, "ARM_DISARM: param1 unset"
@@ -103,7 +105,7 @@ def cmd_arm_disarm(v: Vehicle, c: Command) -> Result:
     return v.disarm(force, reason="Disarmed (forced)" if force and not v.landed else "")
 
 
-def cmd_takeoff(v: Vehicle, c: Command) -> Result:
+def cmd_takeoff(v: Vehicle, c: MavCommand) -> Result:
     if v.flavour.is_px4:
         # PX4: p7 is AMSL; NaN (MAVSDK) or not above home -> MIS_TAKEOFF_ALT above home
         try:
@@ -140,19 +142,19 @@ def cmd_takeoff(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-def cmd_land(v: Vehicle, c: Command) -> Result:
+def cmd_land(v: Vehicle, c: MavCommand) -> Result:
     return v.request_mode(v.flavour.mode("LAND"))
 
 
-def cmd_rtl(v: Vehicle, c: Command) -> Result:
+def cmd_rtl(v: Vehicle, c: MavCommand) -> Result:
     return v.request_mode(v.flavour.mode("RTL"))
 
 
-def cmd_loiter_unlim(v: Vehicle, c: Command) -> Result:
+def cmd_loiter_unlim(v: Vehicle, c: MavCommand) -> Result:
     return v.request_mode(v.flavour.mode(v.flavour.hold_mode))
 
 
-def cmd_set_mode(v: Vehicle, c: Command) -> Result:
+def cmd_set_mode(v: Vehicle, c: MavCommand) -> Result:
     base = int(c.p1) if _finite(c.p1) else M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     if not base & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
         return DENIED, "DO_SET_MODE: only custom modes supported"
@@ -162,7 +164,7 @@ def cmd_set_mode(v: Vehicle, c: Command) -> Result:
     return v.request_mode(spec)
 
 
-def cmd_reposition(v: Vehicle, c: Command) -> Result:
+def cmd_reposition(v: Vehicle, c: MavCommand) -> Result:
     if c.is_int and c.frame not in GLOBAL_FRAMES:
         return DENIED, "Reposition: frame not supported"
     if not v.armed:
@@ -194,7 +196,7 @@ def cmd_reposition(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-def cmd_change_speed(v: Vehicle, c: Command) -> Result:
+def cmd_change_speed(v: Vehicle, c: MavCommand) -> Result:
     kind = int(c.p1) if _finite(c.p1) else 1
     speed = c.p2
     if speed != speed or speed == -1:
@@ -214,7 +216,7 @@ def cmd_change_speed(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-def cmd_set_home(v: Vehicle, c: Command) -> Result:
+def cmd_set_home(v: Vehicle, c: MavCommand) -> Result:
     if _finite(c.p1) and int(c.p1) == 1:
         lat, lon, alt = v.geodetic()
     else:
@@ -237,7 +239,7 @@ def _msg_id(x: float) -> int | None:
     return int(x) if _finite(x) and 0 <= x < 1 << 24 else None
 
 
-def cmd_request_message(v: Vehicle, c: Command) -> Result:
+def cmd_request_message(v: Vehicle, c: MavCommand) -> Result:
     if _msg_id(c.p1) is None:
         return DENIED, ""
     fn = REQUESTABLE.get(int(c.p1))
@@ -247,17 +249,17 @@ def cmd_request_message(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-def cmd_autopilot_caps(v: Vehicle, c: Command) -> Result:
+def cmd_autopilot_caps(v: Vehicle, c: MavCommand) -> Result:
     v.after_ack.append(REQUESTABLE[M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
     return ACCEPTED, ""
 
 
-def cmd_get_home(v: Vehicle, c: Command) -> Result:
+def cmd_get_home(v: Vehicle, c: MavCommand) -> Result:
     v.after_ack.append(ENCODERS["HOME_POSITION"](v))
     return ACCEPTED, ""
 
 
-def cmd_set_message_interval(v: Vehicle, c: Command) -> Result:
+def cmd_set_message_interval(v: Vehicle, c: MavCommand) -> Result:
     if _msg_id(c.p1) is None or not _finite(c.p2) or not -1 <= c.p2 <= 2e9:
         return DENIED, ""
     name = STREAM_BY_ID.get(int(c.p1))
@@ -272,7 +274,7 @@ def cmd_set_message_interval(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-def cmd_get_message_interval(v: Vehicle, c: Command) -> Result:
+def cmd_get_message_interval(v: Vehicle, c: MavCommand) -> Result:
     mid = _msg_id(c.p1)
     if mid is None or mid > 0xFFFF:  # MESSAGE_INTERVAL.message_id is 16 bit
         return DENIED, ""
@@ -286,7 +288,7 @@ def cmd_get_message_interval(v: Vehicle, c: Command) -> Result:
     return ACCEPTED, ""
 
 
-HANDLERS: dict[int, Callable[[Vehicle, Command], Result]] = {
+HANDLERS: dict[int, Callable[[Vehicle, MavCommand], Result]] = {
     M.MAV_CMD_COMPONENT_ARM_DISARM: cmd_arm_disarm,
     M.MAV_CMD_NAV_TAKEOFF: cmd_takeoff,
     M.MAV_CMD_NAV_LAND: cmd_land,
@@ -308,7 +310,7 @@ _RESULT_NAMES = {
 }
 
 
-def handle_command(v: Vehicle, c: Command) -> None:
+def handle_command(v: Vehicle, c: MavCommand) -> None:
     """Run one command and ACK it (always exactly one ACK, even if the handler raises)."""
     stats = v.ctx.stats
     stats.commands_by_id[c.command] += 1

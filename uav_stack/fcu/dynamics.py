@@ -1,7 +1,7 @@
 """Closed-loop multirotor dynamics for N vehicles at once (numpy, NED).
 
 This is not a rigid-body simulator: it models what a swarm experiment sees of a PX4-tuned
-quadrotor flying under its own position/velocity controllers (mavlink.md section 5):
+quadrotor flying under its own position/velocity controllers (docs/fcu.md, Dynamics):
 
 * position P-gains with a square-root braking profile, so position targets are reached
   without overshoot at the configured horizontal acceleration;
@@ -30,7 +30,7 @@ G = 9.80665
 
 @dataclass
 class MultirotorParams:
-    """PX4-like limits and the model's time constants (defaults: mavlink.md section 5)."""
+    """PX4-like limits (defaults: the PX4 parameters named beside each) and the model's time constants."""
 
     xy_cruise: float = 5.0  # MPC_XY_CRUISE, m/s: auto modes, goto, RTL
     xy_vel_max: float = 12.0  # MPC_XY_VEL_MAX, m/s: offboard

@@ -1,8 +1,9 @@
 """VirtualFcu: a fleet of N virtual vehicles stepped together, one UDP socket per vehicle.
 
-Single-threaded and non-blocking. A host loop (the agent's ``selectors`` loop, or
-``run()``) calls ``poll_io()`` when a socket is readable and ``service()`` when the deadline
-it returned has come.
+Single-threaded and non-blocking. A host loop calls ``poll_io()`` when a socket is readable
+and ``service()`` when the deadline it returned has come (``run()`` does this with a
+selector); a virtual UAV process instead calls both once per tick of its fixed-rate loop
+(:func:`uav_stack.runtime.run_loop`), and the FCU catches up on the steps that fell due.
 """
 
 from __future__ import annotations
@@ -17,13 +18,14 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from uav_stack.fcu.clock import RtfMeter, SimClock
+from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import FcuConfig
 from uav_stack.fcu.dynamics import MultirotorArray
 from uav_stack.fcu.handlers import HANDLERS, Handler, addressed_to
 from uav_stack.fcu.link import UdpLink
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.fcu.vehicle import FleetContext, Vehicle
+from uav_stack.rtf import RtfMeter
 
 log = logging.getLogger("uav_stack.fcu")
 
@@ -55,7 +57,8 @@ class VirtualFcu:
         self._wall = clock
         self.stats = FcuStats()
         self.clock = SimClock(config.physics_hz, config.target_rtf, config.max_catchup_s)
-        self._meter = RtfMeter()
+        # the sim clock is read exactly (no network jitter): a short span already measures well
+        self._meter = RtfMeter(sample_every_s=0.25, min_span_s=0.05)
         yaws = np.array([float(v.yaw) for v in config.vehicles])
         self.dyn = MultirotorArray(len(config.vehicles), config.dynamics, yaw=yaws)
         self.ctx = FleetContext(
@@ -88,7 +91,6 @@ class VirtualFcu:
         self._next_hb_wall = math.inf
         self._next_peer_check = 0.0
         self._opened = False
-        self._closed = False
 
     # ----------------------------------------------------------- lifecycle
     def open(self) -> list[tuple[str, int]]:
@@ -106,7 +108,8 @@ class VirtualFcu:
         self._by_fd = {v.link.fileno(): v for v in self.vehicles}
         now = self._wall()
         self.clock.start(now)
-        self._meter.reset(now, 0.0)
+        self._meter.restart()
+        self._meter.add(now, 0.0)
         self.ctx.unix_at_start = time.time()
         n = len(self.vehicles)
         for k, v in enumerate(self.vehicles):  # spread first heartbeats over 1 s
@@ -122,7 +125,6 @@ class VirtualFcu:
         self._flush()
         for v in self.vehicles:
             v.link.close()
-        self._closed = True
 
     def __enter__(self) -> VirtualFcu:
         self.open()
@@ -235,7 +237,7 @@ class VirtualFcu:
             now = self._wall()
         self._advance(now)
         clock, vehicles = self.clock, self.vehicles
-        self._meter.sample(now, clock.sim_time)
+        self._meter.add(now, clock.sim_time)
         # heartbeats are paced on wall time: link liveness must not depend on the RTF
         if now >= self._next_hb_wall:
             nxt = math.inf
@@ -287,8 +289,8 @@ class VirtualFcu:
     # ------------------------------------------------------------- observe
     @property
     def rtf(self) -> float:
-        """Measured RTF over the last ~5 s of wall time."""
-        return self._meter.rtf
+        """Measured RTF over the last ~5 s of wall time; NaN until measured."""
+        return self._meter.value
 
     @property
     def rtf_total(self) -> float:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from uav_stack.fcu.commands import Command, handle_command
+from uav_stack.fcu.commands import MavCommand, handle_command
 from uav_stack.fcu.offboard import decode_global, decode_local
 from uav_stack.fcu.vehicle import ACCEPTED, Vehicle
 from uav_stack.mav import mavlink
@@ -30,11 +30,11 @@ def on_heartbeat(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 def on_command_long(v: Vehicle, m: M.MAVLink_message) -> None:
-    handle_command(v, Command.from_long(m))
+    handle_command(v, MavCommand.from_long(m))
 
 
 def on_command_int(v: Vehicle, m: M.MAVLink_message) -> None:
-    handle_command(v, Command.from_int(m))
+    handle_command(v, MavCommand.from_int(m))
 
 
 def on_set_mode(v: Vehicle, m: M.MAVLink_message) -> None:

@@ -1,8 +1,8 @@
 """Flight modes of the two autopilot flavours and their MAVLink ``custom_mode`` encodings.
 
 PX4: ``custom_mode = main << 16 | sub << 24`` (px4_custom_mode.h). ArduCopter: the mode
-number itself. Each mode maps to one of a few internal behaviours that the vehicle's
-guidance implements (mavlink.md section 2 and 4).
+number itself. Each mode maps to one of a few kinds of :class:`Guidance` that the vehicle
+implements (docs/fcu.md lists the modes and what each does).
 """
 
 from __future__ import annotations
@@ -11,10 +11,13 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+from uav_stack.autopilot import ARDUPILOT_PROFILE, PX4_PROFILE, AutopilotProfile
 from uav_stack.mav import mavlink
 
 
-class Behaviour(str, Enum):
+class Guidance(str, Enum):
+    """What the vehicle does in a mode; several modes of an autopilot share one."""
+
     HOLD = "hold"  # hold position (or fly to a reposition target), brake to a stop on entry
     TAKEOFF = "takeoff"  # climb to the takeoff altitude, then HOLD (PX4) / guided hold (ArduPilot)
     LAND = "land"  # descend at the landing speed, auto-disarm on the ground
@@ -27,17 +30,14 @@ class Behaviour(str, Enum):
 class ModeSpec:
     name: str
     custom_mode: int
-    behaviour: Behaviour
+    guidance: Guidance  # what the vehicle does in this mode
     base_flags: int  # MAV_MODE_FLAG bits besides CUSTOM_MODE_ENABLED and SAFETY_ARMED
     can_arm: bool = True
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
+    """PX4's HEARTBEAT.custom_mode for a main and sub mode (px4_custom_mode.h)."""
     return (main & 0xFF) << 16 | (sub & 0xFF) << 24
-
-
-def px4_main_sub(custom_mode: int) -> tuple[int, int]:
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
 
 
 _AUTO = mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -45,7 +45,7 @@ _GUIDED = mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE
 _MANUAL = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 _ASSIST = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
 
-B = Behaviour
+B = Guidance
 PX4_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("MANUAL", px4_custom_mode(1), B.MANUAL, _MANUAL),
     ModeSpec("ALTCTL", px4_custom_mode(2), B.HOLD, _ASSIST),
@@ -80,21 +80,29 @@ ARDUPILOT_MODES: tuple[ModeSpec, ...] = (
 
 @dataclass(frozen=True)
 class Flavour:
-    """What differs between the emulated autopilots."""
+    """What differs between the emulated autopilots.
+
+    ``profile`` is what a companion computer expects of the autopilot this flavour emulates
+    (the agent picks it from our heartbeat's ``autopilot``); the rest is the emulation's own.
+    Mode names here are the autopilot's own (PX4 ``HOLD``, which pymavlink calls ``LOITER``).
+    """
 
     name: str  # "px4" | "ardupilot"
-    autopilot: int  # HEARTBEAT.autopilot
+    profile: AutopilotProfile
     modes: tuple[ModeSpec, ...]
     initial_mode: str
     hold_mode: str  # target of "hold"-type failsafes
-    offboard_mode: str
-    takeoff_mode: str | None  # PX4 has a TAKEOFF mode; ArduPilot takes off inside GUIDED
     bytewise_params: bool  # PX4 PARAM_ENCODE_BYTEWISE; ArduPilot C cast
     flight_sw_version: int
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_by_name", {m.name: m for m in self.modes})
         object.__setattr__(self, "_by_custom", {m.custom_mode: m for m in self.modes})
+
+    @property
+    def autopilot(self) -> int:
+        """HEARTBEAT.autopilot (MAV_AUTOPILOT_*)."""
+        return self.profile.autopilot
 
     @property
     def is_px4(self) -> bool:
@@ -121,24 +129,20 @@ class Flavour:
 
 PX4 = Flavour(
     name="px4",
-    autopilot=mavlink.MAV_AUTOPILOT_PX4,
+    profile=PX4_PROFILE,
     modes=PX4_MODES,
     initial_mode="HOLD",
     hold_mode="HOLD",
-    offboard_mode="OFFBOARD",
-    takeoff_mode="TAKEOFF",
     bytewise_params=True,
     flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 0xFF,  # v1.15.0 release
 )
 
 ARDUPILOT = Flavour(
     name="ardupilot",
-    autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+    profile=ARDUPILOT_PROFILE,
     modes=ARDUPILOT_MODES,
     initial_mode="STABILIZE",
     hold_mode="LOITER",
-    offboard_mode="GUIDED",
-    takeoff_mode=None,
     bytewise_params=False,
     flight_sw_version=(4 << 24) | (5 << 16) | (0 << 8) | 0xFF,  # v4.5.0 release
 )

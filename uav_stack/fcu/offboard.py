@@ -1,6 +1,6 @@
 """External setpoints: SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT decoding and stream rules.
 
-PX4 rules (mavlink.md section 3, PX4's offboardCheck.cpp): OFFBOARD can be entered (or armed
+PX4 rules (PX4's offboardCheck.cpp; docs/fcu.md, Offboard): OFFBOARD can be entered (or armed
 in) only while a setpoint younger than COM_OF_LOSS_T exists; this is what PX4's code checks
 and what MAVSDK's "set a setpoint, then start()" relies on. The emulator parameter
 SIM_OFB_STREAM_T > 0 enforces the stricter rule of PX4's documentation instead (a > 2 Hz

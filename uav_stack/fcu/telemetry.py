@@ -33,7 +33,6 @@ SENSORS = (
 )
 PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
 FENCE = M.MAV_SYS_STATUS_GEOFENCE
-_RAD2CDEG = 18000.0 / math.pi
 
 
 def _ms(v: Vehicle) -> int:
@@ -231,7 +230,8 @@ def system_time(v: Vehicle) -> M.MAVLink_message:
 
 
 def named_value_rtf(v: Vehicle) -> M.MAVLink_message:
-    return v.mav.named_value_float_encode(_ms(v), b"RTF", float(v.ctx.rtf()))
+    rtf = float(v.ctx.rtf())
+    return v.mav.named_value_float_encode(_ms(v), b"RTF", rtf if math.isfinite(rtf) else 0.0)  # 0.0: not measured yet
 
 
 def autopilot_version(v: Vehicle) -> M.MAVLink_message:

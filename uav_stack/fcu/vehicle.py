@@ -18,7 +18,7 @@ from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import VehicleConfig
 from uav_stack.fcu.dynamics import G, MultirotorArray
 from uav_stack.fcu.link import DatagramParser, UdpLink
-from uav_stack.fcu.modes import Behaviour, ModeSpec, get_flavour
+from uav_stack.fcu.modes import Guidance, ModeSpec, get_flavour
 from uav_stack.fcu.offboard import Setpoint, SetpointStream
 from uav_stack.fcu.params import Action, ParamStore, Settings, ardupilot_param_defs, derive_settings, px4_param_defs
 from uav_stack.fcu.stats import FcuStats
@@ -318,7 +318,7 @@ class Vehicle:
 
     def on_setpoint(self, sp: Setpoint) -> None:
         self.setpoints.note(sp, self.now)
-        if self.mode.behaviour is not Behaviour.OFFBOARD:
+        if self.mode.guidance is not Guidance.OFFBOARD:
             return
         if self.flavour.is_px4:
             if self.phase == P_OFFBOARD:
@@ -347,19 +347,19 @@ class Vehicle:
 
     # ------------------------------------------------------------------ modes
     def enter_mode(self, spec: ModeSpec, hold_target: np.ndarray | None = None) -> None:
-        """Switch to an (already validated) mode and start its behaviour."""
+        """Switch to an (already validated) mode and start its guidance."""
         changed = spec is not self.mode
         self.mode = spec
         if changed:
             self.speed_xy = self.speed_up = self.speed_dn = NAN
-        b = spec.behaviour
-        if b is Behaviour.TAKEOFF:
+        b = spec.guidance
+        if b is Guidance.TAKEOFF:
             self._begin_takeoff_px4()
-        elif b is Behaviour.LAND:
+        elif b is Guidance.LAND:
             self._start_land()
-        elif b is Behaviour.RTL:
+        elif b is Guidance.RTL:
             self._start_rtl()
-        elif b is Behaviour.OFFBOARD:
+        elif b is Guidance.OFFBOARD:
             self._start_offboard()
         else:
             self._start_hold(hold_target)
@@ -380,11 +380,11 @@ class Vehicle:
         """A mode change asked for by a GCS/companion: (MAV_RESULT, reason if refused)."""
         if spec is self.mode:
             return ACCEPTED, ""
-        if spec.behaviour is Behaviour.MANUAL and not self.landed:
+        if spec.guidance is Guidance.MANUAL and not self.landed:
             return DENIED, f"{spec.name} needs RC input (none here)"
-        if self.flavour.is_px4 and spec.behaviour is Behaviour.OFFBOARD and not self.offboard_ready():
+        if self.flavour.is_px4 and spec.guidance is Guidance.OFFBOARD and not self.offboard_ready():
             return DENIED, "Offboard: no setpoint stream (>2Hz for 1s)"
-        if spec.behaviour is Behaviour.TAKEOFF:
+        if spec.guidance is Guidance.TAKEOFF:
             self.takeoff_alt_amsl = NAN
             self.takeoff_yaw = NAN
         self.enter_mode(spec)
@@ -397,7 +397,7 @@ class Vehicle:
         if not force:
             if not self.mode.can_arm:
                 return DENIED, f"Arming denied: not in {self.mode.name}"
-            if self.flavour.is_px4 and self.mode.behaviour is Behaviour.OFFBOARD and not self.offboard_ready():
+            if self.flavour.is_px4 and self.mode.guidance is Guidance.OFFBOARD and not self.offboard_ready():
                 return DENIED, "Arming denied: no offboard setpoints"
             if not self.prearm_ok():
                 return DENIED, "Arming denied: battery too low"
@@ -410,13 +410,13 @@ class Vehicle:
         self.has_flown = False
         self.landed_since = self.now
         self.bat_level = 0
-        # restart the mode's behaviour from where the vehicle is now (e.g. a pending takeoff)
+        # restart the mode's guidance from where the vehicle is now (e.g. a pending takeoff)
         self.speed_xy = self.speed_up = self.speed_dn = NAN
-        if self.mode.behaviour is Behaviour.TAKEOFF:
+        if self.mode.guidance is Guidance.TAKEOFF:
             self._begin_takeoff_px4()
-        elif self.mode.behaviour is Behaviour.OFFBOARD:
+        elif self.mode.guidance is Guidance.OFFBOARD:
             self._start_offboard()
-        elif self.mode.behaviour is Behaviour.LAND:
+        elif self.mode.guidance is Guidance.LAND:
             self._start_land()
         else:
             self._start_hold()
@@ -481,7 +481,7 @@ class Vehicle:
     def _failsafes(self, now: float, landed: bool) -> None:
         s, d, i = self.settings, self.ctx.dyn, self.i
         # offboard loss (PX4)
-        if self.flavour.is_px4 and self.mode.behaviour is Behaviour.OFFBOARD and self.setpoints.age(now) > s.of_loss_t:
+        if self.flavour.is_px4 and self.mode.guidance is Guidance.OFFBOARD and self.setpoints.age(now) > s.of_loss_t:
             self.failsafe(s.of_loss_act if s.of_loss_act is not Action.NONE else Action.HOLD, "offboard signal lost")
         flying = self.armed and not landed
         # GCS datalink loss (only once a GCS has been heard)
@@ -544,5 +544,5 @@ class Vehicle:
             return
         if target is not self.mode:
             self.enter_mode(target)
-        elif target.behaviour is Behaviour.HOLD:
+        elif target.guidance is Guidance.HOLD:
             self._start_hold()  # already holding (e.g. flying to a reposition target): stop here

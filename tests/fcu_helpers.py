@@ -1,7 +1,7 @@
-"""Helpers for tests and experiments: a minimal pymavlink GCS client over a real UDP socket
+"""Test helpers for the virtual FCU: a minimal pymavlink GCS client over a real UDP socket
 and a context manager that runs a VirtualFcu in a background thread.
 
-Every wait is bounded by a timeout. Only used by tests and tools; the FCU never imports it.
+Every wait is bounded by a timeout.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from typing import Callable
 from uav_stack.fcu.config import FcuConfig
 from uav_stack.fcu.fcu import VirtualFcu
 from uav_stack.fcu.link import DatagramParser
-from uav_stack.fcu.modes import px4_main_sub
 from uav_stack.mav import mavlink
 
 M = mavlink
@@ -26,6 +25,11 @@ PX4_MODE_NAMES = {
     (1, 0): "MANUAL", (2, 0): "ALTCTL", (3, 0): "POSCTL", (4, 1): "READY", (4, 2): "TAKEOFF", (4, 3): "HOLD",
     (4, 4): "MISSION", (4, 5): "RTL", (4, 6): "LAND", (5, 0): "ACRO", (6, 0): "OFFBOARD", (7, 0): "STABILIZED",
 }  # fmt: skip
+
+
+def px4_main_sub(custom_mode: int) -> tuple[int, int]:
+    """(main, sub) mode of a PX4 HEARTBEAT.custom_mode: the inverse of ``px4_custom_mode``."""
+    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
 
 
 class FcuThread:
