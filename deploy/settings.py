@@ -11,7 +11,7 @@ from swarmnet.schema import Config
 ImageName = Annotated[str, Meta(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.:/@-]{0,199}$", description="docker image reference")]
 
 
-class ContainerSettings(Config):
+class ContainerSettings(Config, frozen=True):
     """Per-UAV containers of ``runtime: docker`` (and the replicas of ``mrswarm deploy swarm up``)."""
 
     image: ImageName | None = None  # default mrswarm:<version> (`mrswarm deploy build`)

@@ -23,7 +23,7 @@ Key = Annotated[str, Meta(min_length=MIN_KEY_LEN, description="a swarm's discove
 ServerAddress = Annotated[str, Meta(pattern=r"^\S+$", min_length=1, max_length=300, description="HOST:PORT (or HOST)")]
 
 
-class DiscoveryService(Config):
+class DiscoveryService(Config, frozen=True):
     """The discovery service of a swarm (docs/discovery.md); the runtime starts the server."""
 
     key: Key | None = None  # None: the runtime draws a fresh one per run
@@ -35,7 +35,7 @@ class DiscoveryService(Config):
             raise ConfigError("ttl", f"must be at least two beacon periods (2 x {self.period:g} s), got {self.ttl:g}")
 
 
-class ProxyOptions(Config):
+class ProxyOptions(Config, frozen=True):
     """How one node finds its swarm through a discovery server (:class:`discovery.proxy.BeaconDiscovery`)."""
 
     server: ServerAddress

@@ -97,7 +97,7 @@ def resolve(addr: Addr) -> Addr:
     """``(host, port)`` -> ``(ip, port)``, as datagrams from that address will show it."""
     family = socket.AF_INET6 if ":" in addr[0] else socket.AF_UNSPEC
     info = socket.getaddrinfo(addr[0], addr[1], family, socket.SOCK_DGRAM)
-    return info[0][4][0], info[0][4][1]
+    return str(info[0][4][0]), int(info[0][4][1])
 
 
 @dataclass

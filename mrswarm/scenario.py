@@ -49,7 +49,7 @@ class ScenarioError(ValueError):
     """A scenario that cannot be used; the message names the file and the field."""
 
 
-class Origin(Config):
+class Origin(Config, frozen=True):
     lat: Annotated[float, Meta(ge=-90.0, le=90.0, description="degrees")]
     lon: Annotated[float, Meta(ge=-180.0, le=180.0, description="degrees")]
     alt: Annotated[float, Meta(ge=-500.0, le=9000.0, description="metres AMSL")]
@@ -58,7 +58,7 @@ class Origin(Config):
         return GeoPoint(self.lat, self.lon, self.alt)
 
 
-class Area(Config):
+class Area(Config, frozen=True):
     """A rectangle in the swarm's ENU frame, metres from the origin."""
 
     x_min: float
@@ -76,7 +76,7 @@ class Area(Config):
         return (self.x_min, self.x_max, self.y_min, self.y_max)
 
 
-class Mission(Config):
+class Mission(Config, frozen=True):
     type: MissionType = "coverage"
     strategy: CoverageStrategy = "lawnmower"
     area: Area | None = None
@@ -93,7 +93,7 @@ class Mission(Config):
         return 2 * self.sensor_radius * (1 - self.overlap)
 
 
-class Flight(Config):
+class Flight(Config, frozen=True):
     altitude: Annotated[float, Meta(ge=2.0, le=120.0, description="mission altitude above the origin, m")] = 15.0
     speed: Annotated[float, Meta(gt=0.0, le=15.0, description="cruise speed, m/s")] = 5.0
     safety_distance: Annotated[float, Meta(gt=0.0, le=100.0, description="separation avoidance keeps, m")] = 5.0
@@ -106,7 +106,7 @@ class Flight(Config):
             raise ConfigError("collision_distance", "must be smaller than safety_distance")
 
 
-class Network(Config):
+class Network(Config, frozen=True):
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
     mode: ZenohMode = "peer"
     pose_feed: PoseFeed = "direct"
@@ -120,13 +120,13 @@ class Network(Config):
             raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
 
 
-class Spawn(Config):
+class Spawn(Config, frozen=True):
     pattern: Literal["line", "grid"] = "grid"
     spacing: Annotated[float, Meta(gt=0.0, le=500.0, description="m")] = 8.0
     center: tuple[float, float] = (0.0, 0.0)  # x, y (ENU m)
 
 
-class Fleet(Config):
+class Fleet(Config, frozen=True):
     count: Annotated[int, Meta(ge=1, le=500)]
     first_id: UavId = 1
     spawn: Spawn = field(default_factory=Spawn)
@@ -134,7 +134,7 @@ class Fleet(Config):
     flavour: Flavour = "px4"
 
 
-class Uav(Config):
+class Uav(Config, frozen=True):
     id: UavId
     start: tuple[float, float]  # x, y (ENU m)
     goal: tuple[float, float] | None = None  # goto missions
@@ -143,7 +143,7 @@ class Uav(Config):
     flavour: Flavour = "px4"  # px4, or ardupilot for MAVProxy users (docs/gcs.md)
 
 
-class Gcs(Config):
+class Gcs(Config, frozen=True):
     """Ground-station access (docs/gcs.md): each agent's MAVLink router and the override limits."""
 
     mavlink: bool = False  # route every UAV's FCU to ground stations
@@ -154,7 +154,7 @@ class Gcs(Config):
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
 
 
-class Scenario(Config, kw_only=True):
+class Scenario(Config, kw_only=True, frozen=True):
     name: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
     description: str = ""
     swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")] = "alpha"
@@ -215,7 +215,8 @@ class Scenario(Config, kw_only=True):
             return list(self.uavs)
         f = self.fleet
         assert f is not None
-        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(spawn_points(f.count, f.spawn))]
+        points = spawn_points(f.count, f.spawn)
+        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(points)]
 
     def geofence(self) -> tuple[float, float, float, float]:
         """Where a ground station may send a UAV (goto): gcs.geofence, else the mission area, else

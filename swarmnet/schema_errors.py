@@ -157,7 +157,7 @@ def _step(tp: Any, data: Any, seg: str) -> tuple[Any, Any, str]:
     for s in structs:
         cfg = s.__struct_config__
         if cfg.tag_field == seg:  # a tagged union's tag: the choices are the tags
-            child = typing.Literal[tuple(x.__struct_config__.tag for x in structs)]  # type: ignore[misc]
+            child = typing.Literal[tuple(x.__struct_config__.tag for x in structs)]
             break
         if tag is not None and cfg.tag != tag:
             continue

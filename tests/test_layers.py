@@ -20,11 +20,12 @@ def imported_packages(path: Path) -> list[tuple[int, str]]:
     """(line, top-level package) of every absolute import in a file that names one of our packages."""
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        names: list[str] = []
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             names = [node.module]
+        else:
+            continue
         out += [(node.lineno, n.split(".")[0]) for n in names if n.split(".")[0] in RANK]
     return out
 

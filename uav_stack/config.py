@@ -29,7 +29,7 @@ Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (ENU m)
 Hz = Annotated[float, Meta(gt=0.0, le=1000.0, description="Hz")]
 
 
-class NetworkConfig(Config):
+class NetworkConfig(Config, frozen=True):
     """How the node reaches its swarm (``swarmnet.connectivity``, docs/discovery.md)."""
 
     connectivity: Connectivity = "rendezvous"
@@ -51,7 +51,7 @@ class NetworkConfig(Config):
                 raise ConfigError("mode", "discovery connects peers directly; client mode needs connectivity 'rendezvous'")
 
 
-class MissionConfig(Config):
+class MissionConfig(Config, frozen=True):
     type: MissionType = "coverage"
     strategy: CoverageStrategy = "lawnmower"  # coverage only
     area: Rect = (-100.0, 100.0, -100.0, 100.0)  # x_min, x_max, y_min, y_max (ENU m)
@@ -61,14 +61,14 @@ class MissionConfig(Config):
     land_when_done: bool = False
 
 
-class AvoidanceConfig(Config):
+class AvoidanceConfig(Config, frozen=True):
     enabled: bool = True
     safety_distance: Annotated[float, Meta(gt=0.0, description="m between UAV centres that avoidance keeps")] = 5.0
     time_horizon: Annotated[float, Meta(gt=0.0, description="s")] = 4.0
     stale_after: Annotated[float, Meta(gt=0.0, description="neighbours older than this are ignored, s")] = 1.0
 
 
-class GcsConfig(Config):
+class GcsConfig(Config, frozen=True):
     """Ground-station access: the agent's MAVLink router and the limits of override commands."""
 
     mavlink_endpoints: tuple[str, ...] = ()  # udpout:HOST:PORT / udpin:HOST:PORT; empty = no router
@@ -78,7 +78,7 @@ class GcsConfig(Config):
     max_alt: float = 120.0
 
 
-class AgentConfig(Config):
+class AgentConfig(Config, frozen=True):
     swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")]
     uav: UavId
     origin: GeoPoint  # the swarm's ENU origin
@@ -114,7 +114,7 @@ class AgentConfig(Config):
         return decode_json(Path(path).read_bytes(), cls)
 
 
-class VirtualUavConfig(Config):
+class VirtualUavConfig(Config, frozen=True):
     """One virtual UAV process: its FCU and its agent."""
 
     agent: AgentConfig
@@ -123,7 +123,8 @@ class VirtualUavConfig(Config):
     physics_hz: Hz = 50.0
     flavour: Flavour = "px4"
     heading: float = 0.0  # initial yaw, rad (NED)
-    duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None  # stop the process after this long (None: until signalled)
+    # stop the process after this long (None: until signalled)
+    duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
     def to_json(self) -> str:
         return msgspec.json.encode(self).decode()

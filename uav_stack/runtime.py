@@ -21,8 +21,8 @@ from typing import Any
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
-from uav_stack.agent import Agent
 from swarmnet.schema import ConfigError, convert
+from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
 

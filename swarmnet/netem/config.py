@@ -80,7 +80,7 @@ def convert(data: Any, type_: Any, at: str = "") -> Any:
 
 
 # ---- what a link runs: the validated profile and its components --------------------------------------
-class DelaySpec(Config):
+class DelaySpec(Config, frozen=True):
     ms: DelayMs  # mean one-way delay added
     jitter_ms: DelayMs = 0.0  # sd (normal, pareto, paretonormal) or half-width (uniform)
     distribution: Distribution | None = None  # required with jitter_ms > 0
@@ -92,7 +92,7 @@ class DelaySpec(Config):
             raise NetemConfigError("distribution", "required with jitter_ms > 0 (uniform, normal, pareto or paretonormal)")
 
 
-class BernoulliLoss(Config, tag_field="model", tag="bernoulli"):
+class BernoulliLoss(Config, tag_field="model", tag="bernoulli", frozen=True):
     model: ClassVar[str] = "bernoulli"
     p: Probability  # loss probability
 
@@ -101,7 +101,7 @@ class BernoulliLoss(Config, tag_field="model", tag="bernoulli"):
         return self.p
 
 
-class GilbertElliottLoss(Config, tag_field="model", tag="gilbert_elliott"):
+class GilbertElliottLoss(Config, tag_field="model", tag="gilbert_elliott", frozen=True):
     """Two states; given as ``p, r (, loss_bad, loss_good)`` or calibrated from ``rate, burst``.
 
     After validation ``p``, ``r``, ``loss_bad`` and ``loss_good`` always hold the chain (the
@@ -144,7 +144,7 @@ class GilbertElliottLoss(Config, tag_field="model", tag="gilbert_elliott"):
         return pb * typing.cast(float, self.loss_bad) + (1.0 - pb) * typing.cast(float, self.loss_good)
 
 
-class FourStateLoss(Config, tag_field="model", tag="four_state"):
+class FourStateLoss(Config, tag_field="model", tag="four_state", frozen=True):
     """netem's ``loss state``: 1 gap, 2 burst (delivered), 3 burst (lost), 4 isolated loss."""
 
     model: ClassVar[str] = "four_state"
@@ -171,17 +171,17 @@ class FourStateLoss(Config, tag_field="model", tag="four_state"):
 LossSpec = BernoulliLoss | GilbertElliottLoss | FourStateLoss
 
 
-class ReorderSpec(Config):
+class ReorderSpec(Config, frozen=True):
     p: Probability  # probability of sending a message immediately (once gap - 1 were delayed)
     gap: Annotated[int, Meta(ge=1, le=1_000_000)] = 1
 
 
-class RateSpec(Config):
+class RateSpec(Config, frozen=True):
     kbit: Annotated[float, Meta(gt=0.0, le=1e9, description="link rate, kbit/s")]
     overhead_bytes: Annotated[int, Meta(ge=0, le=65535)] = 0
 
 
-class OutageSpec(Config):
+class OutageSpec(Config, frozen=True):
     every_s: Annotated[float, Meta(gt=0.0, le=1e7, description="mean time between outages, s")]
     # a duration, or [min, max] of a uniform one. The single number's range is checked below: a
     # union of a constrained number and a tuple crashes msgspec 0.22's garbage collection
@@ -210,7 +210,7 @@ class OutageSpec(Config):
         return d[1] if isinstance(d, tuple) else d
 
 
-class RangeDistance(Config, tag_field="model", tag="range"):
+class RangeDistance(Config, tag_field="model", tag="range", frozen=True):
     """Delivery probability 1 up to ``full_m``, falling linearly to 0 at ``range_m``."""
 
     model: ClassVar[str] = "range"
@@ -236,7 +236,7 @@ class RangeDistance(Config, tag_field="model", tag="range"):
         return 0.5 * (self.full_m + self.range_m)
 
 
-class LogDistance(Config, tag_field="model", tag="log_distance"):
+class LogDistance(Config, tag_field="model", tag="log_distance", frozen=True):
     """Log-distance path loss with log-normal shadowing, reference distance 1 m."""
 
     model: ClassVar[str] = "log_distance"
@@ -268,7 +268,7 @@ class LogDistance(Config, tag_field="model", tag="log_distance"):
 DistanceSpec = RangeDistance | LogDistance
 
 
-class LinkProfile(Config):
+class LinkProfile(Config, frozen=True):
     """What one (sender -> receiver) link does to every message."""
 
     delay: DelaySpec | None = None
@@ -388,7 +388,7 @@ def merge_profile(base: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]
 Component = dict[str, Any] | None | UnsetType  # merged onto the profile below, validated as a LinkProfile
 
 
-class ProfilePatch(Config, omit_defaults=True):
+class ProfilePatch(Config, omit_defaults=True, frozen=True):
     """A class entry (``v2v``, ``v2p``, ``ground``) as written: components to merge onto the preset's.
 
     A component left out keeps the preset's; ``null`` removes it.
@@ -408,7 +408,7 @@ class ProfilePatch(Config, omit_defaults=True):
         return {k: v for k in PROFILE_KEYS if (v := getattr(self, k)) is not UNSET}
 
 
-class LinkPatch(ProfilePatch, kw_only=True):
+class LinkPatch(ProfilePatch, kw_only=True, frozen=True):
     """A per-link override: a patch for the links ``src -> dst`` (and back with ``both_ways``)."""
 
     src: UavId | Literal["*"]
@@ -420,7 +420,7 @@ class LinkPatch(ProfilePatch, kw_only=True):
             raise NetemConfigError("", "src and dst cannot both be \"*\" (change the class profile instead)")
 
 
-class NetemSpec(Config, omit_defaults=True):
+class NetemSpec(Config, omit_defaults=True, frozen=True):
     """The ``network.netem`` mapping (docs/netem.md). Decoding it validates the whole configuration."""
 
     preset: Preset | None = None  # base profiles for every class

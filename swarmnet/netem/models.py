@@ -28,7 +28,7 @@ import math
 import random
 from collections.abc import Callable
 
-from swarmnet.netem.config import BernoulliLoss, DelaySpec, GilbertElliottLoss, LossSpec, OutageSpec
+from swarmnet.netem.config import BernoulliLoss, DelaySpec, FourStateLoss, GilbertElliottLoss, LossSpec, OutageSpec
 
 _PARETO_MEAN = 1.5  # of U**(-1/3)
 _PARETO_SD = math.sqrt(0.75)
@@ -109,7 +109,7 @@ class LossGen:
 
     def __init__(self, spec: LossSpec):
         self.model = spec.model
-        self.s = spec
+        self.s = spec if isinstance(spec, FourStateLoss) else None
         self.p, self.r, self.loss_bad, self.loss_good = 0.0, 1.0, 1.0, 0.0
         if isinstance(spec, BernoulliLoss):
             self.p = spec.p
@@ -136,6 +136,7 @@ class LossGen:
 
     def _four_state(self, rng: random.Random) -> bool:
         s, u = self.s, rng.random()
+        assert s is not None  # the four_state model has its spec
         st = self.state
         if st == 1:
             if u < s.p14:
