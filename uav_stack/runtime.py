@@ -239,6 +239,11 @@ def agent_main(argv: list[str] | None = None) -> int:
         cfg = AgentConfig.load(args.config) if args.config else convert(agent_settings(args, ap), AgentConfig)
     except (ConfigError, OSError) as exc:
         ap.error(f"{args.config}: {exc}" if args.config else str(exc))
+    if cfg.network.discovery is not None:
+        try:
+            cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node
+        except ConfigError as exc:
+            ap.error(f"network.discovery.{exc}")
     return run_agent(cfg, stop, args.duration)
 
 
