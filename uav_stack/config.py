@@ -3,7 +3,7 @@
 The scenario loader (``mrswarm.scenario``) builds these from a scenario and a runtime writes
 them as JSON; a UAV process decodes that with ``VirtualUavConfig.load`` (msgspec: types and
 ranges checked, unknown fields refused, errors naming the field). Light imports only: a UAV
-process loads no YAML, no pydantic, and no netem modules unless its swarm uses netem.
+process loads no YAML and no netem modules unless its swarm uses netem.
 """
 
 from __future__ import annotations
