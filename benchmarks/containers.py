@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import psutil
+from msgspec.structs import replace
 from rich.console import Console
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -115,9 +116,9 @@ def _med(values: list[float]) -> float:
 def run_one(n: int, runtime: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     sampler = ContainerSampler(args.warmup, args.window)
     scn = scenario_for(n, args.warmup + args.window + 2.0, "discovery-direct")
-    scn = scn.model_copy(update={"runtime": runtime, "name": f"{scn.name}-{runtime}"})
+    scn = replace(scn, runtime=runtime, name=f"{scn.name}-{runtime}")
     if args.image:
-        scn = scn.model_copy(update={"docker": scn.docker.model_copy(update={"image": args.image})})
+        scn = replace(scn, docker=replace(scn.docker, image=args.image))
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
     summary = exp.run().to_dict()

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import psutil
+from msgspec.structs import replace
 from rich.console import Console
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,7 +77,7 @@ def run_once(n: int, routed: bool, args: argparse.Namespace, console: Console) -
     scn = scenario_for(n, args.warmup + args.window + 2.0, "discovery-direct")
     with Sink() as sink:
         if routed:
-            scn = scn.model_copy(update={"gcs": Gcs(mavlink=True, port=sink.port)})
+            scn = replace(scn, gcs=Gcs(mavlink=True, port=sink.port))
         exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
         t0 = time.time()
         d0 = b0 = 0

@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mrswarm.experiment import Experiment  # noqa: E402
-from mrswarm.scenario import Scenario  # noqa: E402
+from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
 # name -> (network.connectivity, network.mode, network.pose_feed)
 CONFIGS: dict[str, tuple[str, str, str]] = {
@@ -51,7 +51,7 @@ CONFIGS: dict[str, tuple[str, str, str]] = {
 def scenario_for(n: int, duration: float, config: str) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
-    return Scenario.model_validate({
+    return parse_scenario({
         "name": f"scale{n}",
         "swarm": f"bench{n}",
         "seed": 1,

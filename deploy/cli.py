@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, L_UAV, DeployError, client
@@ -125,30 +125,8 @@ def _down(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scenario(args: argparse.Namespace) -> Any:
-    from mrswarm.scenario import load_scenario
-
-    overrides = list(args.set) + ([f"swarm={args.swarm}"] if args.swarm else [])
-    return load_scenario(args.scenario, overrides)
-
-
-def _swarm_up(args: argparse.Namespace) -> int:
-    from deploy import swarm
-    from deploy.images import image_tag
-
-    scn = _scenario(args)
-    opts = swarm.StackOptions(uavs=args.uavs, image=args.image or scn.docker.image or image_tag(), port=args.port,
-                              cpus=scn.docker.cpus, memory_mb=scn.docker.memory_mb, max_per_node=args.max_per_node,
-                              autostart=args.autostart, log_level=args.log_level, multicast=scn.docker.multicast)
-    out = Path(args.out or f"build/swarm/{swarm.stack_name(scn.swarm)}")
-    if args.dry_run:
-        print(swarm.write_stack(scn, opts, out))
-        return 0
-    if args.init and swarm.init_swarm(client()):
-        print("initialised a single-node swarm (this engine is its manager)")
-    res = swarm.up(scn, opts, out, wait=args.wait)
-    print(json.dumps(res, indent=2))
-    return 0
+def _swarm_up_needs_mrswarm(args: argparse.Namespace) -> int:
+    raise DeployError("`swarm up` builds its fleet from a scenario: run it as `mrswarm deploy swarm up`")
 
 
 def _swarm_down(args: argparse.Namespace) -> int:
@@ -166,7 +144,8 @@ def _swarm_seal(args: argparse.Namespace) -> int:
     return 0
 
 
-def parser() -> argparse.ArgumentParser:
+def parser(swarm_up: Callable[[argparse.Namespace], int] | None = None) -> argparse.ArgumentParser:
+    """The commands; ``swarm_up`` is the handler of ``swarm up``, given by the layer that reads scenarios."""
     from deploy.images import BASE_TAG, DEFAULT_MIRROR
 
     ap = argparse.ArgumentParser(prog="mrswarm deploy", description=__doc__.splitlines()[0])
@@ -209,7 +188,7 @@ def parser() -> argparse.ArgumentParser:
     q.add_argument("--init", action="store_true", help="`docker swarm init` first if this engine is in no swarm")
     q.add_argument("--dry-run", action="store_true", help="only write stack.yml and fleet.json")
     q.add_argument("--wait", type=float, default=180.0, help="seconds to wait for every replica to run")
-    q.set_defaults(func=_swarm_up)
+    q.set_defaults(func=swarm_up or _swarm_up_needs_mrswarm)
     q = ssub.add_parser("seal", help="on another edge server: keep a sentinel of the overlay and drop multicast there")
     q.add_argument("--swarm", default=None)
     q.add_argument("--image", default=None)
@@ -222,8 +201,8 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
+def main(argv: list[str] | None = None, swarm_up: Callable[[argparse.Namespace], int] | None = None) -> int:
+    args = parser(swarm_up).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except DeployError as exc:

@@ -31,15 +31,20 @@ import signal
 import socket
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
-from pathlib import Path
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
+
+from msgspec.structs import replace
 
 from deploy import multicast
 from deploy.dockerutil import L_RUN, DeployError, client, labels
 from deploy.services import NetworkPlan, network_plan
-from uav_stack.config import NetworkConfig, VirtualUavConfig
+from deploy.settings import ContainerSettings
+from discovery.options import DiscoveryService
+from swarmnet.schema import to_builtins
+from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -62,17 +67,9 @@ def wait_discovery(server: str, swarm: str, key: str, timeout: float, alive: Cal
     raise RuntimeError(f"the discovery server on {server} does not answer after {timeout:.0f} s")
 
 
-@dataclass(frozen=True)
-class ContainerSettings:
-    """Per-UAV container settings (the scenario's ``docker:`` section)."""
-
-    image: str | None = None  # default: mrswarm:<version>
-    cpus: float = 0.5  # CPU limit per UAV container, cores
-    memory_mb: int = 256  # memory limit per UAV container
-    multicast: str = "drop"  # drop: cellular-like (no multicast/broadcast); allow: a LAN
-    pids_limit: int = 256
-    service_cpus: float = 1.0  # limit of each infrastructure container (router, discovery)
-    service_memory_mb: int = 512
+PIDS_LIMIT = 256  # per container
+SERVICE_CPUS = 1.0  # limit of each infrastructure container (router, discovery), cores
+SERVICE_MEMORY_MB = 512
 
 
 @dataclass
@@ -106,7 +103,7 @@ class DockerRuntime:
 
     def __init__(self, run_dir: Path, log_level: str = "INFO", settings: ContainerSettings | None = None,
                  swarm: str = "*"):
-        self.discovery_opts: dict[str, Any] = {}
+        self.discovery = DiscoveryService()
         self.run_dir = run_dir.resolve()
         self.log_level = log_level
         self.settings = settings or ContainerSettings()
@@ -119,7 +116,7 @@ class DockerRuntime:
         self._check_image()
         self._warn_if_stale()
         ncpu = int(self.docker.info().get("NCPU", 0) or 0)
-        for what, cpus in (("docker.cpus", self.settings.cpus), ("service cpus", self.settings.service_cpus)):
+        for what, cpus in (("docker.cpus", self.settings.cpus), ("service cpus", SERVICE_CPUS)):
             if ncpu and cpus > ncpu:
                 raise DeployError(f"{what} = {cpus} but the docker host has {ncpu} CPUs")
         if self.settings.multicast == "drop":
@@ -154,20 +151,20 @@ class DockerRuntime:
         return f"mrs-{self.run}-{short}"
 
     # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: dict[str, Any] | None = None) -> NetworkConfig:
+    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
         """
         self.swarm = swarm if swarm != "*" else self.swarm
-        opts = dict(discovery or {})
-        if connectivity == "discovery" and not opts.get("key"):
+        service = discovery or DiscoveryService()
+        if connectivity == "discovery" and not service.key:
             from discovery.protocol import new_key
 
-            opts["key"] = new_key()  # a fresh key per run unless the scenario sets one
-        self.discovery_opts = opts
-        plan = network_plan(connectivity, mode, pose_feed, swarm, opts, with_router=connectivity == "discovery")
+            service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
+        self.discovery = service
+        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery")
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -190,12 +187,12 @@ class DockerRuntime:
         addresses: dict[str, str] = {}
         for svc in plan.services:
             box = self._run(svc.name, "router" if svc.name == "router" else svc.name, list(svc.argv), uav=None,
-                            cpus=self.settings.service_cpus, memory_mb=self.settings.service_memory_mb, mounts=False)
+                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False)
             addresses[svc.name] = box.ip
             if svc.proto == "tcp":
                 wait_tcp(box.ip, svc.port, 30.0, alive=lambda b=box: self._running(b))
             elif svc.name == "discovery":
-                wait_discovery(f"{box.ip}:{svc.port}", self.swarm, self.discovery_opts["key"], 30.0,
+                wait_discovery(f"{box.ip}:{svc.port}", self.swarm, self.discovery.key or "", 30.0,
                                alive=lambda b=box: self._running(b))
         net = plan.uav_network(addresses)
         self._write_manifest()
@@ -224,7 +221,7 @@ class DockerRuntime:
             self.image, argv, name=name, hostname=short, labels=labels(self.run, self.swarm, role, uav),
             network=self.network.name, user=f"{os.getuid()}:{os.getgid()}",
             nano_cpus=int(cpus * 1e9), mem_limit=f"{memory_mb}m", memswap_limit=f"{memory_mb}m",
-            pids_limit=self.settings.pids_limit, cap_drop=["ALL"], security_opt=["no-new-privileges"],
+            pids_limit=PIDS_LIMIT, cap_drop=["ALL"], security_opt=["no-new-privileges"],
             read_only=True, tmpfs={"/tmp": "size=16m"}, sysctls=dict(multicast.IPV6_OFF),
             environment={"PYTHONUNBUFFERED": "1"},
             log_config=LogConfig(type="json-file", config={"max-size": "20m", "max-file": "1"}),
@@ -239,8 +236,7 @@ class DockerRuntime:
 
     def start_container(self, short: str, argv: list[str], role: str = "probe") -> Box:
         """Any other container of the stack image on the run's network (tests, probes)."""
-        return self._run(short, role, argv, uav=None, cpus=self.settings.service_cpus,
-                         memory_mb=self.settings.service_memory_mb, mounts=False)
+        return self._run(short, role, argv, uav=None, cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False)
 
     def _running(self, box: Box) -> bool:
         box.container.reload()
@@ -270,7 +266,7 @@ class DockerRuntime:
         return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role} for n, b in self.boxes.items()}
 
     def _write_manifest(self, exit_codes: dict[str, int] | None = None) -> None:
-        data = {"runtime": "docker", "run": self.run, "image": self.image, "settings": asdict(self.settings),
+        data = {"runtime": "docker", "run": self.run, "image": self.image, "settings": to_builtins(self.settings),
                 "network": self.network.name if self.network is not None else None, "multicast_sealed": self.sealed,
                 "containers": self.containers()}
         if exit_codes is not None:

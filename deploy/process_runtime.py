@@ -18,9 +18,9 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from uav_stack.config import NetworkConfig, VirtualUavConfig
+from discovery.options import DiscoveryService, ProxyOptions
+from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +86,8 @@ class ProcessRuntime:
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
     # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: str = "peer", pose_feed: str = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: dict[str, Any] | None = None) -> NetworkConfig:
+    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
@@ -95,7 +95,7 @@ class ProcessRuntime:
         router (pose feed, and the way in for ground stations).
         """
         if connectivity == "discovery":
-            return self._start_discovery(swarm, pose_feed, discovery or {})
+            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService())
         endpoint = self._start_router(pose_feed, swarm)
         return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
                              pose_feed=pose_feed)
@@ -110,19 +110,18 @@ class ProcessRuntime:
         wait_tcp("127.0.0.1", port, timeout=20.0, proc=self.children["router"].proc)
         return endpoint
 
-    def _start_discovery(self, swarm: str, pose_feed: str, opts: dict[str, Any]) -> NetworkConfig:
+    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService) -> NetworkConfig:
         from discovery.client import QueryTimeout, query_registry
         from discovery.protocol import new_key
         from discovery.proxy import free_udp_port
 
-        key = opts.get("key") or new_key()  # a fresh key per run unless the scenario sets one
+        key = service.key or new_key()  # a fresh key per run unless the scenario sets one
         keys = self.run_dir / "config" / "discovery.keys"
         keys.write_text(f"{swarm} {key}\n")
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_udp_port()}"
-        period = float(opts.get("period", 1.0))
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000",  # every node shares 127.0.0.1
+                                  "--ttl", str(service.ttl), "--rate", "5000",  # every node shares 127.0.0.1
                                   "--die-with-parent"])
         deadline = time.monotonic() + 20.0
         while True:
@@ -142,7 +141,7 @@ class ProcessRuntime:
         # UAV-to-UAV data flows peer to peer over the links discovery introduced.
         endpoints = (self._start_router(pose_feed, swarm),)
         return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=("tcp/127.0.0.1:0",),
-                             pose_feed=pose_feed, options={"server": server, "key": key, "period": period})
+                             pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period))
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -13,10 +13,10 @@ starts and calls :meth:`NetworkPlan.uav_network` to build the UAVs' ``NetworkCon
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 from dataclasses import dataclass, field
 
-from uav_stack.config import NetworkConfig
+from discovery.options import DiscoveryService, ProxyOptions
+from uav_stack.config import NetworkConfig, PoseFeed, ZenohMode
 
 ROUTER_PORT = 7447  # Zenoh's registered port
 UAV_PORT = 7447  # each UAV container listens on its own IP
@@ -44,12 +44,12 @@ class NetworkPlan:
         return self.make(addresses)
 
 
-def network_plan(connectivity: str = "rendezvous", mode: str = "peer", pose_feed: str = "direct",
-                 swarm: str = "*", discovery: dict[str, Any] | None = None, with_router: bool = False) -> NetworkPlan:
+def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct",
+                 swarm: str = "*", discovery: DiscoveryService | None = None, with_router: bool = False) -> NetworkPlan:
     """The services and the UAVs' network config for a connectivity.
 
-    ``discovery`` (for ``connectivity: discovery``) holds ``key`` (required: the runtime
-    draws one per run if the scenario has none), ``period`` and ``ttl``. ``with_router``
+    ``discovery`` (for ``connectivity: discovery``) must carry a key: the runtime draws one
+    per run if the scenario has none. ``with_router``
     also runs the edge router beside the discovery server, and every UAV keeps one link to
     it: the way in for ground stations and runners outside the UAVs' network (they join as
     Zenoh clients of the router). UAV-to-UAV data still flows peer to peer.
@@ -66,12 +66,12 @@ def network_plan(connectivity: str = "rendezvous", mode: str = "peer", pose_feed
 
         return NetworkPlan((router,), make)
     if connectivity == "discovery":
-        opts = dict(discovery or {})
-        key = opts.get("key")
+        service = discovery or DiscoveryService()
+        key = service.key
         if not key:
             raise ValueError("discovery needs a key (the runtime draws one per run if the scenario sets none)")
         server = Service("discovery", ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}",
-                                       "--key", f"{swarm}={key}", "--ttl", str(opts.get("ttl", 3.0)), "--rate", "5000"),
+                                       "--key", f"{swarm}={key}", "--ttl", str(service.ttl), "--rate", "5000"),
                          DISCOVERY_PORT, proto="udp")
         routed = pose_feed == "edge" or with_router
         services = (server, router) if routed else (server,)
@@ -83,7 +83,7 @@ def network_plan(connectivity: str = "rendezvous", mode: str = "peer", pose_feed
                 connectivity="discovery",
                 endpoints=(f"tcp/{addr['router']}:{ROUTER_PORT}",) if routed else (),
                 mode="peer", listen=(f"tcp/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed,
-                options={"server": f"{addr['discovery']}:{DISCOVERY_PORT}", "key": key, "period": float(opts.get("period", 1.0))},
+                discovery=ProxyOptions(server=f"{addr['discovery']}:{DISCOVERY_PORT}", key=key, period=service.period),
             )
 
         return NetworkPlan(services, make_d)

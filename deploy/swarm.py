@@ -1,7 +1,8 @@
 """Several edge servers: the stack on Docker Swarm mode.
 
-``mrswarm deploy swarm up --uavs N`` turns a scenario into a compose stack file and deploys it
-with ``docker stack deploy``:
+``mrswarm deploy swarm up --uavs N`` turns a scenario into a :class:`Fleet` (in mrswarm's
+CLI layer, which reads scenarios) and this module turns the fleet into a compose stack file
+and deploys it with ``docker stack deploy``:
 
 * the infrastructure services of the scenario's connectivity (``deploy/services.py``; today
   the rendezvous/edge router) with DNS round-robin endpoints and their port published on
@@ -26,7 +27,7 @@ import json
 import shutil
 import subprocess
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,10 @@ import yaml
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, DeployError, client
 from deploy.multicast import IPV6_OFF
-from deploy.services import ROUTER_PORT, network_plan
+from deploy.services import ROUTER_PORT, NetworkPlan
+from deploy.settings import ContainerSettings
+from swarmnet.schema import to_builtins
+from uav_stack.config import VirtualUavConfig
 
 FLEET_PATH = "/etc/mrswarm/fleet.json"
 DATA_PATH = "/data"
@@ -42,50 +46,37 @@ DATA_PATH = "/data"
 
 @dataclass(frozen=True)
 class StackOptions:
-    uavs: int
     image: str
+    container: ContainerSettings = ContainerSettings()  # limits of each UAV replica, and the multicast policy
     port: int = ROUTER_PORT  # router port published on the manager (the GCS / runner connects there)
-    cpus: float = 0.5
-    memory_mb: int = 256
     max_per_node: int = 0  # 0: no limit; else at most this many UAV replicas on one edge server
-    autostart: bool = False  # take off and start the mission without waiting for commands
     log_level: str = "INFO"
-    multicast: str = "drop"  # drop: seal the overlay on this server (cellular-like); allow: leave it
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """What a stack runs: the swarm's services (``deploy/services.py``) and one config per UAV replica.
+
+    Built from a scenario by ``mrswarm deploy swarm up`` (``mrswarm/deploy_cli.py``); the UAVs
+    reach the services by their DNS names, so ``plan.uav_network`` was called with those.
+    """
+
+    swarm: str
+    plan: NetworkPlan
+    uavs: tuple[VirtualUavConfig, ...]
 
 
 def stack_name(swarm: str) -> str:
     return f"mrswarm-{swarm}"
 
 
-def fleet_configs(scn: Any, opts: StackOptions) -> tuple[list[dict[str, Any]], Any]:
-    """The per-UAV configs of the fleet (UAVs reach the services by their DNS names)."""
-    if scn.fleet is not None:
-        scn = scn.model_copy(update={"fleet": scn.fleet.model_copy(update={"count": opts.uavs})})
-    elif len(scn.uav_list()) < opts.uavs:
-        raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {opts.uavs}")
-    net = scn.network
-    disc: dict[str, Any] = {}
-    if net.connectivity == "discovery":
-        from discovery.protocol import new_key
-
-        disc = net.discovery.model_dump()
-        disc["key"] = disc.get("key") or new_key()  # a fresh key per deployment unless the scenario sets one
-    # the edge router runs beside the discovery server: ground stations join through it
-    plan = network_plan(net.connectivity, net.mode, net.pose_feed, scn.swarm, disc, with_router=True)
-    netcfg = plan.uav_network({s.name: s.name for s in plan.services})
-    cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[: opts.uavs]
-    if opts.autostart:
-        cfgs = [replace(c, agent=replace(c.agent, autostart=True)) for c in cfgs]
-    return [asdict(c) for c in cfgs], plan
-
-
-def stack_spec(scn: Any, opts: StackOptions) -> tuple[dict[str, Any], str]:
+def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
     """The compose stack (as a dict) and the fleet file's JSON text."""
-    fleet, plan = fleet_configs(scn, opts)
-    fleet_json = json.dumps(fleet, indent=1)
+    plan = fleet.plan
+    fleet_json = json.dumps([to_builtins(c) for c in fleet.uavs], indent=1)
     digest = hashlib.sha256(fleet_json.encode()).hexdigest()[:10]
-    name = stack_name(scn.swarm)
-    common_labels = {L_RUN: name, L_SWARM: scn.swarm}
+    name = stack_name(fleet.swarm)
+    common_labels = {L_RUN: name, L_SWARM: fleet.swarm}
     sysctls = {k: int(v) for k, v in IPV6_OFF.items()}
     services: dict[str, Any] = {}
     for svc in plan.services:
@@ -109,9 +100,9 @@ def stack_spec(scn: Any, opts: StackOptions) -> tuple[dict[str, Any], str]:
             },
         }
     uav_deploy: dict[str, Any] = {
-        "replicas": opts.uavs,
+        "replicas": len(fleet.uavs),
         "endpoint_mode": "dnsrr",
-        "resources": {"limits": {"cpus": f"{opts.cpus:g}", "memory": f"{opts.memory_mb}M"}},
+        "resources": {"limits": {"cpus": f"{opts.container.cpus:g}", "memory": f"{opts.container.memory_mb}M"}},
         "restart_policy": {"condition": "on-failure", "max_attempts": 3},
         "labels": {**common_labels, L_ROLE: "uav"},
     }
@@ -142,15 +133,15 @@ def stack_spec(scn: Any, opts: StackOptions) -> tuple[dict[str, Any], str]:
     return stack, fleet_json
 
 
-def write_stack(scn: Any, opts: StackOptions, out: Path) -> Path:
-    stack, fleet_json = stack_spec(scn, opts)
+def write_stack(fleet: Fleet, opts: StackOptions, out: Path) -> Path:
+    stack, fleet_json = stack_spec(fleet, opts)
     out.mkdir(parents=True, exist_ok=True)
     (out / "fleet.json").write_text(fleet_json)
-    name = stack_name(scn.swarm)
-    header = (f"# mrswarm stack for swarm '{scn.swarm}' ({opts.uavs} virtual UAVs), made by `mrswarm deploy swarm up`\n"
+    name = stack_name(fleet.swarm)
+    header = (f"# mrswarm stack for swarm '{fleet.swarm}' ({len(fleet.uavs)} virtual UAVs), made by `mrswarm deploy swarm up`\n"
               f"# (which also makes the network and drops multicast on it). By hand, on a swarm manager:\n"
               f"#   docker network create --driver overlay --attachable {name}\n"
-              f"#   mrswarm deploy swarm seal --swarm {scn.swarm}    # on every edge server: no multicast\n"
+              f"#   mrswarm deploy swarm seal --swarm {fleet.swarm}    # on every edge server: no multicast\n"
               f"#   docker stack deploy -c stack.yml {name}\n")
     path = out / "stack.yml"
     path.write_text(header + yaml.dump(stack, Dumper=_NoAliases, sort_keys=False))
@@ -234,7 +225,7 @@ def _default_address() -> str:
             return "127.0.0.1"
 
 
-def up(scn: Any, opts: StackOptions, out: Path, wait: float = 120.0) -> dict[str, Any]:
+def up(fleet: Fleet, opts: StackOptions, out: Path, wait: float = 120.0) -> dict[str, Any]:
     cl = client()
     _swarm_manager(cl)
     try:
@@ -242,18 +233,18 @@ def up(scn: Any, opts: StackOptions, out: Path, wait: float = 120.0) -> dict[str
     except Exception:  # noqa: BLE001
         raise DeployError(f"image {opts.image} is not on this node: `mrswarm deploy build` (and `docker save | docker load` "
                           "it on every other edge server)") from None
-    path = write_stack(scn, opts, out)
-    name = stack_name(scn.swarm)
-    if opts.multicast == "drop":
-        seal_node(cl, scn.swarm, opts.image)  # before any task of the stack starts here
+    path = write_stack(fleet, opts, out)
+    name = stack_name(fleet.swarm)
+    if opts.container.multicast == "drop":
+        seal_node(cl, fleet.swarm, opts.image)  # before any task of the stack starts here
     else:
-        ensure_network(cl, scn.swarm)
+        ensure_network(cl, fleet.swarm)
     res = subprocess.run([_docker_cli(), "stack", "deploy", "--prune", "-c", path.name, name], cwd=out,
                          capture_output=True, text=True, timeout=120)
     if res.returncode != 0:
         raise DeployError(f"docker stack deploy failed: {res.stderr.strip() or res.stdout.strip()}")
-    want = {f"{name}_{s}": 1 for s in stack_spec(scn, opts)[0]["services"]}
-    want[f"{name}_uav"] = opts.uavs
+    want = {f"{name}_{s}": 1 for s in stack_spec(fleet, opts)[0]["services"]}
+    want[f"{name}_uav"] = len(fleet.uavs)
     running = wait_running(cl, want, wait)
     return {"stack": name, "file": str(path), "services": running, "router": f"tcp/<manager>:{opts.port}"}
 

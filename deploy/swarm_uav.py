@@ -12,15 +12,17 @@ advertise a locator the other edge servers can reach) and runs the same loop as
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import socket
 import sys
 import time
-from dataclasses import replace
+from collections.abc import Sequence
 from pathlib import Path
 
+from msgspec.structs import replace
+
+from swarmnet.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
 
@@ -31,10 +33,15 @@ class SlotError(ValueError):
     pass
 
 
-def pick(fleet: list[dict[str, object]], slot: int) -> VirtualUavConfig:
+def load_fleet(path: str | Path) -> list[VirtualUavConfig]:
+    """The fleet file: a JSON list of UAV configs (:class:`~swarmnet.schema.ConfigError` names a bad field)."""
+    return decode_json(Path(path).read_bytes(), list[VirtualUavConfig])
+
+
+def pick(fleet: Sequence[VirtualUavConfig], slot: int) -> VirtualUavConfig:
     if not 1 <= slot <= len(fleet):
         raise SlotError(f"task slot {slot} has no UAV: the fleet file holds {len(fleet)} (redeploy with --uavs to scale)")
-    return VirtualUavConfig.from_dict(fleet[slot - 1])  # type: ignore[arg-type]
+    return fleet[slot - 1]
 
 
 def endpoint_host(endpoint: str) -> tuple[str, int]:
@@ -69,13 +76,13 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.log_level)
     try:
         slot = args.slot if args.slot is not None else int(os.environ.get("MRSWARM_SLOT", ""))
-        cfg = pick(json.loads(Path(args.fleet).read_text()), slot)
+        cfg = pick(load_fleet(args.fleet), slot)
         net = cfg.agent.network
         if not net.endpoints:
             raise SlotError("the fleet's network config names no endpoint")
         host, port = endpoint_host(net.endpoints[0])
         ip = own_address_towards(host, port, 60.0, stop)
-    except (SlotError, ValueError, OSError) as exc:
+    except (SlotError, ConfigError, ValueError, OSError) as exc:
         log.error("%s", exc)
         return 2
     if net.mode == "peer":

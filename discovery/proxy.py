@@ -17,8 +17,9 @@ Then a small thread in the same process (no root, no raw sockets):
    directly, peer to peer, exactly as if it had scouted the member on a LAN.
 
 The thread wakes once per period and when the server pushes news; it never touches the
-agent's loop and costs well under 0.1 % of a core. Research background: zenoh.md §1.1
-and §1.4 (a); protocol: docs/discovery.md.
+agent's loop and costs well under 0.1 % of a core. A running Zenoh session cannot be told to
+dial a new endpoint, but it dials what it scouts, which is why the proxy speaks scouting;
+the protocol is in docs/discovery.md.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from discovery.protocol import (
     unseal,
     view_digest,
 )
+from discovery.options import ProxyOptions
 from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
 
@@ -95,7 +97,7 @@ def resolve(addr: Addr) -> Addr:
     """``(host, port)`` -> ``(ip, port)``, as datagrams from that address will show it."""
     family = socket.AF_INET6 if ":" in addr[0] else socket.AF_UNSPEC
     info = socket.getaddrinfo(addr[0], addr[1], family, socket.SOCK_DGRAM)
-    return info[0][4][0], info[0][4][1]
+    return str(info[0][4][0]), int(info[0][4][1])
 
 
 @dataclass
@@ -144,23 +146,11 @@ class BeaconDiscovery:
         self.proxy: DiscoveryProxy | None = None
 
     @classmethod
-    def from_network(cls, net: Any) -> BeaconDiscovery:
-        """From a :class:`uav_stack.config.NetworkConfig` (``connectivity: discovery``)."""
-        o = dict(net.options)
-        if "server" not in o:
-            raise ValueError("network.options.server (the discovery server's HOST:PORT) is required")
-        key = o.get("key")
-        if key is None and o.get("key_file"):
-            with open(o["key_file"]) as f:
-                key = f.read().strip()
-        if not key:
-            raise ValueError("network.options.key or key_file (the swarm's discovery key) is required")
-        if getattr(net, "mode", "peer") != "peer":
-            raise ValueError("discovery connects peers directly; client mode needs connectivity 'rendezvous'")
-        return cls(server=o["server"], key=key, listen=tuple(net.listen), connect=tuple(net.endpoints),
-                   advertise=tuple(o.get("advertise", ())), period=float(o.get("period", DEFAULT_PERIOD)),
-                   extra_swarms=dict(o.get("extra_swarms", {})), dial=o.get("dial", "greater-zid"), zid=o.get("zid"),
-                   lanes=int(o.get("lanes", 4)))
+    def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = ()) -> BeaconDiscovery:
+        """From a node's :class:`~discovery.options.ProxyOptions` (``NetworkConfig.discovery``) and its endpoints."""
+        return cls(server=opts.server, key=opts.read_key(), listen=tuple(listen), connect=tuple(connect),
+                   advertise=opts.advertise, period=opts.period, extra_swarms=dict(opts.extra_swarms), dial=opts.dial,
+                   zid=opts.zid, lanes=opts.lanes)
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""

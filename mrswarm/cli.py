@@ -1,7 +1,7 @@
 """The ``mrswarm`` command: one CLI, a subcommand per job.
 
 Heavy imports happen inside each subcommand, so ``mrswarm agent`` on a companion computer
-does not load matplotlib or pydantic.
+does not load matplotlib.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=lambda a: _delegate("discovery.rendezvous", "main", a.rest))
     p = sub.add_parser("deploy", help="images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
                        add_help=False)
-    p.set_defaults(func=lambda a: _delegate("deploy.cli", "main", a.rest))
+    p.set_defaults(func=lambda a: _delegate("mrswarm.deploy_cli", "main", a.rest))
 
     p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))

@@ -27,13 +27,14 @@ from typing import Any
 import yaml
 from rich.console import Console
 
-from deploy.runtimes import make_runtime
 from mrswarm.display import Display
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.results import summarise_run
+from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
 from mrswarm.summary import RunInfo, RunSummary
 from swarmnet.observer import SwarmObserver
+from swarmnet.schema import to_builtins
 from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, AgentPhase
 from uav_stack.runtime import make_connectivity
@@ -78,7 +79,7 @@ class Experiment:
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
-        (self.run_dir / "scenario.yaml").write_text(yaml.safe_dump(self.scn.model_dump(mode="json"), sort_keys=False))
+        (self.run_dir / "scenario.yaml").write_text(yaml.safe_dump(to_builtins(self.scn), sort_keys=False))
         old = signal.signal(signal.SIGTERM, _raise_interrupt)
         try:
             self._fly()
@@ -100,16 +101,16 @@ class Experiment:
     def _fly(self) -> None:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
-                                         connectivity=scn.network.connectivity, discovery=scn.network.discovery.model_dump())
+                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints)}
-        if net.connectivity == "discovery" and net.options.get("server") and net.options.get("key"):
+        if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
-            key_file.write_text(f"{scn.swarm} {net.options['key']}\n")
+            key_file.write_text(f"{scn.swarm} {net.discovery.key}\n")
             key_file.chmod(0o600)
-            network_info["discovery"] = {"server": net.options["server"], "key_file": key_file.name}
+            network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         (self.run_dir / "network.json").write_text(json.dumps(network_info))
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]

@@ -10,7 +10,7 @@
 validates it here (errors name the field), publishes it on ``mrs/<swarm>/netem/set`` and
 waits until every live UAV has acknowledged it. The change replaces the UAVs' whole netem
 configuration (their seed is kept unless ``--seed`` is given). Light imports only: no
-pydantic or rich, so the command starts fast.
+scenario loader or rich, so the command starts fast.
 """
 
 from __future__ import annotations

@@ -2,250 +2,221 @@
 
 A scenario describes one experiment: the swarm, its origin, the mission, the UAVs and
 how long to fly. ``load_scenario`` applies ``--set a.b=value`` overrides before validation,
-so an override that breaks a rule is reported like a bad file.
+so an override that breaks a rule is reported like a bad file:
+``scenarios/x.yaml: flight.sped: unknown field (expected one of: ...)``.
+
+The types are msgspec Structs (``swarmnet.schema``). Where a section has the shape of a lower
+layer's settings it is that type: ``network.netem`` is :class:`~swarmnet.netem.config.NetemSpec`,
+``network.discovery`` is :class:`~discovery.options.DiscoveryService`, ``docker`` is
+:class:`~deploy.settings.ContainerSettings`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
-from pydantic_core import PydanticCustomError
+from msgspec import Meta, field
+from msgspec.structs import force_setattr, replace
 
-from uav_stack.config import AgentConfig, AvoidanceConfig, GcsConfig, MissionConfig, NetworkConfig, VirtualUavConfig
+from deploy.settings import ContainerSettings
+from discovery.options import DiscoveryService
+from swarmnet.netem.config import NetemSpec
+from swarmnet.schema import Config, ConfigError, convert, to_builtins
+from uav_stack.config import (
+    AgentConfig,
+    AvoidanceConfig,
+    CoverageStrategy,
+    Flavour,
+    GcsConfig,
+    MissionConfig,
+    MissionType,
+    NetworkConfig,
+    PoseFeed,
+    UavId,
+    VirtualUavConfig,
+    ZenohMode,
+)
 from uav_stack.geo import GeoPoint, LocalFrame
+
+Rtf = Annotated[float, Meta(gt=0.0, le=1.0, description="target real-time factor of the virtual FCU")]
+Port = Annotated[int, Meta(ge=1, le=65535)]
 
 
 class ScenarioError(ValueError):
-    """A scenario that cannot be used; the message names the file and every bad field."""
+    """A scenario that cannot be used; the message names the file and the field."""
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class Origin(Config, frozen=True):
+    lat: Annotated[float, Meta(ge=-90.0, le=90.0, description="degrees")]
+    lon: Annotated[float, Meta(ge=-180.0, le=180.0, description="degrees")]
+    alt: Annotated[float, Meta(ge=-500.0, le=9000.0, description="metres AMSL")]
+
+    def point(self) -> GeoPoint:
+        return GeoPoint(self.lat, self.lon, self.alt)
 
 
-class Origin(_Model):
-    lat: float = Field(ge=-90, le=90)
-    lon: float = Field(ge=-180, le=180)
-    alt: float = Field(ge=-500, le=9000, description="metres AMSL")
+class Area(Config, frozen=True):
+    """A rectangle in the swarm's ENU frame, metres from the origin."""
 
-
-class Area(_Model):
     x_min: float
     x_max: float
     y_min: float
     y_max: float
 
-    @model_validator(mode="after")
-    def _ordered(self) -> Area:
+    def __post_init__(self) -> None:
         if not (self.x_min < self.x_max and self.y_min < self.y_max):
-            raise ValueError("need x_min < x_max and y_min < y_max")
+            raise ConfigError("", "need x_min < x_max and y_min < y_max")
         if (self.x_max - self.x_min) * (self.y_max - self.y_min) > 25e6:
-            raise ValueError("area larger than 25 km^2")
-        return self
+            raise ConfigError("", "area larger than 25 km^2")
 
     def as_tuple(self) -> tuple[float, float, float, float]:
         return (self.x_min, self.x_max, self.y_min, self.y_max)
 
 
-class Mission(_Model):
-    type: Literal["coverage", "goto", "idle"] = "coverage"
-    strategy: Literal["lawnmower", "random"] = "lawnmower"
+class Mission(Config, frozen=True):
+    type: MissionType = "coverage"
+    strategy: CoverageStrategy = "lawnmower"
     area: Area | None = None
-    sensor_radius: float = Field(10.0, gt=0, le=200, description="footprint radius used for coverage, m")
-    overlap: float = Field(0.2, ge=0, lt=0.9)
+    sensor_radius: Annotated[float, Meta(gt=0.0, le=200.0, description="footprint radius used for coverage, m")] = 10.0
+    overlap: Annotated[float, Meta(ge=0.0, lt=0.9, description="lawnmower lane overlap")] = 0.2
     land_when_done: bool = False
 
-    @model_validator(mode="after")
-    def _needs_area(self) -> Mission:
+    def __post_init__(self) -> None:
         if self.type == "coverage" and self.area is None:
-            raise ValueError("a coverage mission needs an area")
-        return self
+            raise ConfigError("area", "a coverage mission needs an area")
 
     @property
     def lane_spacing(self) -> float:
         return 2 * self.sensor_radius * (1 - self.overlap)
 
 
-class Flight(_Model):
-    altitude: float = Field(15.0, ge=2, le=120, description="mission altitude above the origin, m")
-    speed: float = Field(5.0, gt=0, le=15)
-    safety_distance: float = Field(5.0, gt=0, le=100, description="separation avoidance keeps, m")
-    collision_distance: float = Field(1.0, gt=0, le=20, description="closer than this counts as a collision, m")
-    time_horizon: float = Field(4.0, gt=0, le=30)
+class Flight(Config, frozen=True):
+    altitude: Annotated[float, Meta(ge=2.0, le=120.0, description="mission altitude above the origin, m")] = 15.0
+    speed: Annotated[float, Meta(gt=0.0, le=15.0, description="cruise speed, m/s")] = 5.0
+    safety_distance: Annotated[float, Meta(gt=0.0, le=100.0, description="separation avoidance keeps, m")] = 5.0
+    collision_distance: Annotated[float, Meta(gt=0.0, le=20.0, description="closer counts as a collision, m")] = 1.0
+    time_horizon: Annotated[float, Meta(gt=0.0, le=30.0, description="ORCA time horizon, s")] = 4.0
     avoidance: bool = True
 
-    @model_validator(mode="after")
-    def _distances(self) -> Flight:
+    def __post_init__(self) -> None:
         if self.collision_distance >= self.safety_distance:
-            raise ValueError("collision_distance must be smaller than safety_distance")
-        return self
+            raise ConfigError("collision_distance", "must be smaller than safety_distance")
 
 
-class Discovery(_Model):
-    key: str | None = Field(None, min_length=16, description="the swarm's discovery key; default: a fresh one per run")
-    period: float = Field(1.0, ge=0.2, le=10, description="seconds between beacons")
-    ttl: float = Field(3.0, gt=0, le=60, description="the server forgets nodes silent this long, s")
+class Network(Config, frozen=True):
+    connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
+    mode: ZenohMode = "peer"
+    pose_feed: PoseFeed = "direct"
+    netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
+    discovery: DiscoveryService = field(default_factory=DiscoveryService)
 
-    @model_validator(mode="after")
-    def _ttl(self) -> Discovery:
-        if self.ttl < 2 * self.period:
-            raise ValueError("ttl must be at least two beacon periods")
-        return self
-
-
-class Network(_Model):
-    connectivity: Literal["discovery", "rendezvous"] = "discovery"
-    mode: Literal["peer", "client"] = "peer"
-    pose_feed: Literal["direct", "edge"] = "direct"
-    netem: dict[str, Any] | None = Field(None, description="netem shim: per-link impairments (docs/netem.md)")
-
-    @field_validator("netem")
-    @classmethod
-    def _netem(cls, v: dict[str, Any] | None) -> dict[str, Any] | None:
-        if v is not None:
-            from swarmnet.netem import NetemConfigError, parse_netem
-
-            try:
-                parse_netem(v)
-            except NetemConfigError as exc:  # reads "network.netem: v2v.loss.p: must be ..."
-                raise PydanticCustomError("netem_config", "{error}", {"error": str(exc)}) from None
-        return v
-
-    discovery: Discovery = Discovery()
-
-    @model_validator(mode="before")
-    @classmethod
-    def _default_connectivity(cls, data: Any) -> Any:
-        # client mode means "through the edge router": it implies the rendezvous topology
-        if isinstance(data, dict) and "connectivity" not in data and data.get("mode") == "client":
-            data = {**data, "connectivity": "rendezvous"}
-        return data
-
-    @model_validator(mode="after")
-    def _client_needs_router(self) -> Network:
+    def __post_init__(self) -> None:
+        if self.connectivity is None:  # client mode means "through the edge router": the rendezvous topology
+            force_setattr(self, "connectivity", "rendezvous" if self.mode == "client" else "discovery")
         if self.mode == "client" and self.connectivity != "rendezvous":
-            raise ValueError("mode 'client' routes through the edge router: set connectivity: rendezvous")
-        return self
+            raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
 
 
-class Spawn(_Model):
+class Spawn(Config, frozen=True):
     pattern: Literal["line", "grid"] = "grid"
-    spacing: float = Field(8.0, gt=0, le=500)
-    center: tuple[float, float] = (0.0, 0.0)
+    spacing: Annotated[float, Meta(gt=0.0, le=500.0, description="m")] = 8.0
+    center: tuple[float, float] = (0.0, 0.0)  # x, y (ENU m)
 
 
-class Fleet(_Model):
-    count: int = Field(ge=1, le=500)
-    first_id: int = Field(1, ge=1, le=65535)
-    spawn: Spawn = Spawn()
-    rtf: float = Field(1.0, gt=0, le=1.0, description="target real-time factor of the virtual FCUs")
-    flavour: Literal["px4", "ardupilot"] = Field("px4", description="autopilot the virtual FCUs emulate")
+class Fleet(Config, frozen=True):
+    count: Annotated[int, Meta(ge=1, le=500)]
+    first_id: UavId = 1
+    spawn: Spawn = field(default_factory=Spawn)
+    rtf: Rtf = 1.0
+    flavour: Flavour = "px4"
 
 
-class Uav(_Model):
-    id: int = Field(ge=1, le=65535)
-    start: tuple[float, float]
-    goal: tuple[float, float] | None = None
-    rtf: float = Field(1.0, gt=0, le=1.0)
-    heading: float = Field(0.0, description="initial heading, degrees from north")
-    flavour: Literal["px4", "ardupilot"] = Field("px4", description="px4, or ardupilot for MAVProxy users (docs/gcs.md)")
+class Uav(Config, frozen=True):
+    id: UavId
+    start: tuple[float, float]  # x, y (ENU m)
+    goal: tuple[float, float] | None = None  # goto missions
+    rtf: Rtf = 1.0
+    heading: float = 0.0  # initial heading, degrees from north
+    flavour: Flavour = "px4"  # px4, or ardupilot for MAVProxy users (docs/gcs.md)
 
 
-class Gcs(_Model):
+class Gcs(Config, frozen=True):
     """Ground-station access (docs/gcs.md): each agent's MAVLink router and the override limits."""
 
-    mavlink: bool = Field(False, description="route every UAV's FCU to ground stations")
-    host: str = Field("127.0.0.1", min_length=1, max_length=253, description="where the ground station (QGC) listens")
-    port: int | None = Field(14550, ge=1, le=65535, description="UAVs of shard k (ids 240k+1..240k+240) send to port + k")
-    listen_base: int | None = Field(None, ge=1, le=65535, description="UAV i also listens on listen_base + i")
-    geofence: Area | None = Field(None, description="goto limits; default: the mission area, or starts and goals + 50 m")
-    max_alt: float = Field(120.0, gt=2, le=1000, description="highest goto altitude above the origin, m")
+    mavlink: bool = False  # route every UAV's FCU to ground stations
+    host: Annotated[str, Meta(min_length=1, max_length=253)] = "127.0.0.1"  # where the ground station (QGC) listens
+    port: Port | None = 14550  # UAVs of shard k (ids 240k+1..240k+240) send to port + k
+    listen_base: Port | None = None  # UAV i also listens on listen_base + i
+    geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
+    max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
 
 
-class Docker(_Model):
-    """Settings of the container runtime (``runtime: docker`` or ``mrswarm run --runtime docker``)."""
-
-    image: str | None = Field(None, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.:/@-]{0,199}$",
-                              description="image to run (default mrswarm:<version>, see `mrswarm deploy build`)")
-    cpus: float = Field(0.5, gt=0, le=64, description="CPU limit per UAV container, cores")
-    memory_mb: int = Field(256, ge=64, le=65536, description="memory limit per UAV container, MB")
-    multicast: Literal["drop", "allow"] = Field(
-        "drop", description="drop: no multicast or broadcast between containers, like a cellular network")
-
-
-class Scenario(_Model):
-    name: str = Field(pattern=r"^[A-Za-z0-9_\-]{1,64}$")
+class Scenario(Config, kw_only=True, frozen=True):
+    name: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
     description: str = ""
-    swarm: str = Field("alpha", pattern=r"^[A-Za-z0-9_\-]{1,32}$")
-    seed: int = Field(0, ge=0)
-    duration: float = Field(gt=0, le=7200, description="seconds of mission after the start command")
+    swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")] = "alpha"
+    seed: Annotated[int, Meta(ge=0)] = 0
+    duration: Annotated[float, Meta(gt=0.0, le=7200.0, description="seconds of mission after the start command")]
     origin: Origin
-    network: Network = Network()
-    flight: Flight = Flight()
+    network: Network = field(default_factory=Network)
+    flight: Flight = field(default_factory=Flight)
     mission: Mission
     fleet: Fleet | None = None
-    uavs: list[Uav] | None = None
-    gcs: Gcs = Gcs()
+    uavs: tuple[Uav, ...] | None = None
+    gcs: Gcs = field(default_factory=Gcs)
     runtime: Literal["process", "docker"] = "process"
-    docker: Docker = Docker()
+    docker: ContainerSettings = field(default_factory=ContainerSettings)
 
-    @field_validator("uavs")
-    @classmethod
-    def _unique_ids(cls, v: list[Uav] | None) -> list[Uav] | None:
-        if v is not None:
-            ids = [u.id for u in v]
+    def __post_init__(self) -> None:
+        if self.uavs is not None:
+            if not self.uavs:
+                raise ConfigError("uavs", "at least one UAV")
+            ids = [u.id for u in self.uavs]
             dup = sorted({i for i in ids if ids.count(i) > 1})
             if dup:
-                raise ValueError(f"duplicate UAV ids {dup}")
-            if not v:
-                raise ValueError("at least one UAV")
-        return v
-
-    @model_validator(mode="after")
-    def _fleet_or_uavs(self) -> Scenario:
+                raise ConfigError("uavs", f"duplicate UAV ids {dup}")
         if (self.fleet is None) == (self.uavs is None):
-            raise ValueError("give either 'fleet' (count + spawn pattern) or an explicit 'uavs' list, not both")
+            raise ConfigError("", "give either 'fleet' (count + spawn pattern) or an explicit 'uavs' list, not both")
+        uavs = self.uav_list()
         if self.mission.type == "goto":
-            missing = [u.id for u in self.uav_list() if u.goal is None]
+            missing = [u.id for u in uavs if u.goal is None]
             if missing:
-                raise ValueError(f"a goto mission needs a goal for every UAV; missing for {missing}")
-        ids = [u.id for u in self.uav_list()]
-        if max(ids) > 65535:
-            raise ValueError("UAV ids must stay <= 65535")
-        self._check_spawn_spacing()
+                raise ConfigError("mission", f"a goto mission needs a goal for every UAV; missing for {missing}")
+        top = max(u.id for u in uavs)
+        if top > 65535:
+            raise ConfigError("fleet.first_id", "UAV ids must stay <= 65535")
+        self._check_spawn_spacing(uavs)
         g = self.gcs
         if g.mavlink:
             from uav_stack.sysid import allocate_sysid
 
-            if g.port is not None and g.port + allocate_sysid(max(ids))[0] > 65535:
-                raise ValueError("gcs.port + the highest shard is above 65535")
-            if g.listen_base is not None and g.listen_base + max(ids) > 65535:
-                raise ValueError(f"gcs.listen_base + the highest UAV id ({max(ids)}) is above 65535")
+            if g.port is not None and g.port + allocate_sysid(top)[0] > 65535:
+                raise ConfigError("gcs.port", "plus the highest shard is above 65535")
+            if g.listen_base is not None and g.listen_base + top > 65535:
+                raise ConfigError("gcs.listen_base", f"plus the highest UAV id ({top}) is above 65535")
             if g.port is None and g.listen_base is None:
-                raise ValueError("gcs.mavlink needs gcs.port or gcs.listen_base")
-        return self
+                raise ConfigError("gcs.mavlink", "needs gcs.port or gcs.listen_base")
 
-    def _check_spawn_spacing(self) -> None:
-        pts = [u.start for u in self.uav_list()]
+    def _check_spawn_spacing(self, uavs: list[Uav]) -> None:
+        pts = [u.start for u in uavs]
         for i in range(len(pts)):
             for j in range(i + 1, len(pts)):
                 d = math.dist(pts[i], pts[j])
                 if d < self.flight.safety_distance:
-                    raise ValueError(
-                        f"UAVs spawn {d:.1f} m apart, closer than flight.safety_distance ({self.flight.safety_distance} m)"
-                    )
+                    raise ConfigError("uavs" if self.uavs is not None else "fleet.spawn",
+                                      f"UAVs spawn {d:.1f} m apart, closer than flight.safety_distance "
+                                      f"({self.flight.safety_distance} m)")
 
     def uav_list(self) -> list[Uav]:
         if self.uavs is not None:
             return list(self.uavs)
         f = self.fleet
         assert f is not None
-        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(spawn_points(f.count, f.spawn))]
+        points = spawn_points(f.count, f.spawn)
+        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(points)]
 
     def geofence(self) -> tuple[float, float, float, float]:
         """Where a ground station may send a UAV (goto): gcs.geofence, else the mission area, else
@@ -274,11 +245,14 @@ class Scenario(_Model):
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None) -> list[VirtualUavConfig]:
-        origin = GeoPoint(self.origin.lat, self.origin.lon, self.origin.alt)
+        """One UAV process's configuration per UAV, on the network the runtime started."""
+        origin = self.origin.point()
         frame = LocalFrame(origin)
         fl, m = self.flight, self.mission
         if self.network.netem is not None:  # the per-link seeds default to the scenario's seed
-            network = replace(network, netem={"seed": self.seed, **self.network.netem})
+            netem = to_builtins(self.network.netem)
+            netem.setdefault("seed", self.seed)
+            network = replace(network, netem=netem)
         out = []
         for u in self.uav_list():
             lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)
@@ -297,8 +271,8 @@ class Scenario(_Model):
                 network=network,
                 gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt),
             )
-            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf, heading=math.radians(u.heading),
-                                        flavour=u.flavour))
+            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
+                                        heading=math.radians(u.heading), flavour=u.flavour))
         return out
 
 
@@ -347,15 +321,12 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise ScenarioError(f"--set {text!r}: bad value: {exc}") from None
 
 
-def format_errors(path: str, err: ValidationError) -> str:
-    lines = [f"{path}: invalid scenario ({err.error_count()} problem{'s' if err.error_count() > 1 else ''})"]
-    for e in err.errors():
-        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
-        msg = e["msg"]
-        if e["type"] == "extra_forbidden":
-            msg = "unknown field (check the spelling; see docs/scenarios.md)"
-        lines.append(f"  {loc}: {msg}")
-    return "\n".join(lines)
+def parse_scenario(data: Any, where: str = "scenario") -> Scenario:
+    """Validate a scenario mapping; :class:`ScenarioError` reads ``<where>: <field>: <what is wrong>``."""
+    try:
+        return convert(data, Scenario)
+    except ConfigError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
 
 
 def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scenario:
@@ -375,7 +346,4 @@ def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scena
     for o in overrides or []:
         key, value = parse_override(o)
         _set_path(data, key, value)
-    try:
-        return Scenario.model_validate(data)
-    except ValidationError as exc:
-        raise ScenarioError(format_errors(str(path), exc)) from None
+    return parse_scenario(data, str(path))

@@ -13,7 +13,8 @@ import yaml
 from deploy.images import image_tag
 from deploy.services import network_plan
 from deploy.swarm import StackOptions, stack_spec, write_stack
-from deploy.swarm_uav import SlotError, endpoint_host, pick
+from deploy.swarm_uav import SlotError, endpoint_host, load_fleet, pick
+from mrswarm.deploy_cli import swarm_fleet
 from mrswarm.scenario import ScenarioError, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +45,7 @@ def test_network_plan_rendezvous_router_and_uav_endpoints() -> None:
 
 def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
     scn = load_scenario(COVERAGE)
-    stack, fleet_json = stack_spec(scn, StackOptions(uavs=7, image="img:1"))
+    stack, fleet_json = stack_spec(swarm_fleet(scn, 7), StackOptions(image="img:1"))
     fleet = json.loads(fleet_json)
     assert [f["agent"]["uav"] for f in fleet] == [1, 2, 3, 4, 5, 6, 7]
     assert all(f["agent"]["network"]["endpoints"] == ["tcp/router:7447"] for f in fleet)
@@ -61,7 +62,7 @@ EXAMPLE_KEY = "network.discovery.key=example-key-regenerate-for-real-deployments
 
 def test_committed_stack_file_is_what_the_generator_makes(tmp_path: Path) -> None:
     # the committed example carries a fixed example key; real deployments draw a fresh one
-    write_stack(load_scenario(COVERAGE, [EXAMPLE_KEY]), StackOptions(uavs=5, image=image_tag()), tmp_path)
+    write_stack(swarm_fleet(load_scenario(COVERAGE, [EXAMPLE_KEY]), 5), StackOptions(image=image_tag()), tmp_path)
     assert (tmp_path / "stack.yml").read_text() == (ROOT / "deploy" / "stack.yml").read_text(), \
         f"regenerate: mrswarm deploy swarm up --uavs 5 --dry-run --out deploy/ --set {EXAMPLE_KEY}"
     assert (tmp_path / "fleet.json").read_text() == (ROOT / "deploy" / "fleet.json").read_text()
@@ -69,7 +70,7 @@ def test_committed_stack_file_is_what_the_generator_makes(tmp_path: Path) -> Non
 
 
 def test_replica_picks_its_uav_by_slot_and_refuses_a_slot_without_one() -> None:
-    fleet = json.loads((ROOT / "deploy" / "fleet.json").read_text())
+    fleet = load_fleet(ROOT / "deploy" / "fleet.json")
     assert pick(fleet, 3).agent.uav == 3
     for slot in (0, 6, -1):
         with pytest.raises(SlotError, match="slot"):

@@ -187,18 +187,20 @@ def test_server_given_by_name_works(server: str) -> None:
 
 
 def test_network_config_and_agent_cli_build_a_discovery_node(server: str, tmp_path: Path) -> None:
+    from discovery.options import ProxyOptions
     from uav_stack.config import AgentConfig, NetworkConfig
     from uav_stack.geo import GeoPoint
     from uav_stack.runtime import make_connectivity
 
     keyfile = tmp_path / "alpha.key"
     keyfile.write_text(KEY + "\n")
-    net = NetworkConfig(connectivity="discovery", options={"server": server, "key_file": str(keyfile), "period": 0.5})
+    net = NetworkConfig(connectivity="discovery", discovery=ProxyOptions(server=server, key_file=str(keyfile), period=0.5))
     conn = make_connectivity(net)
     assert isinstance(conn, BeaconDiscovery) and conn.key == KEY and conn.period == 0.5
     # the config survives the JSON hop to a UAV process
-    cfg = AgentConfig.from_dict(json.loads(AgentConfig(swarm="alpha", uav=5, origin=GeoPoint(0, 0, 0), fcu="",
-                                                       network=net).to_json()))
+    path = tmp_path / "agent.json"
+    path.write_text(AgentConfig(swarm="alpha", uav=5, origin=GeoPoint(0, 0, 0), fcu="", network=net).to_json())
+    cfg = AgentConfig.load(path)
     n = SwarmNode(NodeIdentity("alpha", 5), make_connectivity(cfg.network)).open()
     other = node(server, 6).open()
     try:
@@ -207,6 +209,6 @@ def test_network_config_and_agent_cli_build_a_discovery_node(server: str, tmp_pa
         n.close()
         other.close()
     with pytest.raises(ValueError, match="client mode"):
-        make_connectivity(NetworkConfig(connectivity="discovery", mode="client", options={"server": server, "key": KEY}))
+        make_connectivity(NetworkConfig(connectivity="discovery", mode="client", discovery=ProxyOptions(server=server, key=KEY)))
     res = cli("agent", "--help")
     assert "--discovery" in res.stdout and "--discovery-key-file" in res.stdout and "--advertise" in res.stdout

@@ -1,10 +1,10 @@
-"""network.netem in scenario files: validated with the field named, passed to the UAV processes as plain JSON."""
+"""network.netem in scenario files: validated with the field named, passed to the UAV processes in their JSON config."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from mrswarm.scenario import ScenarioError, load_scenario
@@ -20,7 +20,7 @@ def test_a_preset_reaches_every_uav_process_with_the_scenario_seed() -> None:
     configs = scn.virtual_uav_configs(NetworkConfig(endpoints=("tcp/127.0.0.1:7447",)), None)
     assert len(configs) == 10
     for c in configs:
-        back = VirtualUavConfig.from_dict(json.loads(c.to_json()))  # what the UAV process reads
+        back = msgspec.json.decode(c.to_json(), type=VirtualUavConfig)  # what the UAV process reads
         assert back.agent.network.netem == {"seed": 7, "preset": "5g-campus", "v2v": {"delay": {"ms": 12}}}
     node = make_node(configs[0].agent)  # not opened: no network needed
     assert node.netem is not None and node.netem.config.seed == 7
@@ -43,4 +43,4 @@ def test_without_netem_the_uav_has_no_shim() -> None:
 def test_bad_netem_is_reported_with_the_field(override: str, field: str) -> None:
     with pytest.raises(ScenarioError) as err:
         load_scenario(COVERAGE, [override])
-    assert f"network.netem: {field}: " in str(err.value)
+    assert f"network.netem.{field}: " in str(err.value)

@@ -13,13 +13,14 @@ import math
 import random
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from scipy import integrate, stats
 
 from swarmnet.messages import Realm
 from swarmnet.netem import NetemConfigError, NetemShim, parse_netem
-from swarmnet.netem.config import LossSpec, four_state_stationary
+from swarmnet.netem.config import FourStateLoss, LossSpec, four_state_stationary
 from swarmnet.netem.models import PARETONORMAL_SD, OutageSchedule
 from swarmnet.netem.shim import Link
 
@@ -173,11 +174,11 @@ def test_gilbert_elliott_with_partial_loss_in_each_state() -> None:
     lost = lost_pattern({"loss": spec}, GE_N)
     pb = 0.05 / 0.25
     expect = pb * 0.7 + (1 - pb) * 0.02
-    assert LossSpec(**spec).expected_rate == pytest.approx(expect)
+    assert msgspec.convert(spec, LossSpec).expected_rate == pytest.approx(expect)
     assert lost.mean() == pytest.approx(expect, rel=0.08)
 
 
-def four_state_matrix(s: LossSpec) -> np.ndarray:
+def four_state_matrix(s: FourStateLoss) -> np.ndarray:
     return np.array([
         [1 - s.p13 - s.p14, 0.0, s.p13, s.p14],
         [0.0, 1 - s.p23, s.p23, 0.0],
@@ -188,7 +189,7 @@ def four_state_matrix(s: LossSpec) -> np.ndarray:
 
 def test_four_state_model_loss_rate_matches_the_markov_chain() -> None:
     spec = {"model": "four_state", "p13": 0.02, "p31": 0.3, "p32": 0.2, "p23": 0.15, "p14": 0.01}
-    s = LossSpec(**spec)
+    s = msgspec.convert(spec, FourStateLoss)
     # stationary distribution independently: left eigenvector of the transition matrix
     w, v = np.linalg.eig(four_state_matrix(s).T)
     pi = np.real(v[:, np.argmin(np.abs(w - 1))])
@@ -384,7 +385,7 @@ def test_outage_lookup_is_exact_in_any_query_order(every_s: float, lo_ms: float,
     """The cached O(1) lookup against a brute-force union of every generated outage."""
     from swarmnet.netem.config import OutageSpec
 
-    spec = OutageSpec(every_s, lo_ms, hi_ms, "drop")
+    spec = OutageSpec(every_s=every_s, duration_ms=(lo_ms, hi_ms), mode="drop")
     ref = OutageSchedule(3, 1, spec)
     raw = sorted(iv for w in range(-1, 7) for iv in zip(*ref._window(w), strict=True))
     union: list[list[float]] = []

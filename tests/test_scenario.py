@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from mrswarm.scenario import ScenarioError, load_scenario
@@ -86,7 +87,7 @@ def test_per_uav_configs_round_trip_through_json() -> None:
     net = NetworkConfig(endpoints=("tcp/127.0.0.1:7447",))
     cfgs = s.virtual_uav_configs(net, record_dir="/tmp/x")
     assert [c.target_rtf for c in cfgs] == [1.0, 0.7]
-    back = VirtualUavConfig.from_dict(__import__("json").loads(cfgs[1].to_json()))
+    back = msgspec.json.decode(cfgs[1].to_json(), type=VirtualUavConfig)  # what the UAV process reads
     assert back == cfgs[1]
     assert back.agent.mission.goal == (-20.0, 0.0)
 

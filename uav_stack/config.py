@@ -1,75 +1,96 @@
-"""Plain-dataclass configuration of one agent (and its virtual FCU).
+"""Configuration of one agent and its virtual FCU: the file a UAV process reads.
 
-The scenario loader (``mrswarm.scenario``, pydantic) validates YAML and produces these;
-the UAV process only parses their JSON form, so it never imports pydantic or YAML (each
-costs MBs of RSS per process, and a swarm runs dozens of processes).
+The scenario loader (``mrswarm.scenario``) builds these from a scenario and a runtime writes
+them as JSON; a UAV process decodes that with ``VirtualUavConfig.load`` (msgspec: types and
+ranges checked, unknown fields refused, errors naming the field). Light imports only: a UAV
+process loads no YAML and no netem modules unless its swarm uses netem.
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import msgspec
+from msgspec import Meta, field
+
+from discovery.options import ProxyOptions
+from swarmnet.schema import Config, ConfigError, decode_json
 from uav_stack.geo import GeoPoint
 
+Connectivity = Literal["rendezvous", "static", "discovery"]
+ZenohMode = Literal["peer", "client"]
+PoseFeed = Literal["direct", "edge"]  # direct: a message per neighbour pose; edge: batches from the edge router
+MissionType = Literal["coverage", "goto", "idle"]
+CoverageStrategy = Literal["lawnmower", "random"]
+Flavour = Literal["px4", "ardupilot"]  # the autopilot a virtual FCU emulates
+UavId = Annotated[int, Meta(ge=1, le=65535, description="UAV id")]
+Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (ENU m)
+Hz = Annotated[float, Meta(gt=0.0, le=1000.0, description="Hz")]
 
-@dataclass(frozen=True)
-class NetworkConfig:
-    connectivity: str = "rendezvous"  # rendezvous | static | discovery (options: server, key/key_file, advertise, period)
-    endpoints: tuple[str, ...] = ()
-    mode: str = "peer"  # peer | client
+
+class NetworkConfig(Config, frozen=True):
+    """How the node reaches its swarm (``swarmnet.connectivity``, docs/discovery.md)."""
+
+    connectivity: Connectivity = "rendezvous"
+    endpoints: tuple[str, ...] = ()  # Zenoh endpoints to connect to (the rendezvous or edge router)
+    mode: ZenohMode = "peer"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
-    pose_feed: str = "direct"  # direct: a message per neighbour pose; edge: batches from the edge router
-    options: dict[str, Any] = field(default_factory=dict)  # strategy-specific settings
-    netem: dict[str, Any] | None = None  # netem shim config (network.netem, docs/netem.md); None: no shim
+    pose_feed: PoseFeed = "direct"
+    discovery: ProxyOptions | None = None  # connectivity "discovery": the server and the swarm's key
+    # the network.netem mapping (swarmnet.netem.config.NetemSpec; None: no shim). Plain data here:
+    # the node validates it when it applies it, as it does a runtime change, so a UAV without
+    # netem never loads the netem modules.
+    netem: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.connectivity == "discovery":
+            if self.discovery is None:
+                raise ConfigError("discovery", "required with connectivity 'discovery' (the server and the swarm's key)")
+            if self.mode != "peer":
+                raise ConfigError("mode", "discovery connects peers directly; client mode needs connectivity 'rendezvous'")
 
 
-@dataclass(frozen=True)
-class MissionConfig:
-    type: str = "coverage"  # coverage | goto | idle
-    strategy: str = "lawnmower"  # coverage: lawnmower | random
-    area: tuple[float, float, float, float] = (-100.0, 100.0, -100.0, 100.0)  # x_min, x_max, y_min, y_max (ENU m)
-    lane_spacing: float = 16.0
-    goal: tuple[float, float] | None = None  # goto
-    goal_tolerance: float = 1.5
+class MissionConfig(Config, frozen=True):
+    type: MissionType = "coverage"
+    strategy: CoverageStrategy = "lawnmower"  # coverage only
+    area: Rect = (-100.0, 100.0, -100.0, 100.0)  # x_min, x_max, y_min, y_max (ENU m)
+    lane_spacing: Annotated[float, Meta(gt=0.0, description="m")] = 16.0
+    goal: tuple[float, float] | None = None  # goto: x, y (ENU m)
+    goal_tolerance: Annotated[float, Meta(gt=0.0, description="m")] = 1.5
     land_when_done: bool = False
 
 
-@dataclass(frozen=True)
-class AvoidanceConfig:
+class AvoidanceConfig(Config, frozen=True):
     enabled: bool = True
-    safety_distance: float = 5.0  # m between UAV centres that avoidance keeps
-    time_horizon: float = 4.0
-    stale_after: float = 1.0
+    safety_distance: Annotated[float, Meta(gt=0.0, description="m between UAV centres that avoidance keeps")] = 5.0
+    time_horizon: Annotated[float, Meta(gt=0.0, description="s")] = 4.0
+    stale_after: Annotated[float, Meta(gt=0.0, description="neighbours older than this are ignored, s")] = 1.0
 
 
-@dataclass(frozen=True)
-class GcsConfig:
+class GcsConfig(Config, frozen=True):
     """Ground-station access: the agent's MAVLink router and the limits of override commands."""
 
     mavlink_endpoints: tuple[str, ...] = ()  # udpout:HOST:PORT / udpin:HOST:PORT; empty = no router
-    sysid: int = 0  # MAVLink sysid of this UAV's FCU; 0 = uav_stack.sysid.allocate_sysid(uav)
-    geofence: tuple[float, float, float, float] | None = None  # goto limits x_min, x_max, y_min, y_max (ENU m); None = mission area
+    sysid: Annotated[int, Meta(ge=0, le=250)] = 0  # MAVLink sysid of this UAV's FCU; 0 = uav_stack.sysid.allocate_sysid(uav)
+    geofence: Rect | None = None  # goto limits x_min, x_max, y_min, y_max (ENU m); None = mission area
     min_alt: float = 2.0  # goto altitude limits above the swarm origin, m
     max_alt: float = 120.0
 
 
-@dataclass(frozen=True)
-class AgentConfig:
-    swarm: str
-    uav: int
-    origin: GeoPoint
+class AgentConfig(Config, frozen=True):
+    swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")]
+    uav: UavId
+    origin: GeoPoint  # the swarm's ENU origin
     fcu: str  # pymavlink connection string
-    realm: str = "virtual"
+    realm: Literal["virtual", "physical"] = "virtual"
     altitude: float = 20.0  # mission altitude above the swarm origin, m
-    speed: float = 5.0  # cruise speed, m/s
+    speed: Annotated[float, Meta(gt=0.0, description="cruise speed, m/s")] = 5.0
     seed: int = 0
-    pose_rate_hz: float = 10.0
-    telemetry_rate_hz: float = 2.0
-    control_rate_hz: float = 10.0
-    stale_after: float = 1.0
+    pose_rate_hz: Hz = 10.0
+    telemetry_rate_hz: Hz = 2.0
+    control_rate_hz: Hz = 10.0
+    stale_after: Annotated[float, Meta(gt=0.0, description="s")] = 1.0
     autostart: bool = False  # start the mission without waiting for a "start" command
     record_dir: str | None = None
     mission: MissionConfig = field(default_factory=MissionConfig)
@@ -85,54 +106,30 @@ class AgentConfig:
         return self.gcs.sysid or allocate_sysid(self.uav)[1]
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self))
+        return msgspec.json.encode(self).decode()
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> AgentConfig:
-        d = dict(d)
-        d["origin"] = GeoPoint(**d["origin"])
-        m = dict(d.get("mission", {}))
-        for k in ("area", "goal"):
-            if m.get(k) is not None:
-                m[k] = tuple(m[k])
-        d["mission"] = MissionConfig(**m)
-        d["avoidance"] = AvoidanceConfig(**d.get("avoidance", {}))
-        n = dict(d.get("network", {}))
-        for k in ("endpoints", "listen"):
-            if k in n:
-                n[k] = tuple(n[k])
-        d["network"] = NetworkConfig(**n)
-        g = dict(d.get("gcs", {}))
-        if "mavlink_endpoints" in g:
-            g["mavlink_endpoints"] = tuple(g["mavlink_endpoints"])
-        if g.get("geofence") is not None:
-            g["geofence"] = tuple(g["geofence"])
-        d["gcs"] = GcsConfig(**g)
-        return cls(**d)
+    def load(cls, path: str | Path) -> AgentConfig:
+        """Read a JSON file; :class:`~swarmnet.schema.ConfigError` names the bad field."""
+        return decode_json(Path(path).read_bytes(), cls)
 
 
-@dataclass(frozen=True)
-class VirtualUavConfig:
+class VirtualUavConfig(Config, frozen=True):
     """One virtual UAV process: its FCU and its agent."""
 
     agent: AgentConfig
     home: GeoPoint  # where the virtual FCU spawns (landed)
-    target_rtf: float = 1.0
-    physics_hz: float = 50.0
-    flavour: str = "px4"
+    target_rtf: Annotated[float, Meta(gt=0.0, le=1.0, description="target real-time factor")] = 1.0
+    physics_hz: Hz = 50.0
+    flavour: Flavour = "px4"
     heading: float = 0.0  # initial yaw, rad (NED)
-    duration: float | None = None  # stop the process after this many seconds (None: until signalled)
+    # stop the process after this long (None: until signalled)
+    duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self))
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> VirtualUavConfig:
-        d = dict(d)
-        d["agent"] = AgentConfig.from_dict(d["agent"])
-        d["home"] = GeoPoint(**d["home"])
-        return cls(**d)
+        return msgspec.json.encode(self).decode()
 
     @classmethod
     def load(cls, path: str | Path) -> VirtualUavConfig:
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        """Read a JSON file (what a runtime wrote); :class:`~swarmnet.schema.ConfigError` names the bad field."""
+        return decode_json(Path(path).read_bytes(), cls)

@@ -1,31 +1,30 @@
 """Process entry points: a virtual UAV (virtual FCU + agent) and a standalone agent.
 
-One single-threaded ``selectors`` loop per process drives everything: the virtual FCU's
-physics and MAVLink socket (if any), the agent's MAVLink link, and the agent's step
-(which drains Zenoh's ring channels). No asyncio: it would cost ~10 MB per process.
+One single-threaded loop on a fixed tick (:func:`run_loop`) drives everything: the virtual
+FCU's datagrams and physics (if any), the agent's MAVLink link, and the agent's step (which
+drains Zenoh's ring channels). No asyncio: it would cost ~10 MB per process.
 """
 
 from __future__ import annotations
 
 import argparse
 import ctypes
-import json
 import logging
 import math
 import os
 import signal
 import sys
 import time
-from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
+from swarmnet.schema import ConfigError, convert
 from uav_stack.agent import Agent
-from uav_stack.config import AgentConfig, GcsConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
-from uav_stack.geo import GeoPoint
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +69,8 @@ def make_connectivity(net: NetworkConfig) -> Connectivity:
     if net.connectivity == "discovery":  # beacon relay through a discovery server (discovery/proxy.py)
         from discovery.proxy import BeaconDiscovery
 
-        return BeaconDiscovery.from_network(net)
+        assert net.discovery is not None  # NetworkConfig requires it with this connectivity
+        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints)
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
@@ -191,7 +191,10 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
     die_with_parent()
     stop = StopFlag().install()
     setup_logging(args.log_level, args.log_file)
-    cfg = VirtualUavConfig.load(args.config)
+    try:
+        cfg = VirtualUavConfig.load(args.config)
+    except (ConfigError, OSError) as exc:
+        ap.error(f"{args.config}: {exc}")
     return run_virtual_uav(cfg, stop)
 
 
@@ -232,24 +235,31 @@ def agent_main(argv: list[str] | None = None) -> int:
             parse_endpoint(spec)
         except ValueError as exc:
             ap.error(str(exc))
-    if args.config:
-        cfg = AgentConfig.from_dict(json.loads(Path(args.config).read_text()))
-    else:
+    try:
+        cfg = AgentConfig.load(args.config) if args.config else convert(agent_settings(args, ap), AgentConfig)
+    except (ConfigError, OSError) as exc:
+        ap.error(f"{args.config}: {exc}" if args.config else str(exc))
+    if cfg.network.discovery is not None:
         try:
-            lat, lon, alt = (float(v) for v in args.origin.split(","))
-        except ValueError:
-            ap.error("--origin must be LAT,LON,ALT")
-        net = NetworkConfig(endpoints=tuple(args.connect), mode=args.mode, pose_feed=args.pose_feed,
-                            listen=tuple(args.listen or ["tcp/0.0.0.0:0"]))
-        if args.discovery:
-            if not args.discovery_key_file:
-                ap.error("--discovery needs --discovery-key-file")
-            net = NetworkConfig(connectivity="discovery", endpoints=net.endpoints, mode=args.mode, pose_feed=args.pose_feed,
-                                listen=net.listen, options={"server": args.discovery, "key_file": args.discovery_key_file,
-                                                            "advertise": list(args.advertise)})
-        cfg = AgentConfig(
-            swarm=args.swarm, uav=args.uav, origin=GeoPoint(lat, lon, alt), fcu=args.fcu, realm=args.realm,
-            autostart=args.autostart, record_dir=args.record_dir, network=net,
-            gcs=GcsConfig(mavlink_endpoints=tuple(args.mavlink_endpoint), sysid=args.sysid),
-        )
+            cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node
+        except ConfigError as exc:
+            ap.error(f"network.discovery.{exc}")
     return run_agent(cfg, stop, args.duration)
+
+
+def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dict[str, Any]:
+    """The AgentConfig the flags of ``mrswarm agent`` describe, as a mapping to validate."""
+    try:
+        lat, lon, alt = (float(v) for v in args.origin.split(","))
+    except ValueError:
+        ap.error("--origin must be LAT,LON,ALT")
+    net: dict[str, Any] = {"endpoints": args.connect, "mode": args.mode, "pose_feed": args.pose_feed,
+                           "listen": args.listen or ["tcp/0.0.0.0:0"]}
+    if args.discovery:
+        if not args.discovery_key_file:
+            ap.error("--discovery needs --discovery-key-file")
+        net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
+                                                         "advertise": args.advertise})
+    return {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
+            "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir, "network": net,
+            "gcs": {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid}}

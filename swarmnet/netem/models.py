@@ -16,8 +16,8 @@ Delay: ``delay = max(0, mu + sigma * z_n)`` with the standardised shape ``z``:
 
 Correlation ``rho`` is an AR(1) process on the standardised value,
 ``z_n = rho z_{n-1} + sqrt(1 - rho^2) e_n``, which keeps the mean and the standard deviation
-and gives lag-1 autocorrelation ``rho`` (netem's "correlation" mixes uniforms instead and
-shrinks the variance; research note netem-algos.md §1.2). With ``rho > 0`` only the normal
+and gives lag-1 autocorrelation ``rho`` (netem's "correlation" mixes uniforms instead, the
+kernel's ``get_crandom`` in ``sch_netem.c``, and shrinks the variance). With ``rho > 0`` only the normal
 shape is kept exactly; other shapes drift towards normal.
 """
 
@@ -28,7 +28,7 @@ import math
 import random
 from collections.abc import Callable
 
-from swarmnet.netem.config import DelaySpec, LossSpec, OutageSpec
+from swarmnet.netem.config import BernoulliLoss, DelaySpec, FourStateLoss, GilbertElliottLoss, LossSpec, OutageSpec
 
 _PARETO_MEAN = 1.5  # of U**(-1/3)
 _PARETO_SD = math.sqrt(0.75)
@@ -87,7 +87,7 @@ class DelayGen:
         self.sigma = spec.jitter_ms / 1000.0
         self.rho = spec.correlation
         self.c = math.sqrt(1.0 - self.rho * self.rho)
-        self.shape = make_shape(spec.distribution)
+        self.shape = make_shape(spec.distribution or "normal")  # no jitter: unused
         self.z: float | None = None  # AR(1) state
 
     def draw(self, rng: random.Random) -> float:
@@ -109,9 +109,13 @@ class LossGen:
 
     def __init__(self, spec: LossSpec):
         self.model = spec.model
-        self.s = spec
-        self.p, self.r = spec.p, spec.r
-        self.loss_bad, self.loss_good = spec.loss_bad, spec.loss_good
+        self.s = spec if isinstance(spec, FourStateLoss) else None
+        self.p, self.r, self.loss_bad, self.loss_good = 0.0, 1.0, 1.0, 0.0
+        if isinstance(spec, BernoulliLoss):
+            self.p = spec.p
+        elif isinstance(spec, GilbertElliottLoss):  # validated: the chain is always filled in
+            self.p, self.r = float(spec.p or 0.0), float(spec.r or 0.0)
+            self.loss_bad, self.loss_good = float(spec.loss_bad or 0.0), float(spec.loss_good or 0.0)
         self.bad = False  # Gilbert-Elliott state
         self.state = 1  # 4-state chain: 1 gap, 2 burst (delivered), 3 burst (lost), 4 isolated loss
 
@@ -132,6 +136,7 @@ class LossGen:
 
     def _four_state(self, rng: random.Random) -> bool:
         s, u = self.s, rng.random()
+        assert s is not None  # the four_state model has its spec
         st = self.state
         if st == 1:
             if u < s.p14:

@@ -7,24 +7,27 @@ so ``v2v`` models two radio legs; ``v2p`` and ``ground`` model one, because the 
 UAV's own leg is real and the ground station sits on the wired edge. Two legs of a normal
 delay ``m +- s`` add up to ``2m +- s*sqrt(2)``; two legs of loss ``L`` to about ``2L``.
 
-Sources (docs/netem.md has the full table):
+Sources (docs/netem.md has the full table). Jitter, loss and outages are our engineering
+estimates anchored on the sources named, not measurements: replace them with logs of a
+physical UAV when there are some.
 
 * ``5g-campus``: Sende et al. 2024 (the seed paper), 5G Playground Carinthia campus network:
   ping RTT UAV <-> edge server 9.81 ms mean (95 % CI 0.27 ms), independent of the number of
   UAVs; the paper itself adds 9.81 ms as the UAV-to-UAV network delay. So ``v2v`` = 9.81 ms one
-  way, one leg = 4.905 ms. Jitter, loss and the NR <-> LTE fallback outages are engineering
-  estimates (research note netem-algos.md §1.5, preset ``5g_nsa_uav``), not measurements.
-* ``lte``: low-altitude LTE (research note §1.5 ``lte_uav_low``): 25 +- 8 ms per leg (3GPP
-  TR 36.777 C2 target <= 50 ms one way; Zulkifley et al. 2021 measured RTTs up to 94 ms at
-  170 m), 0.4 % loss in bursts of 2 per leg, 10 Mbit/s uplink, a handover about every 60 s
-  that holds traffic for 30-80 ms. Estimates anchored on those sources, not measurements.
-* ``degraded``: the issue's "bad day": about 100 +- 30 ms and 10 % bursty loss between
-  UAVs (mean burst 3), 256 kbit/s (research note §1.5 ``degraded``).
+  way, one leg = 4.905 ms. Jitter, loss and the NR <-> LTE fallback outages (held 50-150 ms
+  about once a minute; intra-LTE handover interruptions are tens of ms, Han et al., IEEE
+  Commun. Mag. 53(3), 2015) are estimates for a 5G NSA link.
+* ``lte``: low-altitude LTE (below about 60 m): 25 +- 8 ms per leg (3GPP TR 36.777: C2 one-way
+  delay <= 50 ms; Zulkifley et al., Sensors 21(8), 2021, measured RTTs up to 94 ms at 170 m),
+  0.4 % loss in bursts of 2 per leg, 10 Mbit/s uplink, a handover about every 60 s that holds
+  traffic for 30-80 ms.
+* ``degraded``: a "bad day": about 100 +- 30 ms and 10 % bursty loss between UAVs (mean burst
+  3), 256 kbit/s, a few times the 60-100 kbit/s 3GPP asks for a C2 link (TR 36.777).
 * ``wifi-mesh``: a direct air-to-air 5.8 GHz mesh, one hop: 2 +- 1 ms, 20 Mbit/s, GE loss
-  p 0.005 r 0.5 (research note §1.5 ``wifi_a2a``), and log-distance path loss: exponent 2.8
-  (Khawaja et al.: 2.54-3.04 suburban/open UAV links), shadowing 4 dB, 20 dBm, 0 dBi,
-  sensitivity -91 dBm (Mininet-WiFi's noise threshold), reference loss 47.72 dB (Friis at
-  1 m, 5.8 GHz): delivery probability 0.5 at ~182 m.
+  p 0.005 r 0.5, and log-distance path loss: exponent 2.8 (Khawaja et al.: 2.54-3.04
+  suburban/open UAV links), shadowing 4 dB, 20 dBm, 0 dBi, sensitivity -91 dBm (Mininet-WiFi's
+  noise threshold), reference loss 47.72 dB (Friis at 1 m, 5.8 GHz): delivery probability 0.5
+  at ~182 m.
 * ``lan``: a switched Ethernet LAN, the seed paper's setting for its virtual UAVs: 0.3 +- 0.1 ms.
 * ``none``: no impairment at all (every link a pass-through).
 """

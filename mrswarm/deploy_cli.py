@@ -1,0 +1,76 @@
+"""``mrswarm deploy``: the commands of ``deploy/cli.py``, and ``swarm up``, which starts from a scenario.
+
+``deploy/`` sits below mrswarm and never reads scenarios: this module turns one into the
+typed :class:`deploy.swarm.Fleet` (services and per-UAV configs) and the stack options, and
+hands those to ``deploy.swarm``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from msgspec.structs import replace
+
+from deploy.dockerutil import DeployError
+from deploy.swarm import DATA_PATH, Fleet, StackOptions
+
+if TYPE_CHECKING:
+    from mrswarm.scenario import Scenario
+
+
+def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
+    """The first ``uavs`` UAVs of the scenario as swarm-mode replicas (they reach the services by DNS name)."""
+    from deploy.services import network_plan
+
+    if uavs < 1:
+        raise DeployError(f"--uavs must be at least 1, got {uavs}")
+    if scn.fleet is not None:
+        scn = replace(scn, fleet=replace(scn.fleet, count=uavs))
+    elif len(scn.uav_list()) < uavs:
+        raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {uavs}")
+    net = scn.network
+    service = net.discovery
+    if net.connectivity == "discovery" and not service.key:
+        from discovery.protocol import new_key
+
+        service = replace(service, key=new_key())  # a fresh key per deployment unless the scenario sets one
+    # the edge router runs beside the discovery server: ground stations join through it
+    plan = network_plan(net.connectivity or "discovery", net.mode, net.pose_feed, scn.swarm, service, with_router=True)
+    netcfg = plan.uav_network({s.name: s.name for s in plan.services})
+    cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[:uavs]
+    if autostart:
+        cfgs = [replace(c, agent=replace(c.agent, autostart=True)) for c in cfgs]
+    return Fleet(scn.swarm, plan, tuple(cfgs))
+
+
+def _swarm_up(args: argparse.Namespace) -> int:
+    from deploy import swarm
+    from deploy.dockerutil import client
+    from deploy.images import image_tag
+    from mrswarm.scenario import ScenarioError, load_scenario
+
+    overrides = list(args.set) + ([f"swarm={args.swarm}"] if args.swarm else [])
+    try:
+        scn = load_scenario(args.scenario, overrides)
+    except ScenarioError as exc:
+        raise DeployError(str(exc)) from None
+    fleet = swarm_fleet(scn, args.uavs, args.autostart)
+    opts = StackOptions(image=args.image or scn.docker.image or image_tag(), container=scn.docker, port=args.port,
+                        max_per_node=args.max_per_node, log_level=args.log_level)
+    out = Path(args.out or f"build/swarm/{swarm.stack_name(scn.swarm)}")
+    if args.dry_run:
+        print(swarm.write_stack(fleet, opts, out))
+        return 0
+    if args.init and swarm.init_swarm(client()):
+        print("initialised a single-node swarm (this engine is its manager)")
+    print(json.dumps(swarm.up(fleet, opts, out, wait=args.wait), indent=2))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from deploy import cli
+
+    return cli.main(argv, swarm_up=_swarm_up)

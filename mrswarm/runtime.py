@@ -1,0 +1,56 @@
+"""Where the virtual UAVs run: the :class:`Runtime` interface the runner drives, and the choice of one.
+
+``deploy/`` provides the runtimes (``ProcessRuntime``: one OS process per UAV;
+``DockerRuntime``: one container per UAV); the runner (``mrswarm.experiment``) depends only
+on this interface, and :func:`make_runtime` picks one from the scenario, handing each runtime
+its own typed settings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+from discovery.options import DiscoveryService
+from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+
+if TYPE_CHECKING:
+    from mrswarm.scenario import Scenario
+
+
+class Runtime(Protocol):
+    """Starts a swarm's network services and its virtual UAVs, and stops them all."""
+
+    name: str  # "process" or "docker"
+
+    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
+        """Start what the connectivity needs (router, discovery server); return how UAVs reach it."""
+        ...
+
+    def start_uav(self, cfg: VirtualUavConfig) -> None:
+        """Start one virtual UAV (FCU + agent) with this configuration."""
+        ...
+
+    def pids(self) -> dict[str, int]:
+        """Host process ids by name (uav3, router, ...)."""
+        ...
+
+    def exited(self) -> dict[str, int]:
+        """What has exited, with its return code."""
+        ...
+
+    def stop(self, grace: float = 5.0) -> dict[str, int]:
+        """Stop everything (SIGTERM, then SIGKILL after ``grace`` s); the return codes by name."""
+        ...
+
+
+def make_runtime(scn: Scenario, run_dir: Path, log_level: str = "INFO") -> Runtime:
+    """The runtime the scenario asks for (``runtime: process | docker``)."""
+    if scn.runtime == "docker":
+        from deploy.docker_runtime import DockerRuntime
+
+        return DockerRuntime(run_dir, log_level=log_level, settings=scn.docker, swarm=scn.swarm)
+    from deploy.process_runtime import ProcessRuntime
+
+    return ProcessRuntime(run_dir, log_level=log_level)
