@@ -52,6 +52,10 @@ class SwarmKeys:
     def ack(self, uav: int | str) -> str:
         return f"{self.prefix}/{uav}/ack"
 
+    def fault(self, uav: int | str) -> str:
+        """Faults the experiment controller injects into a virtual UAV (docs/reliability.md)."""
+        return f"{self.prefix}/{uav}/fault"
+
     def alive(self, role: str, node: int | str) -> str:
         return f"{self.prefix}/alive/{role}/{node}"
 

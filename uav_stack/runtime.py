@@ -146,8 +146,9 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     link, router = open_fcu_link(a, f"udpout:{host}:{port}")
     node = make_node(a).open()
     agent = Agent(a, node, link, router=router)
+    faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
     try:
-        run_loop(agent, stop, fcu, cfg.duration)
+        run_loop(agent, stop, faults, cfg.duration)
     finally:
         agent.close(time.time())
         node.close()
@@ -156,6 +157,28 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
             router.close()  # type: ignore[attr-defined]
         fcu.close()
     return 0
+
+
+def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
+    """Let the experiment controller inject faults into this virtual UAV (uav_stack/sim_faults.py), and
+    record the FCU's ground truth, which a falsified position estimate does not change. Returns the FCU
+    wrapped for :func:`run_loop`."""
+    from uav_stack.sim_faults import SimFaults
+
+    faults = SimFaults(fcu, seed)
+    agent.fault_handler = faults.apply
+    v, dyn = fcu.vehicles[0], fcu.dyn
+    o = v.frame.origin  # the FCU's local NED origin (its first home)
+    hx, hy, hz = agent.frame.to_enu(o.lat, o.lon, o.alt)
+
+    def truth() -> tuple[float, float, float, float, float, float, bool]:
+        (n, e, d), (vn, ve, vd) = dyn.pos[v.i].tolist(), dyn.vel[v.i].tolist()
+        k = agent.link.rtf.value
+        k = k if 0.0 < k < 1.0 else 1.0  # wall-clock velocities, as the agent publishes them
+        return hx + e, hy + n, hz - d, ve * k, vn * k, -vd * k, v.armed
+
+    agent.truth = truth
+    return faults
 
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
