@@ -263,7 +263,8 @@ class DockerRuntime:
         return out
 
     def containers(self) -> dict[str, dict[str, Any]]:
-        return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role} for n, b in self.boxes.items()}
+        return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role}
+                for n, b in self.boxes.items()}
 
     def _write_manifest(self, exit_codes: dict[str, int] | None = None) -> None:
         data = {"runtime": "docker", "run": self.run, "image": self.image, "settings": to_builtins(self.settings),
@@ -276,7 +277,8 @@ class DockerRuntime:
     # ---- shutdown --------------------------------------------------------------------------
     def stop(self, grace: float = 5.0) -> dict[str, int]:
         """SIGTERM every UAV and wait for them, then the services; SIGKILL whatever is left
-        ``grace`` seconds after its own SIGTERM; save the logs; remove containers, network and multicast rules. A second Ctrl-C cannot cut it short."""
+        ``grace`` seconds after its own SIGTERM; save the logs; remove containers, network and multicast rules.
+        A second Ctrl-C cannot cut it short."""
         old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
         try:
             return self._stop(grace)

@@ -35,6 +35,7 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     site-packages directories, in the parent's order.
     """
     import site
+
     import uav_stack
 
     roots = [str(Path(uav_stack.__file__).resolve().parents[1])]
@@ -127,7 +128,8 @@ class ProcessRuntime:
         while True:
             proc = self.children["discovery"].proc
             if proc.poll() is not None:
-                raise RuntimeError(f"discovery server exited with code {proc.returncode} (see {self.children['discovery'].log_path})")
+                raise RuntimeError(f"discovery server exited with code {proc.returncode}"
+                                   f" (see {self.children['discovery'].log_path})")
             try:
                 query_registry(server, swarm, key, timeout=0.2, attempts=1)
                 break
@@ -154,12 +156,9 @@ class ProcessRuntime:
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"
-        out = open(log_path, "ab")
-        try:
+        with open(log_path, "ab") as out:  # the child keeps its own descriptor
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
                                     start_new_session=True, env=self._env)
-        finally:
-            out.close()
         self.children[name] = Child(name, proc, log_path)
 
     def exited(self) -> dict[str, int]:

@@ -39,13 +39,14 @@ import os
 import re
 import struct
 import time
+from _operator import _compare_digest as compare_digest  # what hmac.compare_digest is
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Callable
+from typing import Any
 
 import msgpack
-from _operator import _compare_digest as compare_digest  # what hmac.compare_digest is
 
 try:  # the interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process)
     from _sha256 import sha256 as _sha256  # CPython 3.11
@@ -378,7 +379,8 @@ def parse_registry(body: Any, swarm: str) -> tuple[int, int, int, list[Registere
         raise ProtocolError("malformed", "registry rows")
     out = []
     for r in rows:
-        if not isinstance(r, list) or len(r) != 4 or not all(isinstance(x, (int, float)) for x in r[1:3]) or not isinstance(r[3], str):
+        if (not isinstance(r, list) or len(r) != 4 or not all(isinstance(x, (int, float)) for x in r[1:3])
+                or not isinstance(r[3], str)):
             raise ProtocolError("malformed", "registry row")
         out.append(RegisteredNode(swarm, NodeEntry.from_wire(r[0]), float(r[1]), float(r[2]), r[3]))
     return qid, part, parts, out, stats

@@ -36,7 +36,7 @@ from typing import Any
 
 import zenoh
 
-from swarmnet.version import __version__
+from discovery.options import ProxyOptions
 from discovery.protocol import (
     DEFAULT_PERIOD,
     DEFAULT_PORT,
@@ -57,9 +57,9 @@ from discovery.protocol import (
     unseal,
     view_digest,
 )
-from discovery.options import ProxyOptions
 from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
+from swarmnet.version import __version__
 
 log = logging.getLogger(__name__)
 

@@ -41,7 +41,8 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen))))
     try:
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}"
-              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""), flush=True)
+              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
+              flush=True)
         if not feed_swarms:
             stop.wait(duration)
             return

@@ -94,7 +94,7 @@ def _vle(value: int) -> bytes:
 
 def _read_vle(data: bytes, pos: int, limit: int) -> tuple[int, int]:
     value = shift = 0
-    for i in range(10):
+    for _ in range(10):
         if pos >= len(data):
             raise WireError("truncated", "in a length")
         b = data[pos]

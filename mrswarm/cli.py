@@ -86,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
                        add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.deploy_cli", "main", a.rest))
 
-    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)", add_help=False)
+    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)",
+                       add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))
 
     p = sub.add_parser("discovery", help="discovery server (serve), registry (nodes), probe node, keygen", add_help=False)

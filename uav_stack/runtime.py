@@ -201,7 +201,8 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
 def agent_main(argv: list[str] | None = None) -> int:
     """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
     ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
-    ap.add_argument("--fcu", required=True, help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
+    ap.add_argument("--fcu", required=True,
+                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
     ap.add_argument("--swarm", required=True)
     ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
     ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
@@ -219,7 +220,8 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
     ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
-                    help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen); repeatable")
+                    help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
+                         " repeatable")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")

@@ -46,7 +46,7 @@ class Recorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.clock = clock
         self.flush_every = flush_every
-        self._f: TextIO = open(self.path, "a", encoding="utf-8", buffering=1 << 16)
+        self._f: TextIO = open(self.path, "a", encoding="utf-8", buffering=1 << 16)  # noqa: SIM115 (open until close())
         self._last_flush = clock()
         self.counts: dict[str, int] = {}
 

@@ -128,9 +128,7 @@ class Filter:
             return False
         if self.override and not r.override:
             return False
-        if self.stale and not (r.seen > STALE_S or math.isnan(r.seen)):
-            return False
-        return True
+        return not self.stale or r.seen > STALE_S or math.isnan(r.seen)
 
     def describe(self) -> str:
         parts = []

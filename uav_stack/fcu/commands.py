@@ -8,8 +8,8 @@ NaN (and INT32_MAX for COMMAND_INT x/y) mean "unset". Unknown commands get UNSUP
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -8,7 +8,7 @@ logged and counted and the vehicle keeps flying.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 from uav_stack.fcu.commands import MavCommand, handle_command
 from uav_stack.fcu.offboard import decode_global, decode_local

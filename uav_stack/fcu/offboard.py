@@ -61,11 +61,11 @@ class Setpoint:
 
     @property
     def has_velocity(self) -> bool:
-        return any(v == v and p != p for p, v in zip(self.pos, self.vel))
+        return any(v == v and p != p for p, v in zip(self.pos, self.vel, strict=True))
 
 
 def _masked(vals: Vec3, mask: int, bits: tuple[int, int, int]) -> Vec3:
-    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits))
+    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits, strict=True))
     return (a, b, c)
 
 

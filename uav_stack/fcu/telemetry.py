@@ -8,7 +8,8 @@ a process hosting many vehicles spreads its sends over the period.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from uav_stack.mav import mavlink
 

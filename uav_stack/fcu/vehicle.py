@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -308,7 +308,7 @@ class Vehicle:
     def apply_setpoint(self, sp: Setpoint) -> None:
         d, i = self.ctx.dyn, self.i
         pos = list(sp.pos)
-        for k, (p, v) in enumerate(zip(sp.pos, sp.vel)):
+        for k, (p, v) in enumerate(zip(sp.pos, sp.vel, strict=True)):
             if p != p and v != v:  # neither position nor velocity: hold that axis where it is
                 cur = float(d.pos_sp[i, k])
                 pos[k] = cur if cur == cur else float(d.pos[i, k])
@@ -472,10 +472,9 @@ class Vehicle:
             dxy = math.hypot(d.pos[i, 0] - self.home_ned[0], d.pos[i, 1] - self.home_ned[1])
             if dxy < RTL_ARRIVED_M and math.hypot(d.vel[i, 0], d.vel[i, 1]) < 0.5:
                 self._start_land(self.home_ned[:2])
-        elif ph == P_OFFBOARD and not self.flavour.is_px4:
-            if self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
-                self.guided_vel = False
-                self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
+        elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
+            self.guided_vel = False
+            self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
         self._failsafes(now, landed)
 
     def _failsafes(self, now: float, landed: bool) -> None:
