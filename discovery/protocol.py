@@ -48,10 +48,12 @@ from typing import Any
 
 import msgpack
 
-try:  # the interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process)
-    from _sha256 import sha256 as _sha256  # CPython 3.11
+# The interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process).
+# Both are private CPython modules that typeshed has no stubs for, hence the ignores.
+try:
+    from _sha256 import sha256 as _sha256  # type: ignore[import-not-found]  # CPython 3.11
 except ImportError:  # pragma: no cover - CPython 3.12+
-    from _sha2 import sha256 as _sha256  # type: ignore[no-redef]
+    from _sha2 import sha256 as _sha256  # type: ignore[import-not-found]
 
 _IPAD = bytes(x ^ 0x36 for x in range(256))
 _OPAD = bytes(x ^ 0x5C for x in range(256))

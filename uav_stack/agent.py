@@ -254,7 +254,7 @@ class Agent(OverridesMixin):
                 msg = "already landing"
             else:
                 self._land()
-                self.override = "land" if verb == "land" and self.phase == AgentPhase.LANDING else self.override
+                self.override = "land" if verb == "land" else self.override  # _land() has just set LANDING
                 if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
                     self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
                     return

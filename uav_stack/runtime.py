@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
@@ -25,6 +25,10 @@ from swarmnet.schema import ConfigError, convert
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
+
+if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-heavy, or optional)
+    from uav_stack.fcu import VirtualFcu
+    from uav_stack.mavlink_router import MavlinkRouter
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +84,7 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
-def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, object | None]:
+def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router."""
     sysid = cfg.mavlink_sysid
     link = FcuLink(url, source_system=sysid)
@@ -99,7 +103,7 @@ def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, object | None]:
     return link, router
 
 
-def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None,
+def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
              tick_hz: float = TICK_HZ) -> None:
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
 
@@ -124,8 +128,8 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: 
             continue
         next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
-            fcu.poll_io()  # type: ignore[attr-defined]
-            fcu.service()  # type: ignore[attr-defined]
+            fcu.poll_io()
+            fcu.service()
         agent.step(time.time())
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
@@ -153,7 +157,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
         node.close()
         link.close()
         if router is not None:
-            router.close()  # type: ignore[attr-defined]
+            router.close()
         fcu.close()
     return 0
 
@@ -169,7 +173,7 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -
         node.close()
         link.close()
         if router is not None:
-            router.close()  # type: ignore[attr-defined]
+            router.close()
     return 0
 
 

@@ -66,7 +66,7 @@ def decode_netem_set(data: bytes) -> NetemSet:
         raise DecodeError("bad_field", f"id={mid!r}")
     if type(sender) is not str or not _SENDER_RE.match(sender):
         raise DecodeError("bad_field", f"sender={sender!r:.40}")
-    if type(t) not in (int, float) or not 0 <= t < 2**63:
+    if not isinstance(t, (int, float)) or type(t) is bool or not 0 <= t < 2**63:
         raise DecodeError("bad_field", f"t_wall={t!r:.40}")
     if not isinstance(cfg, dict):
         raise DecodeError("bad_field", "config must be an object")

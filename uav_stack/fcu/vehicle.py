@@ -102,13 +102,13 @@ class Vehicle:
         self.dll_tripped = False
         self.bat_level = 0  # 0 ok, 1 low, 2 critical, 3 emergency (latched)
         self.fence_breached = False
-        self.missions: dict[int, list[M.MAVLink_message]] = {0: [], 1: [], 2: []}
+        self.missions: dict[int, list[mavlink.MAVLink_message]] = {0: [], 1: [], 2: []}
         self.upload: dict[str, object] | None = None
-        self.after_ack: list[M.MAVLink_message] = []
+        self.after_ack: list[mavlink.MAVLink_message] = []
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
-        self.msg_cache: dict[str, M.MAVLink_message] = {}  # reused instances of high-rate messages
+        self.msg_cache: dict[str, mavlink.MAVLink_message] = {}  # reused instances of high-rate messages
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
         d.pos_sp[i] = d.pos[i]
@@ -131,7 +131,7 @@ class Vehicle:
     def failsafe_active(self) -> bool:
         return self.dll_tripped or self.fence_breached or self.bat_level >= 2
 
-    def send(self, msg: M.MAVLink_message) -> None:
+    def send(self, msg: mavlink.MAVLink_message) -> None:
         mav = self.mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
