@@ -48,6 +48,8 @@ from typing import Any
 
 import msgpack
 
+from swarmnet.keyspace import SWARM_RE, check_swarm
+
 # The interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process).
 # Both are private CPython modules that typeshed has no stubs for, hence the ignores.
 try:
@@ -84,7 +86,6 @@ REALMS = ("virtual", "physical")
 MAX_LOCATORS = 8
 MAX_LOCATOR_LEN = 100
 MAX_SOFTWARE_LEN = 48
-SWARM_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
 LOCATOR_RE = re.compile(r"^[a-z0-9]{2,8}/[\x21-\x7e]{3,}$")
 
 _TS = struct.Struct(">Q")
@@ -192,8 +193,7 @@ class Envelope:
 
 def seal(mtype: MsgType, swarm: str, key: bytes, body: Any, ts: float | None = None, nonce: bytes | None = None) -> bytes:
     sw = swarm.encode()
-    if not SWARM_RE.match(swarm):
-        raise ValueError(f"bad swarm name {swarm!r}")
+    check_swarm(swarm)
     head = MAGIC + bytes((VERSION, int(mtype), len(sw))) + sw
     head += _TS.pack(int((time.time() if ts is None else ts) * 1e6)) + (nonce or os.urandom(NONCE_LEN))
     data = head + msgpack.packb(body, use_bin_type=True)
