@@ -187,7 +187,8 @@ def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
 
 def virtual_uav_main(argv: list[str] | None = None) -> int:
     """``python -m uav_stack.virtual_uav --config uav3.json``: what the process runtime launches."""
-    ap = argparse.ArgumentParser(prog="mrswarm uav", description="one virtual UAV: virtual FCU + agent, in one process")
+    ap = argparse.ArgumentParser(prog="python -m uav_stack.virtual_uav",
+                                 description="one virtual UAV: virtual FCU + agent, in one process")
     ap.add_argument("--config", required=True, help="JSON written by the runner (VirtualUavConfig)")
     ap.add_argument("--log-level", default="INFO")
     ap.add_argument("--log-file", default=None)
