@@ -158,7 +158,8 @@ class Experiment:
             msg = f"run.json: {exc.strerror or exc}"
             if msg not in self.run_info.write_errors:
                 self.run_info.write_errors.append(msg)
-                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / 'run.json'} ({exc.strerror or exc}); the run goes on")
+                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / 'run.json'} ({exc.strerror or exc}); "
+                          "the run goes on")
 
     def _say(self, text: str) -> None:
         """Print, unless the terminal is gone (after SIGHUP a write to it fails)."""

@@ -65,7 +65,9 @@ def failsafe_events(stats: dict[int, dict[str, Any]], t0: float) -> list[Failsaf
 
 
 def record_errors(stats: dict[int, dict[str, Any]], info: RunInfo) -> RecordErrors | None:
-    uavs, errors, rows, files = [], {}, 0, 0
+    uavs: list[int] = []
+    errors: dict[str, int] = {}
+    rows = files = 0
     for uav, s in sorted(stats.items()):
         r = s.get("records")
         if not isinstance(r, dict) or not r.get("errors"):
@@ -105,7 +107,8 @@ def read_aoi(run_dir: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def _network_times(rec: FaultRecord, aoi: dict[int, tuple[np.ndarray, np.ndarray]], ids: Sequence[int]) -> tuple[float | None, float | None]:
+def _network_times(rec: FaultRecord, aoi: dict[int, tuple[np.ndarray, np.ndarray]],
+                   ids: Sequence[int]) -> tuple[float | None, float | None]:
     """Detection and recovery of a partition or outage: some affected UAV's knowledge of a neighbour older than
     STALE_S, then every affected UAV's fresh again after the fault ended (1 s resolution: one record a second)."""
     if rec.injected is None:
@@ -142,7 +145,8 @@ def fault_table(info: RunInfo, t0: float, t_end: float, run_dir: Path, onsets: l
     for rec in sorted(info.faults, key=lambda r: (r.injected or math.inf, r.index)):
         if rec.injected is None:
             rows.append(FaultReport(kind=rec.kind, at_s=rec.at_s, targets=rec.targets, ok=False, detection_s=None,
-                                    recovery_s=None, collisions=0, coverage_lost=None, detail="not injected (the run ended first)"))
+                                    recovery_s=None, collisions=0, coverage_lost=None,
+                                    detail="not injected (the run ended first)"))
             continue
         detected, recovered = rec.detected, rec.recovered
         if rec.kind in NETWORK:

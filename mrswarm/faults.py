@@ -74,7 +74,8 @@ class FaultSpec(Config, frozen=True):
         if self.window is not None and not self.window[0] < self.window[1]:
             raise ConfigError("window", f"needs from < to, got {list(self.window)}")
         k = self.kind
-        needs = {"uav": k in UAV_PROCESS or k in INJECTED, "duration": k in ("fcu_link_loss", "gps_jump", "gps_noise") or k in NETWORK,
+        needs = {"uav": k in UAV_PROCESS or k in INJECTED,
+                 "duration": k in ("fcu_link_loss", "gps_jump", "gps_noise") or k in NETWORK,
                  "offset": k == "gps_jump", "sigma": k == "gps_noise", "level": k == "battery_drop", "groups": k == "partition"}
         allowed = dict(needs, uavs=k == "outage", duration=needs["duration"] or k == "stop_uav")
         for name, required in needs.items():
@@ -127,7 +128,8 @@ def check_against(faults: tuple[FaultSpec, ...], ids: set[int], duration: float,
             raise ConfigError(f"{where}.{'at' if f.at is not None else 'window'}",
                               f"{last:g} s is not within the mission's {duration:g} s")
         if "discovery" in f.kind and connectivity != "discovery":
-            raise ConfigError(f"{where}.kind", f"{f.kind} needs network.connectivity: discovery (this run has no discovery server)")
+            raise ConfigError(f"{where}.kind", f"{f.kind} needs network.connectivity: discovery "
+                                               "(this run has no discovery server)")
 
 
 class Swarm:
@@ -195,9 +197,7 @@ class Chaos:
         if k in UAV_PROCESS:
             name = f"uav{f.uav}"
             if k == "restart_uav":
-                ev = sw.supervisor.restart_now(name)
-                rec.ok = ev is not None and ev.event == "restarted"
-                rec.detail = "stopped (SIGTERM) and started again" if rec.ok else f"restart failed: {ev.detail if ev else 'unknown'}"
+                self._restart(rec, name)
                 a.mark = self.clock()
                 return
             sig = {"kill_uav": signal.SIGKILL, "stop_uav": signal.SIGSTOP, "continue_uav": signal.SIGCONT}[k]
@@ -212,9 +212,7 @@ class Chaos:
                 rec.ok = sw.runtime.signal(name, signal.SIGKILL)
                 rec.detail = "SIGKILL sent" if rec.ok else f"{name} is not running"
             else:
-                ev = sw.supervisor.restart_now(name)
-                rec.ok = ev is not None and ev.event == "restarted"
-                rec.detail = "stopped (SIGTERM) and started again" if rec.ok else f"restart failed: {ev.detail if ev else 'unknown'}"
+                self._restart(rec, name)
                 rec.detected = now  # planned: nothing to detect
             return
         if k in INJECTED:
@@ -236,6 +234,11 @@ class Chaos:
         a.follow_up, a.done_following = now + (f.duration or 0.0), False
         rec.detail = f"netem partitions {list(parts.values())}"
 
+    def _restart(self, rec: FaultRecord, name: str) -> None:
+        ev = self.swarm.supervisor.restart_now(name)
+        rec.ok = ev is not None and ev.event == "restarted"
+        rec.detail = "stopped (SIGTERM) and started again" if rec.ok else f"restart failed: {ev.detail if ev else 'unknown'}"
+
     def _netem(self, config: dict[str, Any] | None) -> Any:
         from swarmnet.messages import Command
         from swarmnet.netem.control import NetemSet, encode_netem_set
@@ -245,7 +248,8 @@ class Chaos:
         msg_id = int(self.clock() * 1000) & 0xFFFFFFFF
         cfg = config if config is not None else {"preset": "none"}
         msg = NetemSet(id=msg_id, sender="chaos", t_wall=self.clock(), config=cfg, targets=None)
-        pending = obs.pending[msg_id] = PendingCommand(Command("chaos", msg_id, 0, "netem", {}, msg.t_wall), set(obs.alive_uavs()))
+        cmd = Command("chaos", msg_id, 0, "netem", {}, msg.t_wall)
+        pending = obs.pending[msg_id] = PendingCommand(cmd, set(obs.alive_uavs()))
         obs.node.session.put(obs.keys.netem_set, encode_netem_set(msg))
         return pending
 
@@ -297,8 +301,10 @@ class Chaos:
         """Back in its mission: a working phase, no failsafe, fresh poses, reported after ``after``."""
         v = self._view(uav)
         now = self.clock()
-        return (v is not None and v.state is not None and v.state.phase in WORKING and not v.state.override.startswith("failsafe:")
-                and v.state_recv > after and v.pose is not None and now - v.pose_recv < STALE_S)
+        if v is None or v.state is None or v.pose is None:
+            return False
+        return (v.state.phase in WORKING and not v.state.override.startswith("failsafe:") and v.state_recv > after
+                and now - v.pose_recv < STALE_S)
 
     def _watch_uav(self, a: _Active, now: float) -> None:
         rec, f = a.record, a.planned.spec
@@ -354,9 +360,10 @@ class Chaos:
         if rec.detected is None and v is not None and v.state is not None and v.state.override == want \
                 and v.state_recv >= (rec.injected or now):
             rec.detected = v.state_recv
-        if rec.recovered is None and now >= (rec.ends or rec.injected or now) and self._working(uav, rec.ends or rec.injected or now):
-            if rec.detected is not None or f.kind != "battery_drop":
-                rec.recovered = now
+        end = rec.ends or rec.injected or now
+        back = rec.recovered is None and now >= end and self._working(uav, end)
+        if back and (rec.detected is not None or f.kind != "battery_drop"):
+            rec.recovered = now
 
 
 def _args(f: FaultSpec) -> dict[str, Any]:

@@ -54,7 +54,7 @@ def find_incidents(uav: int, t: np.ndarray, z: np.ndarray, vz: np.ndarray, armed
         out.append(Incident(uav=uav, kind="uncontrolled_descent", t_s=round(float(t[k] - t0), 2), z_m=round(float(z[k]), 2),
                             vz_ms=round(float(vz[k]), 2), detail=f"sinking at {-vz[k]:.1f} m/s (limit {DESCENT_MS:g})"))
     touch = np.nonzero((z[1:] <= GROUND_Z) & (z[:-1] > GROUND_Z))[0] + 1
-    for k in touch:
+    for k in (int(i) for i in touch):
         speed = float(min(vz[k - 1], vz[k]))
         if speed < -IMPACT_MS:
             out.append(Incident(uav=uav, kind="ground_impact", t_s=round(float(t[k] - t0), 2), z_m=round(float(z[k - 1]), 2),

@@ -26,6 +26,7 @@ from msgspec.structs import force_setattr, replace
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService
 from mrswarm.faults import FaultSpec, check_against
+from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
 from swarmnet.schema import Config, ConfigError, convert, to_builtins
 from uav_stack.config import (
@@ -102,8 +103,9 @@ class Mission(Config, frozen=True):
             a, cell = self.area, max(self.sensor_radius / 2.0, 0.5)  # the analysis' cell (mrswarm/analysis.py)
             cells = math.ceil((a.x_max - a.x_min) / cell) * math.ceil((a.y_max - a.y_min) / cell)
             if cells > MAX_COVERAGE_CELLS:
-                raise ConfigError("sensor_radius", f"{self.sensor_radius:g} m over {(a.x_max - a.x_min) * (a.y_max - a.y_min) / 1e6:.3g} km^2 "
-                                  f"gives {cells:,} coverage cells; at most {MAX_COVERAGE_CELLS:,} (raise it or shrink mission.area)")
+                km2 = (a.x_max - a.x_min) * (a.y_max - a.y_min) / 1e6
+                raise ConfigError("sensor_radius", f"{self.sensor_radius:g} m over {km2:.3g} km^2 gives {cells:,} "
+                                  f"coverage cells; at most {MAX_COVERAGE_CELLS:,} (raise it or shrink mission.area)")
 
     @property
     def lane_spacing(self) -> float:
@@ -175,7 +177,7 @@ class Gcs(Config, frozen=True):
 class Scenario(Config, kw_only=True, frozen=True):
     name: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
     description: str = ""
-    swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")] = "alpha"
+    swarm: Annotated[str, Meta(pattern=SWARM_RE.pattern)] = "alpha"
     seed: Annotated[int, Meta(ge=0)] = 0
     duration: Annotated[float, Meta(gt=0.0, le=7200.0, description="seconds of mission after the start command")]
     origin: Origin

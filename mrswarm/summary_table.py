@@ -42,13 +42,14 @@ def summary_table(s: RunSummary) -> Table:
             + (f", back at {lu.restarted_s:.1f} s" if lu.restarted_s is not None else "") for lu in s.lost_uavs))
     if s.services:
         t.add_row("service outages", "; ".join(
-            f"{o.name} down at {o.down_s:.1f} s" + (f", back at {o.restarted_s:.1f} s" if o.restarted_s is not None else ", not back")
+            f"{o.name} down at {o.down_s:.1f} s"
+            + (f", back at {o.restarted_s:.1f} s" if o.restarted_s is not None else ", not back")
             for o in s.services))
     if s.failsafes:
         kinds: dict[str, int] = {}
-        for e in s.failsafes:
-            if e.event == "triggered":
-                kinds[e.failsafe] = kinds.get(e.failsafe, 0) + 1
+        for fe in s.failsafes:
+            if fe.event == "triggered":
+                kinds[fe.failsafe] = kinds.get(fe.failsafe, 0) + 1
         t.add_row("failsafes", ", ".join(f"{k} x{n}" for k, n in sorted(kinds.items())) or "-")
     if rec := s.records:
         t.add_row("records", f"writes failed on UAVs {rec.uavs} ({', '.join(f'{k} x{v}' for k, v in rec.errors.items())}), "

@@ -98,10 +98,10 @@ class Supervisor:
         for name, w in self._watch.items():
             if w.due is not None and now >= w.due:
                 w.due = None
-                ev = self._restart(name, now, w)
-                if ev is not None:
-                    new.append(ev)
-                    self.events.append(ev)
+                restarted = self._restart(name, now, w)
+                if restarted is not None:
+                    new.append(restarted)
+                    self.events.append(restarted)
         return new
 
     def _exited(self, name: str, code: int | None, now: float, w: _Watch) -> ProcessEvent:

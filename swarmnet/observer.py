@@ -198,6 +198,7 @@ class SwarmObserver:
         fault_id = next(self._ids) & 0xFFFFFFFF
         f = FaultInjection(self.name, fault_id, uav, kind, dict(args or {}), self.clock())
         s.put(self.keys.fault(uav), encode_fault(f))
-        p = self.pending[fault_id] = PendingCommand(Command(self.name, fault_id, uav, "fault", {"kind": kind, **f.args}, f.t_wall), {uav})
+        cmd = Command(self.name, fault_id, uav, "fault", {"kind": kind, **f.args}, f.t_wall)
+        p = self.pending[fault_id] = PendingCommand(cmd, {uav})
         self.stats.sent["fault"] += 1
         return p

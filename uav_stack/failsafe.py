@@ -60,7 +60,8 @@ class FailsafeConfig(Config, frozen=True):
     """Thresholds and actions of the companion failsafes (scenario section ``failsafe``)."""
 
     swarm_link_hold_s: Annotated[float, Meta(gt=0.0, le=600.0, description="s without swarm link before holding (T1)")] = 3.0
-    swarm_link_action_s: Annotated[float, Meta(gt=0.0, le=3600.0, description="s without swarm link before the action (T2)")] = 15.0
+    swarm_link_action_s: Annotated[float, Meta(gt=0.0, le=3600.0,
+                                               description="s without swarm link before the action (T2)")] = 15.0
     swarm_link_action: Action = "land"
     resume: bool = True  # resume the mission when a lost link comes back (before T2)
     position_jump_m: Annotated[float, Meta(gt=0.0, le=1000.0, description="position innovation that marks a glitch, m")] = 5.0
@@ -175,10 +176,9 @@ class Failsafes:
                 self._acted.discard("swarm_link")
                 self._event(agent, now, "swarm_link", "cleared", "swarm link back")
                 self._release(agent, "swarm_link", "swarm link back")
-            elif lost_for >= cfg.swarm_link_action_s and "swarm_link" not in self._acted:
-                if agent.phase not in HANDS_OFF:
-                    self._acted.add("swarm_link")
-                    self._act(agent, now, "swarm_link", cfg.swarm_link_action, f"swarm link lost for {lost_for:.1f} s")
+            elif lost_for >= cfg.swarm_link_action_s and "swarm_link" not in self._acted and agent.phase not in HANDS_OFF:
+                self._acted.add("swarm_link")
+                self._act(agent, now, "swarm_link", cfg.swarm_link_action, f"swarm link lost for {lost_for:.1f} s")
             return
         if lost_for >= cfg.swarm_link_hold_s and agent._airborne() and agent.phase not in HANDS_OFF:
             self.active["swarm_link"] = now

@@ -51,7 +51,7 @@ class PoseAgeLog:
 
     def sample(self, now: float) -> None:
         h = self.node.stats.pose_age
-        diff = [a - b for a, b in zip(h.counts, self._counts)]
+        diff = [a - b for a, b in zip(h.counts, self._counts, strict=True)]
         n = h.n - self._n
         total = h.total - self._total
         self._counts, self._n, self._total = list(h.counts), h.n, h.total

@@ -38,7 +38,8 @@ MAX_OFFSET_M = 1000.0
 # kind -> {argument: (low, high)}; every argument is required
 KINDS: dict[str, dict[str, tuple[float, float]]] = {
     "fcu_link_loss": {"duration_s": (0.0, MAX_DURATION_S)},
-    "gps_jump": {"dx_m": (-MAX_OFFSET_M, MAX_OFFSET_M), "dy_m": (-MAX_OFFSET_M, MAX_OFFSET_M), "duration_s": (0.0, MAX_DURATION_S)},
+    "gps_jump": {"dx_m": (-MAX_OFFSET_M, MAX_OFFSET_M), "dy_m": (-MAX_OFFSET_M, MAX_OFFSET_M),
+                 "duration_s": (0.0, MAX_DURATION_S)},
     "gps_noise": {"sigma_m": (0.0, 100.0), "duration_s": (0.0, MAX_DURATION_S)},
     "battery_drop": {"level": (0.0, 1.0)},
 }
