@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from rich import box
 from rich.console import Console
 from rich.table import Table
 
@@ -68,9 +69,10 @@ def summary_table(s: RunSummary) -> Table:
 
 def fault_table(s: RunSummary) -> Table:
     """The per-fault table: what was injected when, how soon the swarm noticed, how soon it was back."""
-    t = Table(title=f"faults: {s.scenario}")
-    for col in ("t (s)", "fault", "target", "detected after (s)", "recovered after (s)", "collisions", "coverage lost"):
-        t.add_column(col, justify="left" if col in ("fault", "target") else "right")
+    t = Table(title=f"faults: {s.scenario} (detected, recovered: s after the fault)", box=box.MINIMAL_HEAVY_HEAD,
+              title_justify="left", padding=(0, 1), pad_edge=False, show_edge=False, collapse_padding=True)
+    for col in ("at s", "fault", "UAVs", "detected", "recovered", "collisions", "coverage lost"):
+        t.add_column(col, justify="left" if col in ("fault", "UAVs") else "right", no_wrap=True)
     for f in s.faults:
         t.add_row(_fmt(f.at_s), f.kind + ("" if f.ok else " (failed)"), ",".join(map(str, f.targets)) or "-",
                   _fmt(f.detection_s), _fmt(f.recovery_s), str(f.collisions),

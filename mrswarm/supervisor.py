@@ -116,7 +116,7 @@ class Supervisor:
             w.due = now + w.backoff
             ev.detail = f"restart in {w.backoff:g} s"
             w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
-        log.warning("%s exited (%s)%s", name, ev.signal or f"code {code}", f"; {ev.detail}" if ev.detail else "")
+        log.info("%s exited (%s)%s", name, ev.signal or f"code {code}", f"; {ev.detail}" if ev.detail else "")
         return ev
 
     def _restart(self, name: str, now: float, w: _Watch) -> ProcessEvent | None:
@@ -125,7 +125,7 @@ class Supervisor:
         except Exception as exc:  # noqa: BLE001 - a failed restart is retried, never the end of the run
             w.due = now + w.backoff
             w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
-            log.warning("restarting %s failed: %s", name, exc)
+            log.info("restarting %s failed: %s", name, exc)
             return ProcessEvent(t=now, name=name, event="restart_failed", detail=f"{type(exc).__name__}: {exc}"[:200])
         w.pid = self.runtime.pids()[name]
         w.started = self.clock()

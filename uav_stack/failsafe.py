@@ -146,7 +146,7 @@ class Failsafes:
         elif connected and "fcu_link" in self.active:
             lost = now - self.active.pop("fcu_link")
             self._fcu_resume_until = now + FCU_RESUME_WINDOW_S
-            self._event(agent, now, "fcu_link", "cleared", f"FCU link back after {lost:.1f} s")
+            self._event(agent, now, "fcu_link", "cleared", f"FCU link back, {lost:.1f} s after its loss was detected")
         if now < self._fcu_resume_until and agent.phase == AgentPhase.YIELDED and agent.override.startswith("fcu:") \
                 and self.cfg.resume and agent._airborne():
             # the FCU fell back to Hold because our setpoints stopped reaching it: take control back
@@ -216,6 +216,7 @@ class Failsafes:
         cfg = self.cfg
         if b <= cfg.battery_critical and "battery" not in self.active:
             self.active["battery"] = now
+            self._battery_warned = True
             self._event(agent, now, "battery", "triggered", f"battery {100 * b:.0f} %: {cfg.battery_action}")
             if agent._airborne() and agent.phase not in HANDS_OFF:
                 self._act(agent, now, "battery", cfg.battery_action, f"battery critical ({100 * b:.0f} %)")
