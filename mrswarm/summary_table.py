@@ -6,6 +6,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
+from mrswarm.gcs.session import format_ids
 from mrswarm.summary import RunSummary
 
 
@@ -74,7 +75,7 @@ def fault_table(s: RunSummary) -> Table:
     for col in ("at s", "fault", "UAVs", "detected", "recovered", "collisions", "coverage lost"):
         t.add_column(col, justify="left" if col in ("fault", "UAVs") else "right", no_wrap=True)
     for f in s.faults:
-        t.add_row(_fmt(f.at_s), f.kind + ("" if f.ok else " (failed)"), ",".join(map(str, f.targets)) or "-",
+        t.add_row(_fmt(f.at_s), f.kind + ("" if f.ok else " (failed)"), format_ids(f.targets) if f.targets else "-",
                   _fmt(f.detection_s), _fmt(f.recovery_s), str(f.collisions),
                   "-" if f.coverage_lost is None else f"{100 * f.coverage_lost:.1f} %")
     return t

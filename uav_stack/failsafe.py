@@ -50,6 +50,7 @@ MAX_EVENTS = 500
 ROUTER_CHECK_S = 0.5  # how often the edge-router link is looked up (a call into Zenoh)
 FCU_RESUME_WINDOW_S = 5.0  # after the FCU link returns, a fallback of the FCU to Hold is ours to undo
 MAX_GAP_S = 1.0  # position updates further apart than this are not compared (a stall, a link loss)
+STALL_S = 1.0  # the agent's own loop stopped this long (the process was stopped or starved): not a link loss
 Action = Literal["land", "rtl"]
 # phases in which someone or something else already flies the UAV, or it is safer than a hold
 HANDS_OFF = frozenset({AgentPhase.YIELDED, AgentPhase.RTL, AgentPhase.LANDING, AgentPhase.LANDED, AgentPhase.KILLED,
@@ -98,6 +99,7 @@ class Failsafes:
         self._pos: tuple[float, float, float, float, float] | None = None  # x, y, vx, vy, position_at
         self._suspect_at = -math.inf
         self._battery_warned = False
+        self._last_step = -math.inf
 
     # ---- what others read ---------------------------------------------------------------------
     @property
@@ -117,6 +119,10 @@ class Failsafes:
 
     # ---- the tick -----------------------------------------------------------------------------
     def step(self, agent: Agent, now: float) -> None:
+        gap = now - self._last_step
+        self._last_step = now
+        if STALL_S < gap < math.inf:
+            self._link_at += gap  # the companion itself was not running: that time says nothing about the link
         before = self.label
         self._fcu_link(agent, now)
         self._swarm_link(agent, now)
