@@ -38,8 +38,8 @@ except (OSError, AttributeError):
     _prctl = None
 
 
-def die_with_parent_preexec(parent: int) -> Callable[[], None]:
-    """A ``preexec_fn`` that makes the child get SIGTERM when ``parent`` (this process) dies.
+def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies.
 
     Runs in the child between fork and exec, so no start-up race: if the parent is already gone
     by then, the child exits at once instead of running as an orphan.
@@ -47,7 +47,7 @@ def die_with_parent_preexec(parent: int) -> Callable[[], None]:
 
     def set_pdeathsig() -> None:
         if _prctl is not None:
-            _prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+            _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
         if os.getppid() != parent:
             os._exit(1)
 
@@ -74,6 +74,13 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     extra = os.environ.get("PYTHONPATH")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(([extra] if extra else []) + roots), PYTHONUNBUFFERED="1")
     return [python, "-S"], env
+
+
+def _death_signal(name: str) -> int:
+    """What a child gets when the runner dies: a UAV SIGTERM (it writes its last records, then exits,
+    with a watchdog of its own), the edge services SIGKILL (nothing to save; a Zenoh router's
+    shutdown can wait on its peers)."""
+    return signal.SIGTERM if name.startswith("uav") else signal.SIGKILL
 
 
 @dataclass
@@ -134,8 +141,8 @@ class ProcessRuntime:
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(service.ttl), "--rate", "5000",  # every node shares 127.0.0.1
-                                  "--die-with-parent"])
+                                  "--ttl", str(service.ttl), "--rate", "5000"])  # every node shares 127.0.0.1
+        # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         deadline = time.monotonic() + 20.0
         while True:
             proc = self.children["discovery"].proc
@@ -175,7 +182,7 @@ class ProcessRuntime:
                 log.warning("%s: cannot open %s (%s); its output is discarded", name, log_path, exc.strerror)
                 out = subprocess.DEVNULL
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                    env=self._env, preexec_fn=die_with_parent_preexec(os.getpid()))
+                                    env=self._env, preexec_fn=die_with_parent_preexec(os.getpid(), _death_signal(name)))
         old = self.children.get(name)
         self.children[name] = Child(name, proc, log_path, argv, old.starts + 1 if old else 1)
 

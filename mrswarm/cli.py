@@ -20,16 +20,33 @@ EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell o
 
 
 def _run(args: argparse.Namespace) -> int:
+    try:
+        from mrswarm.signals import StopSignals
+
+        signals = StopSignals().install()  # from the start: a Ctrl-C is never a traceback
+    except KeyboardInterrupt:  # came before the handler
+        return 130
     from rich.console import Console
 
-    from mrswarm.signals import StopSignals
-
     console = Console()
-    signals = StopSignals().install()  # from the start: a Ctrl-C is never a traceback
     try:
         return _run_with(args, console, signals)
     finally:
         signals.restore()
+        if signals.hangup:  # the terminal is gone: what is still buffered for it would fail at exit
+            _detach_from_terminal()
+
+
+def _detach_from_terminal() -> None:
+    import os
+
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+    except OSError:
+        pass
 
 
 def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
@@ -65,7 +82,7 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
         print_summary(console, summary)
     except OSError:  # the terminal is gone (SIGHUP): summary.json holds it
         pass
-    if summary.interrupted and signals.requested:
+    if signals.requested:  # stopped (or hurried) by a signal: 128 + its number
         return signals.exit_code
     if summary.aborted or summary.error:
         return EXIT_FAILED

@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
 _PR_SET_PDEATHSIG = 1
+SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
 
 class StopFlag:
@@ -52,6 +53,9 @@ class StopFlag:
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.stopped = True
+        # the records are written first thing on the way out; should closing the sessions then
+        # hang, SIGALRM's default action ends the process (no orphan when the runner is gone)
+        signal.alarm(SHUTDOWN_WATCHDOG_S)
 
 
 def die_with_parent() -> None:
