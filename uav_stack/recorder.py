@@ -8,9 +8,8 @@ A recording error never stops a flight process. ``ENOSPC`` (disk full), ``EDQUOT
 ``EROFS`` (read-only), ``EIO`` and every other ``OSError`` are counted in a shared
 :class:`RecordHealth` and logged as a warning (the first one, then at most once a minute);
 an append-only file keeps at most :data:`MAX_BACKLOG_BYTES` of unwritten rows in memory and
-writes them once the disk takes them again, dropping the oldest (counted) beyond that. A line
-cut by a partial write is closed with a newline before the next one, so a reader skips just
-that line.
+writes them once the disk takes them again (completing a line a partial write cut), dropping
+the oldest (counted) beyond that.
 """
 
 from __future__ import annotations
@@ -58,26 +57,35 @@ class RecordHealth:
 
 
 class AppendLog:
-    """An append-only text file written in whole lines from a bounded in-memory backlog."""
+    """An append-only text file written from a bounded in-memory backlog, whole lines in the end.
+
+    A partial write (the disk filled up inside a line) keeps the rest of that line first in the
+    backlog, so the next write completes it: nothing is lost while the backlog has room. When the
+    backlog overflows, the oldest lines are dropped (counted); if that cuts the line the file ends
+    in, a newline closes it first, so a reader skips just that line.
+    """
 
     def __init__(self, path: str | Path, header: str, health: RecordHealth | None = None):
         self.path = Path(path)
-        self.header = header
+        self.header = header.encode()
         self.health = health or RecordHealth()
         self._fd: int | None = None
-        self._lines: list[str] = []
-        self._pending = 0  # bytes in _lines
-        self._cut = False  # the last write stopped inside a line
+        self._buf = bytearray()
+        self._mid_line = False  # the file ends inside a line whose rest starts _buf
+        self._need_newline = False  # ... whose rest was dropped: close it before writing on
 
     def add(self, line: str) -> None:
         """Queue one line (with its newline); :meth:`flush` writes it."""
-        self._lines.append(line)
-        self._pending += len(line)
-        while self._pending > MAX_BACKLOG_BYTES and len(self._lines) > 1:
-            old = self._lines.pop(0)
-            self._pending -= len(old)
+        self._buf += line.encode()
+        while len(self._buf) > MAX_BACKLOG_BYTES:
+            nl = self._buf.find(b"\n")
+            if nl < 0:
+                break
             self.health.rows_dropped += 1
-            self.health.bytes_dropped += len(old)
+            self.health.bytes_dropped += nl + 1
+            del self._buf[:nl + 1]
+            if self._mid_line:
+                self._mid_line, self._need_newline = False, True
 
     def _open(self) -> int:
         if self._fd is None:
@@ -85,8 +93,7 @@ class AppendLog:
             fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
             try:
                 if os.fstat(fd).st_size == 0:
-                    self._lines.insert(0, self.header)
-                    self._pending += len(self.header)
+                    self._buf[0:0] = self.header
             except OSError:
                 os.close(fd)
                 raise
@@ -95,35 +102,21 @@ class AppendLog:
 
     def flush(self, now: float = 0.0) -> None:
         """Write what is queued; on an error keep it (bounded) for the next flush."""
-        if not self._lines:
+        if not self._buf and not self._need_newline:
             return
-        done = 0
-        buf = b""
         try:
-            fd = self._open()  # may queue the header first
-            buf = (("\n" if self._cut else "") + "".join(self._lines)).encode()
-            while done < len(buf):
-                done += os.write(fd, buf[done:])
+            fd = self._open()
+            if self._need_newline:
+                os.write(fd, b"\n")
+                self._need_newline = False
+            while self._buf:
+                n = os.write(fd, self._buf)
+                if n <= 0:
+                    break
+                self._mid_line = self._buf[n - 1] != ord("\n")
+                del self._buf[:n]
         except OSError as exc:
             self.health.failed(self.path, exc, now)
-            if done > 0:  # a partial write: keep only the lines not fully written
-                self._keep_after(buf, done)
-            return
-        self._lines.clear()
-        self._pending = 0
-        self._cut = False
-
-    def _keep_after(self, buf: bytes, done: int) -> None:
-        rest = buf[done:].decode(errors="replace")
-        nl = rest.find("\n")
-        self._cut = nl != 0  # stopped inside a line: close it before writing on
-        kept = rest[nl + 1:] if nl >= 0 else ""
-        dropped = len(rest) - len(kept)
-        if dropped:
-            self.health.rows_dropped += 1
-            self.health.bytes_dropped += dropped
-        self._lines = [kept] if kept else []
-        self._pending = len(kept)
 
     def close(self, now: float = 0.0) -> None:
         self.flush(now)
