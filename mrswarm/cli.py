@@ -50,7 +50,6 @@ def _detach_from_terminal() -> None:
 
 
 def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
-    from mrswarm.experiment import Experiment
     from mrswarm.resources import check_resources
     from mrswarm.scenario import ScenarioError, load_scenario
     from mrswarm.summary_table import print_summary
@@ -58,24 +57,26 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
     try:
         scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
     except ScenarioError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False)
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
     problem = check_resources(scn)
     if problem and not args.force:
-        console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False)
+        console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
     if problem:
-        console.print(f"[yellow]warning:[/] {problem} (--force)", highlight=False)
+        console.print(f"[yellow]warning:[/] {problem} (--force)", highlight=False, soft_wrap=True)
     if signals.requested:
         return signals.exit_code
+    from mrswarm.experiment import Experiment  # heavy (zenoh, numpy): only once the input is known to be good
+
     try:
         exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level, signals=signals)
     except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
-        console.print(f"[red]error:[/] {exc}", highlight=False)
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
     except OSError as exc:  # --out read-only, a file, full...
         console.print(f"[red]error:[/] --out {args.out}: cannot create the results folder there: "
-                      f"{exc.strerror or exc}" + (f" ({exc.filename})" if exc.filename else ""), highlight=False)
+                      f"{exc.strerror or exc}" + (f" ({exc.filename})" if exc.filename else ""), highlight=False, soft_wrap=True)
         return EXIT_USAGE
     summary = exp.run()
     try:
@@ -101,7 +102,7 @@ def _results(args: argparse.Namespace) -> int:
     try:
         summary = rebuild_results(Path(args.run_dir))
     except ResultsError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False)
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return 2
     except KeyboardInterrupt:
         console.print("[yellow]interrupted[/]: summary.json was not rebuilt")

@@ -498,6 +498,8 @@ def encode_fault(f: FaultInjection) -> bytes:
     if not NAME_RE.match(f.sender) or not NAME_RE.match(f.kind):
         raise ValueError(f"fault sender {f.sender!r} and kind {f.kind!r} must be 1-32 characters of [A-Za-z0-9_-]")
     check_uav_id(f.target, "target")
+    if len(f.args) > MAX_FAULT_ARGS:
+        raise ValueError(f"a fault takes at most {MAX_FAULT_ARGS} arguments, got {len(f.args)}")
     for k, v in f.args.items():
         if not NAME_RE.match(k) or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise ValueError(f"fault argument {k}={v!r}: names of [A-Za-z0-9_-], finite numbers")
