@@ -25,7 +25,8 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
     try:
-        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level,
+                         record=not args.no_record)
     except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
@@ -68,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-level", default="INFO", help="log level of the UAV processes (their logs go to <run>/logs)")
     p.add_argument("--runtime", choices=["process", "docker"], default=None,
                    help="one OS process or one Docker container per virtual UAV (default: the scenario's, else process)")
+    p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 
     p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder from its recorded files")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
 import time
 from typing import Any
@@ -79,9 +80,10 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
         if verb == "kill":
             p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
 
-    p = sub.add_parser("record", help="append everything the ground station sees to FILE (JSON lines)")
+    p = sub.add_parser("record", help="record everything the swarm publishes to FILE: MCAP (--mcap, or FILE.mcap) or JSON lines")
     _common(p)
     p.add_argument("file")
+    p.add_argument("--mcap", action="store_true", help="write MCAP (docs/recording.md); the default for a FILE ending in .mcap")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
 
@@ -145,6 +147,8 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
         if args.sub == "telemetry":
             return _telemetry(obs, args, console)
+        if args.sub == "record" and (args.mcap or args.file.endswith(".mcap")):
+            return _record_mcap(obs, args, console)
         if args.sub == "record":
             from mrswarm.gcs.record import run_record
 
@@ -154,6 +158,29 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         return _command(obs, args, ids, console)
     finally:
         obs.close()
+
+
+def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    """``record --mcap``: every message of the swarm into an MCAP file; with --run, the run's files too."""
+    from pathlib import Path
+
+    from mrswarm.recorder.recording import Stop, record_swarm
+
+    if Path(args.file).exists():
+        raise GcsError(f"{args.file} exists: a recording is never overwritten")
+    stop = Stop()
+    stop.install()
+    last = [time.monotonic()]
+
+    def report(counts: dict[str, int]) -> None:
+        if not args.quiet and time.monotonic() - last[0] >= 5.0:
+            last[0] = time.monotonic()
+            print(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())), flush=True)
+
+    counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
+                          stop=lambda: stop.requested, report=report)
+    console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+    return 130 if stop.signum == signal.SIGINT else EXIT_OK
 
 
 def _with_registry(target: Any, server: str | None, key_file: str | None) -> Any:
