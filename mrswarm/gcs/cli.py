@@ -87,6 +87,18 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
 
+    p = sub.add_parser("foxglove", help="serve the swarm live to Foxglove (WebSocket protocol; docs/recording.md)")
+    _common(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765, Foxglove's)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+
+    p = sub.add_parser("web", help="serve the live map: every UAV, trails, phases, commands with their acks (docs/recording.md)")
+    _common(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8088, help="TCP port (default 8088)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+
     p = sub.add_parser("plot", help="draw a recording: trajectories, altitude, battery, phases")
     p.add_argument("file")
     p.add_argument("--out", default=None, help="PNG path (default: FILE with .png)")
@@ -147,6 +159,12 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
         if args.sub == "telemetry":
             return _telemetry(obs, args, console)
+        if args.sub == "foxglove":
+            return _foxglove(obs, args, console)
+        if args.sub == "web":
+            from mrswarm.gcs.web.server import serve_web
+
+            return serve_web(obs, host=args.host, port=args.port, duration=args.duration)
         if args.sub == "record" and (args.mcap or args.file.endswith(".mcap")):
             return _record_mcap(obs, args, console)
         if args.sub == "record":
@@ -180,6 +198,22 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
     counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
                           stop=lambda: stop.requested, report=report)
     console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+    return 130 if stop.signum == signal.SIGINT else EXIT_OK
+
+
+def _foxglove(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    from mrswarm.gcs.foxglove import serve_foxglove
+    from mrswarm.recorder.recording import Stop
+
+    if not 0 <= args.port <= 65535:
+        raise GcsError(f"--port {args.port}: expected 0..65535")
+    stop = Stop()
+    stop.install()
+
+    def ready(port: int) -> None:
+        print(f"Foxglove: open a connection to ws://{args.host}:{port} (swarm {obs.keys.swarm}; Ctrl-C stops)", flush=True)
+
+    serve_foxglove(obs, host=args.host, port=args.port, duration=args.duration, stop=lambda: stop.requested, ready=ready)
     return 130 if stop.signum == signal.SIGINT else EXIT_OK
 
 
