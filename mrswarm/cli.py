@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap)")
     p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
-    p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export beside it)")
+    p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 
     p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)

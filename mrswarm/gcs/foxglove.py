@@ -52,7 +52,8 @@ class FoxgloveLive:
         ch = self.channels.get(rec.topic)
         if ch is None:
             schema = self._fg.Schema(name=rec.schema, encoding=JSONSCHEMA, data=schema_bytes(rec.schema))
-            ch = self.channels[rec.topic] = self._fg.Channel(rec.topic, schema=schema, message_encoding=JSON, context=self.context)
+            ch = self._fg.Channel(rec.topic, schema=schema, message_encoding=JSON, context=self.context)
+            self.channels[rec.topic] = ch
         ch.log(rec.data, log_time=rec.log_time)
 
     def close(self) -> None:

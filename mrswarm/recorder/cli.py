@@ -17,12 +17,12 @@ def _err(msg: str) -> int:
 def export_main(argv: list[str] | None = None) -> int:
     from mrswarm.recorder.export import ExportError, default_out, export_csv, export_jsonl
 
-    ap = argparse.ArgumentParser(prog="mrswarm export", description="Export a recording (MCAP): a run folder of CSVs, or JSON Lines.")
+    ap = argparse.ArgumentParser(prog="mrswarm export", description="Export a recording (MCAP): a run folder, or JSON Lines.")
     ap.add_argument("file", help="a recording, e.g. results/coverage-20260101-120000/run.mcap")
     what = ap.add_mutually_exclusive_group(required=True)
-    what.add_argument("--csv", action="store_true", help="uav<N>.csv trajectories and the run's files: a folder `mrswarm results` reads")
+    what.add_argument("--csv", action="store_true", help="uav<N>.csv trajectories and the run's files (for `mrswarm results`)")
     what.add_argument("--jsonl", action="store_true", help="the ground station's JSON Lines (`mrswarm gcs plot` draws it)")
-    ap.add_argument("--out", default=None, help="folder (--csv; default FILE without .mcap + '-export') or file (--jsonl; default .jsonl)")
+    ap.add_argument("--out", default=None, help="a folder (--csv; default <stem>-export) or a file (--jsonl; default .jsonl)")
     args = ap.parse_args(argv)
     path = Path(args.file)
     try:
@@ -49,10 +49,10 @@ def replay_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1; 4 = four times faster)")
     ap.add_argument("--from", dest="start", default="0s", help="start this far into the recording: 30s, 2m, 90 (default 0s)")
     ap.add_argument("--to", dest="end", default=None, help="stop this far into the recording (default: its end)")
-    ap.add_argument("--swarm", default=None, help="the replay's swarm name (default replay-<recorded swarm>; never the recorded one)")
+    ap.add_argument("--swarm", default=None, help="the replay's swarm name (default replay-<recorded>; never the recorded one)")
     ap.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                     help="publish through this Zenoh router (repeatable; default: start one on --listen)")
-    ap.add_argument("--listen", default="tcp/127.0.0.1:7448", help="the replay's own router, without --connect (default %(default)s)")
+    ap.add_argument("--listen", default="tcp/127.0.0.1:7448", help="its own router, without --connect (default %(default)s)")
     ap.add_argument("--run-dir", default=None, help="write network.json here, so `mrswarm gcs ... --run DIR` finds the replay")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)

@@ -70,7 +70,7 @@ def export_csv(path: Path, out: Path) -> dict[str, Any]:
                 u = int(d["uav"])
                 f = files.get(u)
                 if f is None:
-                    f = files[u] = open(out / f"uav{u}.csv", "w", encoding="utf-8")
+                    f = files[u] = open(out / f"uav{u}.csv", "w", encoding="utf-8")  # noqa: SIM115 (closed below)
                     f.write(",".join(TRAJECTORY_COLUMNS) + "\n")
                 mode, armed, rtf = tel.get(u, ("", False, None))
                 row = (d["t_wall"], d["t_sim"], d["x"], d["y"], d["z"], d["vx"], d["vy"], d["vz"], d["yaw"],
@@ -123,7 +123,7 @@ def _rebuild_run_json(out: Path, rec: Recording, first_ns: int, last_ns: int, st
 
 
 def export_jsonl(path: Path, out: Path) -> dict[str, Any]:
-    """The ground station's JSON Lines (``{"t": arrival, "kind": ..., fields}``): poses, telemetry, states, acks, joins, leaves."""
+    """The ground station's JSON Lines (``{"t": arrival, "kind": ..., fields}``): poses, telemetry, states, acks, liveliness."""
     kinds = {"mrswarm.Pose": "pose", "mrswarm.Telemetry": "telemetry", "mrswarm.AgentState": "state", "mrswarm.CommandAck": "ack"}
     n = 0
     rec = Recording(path)

@@ -55,7 +55,7 @@ def read_recording(path: str | Path, recording: Recording | None = None,
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
     try:
-        f = open(path, "rb")
+        f = open(path, "rb")  # noqa: SIM115 (closed by the with below)
     except OSError as exc:
         raise RecordingError(f"{path}: {exc.strerror or exc}") from None
     with f:

@@ -167,7 +167,7 @@ class WebMap:
                 raise GcsError("args: expected x, y, z")
             for k in ("x", "y", "z"):
                 v = args.get(k)
-                if type(v) not in (int, float) or not math.isfinite(v):
+                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                     raise GcsError(f"args.{k}: expected a finite number (m from the swarm origin), got {v!r}")
                 cmd_args[k] = float(v)
         targets = sorted(set(uavs))
