@@ -99,6 +99,7 @@ class WebMap:
         self.clients: set[ServerConnection] = set()
         self.commands: list[WebCommand] = []
         self._next_id = 1
+        self.stopping = False  # set from any thread: run() returns within a poll period
 
     # ---- HTTP: the page, and who may open the WebSocket ---------------------------------------
     def _allowed_host(self, host_header: str | None) -> bool:
@@ -214,7 +215,7 @@ class WebMap:
             loop = asyncio.get_running_loop()
             end = loop.time() + duration if duration is not None else math.inf
             next_push = 0.0
-            while loop.time() < end:
+            while loop.time() < end and not self.stopping:
                 self.obs.poll()
                 self.track()
                 if loop.time() >= next_push:
