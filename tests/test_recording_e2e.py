@@ -196,6 +196,7 @@ def test_a_recorded_run_live_in_foxglove_and_the_web_map_then_read_rebuilt_and_r
                 assert wait_for(lambda: (obs.poll(), obs.phases())[1] == {u: "mission" for u in IDS}, 120.0, 0.1), obs.phases()
                 # ---- Foxglove, live
                 proto, channels, got = _in_thread(foxglove_poses, fport, 4.0)
+                _stop(helpers[0])  # each client costs the edge router a copy of every message: only while needed
                 assert proto in ("foxglove.sdk.v1", "foxglove.websocket.v1")
                 assert set(got) == set(IDS) and min(got.values()) >= 15, got  # 10 Hz for 4 s, less the subscription's start
                 assert channels["/swarm/scene"]["schemaName"] == "foxglove.SceneUpdate"
@@ -204,6 +205,7 @@ def test_a_recorded_run_live_in_foxglove_and_the_web_map_then_read_rebuilt_and_r
                 # ---- the web map in Chromium, live
                 shot = tmp_path / "web-map.png"
                 web = web_map_check(page, obs, shot)
+                _stop(helpers[1])
                 if os.environ.get("MRSWARM_DOC_SCREENSHOT"):  # how docs/images/web-map.png was made
                     shutil.copy(shot, os.environ["MRSWARM_DOC_SCREENSHOT"])
             finally:
