@@ -99,8 +99,8 @@ class Experiment:
             self.run_info.exit_codes = dict(self.runtime.stop())
             self.run_info.stopped = time.time()
             self.run_info.write(self.run_dir / "run.json")
-            if self.recorder is not None:  # after run.json, which the recording keeps
-                self.recorder.stop()
+            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
+                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
             signal.signal(signal.SIGTERM, old)
         return summarise_run(self.run_dir, self.scn)
 
@@ -121,6 +121,7 @@ class Experiment:
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
+                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
             except RuntimeError as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))

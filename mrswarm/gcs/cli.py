@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -84,6 +85,7 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("file")
     p.add_argument("--mcap", action="store_true", help="write MCAP (docs/recording.md); the default for a FILE ending in .mcap")
+    p.add_argument("--die-with-parent", action="store_true", help="finish the file and stop when the parent process exits")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
 
@@ -195,8 +197,13 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
             last[0] = time.monotonic()
             print(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())), flush=True)
 
+    parent = os.getppid() if args.die_with_parent else None  # the runner: a runner killed hard still leaves a whole file
+
+    def stopped() -> bool:
+        return stop.requested or (parent is not None and os.getppid() != parent)
+
     counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
-                          stop=lambda: stop.requested, report=report)
+                          stop=stopped, report=report)
     console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
     return 130 if stop.signum == signal.SIGINT else EXIT_OK
 

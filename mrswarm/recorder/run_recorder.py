@@ -36,7 +36,8 @@ class RunRecorder:
         """
         path = run_dir / MCAP_NAME
         (run_dir / "logs").mkdir(exist_ok=True)
-        argv = [sys.executable, "-m", "mrswarm", "gcs", "record", str(path), "--mcap", "--run", str(run_dir), "--quiet"]
+        argv = [sys.executable, "-m", "mrswarm", "gcs", "record", str(path), "--mcap", "--run", str(run_dir), "--quiet",
+                "--die-with-parent"]
         with open(run_dir / "logs" / "recorder.log", "ab") as log:  # the child keeps its own descriptor
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         rec = cls(proc, path)
