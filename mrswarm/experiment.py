@@ -35,6 +35,7 @@ from rich.console import Console
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
@@ -69,7 +70,7 @@ class Experiment:
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
                  live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
-                 signals: StopSignals | None = None):
+                 record: bool = True, signals: StopSignals | None = None):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -86,6 +87,8 @@ class Experiment:
         self.display = Display(self.console, live, scenario, self.progress, self.metrics)
         self.observer: SwarmObserver | None = None
         self.probe = probe
+        self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
+        self.recorder: RunRecorder | None = None
         self.signals = signals or StopSignals()
         self.supervisor: Supervisor | None = None
         self.chaos: Chaos | None = None
@@ -133,6 +136,9 @@ class Experiment:
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
         self._save_info()
+        # the flight recorder after run.json, which it keeps; faster after a second signal
+        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
+            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
 
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
@@ -182,6 +188,12 @@ class Experiment:
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         self._save("network.json", json.dumps(network_info).encode())
+        if self.record:  # before the first UAV, so its first pose is recorded
+            try:
+                self.recorder = RunRecorder.start(self.run_dir)
+                self._say(f"flight recording: {self.recorder.path}")
+            except RuntimeError as exc:  # a run without its recording still flies
+                self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         self.ids = ids = [c.agent.uav for c in configs]
         for c in configs:
