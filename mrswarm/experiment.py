@@ -246,12 +246,10 @@ class Experiment:
 
     def _swarm(self, net: NetworkConfig) -> Swarm:
         """What the fault schedule acts on."""
-        sw = Swarm()
-        sw.runtime, sw.supervisor, sw.observer, sw.ids = self.runtime, self.supervisor, self.observer, list(self.ids)
-        sw.base_netem = to_builtins(self.scn.network.netem) if self.scn.network.netem is not None else None
         d = net.discovery
-        sw.discovery = (d.server, self.scn.swarm, d.read_key()) if d is not None else None
-        return sw
+        return Swarm(runtime=self.runtime, supervisor=self.supervisor, observer=self.observer,
+                     base_netem=to_builtins(self.scn.network.netem) if self.scn.network.netem is not None else None,
+                     discovery=(d.server, self.scn.swarm, d.read_key()) if d is not None else None, ids=list(self.ids))
 
     def _active_ids(self) -> list[int]:
         """UAVs flying with the swarm now: not lost, not rejoining."""

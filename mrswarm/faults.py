@@ -132,14 +132,15 @@ def check_against(faults: tuple[FaultSpec, ...], ids: set[int], duration: float,
                                                "(this run has no discovery server)")
 
 
+@dataclass
 class Swarm:
-    """What the fault schedule needs from the run (the runner provides it)."""
+    """What the fault schedule acts on and watches (the runner provides it)."""
 
-    runtime: Any  # mrswarm.runtime.Runtime
-    supervisor: Any  # mrswarm.supervisor.Supervisor
-    observer: Any  # swarmnet.observer.SwarmObserver
-    base_netem: dict[str, Any] | None  # the scenario's network.netem
-    discovery: tuple[str, str, str] | None  # server, swarm, key
+    runtime: Any  # mrswarm.runtime.Runtime: signals and restarts
+    supervisor: Any  # mrswarm.supervisor.Supervisor: planned restarts, what is down
+    observer: Any  # swarmnet.observer.SwarmObserver: injected faults, netem changes, the swarm's state
+    base_netem: dict[str, Any] | None  # the scenario's network.netem, restored after a partition
+    discovery: tuple[str, str, str] | None  # server, swarm, key: the registry check after a discovery fault
     ids: list[int]
 
 
