@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from swarmnet.stats import NodeStats
 
-# Zenoh's log level for the processes that tap it: warnings, without the one logged for every
-# link that skips the name check (by design here, see swarmnet/security/credentials.py)
-ZENOH_LOG_LEVEL = "warn,zenoh_link_tls::utils=error"
+# Zenoh's log filter for the processes that tap it: errors, and the TLS listener's warnings (one
+# per refused handshake). Zenoh's other warnings stay off, as in a process that does not tap it.
+ZENOH_LOG_LEVEL = "error,zenoh_link_tls::unicast=warn"
 _ANSI = re.compile(rb"\x1b\[[0-9;]*m")
 _REFUSED = re.compile(rb"WARN.*zenoh_link_tls::unicast")
 
