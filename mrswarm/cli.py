@@ -96,9 +96,12 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("gcs", help="ground station: watch, telemetry, overrides, record (docs/gcs.md)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
+    p = sub.add_parser("keys", help="the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.keys_cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs"):
+    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "keys"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")
