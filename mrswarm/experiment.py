@@ -25,6 +25,7 @@ from types import FrameType
 from typing import Any
 
 import yaml
+from msgspec.structs import replace
 from rich.console import Console
 
 from mrswarm.display import Display
@@ -35,6 +36,7 @@ from mrswarm.scenario import Scenario
 from mrswarm.summary import RunInfo, RunSummary
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
+from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, AgentPhase
@@ -145,8 +147,10 @@ class Experiment:
         self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
-        obs_net = (NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=net.security)
-                   if net.endpoints else net)
+        # (with the run's key directory as seen from here: a container's credentials sit elsewhere)
+        own = Credentials(keys=str(self.keys)) if self.keys is not None else None
+        obs_net = (NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=own)
+                   if net.endpoints else replace(net, security=own))
         self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net, NodeName("ctl", 0, scn.swarm)), name="runner").open()
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
