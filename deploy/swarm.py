@@ -162,8 +162,8 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
     }
     if fleet.keys is not None:  # the credentials, as Swarm secrets (docs/security.md)
         stack["secrets"], mounts = _secrets(fleet, name, common_labels)
-        for svc, m in mounts.items():
-            services[svc]["secrets"] = m
+        for service, m in mounts.items():
+            services[service]["secrets"] = m
     return stack, fleet_json
 
 

@@ -36,6 +36,7 @@ from typing import Any
 
 import zenoh
 
+from discovery.netutil import free_port
 from discovery.options import ProxyOptions
 from discovery.protocol import (
     DEFAULT_PERIOD,
@@ -67,12 +68,6 @@ log = logging.getLogger(__name__)
 Addr = tuple[str, int]
 LOCAL_HOST = "127.0.0.1"
 SOFTWARE = f"mrswarm/{__version__}"
-
-
-def free_udp_port(host: str = LOCAL_HOST) -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
 
 
 def parse_server(text: str) -> Addr:
@@ -166,7 +161,7 @@ class BeaconDiscovery:
 
     def zenoh_config(self) -> dict[str, Any]:
         if not self.scout_port:
-            self.scout_port = free_udp_port()
+            self.scout_port = free_port(socket.SOCK_DGRAM, LOCAL_HOST)
         cfg = base_config("peer", self.connect, self.listen, self.tuning, self.credentials)
         cfg["scouting"] = {
             # a *unicast loopback* "multicast" address: no packet ever leaves the host

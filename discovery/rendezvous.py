@@ -1,8 +1,10 @@
 """A Zenoh router used as gossip rendezvous (and, for client-mode nodes, as data router).
 
 Peers connect to it, learn each other's locators from its gossip and then mesh directly;
-the router is not on their data path and may die without interrupting them. Client-mode
-nodes (UAVs behind carrier NAT) route all data through it instead.
+the router is not on their data path and may die without interrupting them: Zenoh's gossip
+only hands each new link the locators it knows, over links that already exist (upstream
+source: ``zenoh/src/net/protocol/gossip.rs``). Client-mode nodes (UAVs behind carrier NAT)
+route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
 one batch of every UAV's latest pose per period instead of a message per neighbour.
@@ -80,7 +82,8 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
         shown = [e.replace("tcp/", "tls/", 1) if credentials else e for e in listen]
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
               + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
-              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""), flush=True)
+              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
+              flush=True)
         if credentials is not None:
             from swarmnet.security.acl import member_names
             from swarmnet.security.links import LinkWatch
@@ -117,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="the swarm's key directory (mrswarm keys init), or the router's bundle: mutual TLS and access control")
     ap.add_argument("--identity", default=None, help="certificate to speak as (default: edge.<swarm of --keys>)")
     ap.add_argument("--insecure", action="store_true", help="plain TCP without access control (labs only; says so at start)")
-    ap.add_argument("--stats", default=None, metavar="FILE", help="write the router's counters (refusals, feed) here every second")
+    ap.add_argument("--stats", default=None, metavar="FILE",
+                    help="write the router's counters (refusals, feed) here every second")
     ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     args = ap.parse_args(argv)
     if not args.keys and not args.insecure:

@@ -53,7 +53,7 @@ def _names(kd: KeyDir, a: argparse.Namespace) -> list[NodeName]:
 
 
 def _date(t: float) -> str:
-    return dt.datetime.fromtimestamp(t, dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
 def _init(a: argparse.Namespace) -> int:
@@ -124,8 +124,9 @@ def _list(a: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="mrswarm keys", description=__doc__.splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog="\n".join(__doc__.splitlines()[2:9]))
+    doc = __doc__.splitlines()
+    ap = argparse.ArgumentParser(prog="mrswarm keys", description=doc[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n".join(doc[2:9]))
     sub = ap.add_subparsers(dest="what", required=True, metavar="COMMAND")
 
     def command(name: str, help: str, func: object, names: bool = False) -> argparse.ArgumentParser:

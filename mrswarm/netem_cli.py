@@ -150,7 +150,8 @@ def endpoint_and_swarm(a: argparse.Namespace) -> tuple[list[str], str, Credentia
         endpoints, swarm = list(a.connect), a.swarm or "alpha"
     if keys is None:
         if any(ep.startswith("tls/") for ep in endpoints):
-            raise ValueError("the swarm's router speaks TLS: give the controller's credentials with --keys DIR (docs/security.md)")
+            raise ValueError("the swarm's router speaks TLS: give the controller's credentials with --keys DIR "
+                             "(docs/security.md)")
         return endpoints, swarm, None
     name = NodeName.in_swarm(a.identity, swarm) if a.identity else NodeName("ctl", 0, swarm)
     creds = Credentials(keys=str(keys), identity=name.cn)

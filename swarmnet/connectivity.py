@@ -28,8 +28,15 @@ if TYPE_CHECKING:
 class Connectivity(Protocol):
     """Strategy that connects a node's Zenoh session to its swarm."""
 
-    name: str
-    credentials: Credentials | None  # None: plain TCP, no access control
+    @property
+    def name(self) -> str:
+        """A short label for logs and status ("rendezvous", "static", ...); read-only."""
+        ...
+
+    @property
+    def credentials(self) -> Credentials | None:
+        """Mutual TLS and access control for every link (None: plain TCP, no access control)."""
+        ...
 
     def zenoh_config(self) -> dict[str, Any]:
         """The session configuration (a JSON-able dict)."""

@@ -379,7 +379,8 @@ _STATE_TAG = tag(Kind.STATE)
 
 def encode_state(s: AgentState) -> bytes:
     return msgpack.packb(
-        [_STATE_TAG, s.uav, int(s.realm), s.seq & 0xFFFFFFFF, _us(s.t_wall), s.phase, s.behaviour, s.override, s.detail[:MAX_TEXT_LEN]]
+        [_STATE_TAG, s.uav, int(s.realm), s.seq & 0xFFFFFFFF, _us(s.t_wall), s.phase, s.behaviour, s.override,
+         s.detail[:MAX_TEXT_LEN]]
     )
 
 
@@ -493,7 +494,7 @@ def decode_pose_batch(data: bytes) -> PoseBatch:
     _expect(o, Kind.POSE_BATCH, 5, BATCH_VERSION)
     senders, poses = o[3], o[4]
     if type(poses) is not list or len(poses) > MAX_BATCH_POSES:
-        raise DecodeError("bad_field", "poses must be a list of at most %d payloads" % MAX_BATCH_POSES)
+        raise DecodeError("bad_field", f"poses must be a list of at most {MAX_BATCH_POSES} payloads")
     if type(senders) is not list or len(senders) != len(poses):
         raise DecodeError("bad_field", "senders must list one UAV id per pose")
     for p in poses:

@@ -19,10 +19,10 @@ import pytest
 
 from deploy.dockerutil import L_ROLE, L_RUN
 from swarmnet.observer import SwarmObserver
-from tests.conftest import free_port, wait_for
-from tests.docker_support import docker_client, docker_image  # noqa: F401
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
+from tests.conftest import free_port, wait_for
+from tests.docker_support import docker_client, docker_image  # noqa: F401
 from uav_stack.config import NetworkConfig
 from uav_stack.runtime import make_connectivity
 

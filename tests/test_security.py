@@ -273,7 +273,8 @@ def test_intruders_without_a_swarm_certificate_cannot_connect(secured_router: tu
     intruders = {
         "no certificate": {"root_ca_certificate": ca, "verify_name_on_connect": False},
         "another CA": {"root_ca_certificate": ca, "enable_mtls": True, "verify_name_on_connect": False,
-                       "connect_certificate": str(other / "uav-1.alpha.pem"), "connect_private_key": str(other / "uav-1.alpha.key")},
+                       "connect_certificate": str(other / "uav-1.alpha.pem"),
+                       "connect_private_key": str(other / "uav-1.alpha.key")},
         "plain TCP": {},
     }
     for what, tls in intruders.items():

@@ -67,7 +67,7 @@ def access_control(roster: Roster) -> dict[str, Any]:
              _rule("forward", EVERY_MESSAGE, BOTH, everything)]
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    staff = {"gcs": [], "ctl": [], "edge": []}  # CNs per non-UAV role
+    staff: dict[str, list[str]] = {"gcs": [], "ctl": [], "edge": []}  # CNs per non-UAV role
     for name in roster.names():
         if name.role != "uav":
             staff[name.role].append(name.cn)

@@ -67,7 +67,8 @@ class Credentials(Config, frozen=True):
         name = self.name
         d = Path(self.keys)
         ca, cert, key = d / CA_CERT_FILE, d / f"{name.cn}.pem", d / f"{name.cn}.key"
-        for p, what in ((ca, "the swarm's CA certificate"), (cert, f"{name.cn}'s certificate"), (key, f"{name.cn}'s private key")):
+        wanted = ((ca, "the swarm's CA certificate"), (cert, f"{name.cn}'s certificate"), (key, f"{name.cn}'s private key"))
+        for p, what in wanted:
             if not p.is_file():
                 raise ConfigError("keys", f"{p} missing ({what}); issue it with `mrswarm keys issue {name.short} "
                                           f"--dir <the swarm's key directory>` and copy its bundle here")
