@@ -201,7 +201,7 @@ class SwarmNode:
         return self
 
     def _watch_links(self, session: zenoh.Session) -> None:
-        creds = getattr(self.connectivity, "credentials", None)
+        creds = self.connectivity.credentials
         if creds is None:
             return
         from swarmnet.security.acl import member_names

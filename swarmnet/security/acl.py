@@ -33,7 +33,6 @@ from __future__ import annotations
 from typing import Any
 
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import Roster
 
 EVERY_MESSAGE = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
@@ -92,6 +91,3 @@ def access_control(roster: Roster) -> dict[str, Any]:
 def member_names(roster: Roster) -> frozenset[str]:
     """The CNs the rules grant anything to (for counting links of anyone else)."""
     return frozenset(n.cn for n in roster.names())
-
-
-__all__ = ["NodeName", "access_control", "member_names", "uav_puts", "uav_receives"]
