@@ -69,6 +69,7 @@ class RunInfo(Struct):
     events: list[ProcessEvent] = []  # processes that exited during the run, and restarts
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
     write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
+    security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -314,6 +315,12 @@ class RecordErrors(Struct):
     rows_dropped: int  # trajectory or pose-age rows given up (beyond the in-memory backlog)
     files_not_written: int  # counter-file replacements that failed
     runner: list[str]  # runner files that could not be written
+class Security(Struct):
+    """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
+
+    mode: str  # "mtls": mutual TLS and access control on every link; "off": plain TCP
+    refused_by_uavs: dict[str, int]  # summed over UAVs: tls_handshake (their listeners), non_member_link
+    refused_by_router: dict[str, int]  # the edge router's: tls_handshake, non_member_link (process runtime)
 
 
 class RunSummary(Struct):
@@ -331,6 +338,7 @@ class RunSummary(Struct):
     encounter: Encounter | None | UnsetType = UNSET  # goto with 2 UAVs; None: they were never airborne together
     rtf: Rtf | UnsetType = UNSET
     network: Network | UnsetType = UNSET
+    security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png

@@ -56,6 +56,14 @@ def summary_table(s: RunSummary) -> Table:
     if rec := s.records:
         t.add_row("records", f"writes failed on UAVs {rec.uavs} ({', '.join(f'{k} x{v}' for k, v in rec.errors.items())}), "
                              f"{rec.rows_dropped} rows lost" + (f"; runner: {', '.join(rec.runner)}" if rec.runner else ""))
+    if sec := s.security:
+        if sec.mode == "off":
+            t.add_row("security", "[yellow]off: plain TCP, no access control[/]")
+        else:
+            refused = {k: sec.refused_by_uavs.get(k, 0) + sec.refused_by_router.get(k, 0)
+                       for k in {*sec.refused_by_uavs, *sec.refused_by_router}}
+            t.add_row("security", "mutual TLS, access control; refused: "
+                      + (", ".join(f"{k} {v}" for k, v in sorted(refused.items())) if any(refused.values()) else "nothing"))
     t.add_row("results", f"{s.run_dir}/summary.json" + (f", {s.plot}" if s.plot else ""))
     if s.write_error:
         t.add_row("not written", s.write_error)
