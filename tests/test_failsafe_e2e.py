@@ -149,7 +149,7 @@ def test_a_physical_uav_refuses_injected_faults(tmp_path: Path) -> None:
                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     agent = subprocess.Popen([sys.executable, "-m", "mrswarm", "agent", "--fcu", f"udpout:127.0.0.1:{fcu_port}", "--swarm", "fs",
                               "--uav", "9", "--origin", f"{HOME.lat},{HOME.lon},{HOME.alt}", "--connect", endpoint,
-                              "--mode", "client", "--realm", "physical", "--sysid", "9"],
+                              "--mode", "client", "--realm", "physical", "--sysid", "9", "--insecure"],
                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     obs = SwarmObserver("fs", Rendezvous((endpoint,), mode="client")).open()
     try:
