@@ -36,8 +36,8 @@ T1, T2 = 2.0, 6.0  # s: hold, then land (short, for the test)
 
 
 def start_router(port: int) -> subprocess.Popen[bytes]:
-    proc = subprocess.Popen([sys.executable, "-m", "discovery.rendezvous", "--listen", f"tcp/127.0.0.1:{port}"], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen([sys.executable, "-m", "discovery.rendezvous", "--listen", f"tcp/127.0.0.1:{port}", "--insecure"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wait_tcp("127.0.0.1", port, 20.0, alive=lambda: proc.poll() is None)
     return proc
 
