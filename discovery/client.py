@@ -18,6 +18,7 @@ from typing import Any
 from discovery.protocol import (
     MAX_DATAGRAM,
     MsgType,
+    PartAssembler,
     ProtocolError,
     RegisteredNode,
     ReplayGuard,
@@ -27,6 +28,9 @@ from discovery.protocol import (
     unseal,
 )
 from discovery.proxy import parse_server, resolve
+
+
+RECV_BUFFER = 4 << 20  # bytes
 
 
 class QueryTimeout(TimeoutError):
@@ -41,10 +45,13 @@ def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1
     fam = socket.AF_INET6 if ":" in addr[0] else socket.AF_INET
     guard = ReplayGuard()
     with socket.socket(fam, socket.SOCK_DGRAM) as s:
+        # a large swarm's answer is hundreds of datagrams sent back to back: room for all of
+        # them (the kernel caps this at net.core.rmem_max)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER)
         for _ in range(max(1, attempts)):
             qid = int.from_bytes(os.urandom(4), "big")
             s.sendto(seal(MsgType.QUERY, swarm, k, [qid]), addr)
-            parts: dict[int, list[RegisteredNode]] = {}
+            parts = PartAssembler()
             stats: dict[str, Any] = {}
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline:
@@ -64,10 +71,10 @@ def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1
                     continue
                 if rqid != qid:
                     continue
-                parts[part] = rows
                 if st is not None:
                     stats = st
-                if len(parts) == n:
-                    return [r for i in range(n) for r in parts[i]], stats
+                whole = parts.add(rqid, part, n, rows)
+                if whole is not None:
+                    return whole, stats
     raise QueryTimeout(f"no answer from the discovery server at {server} for swarm {swarm!r} "
                        f"(down, unreachable, or a different key)")
