@@ -1,4 +1,5 @@
-"""Configuration of a virtual FCU fleet (plain dataclasses, no validation framework)."""
+"""Constructor settings of a virtual FCU fleet: built in code from an already validated UAV configuration
+(`uav_stack.config.VirtualUavConfig`) or from `mrswarm fcu` flags; never read from a file, so no schema here."""
 
 from __future__ import annotations
 

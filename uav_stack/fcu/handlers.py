@@ -8,7 +8,7 @@ logged and counted and the vehicle keeps flying.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 from uav_stack.fcu.commands import MavCommand, handle_command
 from uav_stack.fcu.offboard import decode_global, decode_local
@@ -21,23 +21,23 @@ FTP_TERMINATE, FTP_RESET = 1, 2
 FTP_ERR_FILE_NOT_FOUND = 10
 UPLOAD_STALE_S = 5.0  # wall seconds without progress before a mission upload is abandoned
 
-Handler = Callable[[Vehicle, M.MAVLink_message], None]
+Handler = Callable[[Vehicle, mavlink.MAVLink_message], None]
 
 
-def on_heartbeat(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_heartbeat(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.type == M.MAV_TYPE_GCS:
         v.gcs_last = v.now
 
 
-def on_command_long(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_command_long(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     handle_command(v, MavCommand.from_long(m))
 
 
-def on_command_int(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_command_int(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     handle_command(v, MavCommand.from_int(m))
 
 
-def on_set_mode(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_mode(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """SET_MODE (#11): QGC's way to change PX4 modes. No ACK; the heartbeat tells the result."""
     if not m.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
         v.statustext(M.MAV_SEVERITY_WARNING, "SET_MODE: only custom modes supported")
@@ -54,12 +54,12 @@ def on_set_mode(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 # ------------------------------------------------------------------ parameters
-def _param_value(v: Vehicle, k: int) -> M.MAVLink_message:
+def _param_value(v: Vehicle, k: int) -> mavlink.MAVLink_message:
     name, value, ptype = v.params.encode(k)
     return v.mav.param_value_encode(name.encode(), value, ptype, len(v.params), k)
 
 
-def on_param_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     for k in range(len(v.params)):
         v.send(_param_value(v, k))
 
@@ -70,7 +70,7 @@ def _param_name(raw: str | bytes) -> str:
     return raw.split("\x00", 1)[0].strip()
 
 
-def on_param_request_read(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_request_read(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.param_index >= 0:
         if m.param_index < len(v.params):
             v.send(_param_value(v, m.param_index))
@@ -80,7 +80,7 @@ def on_param_request_read(v: Vehicle, m: M.MAVLink_message) -> None:
         v.send(_param_value(v, v.params.index(name)))
 
 
-def on_param_set(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_set(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     name = _param_name(m.param_id)
     if name not in v.params:
         v.statustext(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}"[:50])
@@ -92,11 +92,11 @@ def on_param_set(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 # --------------------------------------------------------------------- mission
-def _mission_ack(v: Vehicle, m: M.MAVLink_message, result: int, mission_type: int) -> None:
+def _mission_ack(v: Vehicle, m: mavlink.MAVLink_message, result: int, mission_type: int) -> None:
     v.send(v.mav.mission_ack_encode(m.get_srcSystem(), m.get_srcComponent(), result, mission_type))
 
 
-def on_mission_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     items = v.missions.get(m.mission_type)
     if items is None:
         _mission_ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
@@ -104,7 +104,7 @@ def on_mission_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
     v.send(v.mav.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), len(items), m.mission_type))
 
 
-def on_mission_count(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_count(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.mission_type not in v.missions:
         _mission_ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
         return
@@ -120,11 +120,11 @@ def on_mission_count(v: Vehicle, m: M.MAVLink_message) -> None:
     _request_item(v, m, 0, m.mission_type)
 
 
-def _request_item(v: Vehicle, m: M.MAVLink_message, seq: int, mission_type: int) -> None:
+def _request_item(v: Vehicle, m: mavlink.MAVLink_message, seq: int, mission_type: int) -> None:
     v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
 
 
-def _item_fields(m: M.MAVLink_message) -> dict[str, object] | None:
+def _item_fields(m: mavlink.MAVLink_message) -> dict[str, object] | None:
     """The item as MISSION_ITEM_INT fields; None if a float item's x/y cannot be one."""
     is_int = m.get_type() == "MISSION_ITEM_INT"
     if is_int:
@@ -145,7 +145,7 @@ def _item_fields(m: M.MAVLink_message) -> dict[str, object] | None:
     }
 
 
-def on_mission_item(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     up = v.upload
     if up is not None and v.ctx.wall() - float(up["t"]) > UPLOAD_STALE_S:  # type: ignore[arg-type]
         v.upload = up = None
@@ -174,7 +174,7 @@ def on_mission_item(v: Vehicle, m: M.MAVLink_message) -> None:
         _request_item(v, m, len(items), m.mission_type)
 
 
-def _guided_item(v: Vehicle, m: M.MAVLink_message) -> None:
+def _guided_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     f = _item_fields(m)
     lat, lon = (int(f["x"]) * 1e-7, int(f["y"]) * 1e-7) if f is not None else (999.0, 999.0)  # type: ignore[call-overload]
     ok_alt = math.isfinite(m.z) and abs(m.z) < 20000.0
@@ -189,7 +189,7 @@ def _guided_item(v: Vehicle, m: M.MAVLink_message) -> None:
     _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
 
 
-def on_mission_request(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_request(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     items = v.missions.get(m.mission_type)
     if items is None or not 0 <= m.seq < len(items):
         _mission_ack(v, m, M.MAV_MISSION_INVALID_SEQUENCE, m.mission_type)
@@ -204,7 +204,7 @@ def on_mission_request(v: Vehicle, m: M.MAVLink_message) -> None:
     )
 
 
-def on_mission_clear_all(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_clear_all(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.mission_type == M.MAV_MISSION_TYPE_ALL:
         for k in v.missions:
             v.missions[k] = []
@@ -218,31 +218,31 @@ def on_mission_clear_all(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 # ------------------------------------------------------------------- setpoints
-def on_set_position_target_local_ned(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_position_target_local_ned(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     d = v.ctx.dyn
     sp = decode_local(m, d.pos[v.i].copy(), float(d.yaw[v.i]))
     if sp is not None:
         v.on_setpoint(sp)
 
 
-def on_set_position_target_global_int(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_position_target_global_int(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     sp = decode_global(m, v.frame, v.home.alt)
     if sp is not None:
         v.on_setpoint(sp)
 
 
 # ------------------------------------------------------------------ small stuff
-def on_timesync(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_timesync(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.tc1 == 0:
         v.send(v.mav.timesync_encode(max(1, int(v.now * 1e9)), m.ts1))  # tc1 = 0 would be a request
 
 
-def on_ping(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ping(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.target_system == 0:
         v.send(v.mav.ping_encode(m.time_usec, m.seq, m.get_srcSystem(), m.get_srcComponent()))
 
 
-def on_ftp(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ftp(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """No MAVLink-FTP here: NAK (FileNotFound) so MAVProxy/QGC fall back to PARAM_REQUEST_LIST."""
     p = bytes(m.payload)
     if len(p) < 12:
@@ -260,7 +260,7 @@ def on_ftp(v: Vehicle, m: M.MAVLink_message) -> None:
     v.send(v.mav.file_transfer_protocol_encode(0, m.get_srcSystem(), m.get_srcComponent(), out))
 
 
-def on_ignore(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ignore(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     return None
 
 
@@ -288,7 +288,7 @@ HANDLERS: dict[str, Handler] = {
 }
 
 
-def addressed_to(v: Vehicle, m: M.MAVLink_message) -> bool:
+def addressed_to(v: Vehicle, m: mavlink.MAVLink_message) -> bool:
     """False if the message names another system or component as its target."""
     ts = getattr(m, "target_system", 0)
     if ts not in (0, v.sysid):

@@ -8,7 +8,8 @@ a process hosting many vehicles spreads its sends over the period.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from uav_stack.mav import mavlink
 
@@ -55,7 +56,7 @@ def _u16(x: float) -> int:
     return max(0, min(65534, int(round(x)))) if math.isfinite(x) else 0
 
 
-def heartbeat(v: Vehicle) -> M.MAVLink_message:
+def heartbeat(v: Vehicle) -> mavlink.MAVLink_message:
     base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | v.mode.base_flags
     if v.armed:
         base |= M.MAV_MODE_FLAG_SAFETY_ARMED
@@ -65,7 +66,7 @@ def heartbeat(v: Vehicle) -> M.MAVLink_message:
     return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, v.mode.custom_mode, status)
 
 
-def _reuse(v: Vehicle, name: str, make: Callable[[], M.MAVLink_message]) -> M.MAVLink_message:
+def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -> mavlink.MAVLink_message:
     """The vehicle's instance of a high-rate message, refilled in place (skips re-construction)."""
     m = v.msg_cache.get(name)
     if m is None:
@@ -73,7 +74,7 @@ def _reuse(v: Vehicle, name: str, make: Callable[[], M.MAVLink_message]) -> M.MA
     return m
 
 
-def global_position_int(v: Vehicle) -> M.MAVLink_message:
+def global_position_int(v: Vehicle) -> mavlink.MAVLink_message:
     lat, lon, alt = v.geodetic()
     d = v.ctx.dyn
     vn, ve, vd = d.vel[v.i].tolist()
@@ -88,7 +89,7 @@ def global_position_int(v: Vehicle) -> M.MAVLink_message:
     return m
 
 
-def local_position_ned(v: Vehicle) -> M.MAVLink_message:
+def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message:
     d = v.ctx.dyn
     m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
@@ -97,7 +98,7 @@ def local_position_ned(v: Vehicle) -> M.MAVLink_message:
     return m
 
 
-def attitude(v: Vehicle) -> M.MAVLink_message:
+def attitude(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     m = _reuse(v, "ATTITUDE", lambda: v.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
@@ -106,7 +107,7 @@ def attitude(v: Vehicle) -> M.MAVLink_message:
     return m
 
 
-def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:
+def attitude_quaternion(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     r, p, y = float(d.roll[i]) / 2, float(d.pitch[i]) / 2, float(d.yaw[i]) / 2
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -122,7 +123,7 @@ def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def sys_status(v: Vehicle) -> M.MAVLink_message:
+def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
     present = SENSORS | PREARM | FENCE
     enabled = SENSORS | PREARM | (FENCE if v.fence_enabled else 0)
     health = SENSORS | FENCE
@@ -136,11 +137,11 @@ def sys_status(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def extended_sys_state(v: Vehicle) -> M.MAVLink_message:
+def extended_sys_state(v: Vehicle) -> mavlink.MAVLink_message:
     return v.mav.extended_sys_state_encode(M.MAV_VTOL_STATE_MC, v.landed_state())
 
 
-def home_position(v: Vehicle) -> M.MAVLink_message:
+def home_position(v: Vehicle) -> mavlink.MAVLink_message:
     h = v.home
     x, y, z = (float(c) for c in v.home_ned)
     return v.mav.home_position_encode(
@@ -158,7 +159,7 @@ def home_position(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def battery_status(v: Vehicle) -> M.MAVLink_message:
+def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
     volts, amps, pct = v.battery_readings()
     cells = v.ctx.dyn.params.battery_cells
     cell_mv = int(volts * 1000 / cells)
@@ -190,7 +191,7 @@ def battery_status(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
+def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
     lat, lon, alt = v.geodetic()
     vn, ve, _ = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
@@ -215,7 +216,7 @@ def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def vfr_hud(v: Vehicle) -> M.MAVLink_message:
+def vfr_hud(v: Vehicle) -> mavlink.MAVLink_message:
     _, _, alt = v.geodetic()
     vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
@@ -224,17 +225,17 @@ def vfr_hud(v: Vehicle) -> M.MAVLink_message:
     return v.mav.vfr_hud_encode(gs, gs, heading, throttle, alt, -vd)
 
 
-def system_time(v: Vehicle) -> M.MAVLink_message:
+def system_time(v: Vehicle) -> mavlink.MAVLink_message:
     unix_us = int((v.ctx.unix_at_start + v.ctx.clock.sim_time) * 1e6)
     return v.mav.system_time_encode(unix_us, _ms(v))
 
 
-def named_value_rtf(v: Vehicle) -> M.MAVLink_message:
+def named_value_rtf(v: Vehicle) -> mavlink.MAVLink_message:
     rtf = float(v.ctx.rtf())
     return v.mav.named_value_float_encode(_ms(v), b"RTF", rtf if math.isfinite(rtf) else 0.0)  # 0.0: not measured yet
 
 
-def autopilot_version(v: Vehicle) -> M.MAVLink_message:
+def autopilot_version(v: Vehicle) -> mavlink.MAVLink_message:
     cap = (
         M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
         | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -264,7 +265,7 @@ def autopilot_version(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-ENCODERS: dict[str, Callable[[Vehicle], M.MAVLink_message]] = {
+ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message]] = {
     "HEARTBEAT": heartbeat,
     "GLOBAL_POSITION_INT": global_position_int,
     "LOCAL_POSITION_NED": local_position_ned,
@@ -281,7 +282,7 @@ ENCODERS: dict[str, Callable[[Vehicle], M.MAVLink_message]] = {
 }
 
 # Messages REQUEST_MESSAGE can produce, by id (streams plus one-shot ones).
-REQUESTABLE: dict[int, Callable[[Vehicle], M.MAVLink_message]] = {
+REQUESTABLE: dict[int, Callable[[Vehicle], mavlink.MAVLink_message]] = {
     M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
     **{getattr(M, f"MAVLINK_MSG_ID_{name}"): fn for name, fn in ENCODERS.items()},
 }

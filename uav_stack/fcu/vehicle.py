@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -102,13 +102,13 @@ class Vehicle:
         self.dll_tripped = False
         self.bat_level = 0  # 0 ok, 1 low, 2 critical, 3 emergency (latched)
         self.fence_breached = False
-        self.missions: dict[int, list[M.MAVLink_message]] = {0: [], 1: [], 2: []}
+        self.missions: dict[int, list[mavlink.MAVLink_message]] = {0: [], 1: [], 2: []}
         self.upload: dict[str, object] | None = None
-        self.after_ack: list[M.MAVLink_message] = []
+        self.after_ack: list[mavlink.MAVLink_message] = []
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
-        self.msg_cache: dict[str, M.MAVLink_message] = {}  # reused instances of high-rate messages
+        self.msg_cache: dict[str, mavlink.MAVLink_message] = {}  # reused instances of high-rate messages
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
         d.pos_sp[i] = d.pos[i]
@@ -131,7 +131,7 @@ class Vehicle:
     def failsafe_active(self) -> bool:
         return self.dll_tripped or self.fence_breached or self.bat_level >= 2
 
-    def send(self, msg: M.MAVLink_message) -> None:
+    def send(self, msg: mavlink.MAVLink_message) -> None:
         mav = self.mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
@@ -308,7 +308,7 @@ class Vehicle:
     def apply_setpoint(self, sp: Setpoint) -> None:
         d, i = self.ctx.dyn, self.i
         pos = list(sp.pos)
-        for k, (p, v) in enumerate(zip(sp.pos, sp.vel)):
+        for k, (p, v) in enumerate(zip(sp.pos, sp.vel, strict=True)):
             if p != p and v != v:  # neither position nor velocity: hold that axis where it is
                 cur = float(d.pos_sp[i, k])
                 pos[k] = cur if cur == cur else float(d.pos[i, k])
@@ -472,10 +472,9 @@ class Vehicle:
             dxy = math.hypot(d.pos[i, 0] - self.home_ned[0], d.pos[i, 1] - self.home_ned[1])
             if dxy < RTL_ARRIVED_M and math.hypot(d.vel[i, 0], d.vel[i, 1]) < 0.5:
                 self._start_land(self.home_ned[:2])
-        elif ph == P_OFFBOARD and not self.flavour.is_px4:
-            if self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
-                self.guided_vel = False
-                self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
+        elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
+            self.guided_vel = False
+            self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
         self._failsafes(now, landed)
 
     def _failsafes(self, now: float, landed: bool) -> None:
