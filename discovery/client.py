@@ -29,7 +29,6 @@ from discovery.protocol import (
 )
 from discovery.proxy import parse_server, resolve
 
-
 RECV_BUFFER = 4 << 20  # bytes
 
 

@@ -36,15 +36,15 @@ import threading
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 from discovery.protocol import (
+    BODY_BUDGET,
     DEFAULT_PERIOD,
     DEFAULT_PORT,
     DEFAULT_TTL,
     DEFAULT_WINDOW,
-    BODY_BUDGET,
     MAX_DATAGRAM,
     MAX_ITEMS,
     Envelope,

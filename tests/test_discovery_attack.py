@@ -153,7 +153,7 @@ def test_spoofed_source_flood_expires_no_member_and_the_registry_stays_complete_
             while len(members.entries) < n:  # joins in steps: each one is pushed to every member
                 members.enroll(min(100, n - len(members.entries)))
                 target = len(members.entries)
-                assert wait_for(lambda: count(server_process) == target, 30, 0.5), f"registry never reached {target} members"
+                assert wait_for(lambda t=target: count(server_process) == t, 30, 0.5), f"registry never reached {target} members"
             _, before = registry(server_process)
             flood = subprocess.run([sys.executable, "-m", "tests.spoof_flood", "--target", "{}:{}".format(*server_process),
                                     "--count", "100000", "--first", str(n * 100_000)],
@@ -166,7 +166,7 @@ def test_spoofed_source_flood_expires_no_member_and_the_registry_stays_complete_
             # every member listed once, exactly as it announced itself, from its own address
             got = {r.entry.node: r for r in rows}
             assert len(rows) == n and sorted(got) == list(range(1, n + 1)), (n, sorted(got)[:20])
-            for e, s in zip(members.entries, members.socks):
+            for e, s in zip(members.entries, members.socks, strict=True):
                 r = got[e.node]
                 assert r.entry == e and r.address == "{}:{}".format(*s.getsockname())
             assert stats.get("expired", 0) == 0 and stats.get("left", 0) == 0, stats
@@ -203,7 +203,7 @@ def test_registry_answers_fit_the_datagram_budget_at_every_size_with_many_counte
                 entries.append(big_entry(i, locators=1 + (i * 5) % 8))
                 s.sendto(seal(MsgType.BEACON, "alpha", KEY.encode(), beacon_body(Beacon(entries[-1], b"\0" * 8, 1.0))),
                          (host, port))
-                assert wait_for(lambda: len(srv.registry("alpha")) == i, 5.0)
+                assert wait_for(lambda n=i: len(srv.registry("alpha")) == n, 5.0)
                 rows, stats = query_registry(f"{host}:{port}", "alpha", KEY)
                 assert {r.entry for r in rows} == set(entries) and len(rows) == i
         assert stats["drop_malformed"] >= 100 and stats["drop_oversized"] >= 100 and stats["drop_unknown_swarm"] >= 100
