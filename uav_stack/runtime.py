@@ -167,6 +167,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     fcu.vehicles[0].link.set_owner(link.local_address, owner_only=True)
     node = make_node(a).open()
     agent = Agent(a, node, link, router=router)
+    agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
     try:
         run_loop(agent, stop, fcu, cfg.duration)
     finally:
