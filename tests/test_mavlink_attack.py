@@ -33,7 +33,7 @@ import pytest
 from swarmnet.connectivity import Rendezvous
 from swarmnet.observer import SwarmObserver
 from tests.conftest import free_port, wait_for
-from tests.gcs_helpers import HOME, start_virtual_uav, stop_process
+from tests.gcs_helpers import start_virtual_uav, stop_process
 from uav_stack.config import MavlinkSigning
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink as M

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pytest
 
+from swarmnet.schema import ConfigError, convert
 from tests.conftest import free_port, wait_for
 from tests.fcu_helpers import FcuThread, MavClient
 from tests.spoof_flood import udp_packet
@@ -43,7 +44,6 @@ from uav_stack.mavlink_signing import (
     signing_timestamp,
     write_key_file,
 )
-from swarmnet.schema import ConfigError, convert
 
 HOME = GeoPoint(47.397742, 8.545594, 488.0)
 KEY = key_from_passphrase("correct-horse-battery-staple")
@@ -253,7 +253,8 @@ def test_signing_not_required_accepts_unsigned_frames_and_counts_them(gcs_port: 
     try:
         rig.fcu_send(heartbeat(rig.fcu_mav))
         rig.pump(0.1)
-        cmd = M.MAVLink_command_long_message(SYSID, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0).pack(signing_gcs(None))
+        cmd = M.MAVLink_command_long_message(SYSID, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0)
+        cmd = cmd.pack(signing_gcs(None))
         gcs.sendto(cmd, rig.router.addresses()[f"udpout:127.0.0.1:{gcs_port}"])
         assert rig.fcu_received() == [cmd]
         assert rig.router.stats.unsigned_accepted == 1 and rig.router.stats.unsigned_refused == 0
