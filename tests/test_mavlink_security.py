@@ -313,3 +313,17 @@ def test_fcu_link_url_errors_are_clear() -> None:
     for url, what in (("udpout:127.0.0.1", "HOST:PORT"), ("udpin:127.0.0.1:x", "not a number"), ("udp:h:70000", "range")):
         with pytest.raises(ValueError, match=what):
             FcuLink(url).open()
+
+
+def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
+    from mrswarm.scenario import ScenarioError, parse_scenario
+    from uav_stack.config import NetworkConfig
+
+    base = {"name": "x", "duration": 10, "origin": {"lat": 47, "lon": 8, "alt": 400}, "fleet": {"count": 2},
+            "mission": {"type": "coverage", "area": {"x_min": -10, "x_max": 10, "y_min": -10, "y_max": 10}}}
+    s = parse_scenario({**base, "gcs": {"mavlink": True, "listen_base": 24600, "signing": {"key_file": "/k"}}})
+    assert {c.agent.gcs.signing for c in s.virtual_uav_configs(NetworkConfig(), None)} == {MavlinkSigning(key_file="/k")}
+    with pytest.raises(ScenarioError, match=r"gcs\.signing: .*gcs\.mavlink: true"):
+        parse_scenario({**base, "gcs": {"signing": {"key_file": "/k"}}})
+    with pytest.raises(ScenarioError, match=r"gcs\.signing\.requir: unknown field"):
+        parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "requir": False}}})
