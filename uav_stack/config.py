@@ -72,7 +72,7 @@ class AvoidanceConfig(Config, frozen=True):
 class MavlinkSigning(Config, frozen=True):
     """MAVLink 2 signing on the router's ground-station links (docs/security-mavlink.md)."""
 
-    # a passphrase file; the key is its SHA-256, as in MAVProxy's `signing key <passphrase>` and QGroundControl
+    # a passphrase file; the key is its SHA-256, as MAVProxy's `signing key <passphrase>` derives it
     key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")]
     require: bool = True  # refuse (and count) unsigned frames from ground stations; False: accept them, counted
 

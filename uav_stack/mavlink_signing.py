@@ -5,9 +5,8 @@ A signed frame carries, after its CRC, a link id, a 48-bit timestamp (10 µs uni
 frames whose signature does not match or whose timestamp does not grow per stream
 (link id, system id, component id) (mavlink.io, "Message signing").
 
-The key is a passphrase in a file, hashed with SHA-256 into the 32-byte secret: the convention
-MAVProxy (``signing key <passphrase>``) and QGroundControl use, so the same file configures the
-router and any of those ground stations.
+The key is a passphrase in a file, hashed with SHA-256 into the 32-byte secret, as MAVProxy
+derives it (``signing key <passphrase>``), so the same file configures the router and MAVProxy.
 
 * :class:`Signer` signs frames going out to one endpoint. Frames keep their sender's ids and
   sequence number; only the signing flag, the CRC and the signature block change, so the
@@ -57,7 +56,7 @@ def signing_timestamp(now: float | None = None) -> int:
 
 
 def key_from_passphrase(passphrase: str) -> bytes:
-    """The 32-byte secret of a passphrase: SHA-256 of its ASCII bytes (MAVProxy, QGroundControl)."""
+    """The 32-byte secret of a passphrase: SHA-256 of its ASCII bytes (as MAVProxy's signing module does)."""
     return _sha256(passphrase.encode("ascii")).digest()
 
 
