@@ -125,15 +125,22 @@ def test_virtual_fcu_keeps_its_owner_when_other_ports_churn_its_peers() -> None:
             assert owner.recv_match("GLOBAL_POSITION_INT", 3.0) is not None
             link = ft.fcu.vehicles[0].link
             assert wait_for(lambda: link.owner == owner.sock.getsockname(), 2)
+            me = owner.sock.getsockname()
+            always_there = True
             t0 = time.monotonic()
             n0 = owner.counts.get("GLOBAL_POSITION_INT", 0)
-            while time.monotonic() - t0 < 3.0:  # 40 ports, each heard every 50 ms: 5 x the table's size
+            while time.monotonic() - t0 < 3.0:  # 40 ports, each heard every 0.1 s: 50 x the table's size a second
                 for c in churn:
                     c.send(c.mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 4))
-                owner.pump(0.05)
+                end = time.monotonic() + 0.1
+                while time.monotonic() < end:
+                    owner.pump(end - time.monotonic())
+                always_there = always_there and me in link.peers
             rate = (owner.counts.get("GLOBAL_POSITION_INT", 0) - n0) / (time.monotonic() - t0)
-            assert rate > 8.0, rate  # 10 Hz stream: the owner was never evicted (before: 26.7 -> 1.3 msg/s)
-            assert owner.sock.getsockname() in link.peers and len(link.peers) <= 8
+            # a 10 Hz stream (less when this machine is loaded); churned out, the owner got 0 (1.3 msg/s before the
+            # fix, with fewer ports)
+            assert always_there and rate > 5.0, rate
+            assert len(link.peers) <= 8
             assert ft.fcu.stats.peers_evicted > 100
         finally:
             owner.close()
