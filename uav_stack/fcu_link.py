@@ -1,7 +1,7 @@
 """The agent's MAVLink link to its flight controller, whatever it is.
 
 The agent reaches its FCU only through a pymavlink connection string, so one agent flies a
-real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:0.0.0.0:14540``)
+real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:127.0.0.1:14540``)
 or our virtual FCU (``udpout:127.0.0.1:<port>``). Everything here is non-blocking: the
 agent's loop calls :meth:`FcuLink.poll` and :meth:`FcuLink.service`; commands return a
 :class:`CommandHandle` that resolves when the COMMAND_ACK arrives (retried like MAVSDK:
