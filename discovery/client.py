@@ -10,7 +10,6 @@ the caller simply asks again.
 from __future__ import annotations
 
 import os
-import select
 import socket
 import time
 from typing import Any
@@ -54,10 +53,12 @@ def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1
             stats: dict[str, Any] = {}
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline:
-                ready, _, _ = select.select([s], [], [], max(0.0, deadline - time.monotonic()))
-                if not ready:
+                # a socket timeout, not select(): select() fails on descriptors above 1023 (a busy process)
+                s.settimeout(max(1e-3, deadline - time.monotonic()))
+                try:
+                    data, src = s.recvfrom(MAX_DATAGRAM + 1)
+                except TimeoutError:
                     break
-                data, src = s.recvfrom(MAX_DATAGRAM + 1)
                 if src[:2] != addr:
                     continue
                 try:

@@ -10,6 +10,7 @@ addresses in 127.1.0.0/16 (tests/spoof_flood.py).
 from __future__ import annotations
 
 import os
+import resource
 import socket
 import subprocess
 import sys
@@ -143,9 +144,17 @@ def count(server: tuple[str, int]) -> int:
         return -1
 
 
+def enough_descriptors(n: int = 4096) -> None:
+    """1000 member sockets need more than the usual soft limit of 1024 descriptors."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < n:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (n if hard == resource.RLIM_INFINITY else min(n, hard), hard))
+
+
 @pytest.mark.e2e
 def test_spoofed_source_flood_expires_no_member_and_the_registry_stays_complete_at_12_100_1000(
         server_process: tuple[str, int]) -> None:
+    enough_descriptors()
     members = Members(server_process)
     members.thread.start()
     try:
@@ -209,6 +218,28 @@ def test_registry_answers_fit_the_datagram_budget_at_every_size_with_many_counte
         assert stats["drop_malformed"] >= 100 and stats["drop_oversized"] >= 100 and stats["drop_unknown_swarm"] >= 100
         assert srv.stats["drop_internal_error"] == 0
     finally:
+        stop.set()
+        th.join(5)
+        srv.close()
+
+
+def test_registry_query_works_from_a_process_with_more_than_1024_descriptors() -> None:
+    """select() cannot watch a descriptor above 1023; a busy ground station has them."""
+    enough_descriptors()
+    srv = DiscoveryServer(ServerConfig(keys={"alpha": KEY.encode()}))
+    host, port = srv.bind("127.0.0.1", 0)
+    stop = threading.Event()
+    th = threading.Thread(target=srv.serve, args=(stop,), daemon=True)
+    th.start()
+    filler = []
+    try:
+        while not filler or filler[-1] < 1100:
+            filler.append(os.dup(0))
+        rows, stats = query_registry(f"{host}:{port}", "alpha", KEY)
+        assert rows == [] and stats["queries"] == 1
+    finally:
+        for fd in filler:
+            os.close(fd)
         stop.set()
         th.join(5)
         srv.close()
