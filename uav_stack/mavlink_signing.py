@@ -103,9 +103,10 @@ class Signer:
 
     def sign(self, msg: Any) -> bytes | None:
         """``msg``'s frame, signed; None if it cannot be (a message outside our dialect)."""
-        crc_extra = getattr(msg, "crc_extra", None)
-        if crc_extra is None:
+        known = mavlink.mavlink_map.get(msg.get_msgId())  # the CRC needs the message's crc_extra
+        if known is None or isinstance(msg, mavlink.MAVLink_unknown):
             return None
+        crc_extra = known.crc_extra
         frame = msg.get_msgbuf()
         if frame[0] != _V2:
             frame = self._as_v2(msg)
