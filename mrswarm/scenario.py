@@ -191,7 +191,7 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
-    # MAVLink 2 signing on every router's ground-station links (docs/security-mavlink.md); None: unsigned
+    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
     signing: MavlinkSigning | None = None
 
     def __post_init__(self) -> None:

@@ -312,8 +312,8 @@ def test_key_files_and_configuration_errors_name_the_file_and_field(tmp_path: Pa
         convert({"mavlink_endpoints": ["udpin:127.0.0.1:1"], "signing": {"key_file": ""}}, GcsConfig)
     with pytest.raises(ConfigError, match="key_file"):
         MavlinkSigning(key_file=str(tmp_path / "short")).read_key()
-    res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpout:127.0.0.1:9", "--swarm", "a", "--uav", "1", "--insecure",
-                          "--origin", "47,8,500", "--mavlink-endpoint", "udpin:127.0.0.1:0",
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpout:127.0.0.1:9", "--swarm", "a", "--uav", "1",
+                          "--insecure", "--origin", "47,8,500", "--mavlink-endpoint", "udpin:127.0.0.1:0",
                           "--mavlink-key-file", str(tmp_path / "short")],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "gcs.signing.key_file" in res.stderr and "Traceback" not in res.stderr, res.stderr

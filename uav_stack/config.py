@@ -74,7 +74,7 @@ class AvoidanceConfig(Config, frozen=True):
 
 
 class MavlinkSigning(Config, frozen=True):
-    """MAVLink 2 signing on the router's ground-station links (docs/security-mavlink.md)."""
+    """MAVLink 2 signing on the router's ground-station links (docs/security.md)."""
 
     # a passphrase file; the key is its SHA-256, as MAVProxy's `signing key <passphrase>` derives it
     key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")]

@@ -20,7 +20,7 @@ Routing rules (mavlink.io's routing guide, as mavlink-router implements them):
   only to channels where the target system (and component, unless 0) has been seen;
 * messages addressed to the agent itself (its sysid and companion compid 191) stay here.
 
-Locked down (docs/security-mavlink.md):
+Locked down (docs/security.md):
 
 * every socket is bound to one address: a ``udpin`` endpoint to the host of its spec, a
   ``udpout`` endpoint to the local address that routes to its ground station (or ``bind``),
@@ -173,7 +173,7 @@ class UdpEndpoint(Channel):
                 s.bind((self.host, self.port))
                 if self.host in ("0.0.0.0", ""):
                     log.warning("MAVLink endpoint %s listens on every interface; anyone who reaches it can command "
-                                "the UAV unless signing is required (docs/security-mavlink.md)", self.spec)
+                                "the UAV unless signing is required (docs/security.md)", self.spec)
             else:
                 self.dest = (socket.gethostbyname(self.host), self.port)
                 s.bind((self.bind or source_address_for(self.dest[0]), 0))

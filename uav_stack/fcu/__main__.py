@@ -12,7 +12,7 @@ bound (useful with port 0), and exits 0 on --duration, SIGINT or SIGTERM.
 
 Each vehicle's owner (its companion) keeps its place among the vehicle's UDP peers whatever
 other ports send: ``--owner`` names it (port +i with --count), else the first peer heard is
-the owner; ``--owner-only`` ignores everyone else (docs/security-mavlink.md).
+the owner; ``--owner-only`` ignores everyone else (docs/security.md).
 """
 
 from __future__ import annotations
