@@ -35,6 +35,7 @@ from uav_stack.config import (
     CoverageStrategy,
     Flavour,
     GcsConfig,
+    MavlinkSigning,
     MissionConfig,
     MissionType,
     NetworkConfig,
@@ -209,6 +210,12 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
+    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
+    signing: MavlinkSigning | None = None
+
+    def __post_init__(self) -> None:
+        if self.signing is not None and not self.mavlink:
+            raise ConfigError("signing", "signs the MAVLink routers' links: set gcs.mavlink: true too")
 
 
 class Scenario(Config, kw_only=True, frozen=True):
@@ -334,7 +341,8 @@ class Scenario(Config, kw_only=True, frozen=True):
                 seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
                 avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon),
                 network=network,
-                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt),
+                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
+                              signing=self.gcs.signing),
                 failsafe=self.failsafe,
             )
             out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,

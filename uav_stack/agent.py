@@ -91,6 +91,8 @@ class Agent(OverridesMixin):
         self.node = node
         self.link = link
         self.router = router
+        # more sections for the stats file: name -> what to write (the virtual FCU's counters, in a virtual UAV)
+        self.stats_sources: dict[str, Callable[[], Any]] = {}
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
@@ -453,6 +455,7 @@ class Agent(OverridesMixin):
             "netem": self.node.netem_stats(),
             "failsafes": self.failsafes.as_dict(),
             "records": self.records.as_dict(),
+            **{name: source() for name, source in self.stats_sources.items()},
             "written_at": now,
         }
 
