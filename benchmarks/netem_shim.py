@@ -33,6 +33,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from discovery.netutil import free_port  # noqa: E402
 from discovery.rendezvous import serve  # noqa: E402
 from swarmnet.connectivity import Rendezvous  # noqa: E402
 from swarmnet.messages import Realm  # noqa: E402
@@ -59,14 +60,6 @@ def bench_shim(preset: str, n: int, repeats: int) -> float:
             release(t)
         times.append((time.perf_counter() - t0) / n)
     return statistics.median(times)
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def bench_poll(presets: list[str | None], batch: int, senders: int, repeats: int,

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, L_UAV, DeployError, client
+from deploy.dockerutil import L_ROLE, L_RUN, L_UAV, DeployError, client
 
 
 def _base_image(args: argparse.Namespace) -> int:
@@ -79,7 +79,8 @@ def _find(cl: Any, name: str, run: str | None) -> Any:
     cands = [c for c in cl.containers.list(all=True, filters=filters)
              if c.name == name or c.id.startswith(name) or c.name.endswith(f"-{name}")]
     if not cands:
-        raise DeployError(f"no mrswarm container matches {name!r}" + (f" in run {run}" if run else "") + " (see `mrswarm deploy ps`)")
+        raise DeployError(f"no mrswarm container matches {name!r}" + (f" in run {run}" if run else "")
+                          + " (see `mrswarm deploy ps`)")
     if len(cands) > 1:
         raise DeployError(f"{name!r} matches {len(cands)} containers ({', '.join(c.name for c in cands)}): add --run")
     return cands[0]

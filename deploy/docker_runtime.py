@@ -28,11 +28,11 @@ import os
 import re
 import secrets
 import signal
-import socket
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ from deploy import multicast
 from deploy.dockerutil import L_RUN, DeployError, client, labels
 from deploy.services import NetworkPlan, network_plan
 from deploy.settings import ContainerSettings
+from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryService
 from swarmnet.schema import to_builtins
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
@@ -83,19 +84,6 @@ class Box:
 def run_id_for(run_dir: Path) -> str:
     base = re.sub(r"[^a-zA-Z0-9_.-]", "-", run_dir.name)[-40:].strip("-.") or "run"
     return f"{base}-{secrets.token_hex(2)}"
-
-
-def wait_tcp(host: str, port: int, timeout: float, alive: Any = None) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if alive is not None and not alive():
-            raise RuntimeError(f"the service on {host}:{port} exited before listening")
-        try:
-            with socket.create_connection((host, port), timeout=0.5):
-                return
-        except OSError:
-            time.sleep(0.2)
-    raise RuntimeError(f"nothing listens on {host}:{port} after {timeout:.0f} s")
 
 
 class DockerRuntime:
@@ -190,10 +178,10 @@ class DockerRuntime:
                             cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False)
             addresses[svc.name] = box.ip
             if svc.proto == "tcp":
-                wait_tcp(box.ip, svc.port, 30.0, alive=lambda b=box: self._running(b))
+                wait_tcp(box.ip, svc.port, 30.0, alive=partial(self._running, box), period=0.2)
             elif svc.name == "discovery":
                 wait_discovery(f"{box.ip}:{svc.port}", self.swarm, self.discovery.key or "", 30.0,
-                               alive=lambda b=box: self._running(b))
+                               alive=partial(self._running, box))
         net = plan.uav_network(addresses)
         self._write_manifest()
         return net
@@ -263,7 +251,8 @@ class DockerRuntime:
         return out
 
     def containers(self) -> dict[str, dict[str, Any]]:
-        return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role} for n, b in self.boxes.items()}
+        return {n: {"name": b.container.name, "id": b.container.id[:12], "ip": b.ip, "role": b.role}
+                for n, b in self.boxes.items()}
 
     def _write_manifest(self, exit_codes: dict[str, int] | None = None) -> None:
         data = {"runtime": "docker", "run": self.run, "image": self.image, "settings": to_builtins(self.settings),
@@ -276,7 +265,8 @@ class DockerRuntime:
     # ---- shutdown --------------------------------------------------------------------------
     def stop(self, grace: float = 5.0) -> dict[str, int]:
         """SIGTERM every UAV and wait for them, then the services; SIGKILL whatever is left
-        ``grace`` seconds after its own SIGTERM; save the logs; remove containers, network and multicast rules. A second Ctrl-C cannot cut it short."""
+        ``grace`` seconds after its own SIGTERM; save the logs; remove containers, network and multicast rules.
+        A second Ctrl-C cannot cut it short."""
         old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
         try:
             return self._stop(grace)

@@ -30,7 +30,7 @@ def client(timeout: int = 120) -> Any:
     except Exception as exc:  # noqa: BLE001 - any failure means: no usable engine
         raise DockerUnavailable(
             f"cannot reach a docker engine ({exc.__class__.__name__}: {exc}). Install docker.io and start dockerd "
-            "(`.ci/run` does both), or set DOCKER_HOST") from None
+            "(`scripts/test` does both), or set DOCKER_HOST") from None
     return cl
 
 

@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
@@ -35,6 +36,7 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     site-packages directories, in the parent's order.
     """
     import site
+
     import uav_stack
 
     roots = [str(Path(uav_stack.__file__).resolve().parents[1])]
@@ -44,26 +46,6 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     extra = os.environ.get("PYTHONPATH")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(([extra] if extra else []) + roots), PYTHONUNBUFFERED="1")
     return [python, "-S"], env
-
-
-def free_tcp_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
-
-
-def wait_tcp(host: str, port: int, timeout: float, proc: subprocess.Popen[bytes] | None = None) -> None:
-    """Wait until something accepts TCP connections on host:port (bounded)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc is not None and proc.poll() is not None:
-            raise RuntimeError(f"router exited with code {proc.returncode} before listening on {host}:{port}")
-        try:
-            with socket.create_connection((host, port), timeout=0.5):
-                return
-        except OSError:
-            time.sleep(0.1)
-    raise RuntimeError(f"nothing listens on {host}:{port} after {timeout:.0f} s")
 
 
 @dataclass
@@ -101,25 +83,26 @@ class ProcessRuntime:
                              pose_feed=pose_feed)
 
     def _start_router(self, pose_feed: str, swarm: str) -> str:
-        port = free_tcp_port()
+        port = free_port()
         endpoint = f"tcp/127.0.0.1:{port}"
         argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
         self._spawn("router", argv)
-        wait_tcp("127.0.0.1", port, timeout=20.0, proc=self.children["router"].proc)
+        router = self.children["router"]
+        wait_tcp("127.0.0.1", port, timeout=20.0, alive=lambda: router.proc.poll() is None,
+                 what=f"the router (log: {router.log_path})")
         return endpoint
 
     def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService) -> NetworkConfig:
         from discovery.client import QueryTimeout, query_registry
         from discovery.protocol import new_key
-        from discovery.proxy import free_udp_port
 
         key = service.key or new_key()  # a fresh key per run unless the scenario sets one
         keys = self.run_dir / "config" / "discovery.keys"
         keys.write_text(f"{swarm} {key}\n")
         keys.chmod(0o600)
-        server = f"127.0.0.1:{free_udp_port()}"
+        server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
                                   "--ttl", str(service.ttl), "--rate", "5000",  # every node shares 127.0.0.1
                                   "--die-with-parent"])
@@ -127,7 +110,8 @@ class ProcessRuntime:
         while True:
             proc = self.children["discovery"].proc
             if proc.poll() is not None:
-                raise RuntimeError(f"discovery server exited with code {proc.returncode} (see {self.children['discovery'].log_path})")
+                raise RuntimeError(f"discovery server exited with code {proc.returncode}"
+                                   f" (see {self.children['discovery'].log_path})")
             try:
                 query_registry(server, swarm, key, timeout=0.2, attempts=1)
                 break
@@ -154,12 +138,9 @@ class ProcessRuntime:
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"
-        out = open(log_path, "ab")
-        try:
+        with open(log_path, "ab") as out:  # the child keeps its own descriptor
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
                                     start_new_session=True, env=self._env)
-        finally:
-            out.close()
         self.children[name] = Child(name, proc, log_path)
 
     def exited(self) -> dict[str, int]:

@@ -132,7 +132,7 @@ class Netlab:
         self.is_up = True  # from here on, down() cleans whatever part was made
         try:
             _ip(["-batch", "-"], batch="".join(f"netns add {ns}\n" for ns in self.namespaces))
-            core = [f"link set lo up\n"]
+            core = ["link set lo up\n"]
             for i, h in enumerate(self.hosts.values(), 1):
                 core.append(f"link add v{i} type veth peer name eth0 netns {h.ns}\n")
                 core.append(f"addr add {h.gateway}/24 dev v{i}\n")

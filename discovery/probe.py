@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from swarmnet.messages import DecodeError, Realm, decode_pose
     from swarmnet.node import NodeIdentity, SwarmNode
+    from swarmnet.receive import drain
 
     if sys.platform.startswith("linux"):  # die with whoever launched us (a test harness): no orphans
         import ctypes
@@ -149,10 +150,7 @@ def main(argv: list[str] | None = None) -> int:
             for k in inbox.left:
                 alive_left[k] = now
                 alive_since.pop(k, None)
-            while True:
-                sample = spy.try_recv()
-                if sample is None:
-                    break
+            for sample in drain(spy):  # bounded per loop, like every other receiver
                 key = str(sample.key_expr)
                 parts = key.split("/")
                 if len(parts) < 3:

@@ -39,18 +39,23 @@ import os
 import re
 import struct
 import time
+from _operator import _compare_digest as compare_digest  # what hmac.compare_digest is
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Callable
+from typing import Any
 
 import msgpack
-from _operator import _compare_digest as compare_digest  # what hmac.compare_digest is
 
-try:  # the interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process)
-    from _sha256 import sha256 as _sha256  # CPython 3.11
+from swarmnet.keyspace import SWARM_RE, check_swarm
+
+# The interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process).
+# Both are private CPython modules that typeshed has no stubs for, hence the ignores.
+try:
+    from _sha256 import sha256 as _sha256  # type: ignore[import-not-found]  # CPython 3.11
 except ImportError:  # pragma: no cover - CPython 3.12+
-    from _sha2 import sha256 as _sha256  # type: ignore[no-redef]
+    from _sha2 import sha256 as _sha256  # type: ignore[import-not-found]
 
 _IPAD = bytes(x ^ 0x36 for x in range(256))
 _OPAD = bytes(x ^ 0x5C for x in range(256))
@@ -81,7 +86,6 @@ REALMS = ("virtual", "physical")
 MAX_LOCATORS = 8
 MAX_LOCATOR_LEN = 100
 MAX_SOFTWARE_LEN = 48
-SWARM_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
 LOCATOR_RE = re.compile(r"^[a-z0-9]{2,8}/[\x21-\x7e]{3,}$")
 
 _TS = struct.Struct(">Q")
@@ -189,8 +193,7 @@ class Envelope:
 
 def seal(mtype: MsgType, swarm: str, key: bytes, body: Any, ts: float | None = None, nonce: bytes | None = None) -> bytes:
     sw = swarm.encode()
-    if not SWARM_RE.match(swarm):
-        raise ValueError(f"bad swarm name {swarm!r}")
+    check_swarm(swarm)
     head = MAGIC + bytes((VERSION, int(mtype), len(sw))) + sw
     head += _TS.pack(int((time.time() if ts is None else ts) * 1e6)) + (nonce or os.urandom(NONCE_LEN))
     data = head + msgpack.packb(body, use_bin_type=True)
@@ -378,7 +381,8 @@ def parse_registry(body: Any, swarm: str) -> tuple[int, int, int, list[Registere
         raise ProtocolError("malformed", "registry rows")
     out = []
     for r in rows:
-        if not isinstance(r, list) or len(r) != 4 or not all(isinstance(x, (int, float)) for x in r[1:3]) or not isinstance(r[3], str):
+        if (not isinstance(r, list) or len(r) != 4 or not all(isinstance(x, (int, float)) for x in r[1:3])
+                or not isinstance(r[3], str)):
             raise ProtocolError("malformed", "registry row")
         out.append(RegisteredNode(swarm, NodeEntry.from_wire(r[0]), float(r[1]), float(r[2]), r[3]))
     return qid, part, parts, out, stats

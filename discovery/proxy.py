@@ -36,7 +36,8 @@ from typing import Any
 
 import zenoh
 
-from swarmnet.version import __version__
+from discovery.netutil import free_port
+from discovery.options import ProxyOptions
 from discovery.protocol import (
     DEFAULT_PERIOD,
     DEFAULT_PORT,
@@ -57,21 +58,15 @@ from discovery.protocol import (
     unseal,
     view_digest,
 )
-from discovery.options import ProxyOptions
 from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
+from swarmnet.version import __version__
 
 log = logging.getLogger(__name__)
 
 Addr = tuple[str, int]
 LOCAL_HOST = "127.0.0.1"
 SOFTWARE = f"mrswarm/{__version__}"
-
-
-def free_udp_port(host: str = LOCAL_HOST) -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
 
 
 def parse_server(text: str) -> Addr:
@@ -163,7 +158,7 @@ class BeaconDiscovery:
 
     def zenoh_config(self) -> dict[str, Any]:
         if not self.scout_port:
-            self.scout_port = free_udp_port()
+            self.scout_port = free_port(socket.SOCK_DGRAM, LOCAL_HOST)
         cfg = base_config("peer", self.connect, self.listen, self.tuning)
         cfg["scouting"] = {
             # a *unicast loopback* "multicast" address: no packet ever leaves the host

@@ -1,9 +1,10 @@
 """A Zenoh router used as gossip rendezvous (and, for client-mode nodes, as data router).
 
 Peers connect to it, learn each other's locators from its gossip and then mesh directly;
-the router is not on their data path and may die without interrupting them (research note
-zenoh.md §1.2, run B6). Client-mode nodes (UAVs behind carrier NAT) route all data
-through it instead.
+the router is not on their data path and may die without interrupting them: Zenoh's gossip
+only hands each new link the locators it knows, over links that already exist (upstream
+source: ``zenoh/src/net/protocol/gossip.rs``). Client-mode nodes (UAVs behind carrier NAT)
+route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
 one batch of every UAV's latest pose per period instead of a message per neighbour.
@@ -41,7 +42,8 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen))))
     try:
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}"
-              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""), flush=True)
+              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
+              flush=True)
         if not feed_swarms:
             stop.wait(duration)
             return

@@ -277,7 +277,7 @@ class DiscoveryServer:
                 for m in self.members.get(env.swarm, {}).values()]
         groups = chunk_entries(rows)
         key = self.config.keys[env.swarm]
-        stats = {k: v for k, v in self.stats.items()}
+        stats: dict[str, float] = {k: v for k, v in self.stats.items()}
         stats["uptime"] = round(now - self.started, 3)
         for i, g in enumerate(groups):
             last = i == len(groups) - 1

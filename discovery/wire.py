@@ -8,8 +8,8 @@ process, over loopback only:
 * it sends the **Hellos of remote nodes** to that scouting socket, and Zenoh dials their
   locators as if it had scouted them itself.
 
-Wire format of Zenoh protocol version 0x09 (zenoh 1.x, ``commons/zenoh-codec/src/scouting``;
-research note zenoh.md §1.1). Pinned by ``tests/test_discovery_wire.py`` against a live
+Wire format of Zenoh protocol version 0x09 (zenoh 1.x; upstream source:
+``commons/zenoh-codec/src/scouting/{scout,hello}.rs``). Pinned by ``tests/test_discovery_wire.py`` against a live
 session, so an upgrade that changes it fails loudly::
 
     Scout:  0x01 | version | flags = what (3 bits: router 1, peer 2, client 4) [| I 0x08 + (zid_len-1) << 4] [zid]
@@ -94,7 +94,7 @@ def _vle(value: int) -> bytes:
 
 def _read_vle(data: bytes, pos: int, limit: int) -> tuple[int, int]:
     value = shift = 0
-    for i in range(10):
+    for _ in range(10):
         if pos >= len(data):
             raise WireError("truncated", "in a length")
         b = data[pos]

@@ -76,8 +76,6 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "agent_main", a.rest))
-    p = sub.add_parser("uav", help="one virtual UAV process (virtual FCU + agent); used by the runtimes", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "virtual_uav_main", a.rest))
     p = sub.add_parser("fcu", help="a standalone virtual flight controller speaking MAVLink over UDP", add_help=False)
     p.set_defaults(func=lambda a: _delegate("uav_stack.fcu.__main__", "main", a.rest))
     p = sub.add_parser("router", help="a Zenoh rendezvous/edge router", add_help=False)
@@ -86,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
                        add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.deploy_cli", "main", a.rest))
 
-    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)", add_help=False)
+    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)",
+                       add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))
 
     p = sub.add_parser("discovery", help="discovery server (serve), registry (nodes), probe node, keygen", add_help=False)
@@ -98,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "uav", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs"):
+    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

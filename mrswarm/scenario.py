@@ -23,6 +23,7 @@ from msgspec.structs import force_setattr, replace
 
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService
+from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
 from swarmnet.schema import Config, ConfigError, convert, to_builtins
 from uav_stack.config import (
@@ -157,7 +158,7 @@ class Gcs(Config, frozen=True):
 class Scenario(Config, kw_only=True, frozen=True):
     name: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,64}$")]
     description: str = ""
-    swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")] = "alpha"
+    swarm: Annotated[str, Meta(pattern=SWARM_RE.pattern)] = "alpha"
     seed: Annotated[int, Meta(ge=0)] = 0
     duration: Annotated[float, Meta(gt=0.0, le=7200.0, description="seconds of mission after the start command")]
     origin: Origin

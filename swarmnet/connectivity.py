@@ -21,7 +21,10 @@ import zenoh
 class Connectivity(Protocol):
     """Strategy that connects a node's Zenoh session to its swarm."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """A short label for logs and status ("rendezvous", "static", ...); read-only."""
+        ...
 
     def zenoh_config(self) -> dict[str, Any]:
         """The session configuration (a JSON-able dict)."""

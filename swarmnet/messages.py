@@ -372,7 +372,8 @@ _STATE_TAG = tag(Kind.STATE)
 
 def encode_state(s: AgentState) -> bytes:
     return msgpack.packb(
-        [_STATE_TAG, s.uav, int(s.realm), s.seq & 0xFFFFFFFF, _us(s.t_wall), s.phase, s.behaviour, s.override, s.detail[:MAX_TEXT_LEN]]
+        [_STATE_TAG, s.uav, int(s.realm), s.seq & 0xFFFFFFFF, _us(s.t_wall), s.phase, s.behaviour, s.override,
+         s.detail[:MAX_TEXT_LEN]]
     )
 
 
@@ -484,7 +485,7 @@ def decode_pose_batch(data: bytes) -> PoseBatch:
     _expect(o, Kind.POSE_BATCH, 4)
     poses = o[3]
     if type(poses) is not list or len(poses) > MAX_BATCH_POSES:
-        raise DecodeError("bad_field", "poses must be a list of at most %d payloads" % MAX_BATCH_POSES)
+        raise DecodeError("bad_field", f"poses must be a list of at most {MAX_BATCH_POSES} payloads")
     for p in poses:
         if type(p) is not bytes or len(p) > MAX_POSE_BYTES:
             raise DecodeError("bad_field", "a batched pose is not a <= 48-byte payload")

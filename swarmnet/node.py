@@ -176,8 +176,8 @@ class SwarmNode:
                 streams.append((_BATCH, s.declare_subscriber(k.pose_feed, ring(64)), accept_pose_batch))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                streams.append((POSE, s.declare_subscriber(k.all_poses, ring(self.ring_size), allowed_origin=zenoh.Locality.REMOTE),
-                                pose_rule))
+                streams.append((POSE, s.declare_subscriber(k.all_poses, ring(self.ring_size),
+                                                            allowed_origin=zenoh.Locality.REMOTE), pose_rule))
             message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
             streams.append((MESSAGE, s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE),
                             message_rule))
@@ -237,7 +237,8 @@ class SwarmNode:
         return now >= self._next_pose
 
     def publish_pose(
-        self, *, t_sim: float, x: float, y: float, z: float, vx: float, vy: float, vz: float, yaw: float, t_wall: float | None = None
+        self, *, t_sim: float, x: float, y: float, z: float, vx: float, vy: float, vz: float, yaw: float,
+        t_wall: float | None = None,
     ) -> Pose:
         now = self.clock()
         # keep the schedule on a fixed grid, but never burst after a stall
@@ -257,7 +258,8 @@ class SwarmNode:
             self.netem.own_pos = self.own_position
         return pose
 
-    def publish_telemetry(self, *, mode: str, armed: bool, battery: float, voltage: float, lat: float, lon: float, alt: float, rtf: float) -> None:
+    def publish_telemetry(self, *, mode: str, armed: bool, battery: float, voltage: float, lat: float, lon: float, alt: float,
+                          rtf: float) -> None:
         t = Telemetry(
             uav=self.identity.uav, realm=self.identity.realm, seq=self._next("telemetry", 1 << 32), t_wall=self.clock(),
             mode=mode, armed=armed, battery=battery, voltage=voltage, lat=lat, lon=lon, alt=alt, rtf=rtf,
@@ -276,7 +278,8 @@ class SwarmNode:
     def send(self, topic: str, body: Any, to: int | None = None) -> None:
         """Send a swarm message: to one UAV (unicast) or, with ``to=None``, to the whole swarm."""
         assert self.session is not None
-        msg = SwarmMessage(src=self.identity.uav, dst=to or 0, topic=topic, seq=self._next("msg", 1 << 32), t_wall=self.clock(), body=body)
+        msg = SwarmMessage(src=self.identity.uav, dst=to or 0, topic=topic, seq=self._next("msg", 1 << 32), t_wall=self.clock(),
+                           body=body)
         data = encode_swarm_message(msg, self.max_message_bytes)
         key = self.keys.broadcast(topic) if to is None else self.keys.unicast(to, topic)
         self.session.put(key, data)

@@ -2,21 +2,15 @@
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
 
 import pytest
 
+from discovery.netutil import free_port  # the tests import it from here
 from discovery.rendezvous import serve
 from swarmnet.connectivity import Rendezvous
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(pred: Callable[[], bool], timeout: float, period: float = 0.02) -> bool:

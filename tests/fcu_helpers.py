@@ -12,7 +12,7 @@ import socket
 import threading
 import time
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 from uav_stack.fcu.config import FcuConfig
 from uav_stack.fcu.fcu import VirtualFcu

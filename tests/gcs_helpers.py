@@ -20,7 +20,7 @@ HOME = GeoPoint(47.397742, 8.545594, 488.0)
 def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoints: tuple[str, ...] = (),
                       flavour: str = "px4", autostart: bool = False, swarm: str = "gcs",
                       area: tuple[float, float, float, float] = (-40.0, 40.0, -40.0, 40.0)) -> subprocess.Popen[bytes]:
-    """One `mrswarm uav` process (virtual FCU + agent) whose router sends to ``endpoints``."""
+    """One virtual UAV process (virtual FCU + agent, as the runtimes launch it) whose router sends to ``endpoints``."""
     agent = AgentConfig(
         swarm=swarm, uav=uav, origin=HOME, fcu="", altitude=8.0, autostart=autostart, record_dir=str(tmp),
         mission=MissionConfig(area=area), network=NetworkConfig(endpoints=(router_endpoint,), mode="client"),
@@ -30,7 +30,7 @@ def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoint
     path = tmp / f"uav{uav}.config.json"
     path.write_text(cfg.to_json())
     with open(tmp / f"uav{uav}.log", "ab") as log:  # the child keeps its own copy of the descriptor
-        return subprocess.Popen([sys.executable, "-m", "mrswarm", "uav", "--config", str(path), "--log-level", "INFO"],
+        return subprocess.Popen([sys.executable, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", "INFO"],
                                 cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 
 

@@ -9,6 +9,7 @@ import time
 import msgpack
 import pytest
 
+from swarmnet import messages as M
 from swarmnet.messages import (
     MAX_POSE_BYTES,
     AgentState,
@@ -35,7 +36,6 @@ from swarmnet.messages import (
     encode_telemetry,
     tag,
 )
-from swarmnet import messages as M
 
 
 def pose(**kw: object) -> Pose:

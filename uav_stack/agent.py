@@ -99,7 +99,8 @@ class Agent(OverridesMixin):
         self.mission = make_mission(cfg)
         a = cfg.avoidance
         self.avoidance = (
-            CollisionAvoidance(a.safety_distance, max_speed=cfg.speed * 1.2, time_horizon=a.time_horizon, stale_after=a.stale_after)
+            CollisionAvoidance(a.safety_distance, max_speed=cfg.speed * 1.2, time_horizon=a.time_horizon,
+                               stale_after=a.stale_after)
             if a.enabled
             else None
         )
@@ -246,13 +247,14 @@ class Agent(OverridesMixin):
             else:
                 msg = f"already {self.phase}"
         elif verb in ("land", "stop"):
-            if self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED) and not self.link.state.armed:
+            if (self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED)
+                    and not self.link.state.armed):
                 msg = f"on the ground ({self.phase})"
             elif self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
                 msg = "already landing"
             else:
                 self._land()
-                self.override = "land" if verb == "land" and self.phase == AgentPhase.LANDING else self.override
+                self.override = "land" if verb == "land" else self.override  # _land() has just set LANDING
                 if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
                     self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
                     return
@@ -355,8 +357,8 @@ class Agent(OverridesMixin):
             vx, vy = self._towards(self.hold_point)
         elif self.phase == AgentPhase.GOTO:
             vx, vy = self._towards(self.goto_target)
-            if math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M and abs(self.alt_target - o.z) < ARRIVED_M \
-                    and not self.detail.startswith("arrived"):
+            if (math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M
+                    and abs(self.alt_target - o.z) < ARRIVED_M and not self.detail.startswith("arrived")):
                 self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
                 self._next_state = 0.0  # tell the ground station now
         elif self.mission is not None and self.phase in WORKING:
@@ -392,8 +394,8 @@ class Agent(OverridesMixin):
             return
         st, o = self.link.state, self.own
         rtf = self.link.rtf.value
-        self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode, int(st.armed),
-                                  -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
+        self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode,
+                                  int(st.armed), -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
     def stats(self, now: float) -> dict[str, Any]:

@@ -15,6 +15,7 @@ import msgspec
 from msgspec import Meta, field
 
 from discovery.options import ProxyOptions
+from swarmnet.keyspace import SWARM_RE
 from swarmnet.schema import Config, ConfigError, decode_json
 from uav_stack.geo import GeoPoint
 
@@ -79,7 +80,7 @@ class GcsConfig(Config, frozen=True):
 
 
 class AgentConfig(Config, frozen=True):
-    swarm: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$")]
+    swarm: Annotated[str, Meta(pattern=SWARM_RE.pattern)]
     uav: UavId
     origin: GeoPoint  # the swarm's ENU origin
     fcu: str  # pymavlink connection string

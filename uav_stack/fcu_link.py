@@ -282,7 +282,8 @@ class FcuLink:
         now = self.clock()
         if now >= self._next_heartbeat:
             self._next_heartbeat = now + 1.0
-            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE)
+            self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                         mavlink.MAV_STATE_ACTIVE)
         for cmd, h in list(self.pending.items()):
             if h.result == mavlink.MAV_RESULT_IN_PROGRESS:
                 timeout = 3.0

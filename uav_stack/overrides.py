@@ -11,10 +11,16 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from uav_stack.fcu_link import CommandHandle
 from uav_stack.phases import CONTROLLED, AgentPhase
+
+if TYPE_CHECKING:
+    from swarmnet.node import SwarmNode
+    from uav_stack.agent import Own
+    from uav_stack.config import AgentConfig, Rect
+    from uav_stack.fcu_link import FcuLink
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +56,28 @@ def _number(args: dict[str, Any], name: str) -> float:
 
 class OverridesMixin:
     """Verb handlers and takeover checks; mixed into Agent, which provides the state they use."""
+
+    # The Agent state these handlers read and write (set in Agent.__init__; annotations only).
+    cfg: AgentConfig
+    node: SwarmNode
+    link: FcuLink
+    own: Own
+    phase: AgentPhase
+    override: str
+    counters: dict[str, int]
+    mission_started_at: float | None
+    alt_target: float  # m above the swarm origin
+    hold_point: tuple[float, float]
+    goto_target: tuple[float, float]
+    fence: Rect | None  # x_min, x_max, y_min, y_max (ENU m)
+    _handle: CommandHandle | None
+    _offboard_stream_since: float | None
+    _deferred: list[_DeferredAck]
+    _gcs_takeover: str | None
+    _mode_at_phase: str
+
+    if TYPE_CHECKING:
+        def _set_phase(self, phase: AgentPhase, detail: str = "") -> None: ...  # Agent's
 
     def _airborne(self) -> bool:
         st = self.link.state

@@ -45,7 +45,7 @@ class PoseAgeLog:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         new = not self.path.exists()
-        self._f: TextIO = open(self.path, "a", buffering=8192)
+        self._f: TextIO = open(self.path, "a", buffering=8192)  # noqa: SIM115 (open until close())
         if new:
             self._f.write(",".join(COLUMNS) + "\n")
         self.node = node
@@ -55,7 +55,7 @@ class PoseAgeLog:
 
     def sample(self, now: float) -> None:
         h = self.node.stats.pose_age
-        diff = [a - b for a, b in zip(h.counts, self._counts)]
+        diff = [a - b for a, b in zip(h.counts, self._counts, strict=True)]
         n = h.n - self._n
         total = h.total - self._total
         self._counts, self._n, self._total = list(h.counts), h.n, h.total

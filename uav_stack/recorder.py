@@ -20,7 +20,7 @@ class TrajectoryRecorder:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         new = not self.path.exists()
-        self._f: TextIO = open(self.path, "a", buffering=64 * 1024)
+        self._f: TextIO = open(self.path, "a", buffering=64 * 1024)  # noqa: SIM115 (open until close())
         if new:
             self._f.write(",".join(TRAJECTORY_COLUMNS) + "\n")
         self.flush_every = flush_every

@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
@@ -25,6 +25,10 @@ from swarmnet.schema import ConfigError, convert
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
+
+if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-heavy, or optional)
+    from uav_stack.fcu import VirtualFcu
+    from uav_stack.mavlink_router import MavlinkRouter
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +84,7 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
-def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, object | None]:
+def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router."""
     sysid = cfg.mavlink_sysid
     link = FcuLink(url, source_system=sysid)
@@ -99,7 +103,7 @@ def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, object | None]:
     return link, router
 
 
-def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: float | None = None,
+def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
              tick_hz: float = TICK_HZ) -> None:
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
 
@@ -124,8 +128,8 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: object | None = None, duration: 
             continue
         next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
-            fcu.poll_io()  # type: ignore[attr-defined]
-            fcu.service()  # type: ignore[attr-defined]
+            fcu.poll_io()
+            fcu.service()
         agent.step(time.time())
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
@@ -153,7 +157,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
         node.close()
         link.close()
         if router is not None:
-            router.close()  # type: ignore[attr-defined]
+            router.close()
         fcu.close()
     return 0
 
@@ -169,7 +173,7 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -
         node.close()
         link.close()
         if router is not None:
-            router.close()  # type: ignore[attr-defined]
+            router.close()
     return 0
 
 
@@ -183,7 +187,8 @@ def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
 
 def virtual_uav_main(argv: list[str] | None = None) -> int:
     """``python -m uav_stack.virtual_uav --config uav3.json``: what the process runtime launches."""
-    ap = argparse.ArgumentParser(prog="mrswarm uav", description="one virtual UAV: virtual FCU + agent, in one process")
+    ap = argparse.ArgumentParser(prog="python -m uav_stack.virtual_uav",
+                                 description="one virtual UAV: virtual FCU + agent, in one process")
     ap.add_argument("--config", required=True, help="JSON written by the runner (VirtualUavConfig)")
     ap.add_argument("--log-level", default="INFO")
     ap.add_argument("--log-file", default=None)
@@ -201,7 +206,8 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
 def agent_main(argv: list[str] | None = None) -> int:
     """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
     ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
-    ap.add_argument("--fcu", required=True, help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
+    ap.add_argument("--fcu", required=True,
+                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
     ap.add_argument("--swarm", required=True)
     ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
     ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
@@ -219,7 +225,8 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
     ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
-                    help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen); repeatable")
+                    help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
+                         " repeatable")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")

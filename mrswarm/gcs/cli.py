@@ -222,7 +222,8 @@ def telemetry_record(obs: Any, uav: int, now: float) -> dict[str, Any] | None:
                  battery=t.battery, voltage=t.voltage, rtf=t.rtf, telemetry_age_s=round(max(0.0, now - t.t_wall), 3))
     if v.pose is not None:
         p = v.pose
-        d.update(x=p.x, y=p.y, z=p.z, vx=p.vx, vy=p.vy, vz=p.vz, yaw=p.yaw, speed=round(math.sqrt(p.vx ** 2 + p.vy ** 2 + p.vz ** 2), 2),
+        d.update(x=p.x, y=p.y, z=p.z, vx=p.vx, vy=p.vy, vz=p.vz, yaw=p.yaw,
+                 speed=round(math.sqrt(p.vx ** 2 + p.vy ** 2 + p.vz ** 2), 2),
                  pose_age_ms=round(max(0.0, v.pose_recv - p.t_wall) * 1000, 1))
     if v.state is not None:
         d.update(phase=v.state.phase, override=v.state.override, behaviour=v.state.behaviour, detail=v.state.detail)

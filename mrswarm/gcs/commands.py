@@ -87,14 +87,15 @@ def print_results(results: list[Result], verb: str, console: Console, as_json: b
         t.add_column(c, justify="right" if c in ("uav", "ms") else "left")
     style = {"ok": "green", "failed": "red", "timeout": "red"}
     for r in results:
-        t.add_row(str(r.uav), f"[{style[r.status]}]{r.status}[/]", "-" if r.latency_ms is None else f"{r.latency_ms:.0f}", r.message)
+        t.add_row(str(r.uav), f"[{style[r.status]}]{r.status}[/]", "-" if r.latency_ms is None else f"{r.latency_ms:.0f}",
+                  r.message)
     console.print(t)
 
 
 def goto_args(xyz: list[float]) -> dict[str, float]:
     if len(xyz) != 3:
         raise GcsError("goto needs X Y Z (metres east, north and up from the swarm origin)")
-    for name, v in zip("xyz", xyz):
+    for name, v in zip("xyz", xyz, strict=True):
         if not math.isfinite(v):
             raise GcsError(f"goto: {name}={v} is not a finite number")
     return {"x": xyz[0], "y": xyz[1], "z": xyz[2]}

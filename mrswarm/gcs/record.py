@@ -26,7 +26,7 @@ FLUSH_EVERY = 1.0
 
 
 def _jsonable(kind: str, msg: Any, t: float) -> dict[str, Any]:
-    if is_dataclass(msg):
+    if is_dataclass(msg) and not isinstance(msg, type):  # an instance, not a dataclass type
         d = asdict(msg)
         for k, v in d.items():
             if isinstance(v, Enum):
@@ -46,7 +46,7 @@ class Recorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.clock = clock
         self.flush_every = flush_every
-        self._f: TextIO = open(self.path, "a", encoding="utf-8", buffering=1 << 16)
+        self._f: TextIO = open(self.path, "a", encoding="utf-8", buffering=1 << 16)  # noqa: SIM115 (open until close())
         self._last_flush = clock()
         self.counts: dict[str, int] = {}
 
@@ -133,10 +133,10 @@ def plot_recording(path: str | Path, out: str | Path | None = None) -> tuple[Pat
             elif kind == "telemetry" and d.get("battery") is not None and d["battery"] >= 0:
                 battery.setdefault(uav, []).append((t, 100.0 * float(d["battery"])))
             elif kind == "state":
-                ph = phases.setdefault(uav, [])
+                timeline = phases.setdefault(uav, [])
                 label = (str(d.get("phase")), str(d.get("override") or ""))
-                if not ph or ph[-1][1:] != label:
-                    ph.append((t, *label))
+                if not timeline or timeline[-1][1:] != label:
+                    timeline.append((t, *label))
         except (KeyError, TypeError, ValueError):
             continue
     if n == 0:
@@ -152,8 +152,8 @@ def plot_recording(path: str | Path, out: str | Path | None = None) -> tuple[Pat
         ax_xy.plot(xs, ys, lw=0.8, color=color[u])
         ax_xy.plot(xs[-1:], ys[-1:], "o", ms=3, color=color[u])
         ax_z.plot([p[0] - t0 for p in pts], [p[3] for p in pts], lw=0.8, color=color[u])
-    for u, pts in battery.items():
-        ax_b.plot([p[0] - t0 for p in pts], [p[1] for p in pts], lw=0.8, color=color[u])
+    for u, samples in battery.items():
+        ax_b.plot([s[0] - t0 for s in samples], [s[1] for s in samples], lw=0.8, color=color[u])
     palette: dict[str, Any] = {}
     for row, u in enumerate(uavs):
         segs = phases.get(u, [])

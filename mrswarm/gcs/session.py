@@ -34,7 +34,8 @@ def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Ta
             data = json.loads(path.read_text())
             sw, eps = data["swarm"], tuple(data["endpoints"])
         except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise GcsError(f"--run {run}: cannot read {path} ({exc.__class__.__name__}); is it a folder of `mrswarm run`?") from None
+            raise GcsError(f"--run {run}: cannot read {path} ({exc.__class__.__name__});"
+                           " is it a folder of `mrswarm run`?") from None
         swarm = swarm or sw
         connect = list(connect) or list(eps)
         disc = data.get("discovery")

@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from rich.console import Console, Group
+from rich.console import Console, Group, JustifyMethod
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
@@ -128,9 +128,7 @@ class Filter:
             return False
         if self.override and not r.override:
             return False
-        if self.stale and not (r.seen > STALE_S or math.isnan(r.seen)):
-            return False
-        return True
+        return not self.stale or r.seen > STALE_S or math.isnan(r.seen)
 
     def describe(self) -> str:
         parts = []
@@ -160,7 +158,7 @@ def sort_rows(rows: list[Row], key: str, reverse: bool = False) -> list[Row]:
 
 
 # column -> (justify, minimum width); in the order shown
-COLUMNS: dict[str, tuple[str, int]] = {
+COLUMNS: dict[str, tuple[JustifyMethod, int]] = {
     "id": ("right", 3), "R": ("left", 1), "phase": ("left", 7), "override": ("left", 8), "mode": ("left", 8),
     "arm": ("left", 3), "x": ("right", 6), "y": ("right", 6), "alt": ("right", 5), "m/s": ("right", 4),
     "bat%": ("right", 4), "rtf": ("right", 4), "age ms": ("right", 6), "Hz": ("right", 4), "loss%": ("right", 5),

@@ -16,15 +16,13 @@ config itself by :func:`swarmnet.netem.config.parse_netem` in the node.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from swarmnet.messages import DecodeError
+from swarmnet.messages import NAME_RE, DecodeError
 
 VERSION = 1
 MAX_BYTES = 64 * 1024
-_SENDER_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
 
 
 @dataclass(frozen=True)
@@ -37,7 +35,7 @@ class NetemSet:
 
 
 def encode_netem_set(m: NetemSet) -> bytes:
-    if not _SENDER_RE.match(m.sender):
+    if not NAME_RE.match(m.sender):
         raise ValueError(f"sender {m.sender!r} must be 1-32 characters of [A-Za-z0-9_-]")
     data = json.dumps({"v": VERSION, "id": m.id & 0xFFFFFFFF, "sender": m.sender, "t_wall": m.t_wall,
                        "targets": list(m.targets) if m.targets is not None else None, "config": m.config},
@@ -64,9 +62,9 @@ def decode_netem_set(data: bytes) -> NetemSet:
     mid, sender, t, cfg, targets = o.get("id"), o.get("sender"), o.get("t_wall"), o.get("config"), o.get("targets")
     if type(mid) is not int or not 0 <= mid <= 0xFFFFFFFF:
         raise DecodeError("bad_field", f"id={mid!r}")
-    if type(sender) is not str or not _SENDER_RE.match(sender):
+    if type(sender) is not str or not NAME_RE.match(sender):
         raise DecodeError("bad_field", f"sender={sender!r:.40}")
-    if type(t) not in (int, float) or not 0 <= t < 2**63:
+    if not isinstance(t, (int, float)) or type(t) is bool or not 0 <= t < 2**63:
         raise DecodeError("bad_field", f"t_wall={t!r:.40}")
     if not isinstance(cfg, dict):
         raise DecodeError("bad_field", "config must be an object")

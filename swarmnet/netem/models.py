@@ -220,7 +220,7 @@ class OutageSchedule:
         if pe and pe[-1] > w * self.WINDOW:
             out_s.append(ps[-1])
             out_e.append(pe[-1])
-        for a, b in zip(starts, ends):
+        for a, b in zip(starts, ends, strict=False):
             if out_e and a <= out_e[-1]:
                 out_e[-1] = max(out_e[-1], b)
             else:
@@ -246,7 +246,7 @@ class OutageSchedule:
             while end >= (ww + 1) * self.WINDOW:  # the outage runs into the next window: merge with what starts there
                 ww += 1
                 ns, ne = self._merged(ww)
-                for a, b in zip(ns, ne):
+                for a, b in zip(ns, ne, strict=False):
                     if a <= end:
                         end = max(end, b)
             self._lo, self._hi, self._ans = lo, end, end

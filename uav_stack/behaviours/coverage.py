@@ -1,17 +1,16 @@
 """Mission behaviours: preferred velocities for coverage (random direction, lawnmower) and go-to-goal.
 
 Each is a :class:`~uav_stack.behaviours.base.Behaviour`: a small state machine driven by
-:meth:`velocity` at the agent's control rate. They produce the *preferred* velocity only; collision avoidance adjusts it afterwards
-(:class:`uav_stack.behaviours.avoidance.CollisionAvoidance`).
+:meth:`velocity` at the agent's control rate. They produce the *preferred* velocity only; collision avoidance adjusts it
+afterwards (:class:`uav_stack.behaviours.avoidance.CollisionAvoidance`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Protocol
 from dataclasses import dataclass
-
+from typing import Protocol
 
 from uav_stack.behaviours.base import Rect, SelfState, Vec2, dist, is_finite
 
@@ -257,7 +256,7 @@ class LawnmowerCoverage:
             x = strip.x_min + (li + 0.5) * s
             xl, xr = x - 0.5 * s, x + 0.5 * s
             run: float | None = None  # y where the current unswept run started
-            for y0, y1 in zip(cuts, cuts[1:]):
+            for y0, y1 in zip(cuts, cuts[1:], strict=False):
                 if self._band_swept(xl, xr, 0.5 * (y0 + y1)):
                     if run is not None and y0 - run >= self._min_piece:
                         segs.append(_Segment((x, run), (x, y0), s))

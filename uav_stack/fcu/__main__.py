@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _stop)
         signal.signal(signal.SIGINT, _stop)
-    for v, (host, port) in zip(cfg.vehicles, addrs):
+    for v, (host, port) in zip(cfg.vehicles, addrs, strict=True):
         print(f"LISTEN {v.sysid} {host}:{port}", flush=True)
     try:
         fcu.run(duration=a.duration, stop=stop)

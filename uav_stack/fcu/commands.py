@@ -8,8 +8,8 @@ NaN (and INT32_MAX for COMMAND_INT x/y) mean "unset". Unknown commands get UNSUP
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -51,12 +51,12 @@ class MavCommand:
         return self.frame is not None
 
     @classmethod
-    def from_long(cls, m: M.MAVLink_message) -> MavCommand:
+    def from_long(cls, m: mavlink.MAVLink_message) -> MavCommand:
         return cls(m.command, m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7, None,
                    m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
 
     @classmethod
-    def from_int(cls, m: M.MAVLink_message) -> MavCommand:
+    def from_int(cls, m: mavlink.MAVLink_message) -> MavCommand:
         return cls(m.command, m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z, m.frame,
                    m.get_srcSystem(), m.get_srcComponent())  # fmt: skip
 
@@ -235,7 +235,7 @@ def cmd_set_home(v: Vehicle, c: MavCommand) -> Result:
     return ACCEPTED, ""
 
 
-def _reply(v: Vehicle, msg: M.MAVLink_message | None) -> Result:
+def _reply(v: Vehicle, msg: mavlink.MAVLink_message | None) -> Result:
     """Send ``msg`` after the ACK; TEMPORARILY_REJECTED while there is nothing to send (no fix yet)."""
     if msg is None:
         return M.MAV_RESULT_TEMPORARILY_REJECTED, ""

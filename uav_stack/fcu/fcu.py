@@ -13,8 +13,8 @@ import math
 import selectors
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 import numpy as np
 
@@ -307,8 +307,8 @@ class VirtualFcu:
         return VehicleTruth(
             sysid=v.sysid,
             sim_time=self.clock.sim_time,
-            pos_ned=tuple(d.pos[i].tolist()),  # type: ignore[arg-type]
-            vel_ned=tuple(d.vel[i].tolist()),  # type: ignore[arg-type]
+            pos_ned=tuple(d.pos[i].tolist()),
+            vel_ned=tuple(d.vel[i].tolist()),
             yaw=float(d.yaw[i]),
             armed=v.armed,
             mode=v.mode.name,

@@ -8,8 +8,7 @@ logged and counted and the vehicle keeps flying.
 
 from __future__ import annotations
 
-import math
-from typing import Callable
+from collections.abc import Callable
 
 from uav_stack.fcu import mission_transfer
 from uav_stack.fcu.commands import MavCommand, handle_command
@@ -23,23 +22,23 @@ FTP_ACK, FTP_NAK = 128, 129
 FTP_TERMINATE, FTP_RESET = 1, 2
 FTP_ERR_FILE_NOT_FOUND = 10
 
-Handler = Callable[[Vehicle, M.MAVLink_message], None]
+Handler = Callable[[Vehicle, mavlink.MAVLink_message], None]
 
 
-def on_heartbeat(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_heartbeat(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.type == M.MAV_TYPE_GCS:
         v.gcs_last = v.now
 
 
-def on_command_long(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_command_long(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     handle_command(v, MavCommand.from_long(m))
 
 
-def on_command_int(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_command_int(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     handle_command(v, MavCommand.from_int(m))
 
 
-def on_set_mode(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_mode(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """SET_MODE (#11): QGC's way to change PX4 modes. No ACK; the heartbeat tells the result."""
     if not m.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
         v.statustext(M.MAV_SEVERITY_WARNING, "SET_MODE: only custom modes supported")
@@ -56,12 +55,12 @@ def on_set_mode(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 # ------------------------------------------------------------------ parameters
-def _param_value(v: Vehicle, k: int) -> M.MAVLink_message:
+def _param_value(v: Vehicle, k: int) -> mavlink.MAVLink_message:
     name, value, ptype = v.params.encode(k)
     return v.mav.param_value_encode(name.encode(), value, ptype, len(v.params), k)
 
 
-def on_param_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     for k in range(len(v.params)):
         v.send(_param_value(v, k))
 
@@ -72,7 +71,7 @@ def _param_name(raw: str | bytes) -> str:
     return raw.split("\x00", 1)[0].strip()
 
 
-def on_param_request_read(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_request_read(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.param_index >= 0:
         if m.param_index < len(v.params):
             v.send(_param_value(v, m.param_index))
@@ -82,7 +81,7 @@ def on_param_request_read(v: Vehicle, m: M.MAVLink_message) -> None:
         v.send(_param_value(v, v.params.index(name)))
 
 
-def on_param_set(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_param_set(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     name = _param_name(m.param_id)
     if name not in v.params:
         v.statustext(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}"[:50])
@@ -94,43 +93,43 @@ def on_param_set(v: Vehicle, m: M.MAVLink_message) -> None:
 
 
 # ------------------------------------------------------------------- setpoints
-def on_set_position_target_local_ned(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_position_target_local_ned(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     d = v.ctx.dyn
     sp = decode_local(m, d.pos[v.i].copy(), float(d.yaw[v.i]))
     if sp is not None:
         v.on_setpoint(sp)
 
 
-def on_set_position_target_global_int(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_set_position_target_global_int(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     sp = decode_global(m, v.frame, v.home.alt)
     if sp is not None:
         v.on_setpoint(sp)
 
 
 # ---------------------------------------------------------------------- sticks
-def on_manual_control(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_manual_control(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """MANUAL_CONTROL (PX4's joystick input; its ``target`` is our sysid)."""
     if m.target in (0, v.sysid):
         v.on_sticks(from_manual_control(m))
 
 
-def on_rc_channels_override(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_rc_channels_override(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """RC_CHANNELS_OVERRIDE (ArduPilot's stick input from a GCS, e.g. MAVProxy's ``rc``)."""
     v.on_sticks(v.sticks.rc.update(m))
 
 
 # ------------------------------------------------------------------ small stuff
-def on_timesync(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_timesync(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.tc1 == 0:
         v.send(v.mav.timesync_encode(max(1, int(v.now * 1e9)), m.ts1))  # tc1 = 0 would be a request
 
 
-def on_ping(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ping(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.target_system == 0:
         v.send(v.mav.ping_encode(m.time_usec, m.seq, m.get_srcSystem(), m.get_srcComponent()))
 
 
-def on_ftp(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ftp(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """No MAVLink-FTP here: NAK (FileNotFound) so MAVProxy/QGC fall back to PARAM_REQUEST_LIST."""
     p = bytes(m.payload)
     if len(p) < 12:
@@ -148,7 +147,7 @@ def on_ftp(v: Vehicle, m: M.MAVLink_message) -> None:
     v.send(v.mav.file_transfer_protocol_encode(0, m.get_srcSystem(), m.get_srcComponent(), out))
 
 
-def on_ignore(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_ignore(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     return None
 
 
@@ -172,7 +171,7 @@ HANDLERS: dict[str, Handler] = {
 }
 
 
-def addressed_to(v: Vehicle, m: M.MAVLink_message) -> bool:
+def addressed_to(v: Vehicle, m: mavlink.MAVLink_message) -> bool:
     """False if the message names another system or component as its target."""
     ts = getattr(m, "target_system", 0)
     if ts not in (0, v.sysid):

@@ -57,7 +57,7 @@ def _dead(x: float, dz: float) -> float:
     return math.copysign((abs(x) - dz) / (1.0 - dz), x)
 
 
-def from_manual_control(m: M.MAVLink_message) -> Sticks:
+def from_manual_control(m: mavlink.MAVLink_message) -> Sticks:
     """MANUAL_CONTROL: x forward, y right, r clockwise in -1000..1000; z thrust 0..1000 (500 = hover).
 
     An axis of INT16_MAX is invalid (treated as centred).
@@ -75,7 +75,7 @@ class RcOverride:
 
     pwm: list[int] = field(default_factory=lambda: [0, 0, 0, 0])
 
-    def update(self, m: M.MAVLink_message) -> Sticks:
+    def update(self, m: mavlink.MAVLink_message) -> Sticks:
         """Apply one override message (UINT16_MAX keeps a channel, 0 releases it) and read the sticks."""
         for k, v in enumerate((m.chan1_raw, m.chan2_raw, m.chan3_raw, m.chan4_raw)):
             if v != RC_IGNORE:

@@ -327,7 +327,7 @@ class MissionRun:
         self.announce()
 
     # ---- reporting --------------------------------------------------------------------
-    def current_message(self) -> M.MAVLink_message:
+    def current_message(self) -> mavlink.MAVLink_message:
         """MISSION_CURRENT: the item flown, the item count (without ArduCopter's home), the state."""
         v = self.v
         total = len(self.items) - self.first if self.flyable() else UINT16_MAX

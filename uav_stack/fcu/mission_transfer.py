@@ -22,11 +22,11 @@ UPLOAD_STALE_S = 5.0  # wall seconds without progress before a mission upload is
 MAX_ITEMS = 1000
 
 
-def _ack(v: Vehicle, m: M.MAVLink_message, result: int, mission_type: int) -> None:
+def _ack(v: Vehicle, m: mavlink.MAVLink_message, result: int, mission_type: int) -> None:
     v.send(v.mav.mission_ack_encode(m.get_srcSystem(), m.get_srcComponent(), result, mission_type))
 
 
-def on_mission_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     items = v.missions.get(m.mission_type)
     if items is None:
         _ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
@@ -34,7 +34,7 @@ def on_mission_request_list(v: Vehicle, m: M.MAVLink_message) -> None:
     v.send(v.mav.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), len(items), m.mission_type))
 
 
-def on_mission_count(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_count(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.mission_type not in v.missions:
         _ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
         return
@@ -50,11 +50,11 @@ def on_mission_count(v: Vehicle, m: M.MAVLink_message) -> None:
     _request_item(v, m, 0, m.mission_type)
 
 
-def _request_item(v: Vehicle, m: M.MAVLink_message, seq: int, mission_type: int) -> None:
+def _request_item(v: Vehicle, m: mavlink.MAVLink_message, seq: int, mission_type: int) -> None:
     v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
 
 
-def _item(m: M.MAVLink_message, seq: int) -> MissionItem | None:
+def _item(m: mavlink.MAVLink_message, seq: int) -> MissionItem | None:
     """The item in MISSION_ITEM_INT terms; None if a float item's x/y cannot be one."""
     if m.get_type() == "MISSION_ITEM_INT":
         x, y = m.x, m.y
@@ -75,7 +75,7 @@ def _check(item: MissionItem) -> int:
     return M.MAV_MISSION_ACCEPTED
 
 
-def on_mission_item(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     up = v.upload
     if up is not None and v.ctx.wall() - float(up["t"]) > UPLOAD_STALE_S:  # type: ignore[arg-type]
         v.upload = up = None
@@ -111,7 +111,7 @@ def _store(v: Vehicle, mission_type: int, items: list[MissionItem]) -> None:
         v.mission.load()
 
 
-def _guided_item(v: Vehicle, m: M.MAVLink_message) -> None:
+def _guided_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     item = _item(m, m.seq)
     lat, lon = (item.x * 1e-7, item.y * 1e-7) if item is not None else (999.0, 999.0)
     ok_alt = math.isfinite(m.z) and abs(m.z) < 20000.0
@@ -126,7 +126,7 @@ def _guided_item(v: Vehicle, m: M.MAVLink_message) -> None:
     _ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
 
 
-def on_mission_request(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_request(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     items = v.missions.get(m.mission_type)
     if items is None or not 0 <= m.seq < len(items):
         _ack(v, m, M.MAV_MISSION_INVALID_SEQUENCE, m.mission_type)
@@ -142,7 +142,7 @@ def on_mission_request(v: Vehicle, m: M.MAVLink_message) -> None:
     )
 
 
-def on_mission_clear_all(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_clear_all(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.mission_type == M.MAV_MISSION_TYPE_ALL:
         for k in list(v.missions):
             _store(v, k, [])
@@ -155,7 +155,7 @@ def on_mission_clear_all(v: Vehicle, m: M.MAVLink_message) -> None:
     _ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
 
 
-def on_mission_set_current(v: Vehicle, m: M.MAVLink_message) -> None:
+def on_mission_set_current(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     """MISSION_SET_CURRENT (MAVSDK's set_current_mission_item): answered by MISSION_CURRENT."""
     if not v.mission.set_current(m.seq):
         v.statustext(M.MAV_SEVERITY_WARNING, f"Mission: no item {m.seq}")

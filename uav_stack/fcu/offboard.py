@@ -61,11 +61,11 @@ class Setpoint:
 
     @property
     def has_velocity(self) -> bool:
-        return any(v == v and p != p for p, v in zip(self.pos, self.vel))
+        return any(v == v and p != p for p, v in zip(self.pos, self.vel, strict=True))
 
 
 def _masked(vals: Vec3, mask: int, bits: tuple[int, int, int]) -> Vec3:
-    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits))
+    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits, strict=True))
     return (a, b, c)
 
 
@@ -87,7 +87,7 @@ def _add(a: Vec3 | np.ndarray, b: Vec3) -> Vec3:
     return (float(a[0]) + b[0], float(a[1]) + b[1], float(a[2]) + b[2])
 
 
-def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) -> Setpoint | None:
+def decode_local(msg: mavlink.MAVLink_message, pos_now: np.ndarray, yaw_now: float) -> Setpoint | None:
     """SET_POSITION_TARGET_LOCAL_NED -> LOCAL_NED setpoint; None for unsupported frames."""
     frame = msg.coordinate_frame
     if frame not in LOCAL_FRAMES:
@@ -107,7 +107,7 @@ def decode_local(msg: M.MAVLink_message, pos_now: np.ndarray, yaw_now: float) ->
     return _sane(Setpoint(pos, vel, yaw, yaw_rate))
 
 
-def decode_global(msg: M.MAVLink_message, frame_geo: LocalFrame, home_alt: float) -> Setpoint | None:
+def decode_global(msg: mavlink.MAVLink_message, frame_geo: LocalFrame, home_alt: float) -> Setpoint | None:
     """SET_POSITION_TARGET_GLOBAL_INT -> LOCAL_NED setpoint; None for unsupported frames."""
     rel = GLOBAL_FRAMES.get(msg.coordinate_frame)
     if rel is None:

@@ -8,7 +8,8 @@ a process hosting many vehicles spreads its sends over the period.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from uav_stack.mav import mavlink
 
@@ -57,7 +58,7 @@ def _u16(x: float) -> int:
     return max(0, min(65534, int(round(x)))) if math.isfinite(x) else 0
 
 
-def heartbeat(v: Vehicle) -> M.MAVLink_message:
+def heartbeat(v: Vehicle) -> mavlink.MAVLink_message:
     base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | v.mode.base_flags
     if v.armed:
         base |= M.MAV_MODE_FLAG_SAFETY_ARMED
@@ -67,7 +68,7 @@ def heartbeat(v: Vehicle) -> M.MAVLink_message:
     return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, v.mode.custom_mode, status)
 
 
-def _reuse(v: Vehicle, name: str, make: Callable[[], M.MAVLink_message]) -> M.MAVLink_message:
+def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -> mavlink.MAVLink_message:
     """The vehicle's instance of a high-rate message, refilled in place (skips re-construction)."""
     m = v.msg_cache.get(name)
     if m is None:
@@ -75,7 +76,7 @@ def _reuse(v: Vehicle, name: str, make: Callable[[], M.MAVLink_message]) -> M.MA
     return m
 
 
-def global_position_int(v: Vehicle) -> M.MAVLink_message | None:
+def global_position_int(v: Vehicle) -> mavlink.MAVLink_message | None:
     if not v.gps_ok:
         return None  # no global position before the first fix (PX4 sends none either)
     lat, lon, alt = v.geodetic()
@@ -92,7 +93,7 @@ def global_position_int(v: Vehicle) -> M.MAVLink_message | None:
     return m
 
 
-def local_position_ned(v: Vehicle) -> M.MAVLink_message | None:
+def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message | None:
     if not v.gps_ok:
         return None  # the local position comes from GPS here
     d = v.ctx.dyn
@@ -103,7 +104,7 @@ def local_position_ned(v: Vehicle) -> M.MAVLink_message | None:
     return m
 
 
-def attitude(v: Vehicle) -> M.MAVLink_message:
+def attitude(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     m = _reuse(v, "ATTITUDE", lambda: v.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
@@ -112,7 +113,7 @@ def attitude(v: Vehicle) -> M.MAVLink_message:
     return m
 
 
-def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:
+def attitude_quaternion(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     r, p, y = float(d.roll[i]) / 2, float(d.pitch[i]) / 2, float(d.yaw[i]) / 2
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -128,7 +129,7 @@ def attitude_quaternion(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def sys_status(v: Vehicle) -> M.MAVLink_message:
+def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
     """Sensors present/enabled/healthy as MAVSDK's health() and QGC read them: GPS healthy from the
     first fix, PREARM_CHECK while arming would pass, RC_RECEIVER while stick input arrives."""
     sticks = RC if v.settings.stick_input else 0
@@ -149,11 +150,11 @@ def sys_status(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def extended_sys_state(v: Vehicle) -> M.MAVLink_message:
+def extended_sys_state(v: Vehicle) -> mavlink.MAVLink_message:
     return v.mav.extended_sys_state_encode(M.MAV_VTOL_STATE_MC, v.landed_state())
 
 
-def home_position(v: Vehicle) -> M.MAVLink_message | None:
+def home_position(v: Vehicle) -> mavlink.MAVLink_message | None:
     if not v.gps_ok:
         return None  # home is set at the first fix
     h = v.home
@@ -173,7 +174,7 @@ def home_position(v: Vehicle) -> M.MAVLink_message | None:
     )
 
 
-def battery_status(v: Vehicle) -> M.MAVLink_message:
+def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
     volts, amps, pct = v.battery_readings()
     cells = v.ctx.dyn.params.battery_cells
     cell_mv = int(volts * 1000 / cells)
@@ -205,7 +206,7 @@ def battery_status(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
+def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
     if not v.gps_ok:  # searching: no fix, no satellites
         return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
                                         65535, 65535, 0, 65535, 0)  # fmt: skip
@@ -233,7 +234,7 @@ def gps_raw_int(v: Vehicle) -> M.MAVLink_message:
     )
 
 
-def vfr_hud(v: Vehicle) -> M.MAVLink_message:
+def vfr_hud(v: Vehicle) -> mavlink.MAVLink_message:
     _, _, alt = v.geodetic()
     vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
@@ -242,21 +243,21 @@ def vfr_hud(v: Vehicle) -> M.MAVLink_message:
     return v.mav.vfr_hud_encode(gs, gs, heading, throttle, alt, -vd)
 
 
-def system_time(v: Vehicle) -> M.MAVLink_message:
+def system_time(v: Vehicle) -> mavlink.MAVLink_message:
     unix_us = int((v.ctx.unix_at_start + v.ctx.clock.sim_time) * 1e6)
     return v.mav.system_time_encode(unix_us, _ms(v))
 
 
-def named_value_rtf(v: Vehicle) -> M.MAVLink_message:
+def named_value_rtf(v: Vehicle) -> mavlink.MAVLink_message:
     rtf = float(v.ctx.rtf())
     return v.mav.named_value_float_encode(_ms(v), b"RTF", rtf if math.isfinite(rtf) else 0.0)  # 0.0: not measured yet
 
 
-def mission_current(v: Vehicle) -> M.MAVLink_message:
+def mission_current(v: Vehicle) -> mavlink.MAVLink_message:
     return v.mission.current_message()
 
 
-def autopilot_version(v: Vehicle) -> M.MAVLink_message:
+def autopilot_version(v: Vehicle) -> mavlink.MAVLink_message:
     cap = (
         M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
         | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -287,7 +288,7 @@ def autopilot_version(v: Vehicle) -> M.MAVLink_message:
 
 
 # None: nothing to send yet (no position before the first GPS fix)
-ENCODERS: dict[str, Callable[[Vehicle], M.MAVLink_message | None]] = {
+ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
     "HEARTBEAT": heartbeat,
     "GLOBAL_POSITION_INT": global_position_int,
     "LOCAL_POSITION_NED": local_position_ned,
@@ -305,7 +306,7 @@ ENCODERS: dict[str, Callable[[Vehicle], M.MAVLink_message | None]] = {
 }
 
 # Messages REQUEST_MESSAGE can produce, by id (streams plus one-shot ones).
-REQUESTABLE: dict[int, Callable[[Vehicle], M.MAVLink_message | None]] = {
+REQUESTABLE: dict[int, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
     M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
     **{getattr(M, f"MAVLINK_MSG_ID_{name}"): fn for name, fn in ENCODERS.items()},
 }

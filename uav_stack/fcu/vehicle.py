@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -19,12 +19,11 @@ from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import VehicleConfig
 from uav_stack.fcu.dynamics import G, MultirotorArray
 from uav_stack.fcu.link import DatagramParser, UdpLink
-from uav_stack.fcu.manual import CENTRED, StickStream, Sticks, command
+from uav_stack.fcu.manual import CENTRED, Sticks, StickStream, command
 from uav_stack.fcu.mission import MissionItem, MissionRun
 from uav_stack.fcu.modes import (
     P_HOLD,
     P_LAND,
-    P_MISSION,
     P_OFFBOARD,
     P_RTL_CLIMB,
     P_RTL_RETURN,
@@ -116,11 +115,11 @@ class Vehicle:
         self.sticks = StickStream()
         self._sticks_in_mode = False  # a stick message arrived since the stick mode was entered
         self._stick_xy_held = self._stick_z_held = False  # holding the braking point, per axis
-        self.after_ack: list[M.MAVLink_message] = []
+        self.after_ack: list[mavlink.MAVLink_message] = []
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
-        self.msg_cache: dict[str, M.MAVLink_message] = {}  # reused instances of high-rate messages
+        self.msg_cache: dict[str, mavlink.MAVLink_message] = {}  # reused instances of high-rate messages
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
         d.pos_sp[i] = d.pos[i]
@@ -143,7 +142,7 @@ class Vehicle:
     def failsafe_active(self) -> bool:
         return self.dll_tripped or self.fence_breached or self.bat_level >= 2
 
-    def send(self, msg: M.MAVLink_message) -> None:
+    def send(self, msg: mavlink.MAVLink_message) -> None:
         mav = self.mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
@@ -334,7 +333,7 @@ class Vehicle:
     def apply_setpoint(self, sp: Setpoint) -> None:
         d, i = self.ctx.dyn, self.i
         pos = list(sp.pos)
-        for k, (p, v) in enumerate(zip(sp.pos, sp.vel)):
+        for k, (p, v) in enumerate(zip(sp.pos, sp.vel, strict=True)):
             if p != p and v != v:  # neither position nor velocity: hold that axis where it is
                 cur = float(d.pos_sp[i, k])
                 pos[k] = cur if cur == cur else float(d.pos[i, k])
@@ -517,10 +516,9 @@ class Vehicle:
             dxy = math.hypot(d.pos[i, 0] - self.home_ned[0], d.pos[i, 1] - self.home_ned[1])
             if dxy < RTL_ARRIVED_M and math.hypot(d.vel[i, 0], d.vel[i, 1]) < 0.5:
                 self._start_land(self.home_ned[:2])
-        elif ph == P_OFFBOARD and not self.flavour.is_px4:
-            if self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
-                self.guided_vel = False
-                self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
+        elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
+            self.guided_vel = False
+            self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
         elif ph == P_STICKS:
             self._stick_tick(landed)
         if mission:
