@@ -33,16 +33,25 @@ def px4_main_sub(custom_mode: int) -> tuple[int, int]:
 
 
 class FcuThread:
-    """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``."""
+    """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``.
 
-    def __init__(self, config: FcuConfig):
+    It enters once every vehicle has its first GPS fix (SIM_GPS_FIX_T of sim time after boot), as
+    a ground station waits for the vehicle's health; ``ready=False`` enters at boot instead.
+    """
+
+    def __init__(self, config: FcuConfig, ready: bool = True):
         self.fcu = VirtualFcu(config)
         self.addrs = self.fcu.open()
+        self.ready = ready
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self.fcu.run, kwargs={"stop": self._stop}, daemon=True)
 
     def __enter__(self) -> FcuThread:
         self._thread.start()
+        if self.ready:
+            deadline = time.monotonic() + 10.0
+            while not all(v.gps_ok for v in self.fcu.vehicles) and time.monotonic() < deadline:
+                time.sleep(0.02)
         return self
 
     def __exit__(self, *exc: object) -> None:

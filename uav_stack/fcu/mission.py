@@ -188,9 +188,8 @@ class MissionRun:
         elif st == "hold":
             if now >= self.hold_until:
                 self._reached()
-        elif st in ("land", "rtl"):
-            if v.phase == P_LAND and v.landed:
-                self._reached()
+        elif st in ("land", "rtl") and v.phase == P_LAND and v.landed:
+            self._reached()
 
     def _reached(self) -> None:
         item = self.items[self.current]
