@@ -211,3 +211,21 @@ class MavClient:
         if index >= 0:
             return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_index == index)
         return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_id == name)
+
+    def upload_mission(self, items: list[tuple[int, int, float, float, float, tuple[float, ...]]], timeout: float = 3.0,
+                       mission_type: int = 0) -> int | None:  # fmt: skip
+        """The mission protocol's upload: items (frame, command, lat deg, lon deg, alt m, params 1-4);
+        returns the MISSION_ACK result (None: no answer)."""
+        self.send(self.mav.mission_count_encode(self.target_sysid, 1, len(items), mission_type))
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = self.recv_match(("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"), deadline - time.monotonic())
+            if m is None:
+                return None
+            if m.get_type() == "MISSION_ACK":
+                return m.type
+            frame, cmd, lat, lon, alt, params = items[m.seq]
+            p = [float(x) for x in params] + [0.0] * (4 - len(params))
+            self.send(self.mav.mission_item_int_encode(self.target_sysid, 1, m.seq, frame, cmd, int(m.seq == 0), 1, *p,
+                                                       round(lat * 1e7), round(lon * 1e7), alt, mission_type))  # fmt: skip
+        return None

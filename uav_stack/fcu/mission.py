@@ -11,8 +11,9 @@ NAV_LOITER_TIME (p1 s), NAV_LOITER_UNLIM, NAV_DELAY (p1 s), NAV_TAKEOFF, NAV_LAN
 NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED (p2 m/s), DO_JUMP (p1 item, p2 repeats); any other
 DO/condition item (camera, gimbal, ...) passes at once. A waypoint counts as reached inside
 its acceptance radius (NAV_ACC_RAD / WPNAV_RADIUS when the item gives none) and within
-NAV_MC_ALT_RAD vertically. Positions: latitude/longitude in degE7 (both 0: where the vehicle
-is), altitude per the item's frame (relative to home, or AMSL).
+NAV_MC_ALT_RAD vertically (PX4), or inside a sphere of that radius (ArduCopter). Positions:
+latitude/longitude in degE7 (both 0: where the vehicle is), altitude per the item's frame
+(relative to home, or AMSL).
 
 Flavour differences: ArduCopter's item 0 is its home and is never flown, and from the ground
 (armed) AUTO needs a NAV_TAKEOFF as the next item ("Auto: Missing Takeoff Cmd"); PX4 takes
@@ -82,6 +83,7 @@ class MissionRun:
         self.target = np.zeros(3)
         self.radius = 2.0
         self.jumps: dict[int, int] = {}  # DO_JUMP seq -> jumps left
+        self.speed = NAN  # the mission's DO_CHANGE_SPEED, m/s (kept over a pause)
         self._announced: tuple[int, int, int] | None = None
 
     # ---- what is stored ---------------------------------------------------------------
@@ -103,6 +105,7 @@ class MissionRun:
         self.state = M.MISSION_STATE_NOT_STARTED if self.flyable() else M.MISSION_STATE_NO_MISSION
         self.stage = ""
         self.jumps = {}
+        self.speed = NAN
         if self.v.mode.guidance is Guidance.MISSION:
             self.v._start_hold()  # a new plan while flying one: hold until the mission mode is entered again
         self.announce()
@@ -122,7 +125,7 @@ class MissionRun:
         """Entering the mission mode, or arming in it: fly from the current item."""
         v = self.v
         if self.state == M.MISSION_STATE_COMPLETE:
-            self.current, self.jumps = self.first, {}
+            self.current, self.jumps, self.speed = self.first, {}, NAN
         if not self.flyable():
             v._start_hold()
             return
@@ -131,6 +134,8 @@ class MissionRun:
             self.announce()
             return
         self.state = M.MISSION_STATE_ACTIVE
+        if self.speed == self.speed:
+            v.speed_xy = self.speed  # a paused mission resumes at its own speed
         nxt = self._next_nav(self.current)
         if v.flavour.is_px4 and v.landed and (nxt is None or nxt.command != M.MAV_CMD_NAV_TAKEOFF):
             z = v.alt_to_z(v.home.alt + v.settings.takeoff_alt)  # PX4 takes off by itself first
@@ -176,9 +181,7 @@ class MissionRun:
                 else:
                     self._begin()
         elif st == "goto":
-            p = d.pos[i]
-            hor = math.hypot(p[0] - self.target[0], p[1] - self.target[1])
-            if hor <= self.radius and abs(p[2] - self.target[2]) <= max(v.settings.alt_rad, 0.05):
+            if self._arrived():
                 if self.hold_s > 0:
                     self.stage, self.hold_until = "hold", now + self.hold_s
                 elif self.items[self.current].command == M.MAV_CMD_NAV_LOITER_UNLIM:
@@ -190,6 +193,14 @@ class MissionRun:
                 self._reached()
         elif st in ("land", "rtl") and v.phase == P_LAND and v.landed:
             self._reached()
+
+    def _arrived(self) -> bool:
+        """Inside the acceptance radius: PX4 a cylinder (radius, NAV_MC_ALT_RAD), ArduCopter a sphere."""
+        v = self.v
+        p, t = v.ctx.dyn.pos[v.i], self.target
+        if not v.flavour.is_px4:
+            return math.dist(p, t) <= self.radius
+        return math.hypot(p[0] - t[0], p[1] - t[1]) <= self.radius and abs(p[2] - t[2]) <= v.settings.alt_rad
 
     def _reached(self) -> None:
         item = self.items[self.current]
@@ -233,7 +244,7 @@ class MissionRun:
                 self.current = int(p1)
                 return
         elif item.command == M.MAV_CMD_DO_CHANGE_SPEED and math.isfinite(p2) and p2 > 0:
-            v.speed_xy = min(p2, v.settings.xy_vel_max)
+            v.speed_xy = self.speed = min(p2, v.settings.xy_vel_max)
             v._apply_limits()
         self.current += 1  # camera, gimbal and other payload items: nothing to fly
 
