@@ -37,9 +37,9 @@ class AutopilotProfile:
     takeoff_mode: str | None  # mode NAV_TAKEOFF needs (ArduPilot: GUIDED); None: any mode
     takeoff_alt_relative: bool  # NAV_TAKEOFF param 7: metres above home (ArduPilot), not AMSL (PX4)
     mode_params: Mapping[str, tuple[float, ...]]  # DO_SET_MODE params 2.. (custom mode) per mode name
-    # modes the autopilot refuses to arm in (a landed UAV is often left in one: RTL, LAND), and the
-    # mode to switch to before arming from one of them
-    not_armable: frozenset[str] = frozenset()
+    # modes a companion leaves before arming (``arming_mode``): the autopilot refuses to arm in them
+    # (a landed UAV is often left in RTL or LAND), or arming would start something (PX4 MISSION)
+    leave_before_arming: frozenset[str] = frozenset()
     arming_mode: str = ""
 
     def set_mode_params(self, name: str) -> tuple[float, ...]:
@@ -84,7 +84,7 @@ PX4_PROFILE = AutopilotProfile(
     # PX4 reads main/sub from params 2/3; LOITER is pymavlink's name for HOLD, kept as an alias
     mode_params={**{name: (float(main), float(sub)) for (main, sub), name in PX4_MODE_NAMES.items()},
                  "LOITER": (4.0, 3.0)},
-    not_armable=frozenset({"RTL"}),
+    leave_before_arming=frozenset({"RTL", "MISSION"}),
     arming_mode="HOLD",
 )
 
@@ -97,7 +97,7 @@ ARDUPILOT_PROFILE = AutopilotProfile(
     takeoff_mode="GUIDED",
     takeoff_alt_relative=True,
     mode_params={name: (float(number),) for number, name in mavutil.mode_mapping_acm.items()},
-    not_armable=frozenset({"RTL", "LAND", "AUTO", "SMART_RTL", "AUTO_RTL"}),
+    leave_before_arming=frozenset({"RTL", "LAND", "AUTO", "SMART_RTL", "AUTO_RTL"}),
     arming_mode="GUIDED",
 )
 
