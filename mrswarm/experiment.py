@@ -120,6 +120,9 @@ class Experiment:
         kind = "containers" if self.runtime.name == "docker" else "processes"
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
+        if scn.gcs.mavlink and scn.gcs.port is not None:
+            self.console.print(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
+                               "(system id = UAV id up to 240, docs/gcs.md)", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
         obs_net = NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net
@@ -142,11 +145,23 @@ class Experiment:
                 self._tick()
                 if self.probe is not None:
                     self.probe(self, time.time() - start)
-                if all(self._phase_of(u) in FINISHED for u in ids):
+                if all(self._finished(u) for u in ids):
                     self.run_info.all_done_at = time.time() - start
                     break
             self.progress.stage = RunStage.STOPPING
             self.display.refresh(self.observer)
+
+    def _finished(self, uav: int) -> bool:
+        """The UAV's mission is over: done, or landed by its mission (``land_when_done``). A UAV landed by
+        an operator (``override`` set) counts only with ``gcs.landing_ends_run``: it may be relaunched."""
+        phase = self._phase_of(uav)
+        if phase not in FINISHED:
+            return False
+        if phase != AgentPhase.LANDED or self.scn.gcs.landing_ends_run:
+            return True
+        assert self.observer is not None
+        v = self.observer.uavs.get(uav)
+        return v is not None and v.state is not None and not v.state.override
 
     def _phase_of(self, uav: int) -> AgentPhase | None:
         """The phase ``uav`` last reported (None: nothing yet, or a name this version does not know)."""

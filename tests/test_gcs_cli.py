@@ -159,7 +159,12 @@ def test_scenario_gcs_section(tmp_path: Path) -> None:
     assert {c.agent.mavlink_sysid for c in cfgs} == {239, 240, 1, 2}
     assert all(c.flavour == "ardupilot" for c in cfgs)
     assert cfgs[0].agent.gcs.geofence == (-30.0, 30.0, -20.0, 20.0)  # the mission area
-    assert load_scenario(mini).virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ()  # off by default
+    # on by default, to a ground station on this machine (QGroundControl's UDP 14550); off on request
+    default = load_scenario(mini)
+    assert default.virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ("udpout:127.0.0.1:14550",)
+    assert not default.gcs.landing_ends_run  # a ground station landing everyone does not end the run
+    off = load_scenario(mini, ["gcs.mavlink=false"])
+    assert off.virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ()
     with pytest.raises(ScenarioError, match="listen_base"):
         load_scenario(mini, ["gcs.mavlink=true", "gcs.listen_base=65534"])
     with pytest.raises(ScenarioError, match="flavour"):
