@@ -29,6 +29,7 @@ from rich.console import Console
 
 from mrswarm.display import Display
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.recorder.run_recorder import RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
@@ -59,7 +60,8 @@ class Experiment:
     """
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
-                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None):
+                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
+                 record: bool = True):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -76,6 +78,8 @@ class Experiment:
         self.display = Display(self.console, live, scenario, self.progress, self.metrics)
         self.observer: SwarmObserver | None = None
         self.probe = probe
+        self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
+        self.recorder: RunRecorder | None = None
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
@@ -95,6 +99,8 @@ class Experiment:
             self.run_info.exit_codes = dict(self.runtime.stop())
             self.run_info.stopped = time.time()
             self.run_info.write(self.run_dir / "run.json")
+            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
+                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
             signal.signal(signal.SIGTERM, old)
         return summarise_run(self.run_dir, self.scn)
 
@@ -112,6 +118,12 @@ class Experiment:
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         (self.run_dir / "network.json").write_text(json.dumps(network_info))
+        if self.record:  # before the first UAV, so its first pose is recorded
+            try:
+                self.recorder = RunRecorder.start(self.run_dir)
+                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
+            except RuntimeError as exc:  # a run without its recording still flies
+                self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
