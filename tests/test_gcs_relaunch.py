@@ -24,7 +24,8 @@ def _coverage_at(curve: list[list[float]], t: float) -> float:
 
 
 def test_landed_swarm_keeps_the_run_going_and_start_relaunches_it_into_the_coverage(tmp_path: Path) -> None:
-    run = start_run(SCENARIO, tmp_path, ["duration=600"])  # ended by Ctrl-C below, never by its duration
+    # ended by Ctrl-C below, never by its duration; a field too large to be covered before that
+    run = start_run(SCENARIO, tmp_path, ["duration=600", "mission.area.x_max=90", "mission.area.y_max=70"])
     obs = None
     try:
         rdir = run_dir(tmp_path)
@@ -59,6 +60,7 @@ def test_landed_swarm_keeps_the_run_going_and_start_relaunches_it_into_the_cover
         assert len(lines) >= 3 and all(line.startswith("uav 2 phase=mission") for line in lines), lines
         assert max(len(line) for line in lines) > 80
         time.sleep(8.0)
+        assert run.poll() is None and phases() == ["mission"] * 4  # still flying: Ctrl-C ends it below
     finally:
         if obs is not None:
             obs.close()
