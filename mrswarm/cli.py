@@ -112,8 +112,12 @@ def main(argv: list[str] | None = None) -> int:
                        add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.recorder.cli", "replay_main", a.rest))
 
+    p = sub.add_parser("keys", help="the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.keys_cli", "main", a.rest))
+
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay"):
+    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay", "keys"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

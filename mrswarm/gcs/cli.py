@@ -20,8 +20,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("where the swarm is")
     g.add_argument("--run", metavar="RUN_DIR", help="a folder of a running `mrswarm run` (reads its network.json)")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="Zenoh endpoint of the edge/rendezvous router, e.g. tcp/10.0.0.1:7447 (repeatable)")
+                   help="Zenoh endpoint of the edge/rendezvous router, e.g. tls/10.0.0.1:7447 (repeatable)")
     g.add_argument("--swarm", help="swarm name (default: the run's)")
+    g.add_argument("--keys", metavar="DIR", help="the ground station's credentials: the swarm's key directory or a gcs "
+                                                 "bundle (default with --run: the run's); docs/security.md")
+    g.add_argument("--identity", help="certificate to speak as (default gcs-1): gcs-<id> or gcs-<id>.<swarm>")
 
 
 def _targets(p: argparse.ArgumentParser) -> None:
@@ -148,7 +151,7 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         from mrswarm.gcs.commands import goto_args
 
         goto_args(args.xyz, args.geo)
-    target = resolve_target(args.run, args.connect, args.swarm)
+    target = resolve_target(args.run, args.connect, args.swarm, args.keys, args.identity)
     if args.sub == "nodes" and (args.discovery or args.discovery_key_file):
         target = _with_registry(target, args.discovery, args.discovery_key_file)
 
