@@ -76,8 +76,8 @@ def run_once(n: int, routed: bool, args: argparse.Namespace, console: Console) -
     sampler = Sampler(args.warmup, args.window)
     scn = scenario_for(n, args.warmup + args.window + 2.0, "discovery-direct")
     with Sink() as sink:
-        if routed:
-            scn = replace(scn, gcs=Gcs(mavlink=True, port=sink.port))
+        # the router is on by default (to UDP 14550): the baseline turns it off
+        scn = replace(scn, gcs=Gcs(mavlink=True, port=sink.port) if routed else Gcs(mavlink=False))
         exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
         t0 = time.time()
         d0 = b0 = 0

@@ -232,6 +232,9 @@ class Experiment:
         kind = "containers" if self.runtime.name == "docker" else "processes"
         self._say(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
+        if scn.gcs.mavlink and scn.gcs.port is not None:
+            self._say(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
+                      "(system id = UAV id up to 240, docs/gcs.md)")
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere)
@@ -265,7 +268,7 @@ class Experiment:
                 if self.probe is not None:
                     self.probe(self, time.time() - start)
                 active = self._active_ids()
-                if active and not self.rejoin and all(self._phase_of(u) in FINISHED for u in active) \
+                if active and not self.rejoin and all(self._finished(u) for u in active) \
                         and (self.chaos is None or not self.chaos.pending):
                     self.run_info.all_done_at = time.time() - start
                     break
@@ -286,6 +289,18 @@ class Experiment:
     def _last_pose(self, uav: int) -> list[float] | None:
         v = self.observer.uavs.get(uav) if self.observer is not None else None
         return [round(v.pose.x, 2), round(v.pose.y, 2), round(v.pose.z, 2)] if v is not None and v.pose is not None else None
+
+    def _finished(self, uav: int) -> bool:
+        """The UAV's mission is over: done, or landed by its mission (``land_when_done``). A UAV landed by
+        an operator (``override`` set) counts only with ``gcs.landing_ends_run``: it may be relaunched."""
+        phase = self._phase_of(uav)
+        if phase not in FINISHED:
+            return False
+        if phase != AgentPhase.LANDED or self.scn.gcs.landing_ends_run:
+            return True
+        assert self.observer is not None
+        v = self.observer.uavs.get(uav)
+        return v is not None and v.state is not None and not v.state.override
 
     def _phase_of(self, uav: int) -> AgentPhase | None:
         """The phase ``uav`` last reported (None: nothing yet, or a name this version does not know)."""

@@ -204,7 +204,7 @@ class Uav(Config, frozen=True):
 class Gcs(Config, frozen=True):
     """Ground-station access (docs/gcs.md): each agent's MAVLink router and the override limits."""
 
-    mavlink: bool = False  # route every UAV's FCU to ground stations
+    mavlink: bool = True  # route every UAV's FCU to ground stations (QGC on this machine sees every UAV)
     host: Annotated[str, Meta(min_length=1, max_length=253)] = "127.0.0.1"  # where the ground station (QGC) listens
     port: Port | None = 14550  # UAVs of shard k (ids 240k+1..240k+240) send to port + k
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
@@ -212,6 +212,9 @@ class Gcs(Config, frozen=True):
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
     # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
     signing: MavlinkSigning | None = None
+    # the run also ends once every UAV is on the ground, however it got there (a ground station's land --all, a
+    # takeover); by default only the duration or the mission's own end (every UAV done, or landed by its mission) end it
+    landing_ends_run: bool = False
 
     def __post_init__(self) -> None:
         if self.signing is not None and not self.mavlink:

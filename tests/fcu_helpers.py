@@ -33,16 +33,25 @@ def px4_main_sub(custom_mode: int) -> tuple[int, int]:
 
 
 class FcuThread:
-    """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``."""
+    """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``.
 
-    def __init__(self, config: FcuConfig):
+    It enters once every vehicle has its first GPS fix (SIM_GPS_FIX_T of sim time after boot), as
+    a ground station waits for the vehicle's health; ``ready=False`` enters at boot instead.
+    """
+
+    def __init__(self, config: FcuConfig, ready: bool = True):
         self.fcu = VirtualFcu(config)
         self.addrs = self.fcu.open()
+        self.ready = ready
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self.fcu.run, kwargs={"stop": self._stop}, daemon=True)
 
     def __enter__(self) -> FcuThread:
         self._thread.start()
+        if self.ready:
+            deadline = time.monotonic() + 10.0
+            while not all(v.gps_ok for v in self.fcu.vehicles) and time.monotonic() < deadline:
+                time.sleep(0.02)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -202,3 +211,21 @@ class MavClient:
         if index >= 0:
             return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_index == index)
         return self.recv_match("PARAM_VALUE", timeout, lambda m: m.param_id == name)
+
+    def upload_mission(self, items: list[tuple[int, int, float, float, float, tuple[float, ...]]], timeout: float = 3.0,
+                       mission_type: int = 0) -> int | None:  # fmt: skip
+        """The mission protocol's upload: items (frame, command, lat deg, lon deg, alt m, params 1-4);
+        returns the MISSION_ACK result (None: no answer)."""
+        self.send(self.mav.mission_count_encode(self.target_sysid, 1, len(items), mission_type))
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = self.recv_match(("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"), deadline - time.monotonic())
+            if m is None:
+                return None
+            if m.get_type() == "MISSION_ACK":
+                return m.type
+            frame, cmd, lat, lon, alt, params = items[m.seq]
+            p = [float(x) for x in params] + [0.0] * (4 - len(params))
+            self.send(self.mav.mission_item_int_encode(self.target_sysid, 1, m.seq, frame, cmd, int(m.seq == 0), 1, *p,
+                                                       round(lat * 1e7), round(lon * 1e7), alt, mission_type))  # fmt: skip
+        return None

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from uav_stack.autopilot import ARDUPILOT_PROFILE, PX4_PROFILE, profile_for
+from uav_stack.autopilot import ARDUPILOT_PROFILE, PX4_PROFILE, mode_name, profile_for
 from uav_stack.fcu.modes import FLAVOURS, px4_custom_mode
 from uav_stack.mav import mavlink as M
 
@@ -45,3 +45,17 @@ def test_takeoff_altitude_is_amsl_for_px4_and_relative_for_ardupilot() -> None:
     assert ARDUPILOT_PROFILE.takeoff_params(510.0, 10.0)[6] == 10.0
     assert ARDUPILOT_PROFILE.takeoff_mode == ARDUPILOT_PROFILE.offboard_mode == "GUIDED"
     assert PX4_PROFILE.takeoff_mode is None
+
+
+def test_mode_names_are_the_autopilots_own_px4_hold_is_hold() -> None:
+    px4, apm = FLAVOURS["px4"], FLAVOURS["ardupilot"]
+    mav = M.MAVLink(None, 1, 1)
+    for spec in px4.modes:  # every mode the virtual FCU announces reads back under the FCU's own name
+        hb = mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, 1, spec.custom_mode, 3)
+        assert mode_name(hb) == spec.name
+    hold = mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, 1, px4_custom_mode(4, 3), 3)
+    assert mode_name(hold) == "HOLD"  # pymavlink says LOITER; PX4, QGC and MAVSDK say Hold
+    for spec in apm.modes:
+        hb = mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, spec.custom_mode, 3)
+        assert mode_name(hb) == spec.name
+    assert PX4_PROFILE.set_mode_params("HOLD") == PX4_PROFILE.set_mode_params("LOITER") == (1.0, 4.0, 3.0)

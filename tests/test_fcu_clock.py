@@ -69,7 +69,7 @@ def _cfg(**kw) -> FcuConfig:
 
 
 def test_target_rtf_half_is_measured_and_published() -> None:
-    with FcuThread(_cfg(target_rtf=0.5)) as ft, MavClient(ft.addrs[0]) as c:
+    with FcuThread(_cfg(target_rtf=0.5), ready=False) as ft, MavClient(ft.addrs[0]) as c:  # timed from boot
         c.heartbeat()
         t0 = time.monotonic()
         rtf_msgs = []
@@ -110,7 +110,8 @@ def test_starved_loop_slows_the_sim_instead_of_jumping() -> None:
 def test_fcu_timers_run_on_sim_time() -> None:
     """Preflight auto-disarm after COM_DISARM_PRFLT of *sim* time, with an injected wall clock."""
     wall = [1000.0]
-    fcu = VirtualFcu(_cfg(target_rtf=0.5, params={"COM_DISARM_PRFLT": 1.0}), clock=lambda: wall[0])
+    # armable at once (no GPS boot time): the test times the preflight disarm from boot
+    fcu = VirtualFcu(_cfg(target_rtf=0.5, params={"COM_DISARM_PRFLT": 1.0, "SIM_GPS_FIX_T": 0.0}), clock=lambda: wall[0])
     (addr,) = fcu.open()
     try:
         with MavClient(addr) as c:

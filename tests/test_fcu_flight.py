@@ -183,7 +183,11 @@ def test_offboard_strict_stream_rule_when_configured(px4) -> None:
 
 def test_set_mode_message_qgc_style(px4) -> None:
     ft, c = px4
-    for main, sub, name in ((3, 0, "POSCTL"), (4, 4, "MISSION"), (4, 3, "HOLD")):
+    # PX4 refuses MISSION without a mission (an empty plan is no mission), and says why
+    c.send(c.mav.set_mode_encode(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, px4_custom_mode(4, 4)))
+    assert c.wait(lambda: any("no mission" in t for t in c.statustexts), 1.5)
+    assert ft.fcu.truth().mode == "HOLD"
+    for main, sub, name in ((3, 0, "POSCTL"), (4, 3, "HOLD")):
         want = px4_custom_mode(main, sub)
         c.send(c.mav.set_mode_encode(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, want))
         hb = c.recv_match("HEARTBEAT", 1.5, lambda m, cm=want: m.custom_mode == cm)

@@ -81,7 +81,7 @@ def fly_takeoff(link: FcuLink, alt: float = 3.0, timeout: float = 20.0) -> None:
         return False
 
     assert pump(lambda: link.connected and link.state.has_position), "no heartbeat/position from the FCU"
-    assert link.state.profile is PX4_PROFILE and link.state.mode == "LOITER"
+    assert link.state.profile is PX4_PROFILE and link.state.mode == "HOLD"  # PX4 AUTO.LOITER, named as PX4 names it
     h = link.arm()
     assert pump(lambda: h.done) and h.accepted, h.status
     assert pump(lambda: link.state.armed)

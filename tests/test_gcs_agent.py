@@ -175,7 +175,7 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
                         3, 0.2)
         st = _state(obs, 1)
         # whichever the agent noticed first: the command passing its router, or the FCU's new mode
-        assert st.override in ("gcs:SET_MODE", "fcu:LOITER") and "setpoints stopped" in st.detail
+        assert st.override in ("gcs:SET_MODE", "fcu:HOLD") and "setpoints stopped" in st.detail
         time.sleep(1.5)
         tx = _tx_setpoints(tmp_path, 1)
         time.sleep(2.2)
@@ -184,7 +184,7 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
         assert not ok and "send resume to take control back" in msg
         # resume takes control back: OFFBOARD again, then the mission
         ok, msg = _cmd(obs, 1, "resume")
-        assert ok and "taking control back from LOITER" in msg
+        assert ok and "taking control back from HOLD" in msg
         assert wait_for(lambda: _phase_is(obs, 1, "mission"), 15, 0.1), _state(obs, 1)
         assert obs.uavs[1].telemetry is not None
         assert wait_for(lambda: (obs.poll(), obs.uavs[1].telemetry.mode == "OFFBOARD")[1], 5, 0.1)

@@ -59,6 +59,13 @@ def test_goto_args_and_kill_confirmation() -> None:
     assert goto_args([1.0, -2.0, 10.0]) == {"x": 1.0, "y": -2.0, "z": 10.0}
     with pytest.raises(GcsError):
         goto_args([1.0, math.nan, 10.0])
+    assert goto_args([], "47.3977,8.5456,503") == {"lat": 47.3977, "lon": 8.5456, "alt": 503.0}  # degrees, m AMSL
+    assert goto_args([], "-33.86,151.21,20")["lat"] == -33.86
+    for bad in ("47.3,8.5", "47.3,8.5,x", "95,8.5,500", "47.3,200,500", "nan,8.5,500"):
+        with pytest.raises(GcsError, match="--geo"):
+            goto_args([], bad)
+    with pytest.raises(GcsError, match="X Y Z"):
+        goto_args([1.0, 2.0])
     assert confirm_kill([1], yes=True)
     with pytest.raises(GcsError, match="--yes"):
         confirm_kill([1], yes=False, stdin=io.StringIO("kill\n"))  # not a terminal
@@ -124,6 +131,10 @@ def test_where_is_the_swarm(tmp_path: Path) -> None:
     (["goto", "1", "nan", "3", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "not a finite number"),
     (["watch", "--filter", "colour=red", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "--filter"),
     (["watch", "--refresh", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "at least 2"),
+    (["watch", "--filter", "phase=nosuch", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "unknown phase"),
+    (["goto", "--geo", "47.1,8.5", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "LAT,LON,ALT"),
+    (["goto", "1", "2", "3", "--geo", "47.1,8.5,500", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"],
+     "not both"),
     (["hold", "--uav", "1", "--connect", "tcp/127.0.0.1:1", "--swarm", "a"], "cannot reach the swarm"),
     (["plot", "/nonexistent/rec.jsonl"], "No such file"),
     (["nodes", "--connect", "tcp/127.0.0.1:1", "--swarm", "a", "--discovery", "127.0.0.1:7450"], "go together"),
@@ -148,7 +159,12 @@ def test_scenario_gcs_section(tmp_path: Path) -> None:
     assert {c.agent.mavlink_sysid for c in cfgs} == {239, 240, 1, 2}
     assert all(c.flavour == "ardupilot" for c in cfgs)
     assert cfgs[0].agent.gcs.geofence == (-30.0, 30.0, -20.0, 20.0)  # the mission area
-    assert load_scenario(mini).virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ()  # off by default
+    # on by default, to a ground station on this machine (QGroundControl's UDP 14550); off on request
+    default = load_scenario(mini)
+    assert default.virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ("udpout:127.0.0.1:14550",)
+    assert not default.gcs.landing_ends_run  # a ground station landing everyone does not end the run
+    off = load_scenario(mini, ["gcs.mavlink=false"])
+    assert off.virtual_uav_configs(NetworkConfig(), None)[0].agent.gcs.mavlink_endpoints == ()
     with pytest.raises(ScenarioError, match="listen_base"):
         load_scenario(mini, ["gcs.mavlink=true", "gcs.listen_base=65534"])
     with pytest.raises(ScenarioError, match="flavour"):
@@ -180,3 +196,78 @@ def test_a_phase_filter_takes_the_agents_phase_names_only() -> None:
     assert Filter.parse(["phase=Landed"]).phase == "landed"
     with pytest.raises(GcsError, match=r"unknown phase .*mission"):  # a typo gets the list of names
         Filter.parse(["phase=misson"])
+
+
+def test_telemetry_lines_do_not_wrap_in_a_pipe() -> None:
+    from rich.console import Console
+
+    from mrswarm.gcs.cli import _print_telemetry
+
+    buf = io.StringIO()
+    console = Console(file=buf)  # not a terminal: rich would wrap at 80 columns
+    rec = {"uav": 12, "phase": "yielded", "override": "gcs:DO_REPOSITION", "mode": "OFFBOARD", "armed": True, "x": -123.4,
+           "y": 456.7, "z": 15.0, "speed": 4.9, "battery": 0.87, "rtf": 0.98, "pose_age_ms": 12.0}
+    for _ in range(3):
+        _print_telemetry(rec, False, console)
+    lines = buf.getvalue().splitlines()
+    assert len(lines) == 3 and all(len(line) > 80 for line in lines), lines
+    assert lines[0].startswith("uav 12 phase=yielded") and lines[0].endswith("pose_age_ms=12")
+
+
+def test_nodes_are_listed_in_full_without_a_terminal() -> None:
+    from rich.console import Console
+
+    from mrswarm.gcs.cli import nodes_table, print_table
+    from mrswarm.gcs.directory import NodeInfo
+
+    address = "tcp/127.0.0.1:41234,tcp/10.0.0.5:41234,tcp/[fe80::1]:41234,tcp/192.168.100.200:41234"
+    nodes = [NodeInfo(1, "uav", "virtual", "mrswarm/0.1.0", address, last_seen=100.0),
+             NodeInfo(2, "uav", "physical", "mrswarm/0.1.0", "tcp/10.0.0.2:7447", last_seen=99.0)]
+    buf = io.StringIO()
+    console = Console(file=buf)  # a pipe: rich assumes 80 columns
+    print_table(console, nodes_table("alpha", nodes, 101.0))
+    out = buf.getvalue()
+    assert address in out and "…" not in out, out  # the IPv6 [..] is text, not markup
+    assert "mrswarm/0.1.0" in out and "1.0 s ago" in out
+    assert console.width == 80  # the console is left as it was
+
+
+def test_recording_plot_says_which_colour_is_which_uav(tmp_path: Path) -> None:
+    from mrswarm.gcs.record import draw_recording
+
+    path = tmp_path / "rec.jsonl"
+    rec = Recorder(path, clock=lambda: 1000.0)
+    for i in range(10):
+        for u in (3, 1, 2):
+            rec("pose", Pose(u, Realm.VIRTUAL, i, i * 0.1, 1000.0 + i, float(i), float(u * 5), 10.0, 1.0, 0.0, 0.0, 0.0))
+    rec.close()
+    fig, info = draw_recording(path)
+    ax = fig.axes[0]
+    legend = ax.get_legend()
+    assert legend is not None and [t.get_text() for t in legend.get_texts()] == ["UAV 1", "UAV 2", "UAV 3"]
+    colours = {line.get_label(): line.get_color() for line in ax.get_lines() if line.get_label().startswith("UAV")}
+    assert len(set(colours.values())) == 3  # one colour each
+    assert sorted(t.get_text() for t in ax.texts) == ["1", "2", "3"]  # and each track ends in its id
+
+
+def test_record_exits_130_on_ctrl_c_with_everything_written(tmp_path: Path, router: str) -> None:
+    import signal
+    import time
+
+    out = tmp_path / "rec.jsonl"
+    proc = subprocess.Popen([sys.executable, "-m", "mrswarm", "gcs", "record", str(out), "--connect", router, "--swarm", "ctrlc"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.1)
+        assert out.exists(), proc.stderr.read() if proc.poll() is not None else "no recording file"  # type: ignore[union-attr]
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)  # what Ctrl-C sends
+        stdout, stderr = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 130, stdout + stderr
+    assert "recorded" in stdout and "Traceback" not in stderr

@@ -1,7 +1,9 @@
-"""MAVProxy, a real ground station, takes one UAV of a running swarm mission to RTL through its agent's router."""
+"""MAVProxy, a real ground station: takes one UAV of a running swarm mission to RTL through its agent's router;
+flies a QGC WPL mission file in AUTO and climbs a UAV with `rc 3 1700` in LOITER (ArduPilot flavour)."""
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import signal
@@ -14,8 +16,11 @@ from pathlib import Path
 import pytest
 
 from mrswarm.gcs.session import open_observer, resolve_target
+from swarmnet.connectivity import Rendezvous
+from swarmnet.observer import SwarmObserver
 from tests.conftest import free_port, wait_for
-from tests.gcs_helpers import ROOT, gcs, run_dir, start_run, stop_run
+from tests.fcu_helpers import DatagramParser
+from tests.gcs_helpers import HOME, ROOT, gcs, run_dir, start_run, start_virtual_uav, stop_process, stop_run
 
 pytestmark = pytest.mark.e2e
 SCENARIO = ROOT / "tests" / "scenarios" / "gcs_mavproxy.yaml"
@@ -119,3 +124,130 @@ def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp
                 pass
             mp.wait(10)
         stop_run(run)
+
+
+def _wpl(path: Path, home: tuple[float, float, float], legs: list[tuple[float, float]], alt: float) -> list[tuple[float, float]]:
+    """A QGC WPL 110 file as MAVProxy and Mission Planner write it: home, takeoff, waypoints (north/east m).
+    Returns the waypoints' lat/lon."""
+    lat0, lon0, alt0 = home
+    lines = ["QGC WPL 110", f"0\t1\t0\t16\t0\t0\t0\t0\t{lat0:.8f}\t{lon0:.8f}\t{alt0:.6f}\t1",
+             f"1\t0\t3\t22\t0\t0\t0\t0\t0\t0\t{alt:.6f}\t1"]
+    points = []
+    for k, (n, e) in enumerate(legs, start=2):
+        lat, lon = lat0 + n / 111_320.0, lon0 + e / (111_320.0 * math.cos(math.radians(lat0)))
+        points.append((lat, lon))
+        lines.append(f"{k}\t0\t3\t16\t0\t0\t0\t0\t{lat:.8f}\t{lon:.8f}\t{alt:.6f}\t1")
+    path.write_text("\n".join(lines) + "\n")
+    return points
+
+
+class _Listener:
+    """A ground station that only listens (the router's udpout endpoint): every message, in order."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.2)
+        self.parser = DatagramParser()
+        self.msgs: list = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                data, _ = self.sock.recvfrom(65535)
+            except OSError:
+                continue
+            self.msgs.extend(self.parser.parse(data)[0])
+
+    def latest(self, mtype: str):  # noqa: ANN201
+        """The vehicle's latest message of a type (MAVProxy's own heartbeat comes through the router too)."""
+        return next((m for m in reversed(self.msgs) if m.get_type() == mtype and m.get_srcComponent() == 1), None)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        self.sock.close()
+
+
+def test_mavproxy_flies_a_wpl_file_in_auto_and_climbs_with_rc_override_in_loiter(tmp_path: Path, router: str) -> None:
+    assert MAVPROXY is not None, "mavproxy.py not found: MAVProxy is in the test extra (pip install -e '.[test]')"
+    port, watch_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
+    legs = [(15.0, 0.0), (15.0, 15.0), (0.0, 15.0), (0.0, 0.0)]
+    points = _wpl(tmp_path / "survey.waypoints", (HOME.lat, HOME.lon, HOME.alt), legs, 8.0)
+    watch = _Listener(watch_port)
+    obs = SwarmObserver("gcs", Rendezvous((router,), mode="client"), role="gcs", name="test").open()
+    proc = start_virtual_uav(tmp_path, router, uav=3, flavour="ardupilot",
+                             endpoints=(f"udpin:127.0.0.1:{port}", f"udpout:127.0.0.1:{watch_port}"))
+    mp: subprocess.Popen[str] | None = None
+    try:
+        mp = subprocess.Popen([MAVPROXY, f"--master=udpout:127.0.0.1:{port}", "--no-state", "--cmd=set requireexit 0"],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              cwd=tmp_path, start_new_session=True)
+        out: list[str] = []
+        threading.Thread(target=lambda: out.extend(iter(mp.stdout.readline, "")), daemon=True).start()  # type: ignore[union-attr]
+
+        def say(line: str) -> None:
+            assert mp is not None and mp.stdin is not None
+            mp.stdin.write(line + "\n")
+            mp.stdin.flush()
+
+        assert wait_for(lambda: any("Detected vehicle 3:1" in line for line in out), 60, 0.2), "".join(out)[-2000:]
+        assert wait_for(lambda: any("Received" in line and "parameters" in line for line in out), 30, 0.2), "".join(out)[-2000:]
+        # the FCU is ready (its first fix) and the agent reports ready
+        assert wait_for(lambda: _phase_is(obs, 3, "ready"), 30, 0.2)
+        say(f"wp load {tmp_path / 'survey.waypoints'}")
+        assert wait_for(lambda: any("Loaded 6 waypoints in" in line for line in out), 20, 0.2), "".join(out)[-2000:]
+        say("mode GUIDED")
+        assert wait_for(lambda: any("GUIDED" in line for line in out[-20:]), 10, 0.2)
+        say("arm throttle")
+        assert wait_for(lambda: (hb := watch.latest("HEARTBEAT")) is not None and hb.base_mode & 128, 15, 0.2), "not armed"
+        since = len(watch.msgs)
+        say("mode AUTO")
+        reached = lambda: [m.seq for m in watch.msgs[since:] if m.get_type() == "MISSION_ITEM_REACHED"]  # noqa: E731
+        assert wait_for(lambda: reached() == [1, 2, 3, 4, 5], 90, 0.2), (reached(), "".join(out)[-1500:])
+        # every waypoint flown to within WPNAV_RADIUS (2 m), the home slot (item 0) never
+        for k, (lat, lon) in enumerate(points, start=2):
+            k_lon = 111_320.0 * math.cos(math.radians(lat))
+            near = min(math.hypot((m.lat * 1e-7 - lat) * 111_320.0, (m.lon * 1e-7 - lon) * k_lon)
+                       for m in watch.msgs[since:] if m.get_type() == "GLOBAL_POSITION_INT")
+            assert near < 2.0, (k, near)
+        st = _state(obs, 3)  # the agent saw someone else fly its UAV, and says so
+        assert st is not None and st.phase == "yielded" and st.override in ("fcu:AUTO", "gcs:DO_SET_MODE"), st
+        # LOITER, then "rc 3 1700": above the throttle dead zone, it climbs
+        say("mode LOITER")
+        assert wait_for(lambda: (hb := watch.latest("HEARTBEAT")) is not None and hb.custom_mode == 5, 10, 0.2)
+        time.sleep(1.0)
+        alt0 = watch.latest("GLOBAL_POSITION_INT").relative_alt / 1000.0
+        say("rc 3 1700")
+        assert wait_for(lambda: watch.latest("GLOBAL_POSITION_INT").relative_alt / 1000.0 > alt0 + 2.0, 8, 0.1), \
+            (alt0, watch.latest("GLOBAL_POSITION_INT").relative_alt)
+        say("rc 3 1500")
+        time.sleep(1.5)
+        held = watch.latest("GLOBAL_POSITION_INT").relative_alt / 1000.0
+        time.sleep(1.0)
+        assert abs(watch.latest("GLOBAL_POSITION_INT").relative_alt / 1000.0 - held) < 0.3  # mid stick holds
+        assert watch.latest("HEARTBEAT").custom_mode == 5
+    finally:
+        if mp is not None and mp.poll() is None:
+            try:
+                os.killpg(mp.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            mp.wait(10)
+        watch.close()
+        obs.close()
+        stop_process(proc)
+
+
+def _state(obs: SwarmObserver, uav: int):  # noqa: ANN202
+    obs.poll()
+    v = obs.uavs.get(uav)
+    return v.state if v is not None else None
+
+
+def _phase_is(obs: SwarmObserver, uav: int, phase: str) -> bool:
+    st = _state(obs, uav)
+    return st is not None and st.phase == phase

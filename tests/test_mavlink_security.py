@@ -334,6 +334,6 @@ def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
     s = parse_scenario({**base, "gcs": {"mavlink": True, "listen_base": 24600, "signing": {"key_file": "/k"}}})
     assert {c.agent.gcs.signing for c in s.virtual_uav_configs(NetworkConfig(), None)} == {MavlinkSigning(key_file="/k")}
     with pytest.raises(ScenarioError, match=r"gcs\.signing: .*gcs\.mavlink: true"):
-        parse_scenario({**base, "gcs": {"signing": {"key_file": "/k"}}})
+        parse_scenario({**base, "gcs": {"mavlink": False, "signing": {"key_file": "/k"}}})  # routers are on by default
     with pytest.raises(ScenarioError, match=r"gcs\.signing\.requir: unknown field"):
         parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "requir": False}}})

@@ -128,6 +128,7 @@ class Agent(OverridesMixin):
         self.fence = g.geofence if g.geofence is not None else (cfg.mission.area if cfg.mission.type == "coverage" else None)
         self._deferred: list[_DeferredAck] = []
         self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
+        self._yielded_from: AgentPhase | None = None  # the phase a takeover interrupted (ready: lands back in ready)
         self._mode_at_phase = ""
         self.failsafes = Failsafes(cfg.failsafe)  # uav_stack/failsafe.py
         # set by a virtual UAV process: applies injected faults to its virtual FCU (uav_stack/sim_faults.py);
@@ -278,7 +279,7 @@ class Agent(OverridesMixin):
             elif self.phase == AgentPhase.HOVER and self.go:
                 msg = "mission starting"
             else:
-                msg = f"already {self.phase}"
+                ok, msg = self._relaunch(verb)  # landed (or killed) on the ground: fly again
         elif verb in ("land", "stop"):
             if (self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED)
                     and not self.link.state.armed):
@@ -297,8 +298,8 @@ class Agent(OverridesMixin):
             self.counters["rejected_commands"] += 1
         self.node.ack(cmd.cmd_id, ok, msg)
 
-    def _begin_flight(self) -> None:
-        self._set_phase(AgentPhase.ARMING)
+    def _begin_flight(self, detail: str = "") -> None:
+        self._set_phase(AgentPhase.ARMING, detail)
         self._handle = None
 
     def _land(self) -> None:
@@ -319,6 +320,9 @@ class Agent(OverridesMixin):
                 if self.go or self.started_at is not None:
                     self._begin_flight()
             return
+        if ph in (AgentPhase.READY, AgentPhase.LANDED) and (why := self._flown_by_someone_else()) is not None:
+            self._yield(why)  # a ground station flies a UAV the swarm is not flying: show it
+            return
         if not link.connected and ph not in (AgentPhase.READY, AgentPhase.LANDED, AgentPhase.ERROR):
             self.detail = "FCU link lost"
         if ph in (AgentPhase.TAKEOFF, AgentPhase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
@@ -328,6 +332,8 @@ class Agent(OverridesMixin):
         if ph == AgentPhase.ARMING:
             # some autopilots take off only in one mode (ArduPilot: GUIDED): switch to it first
             need_mode = st.profile.takeoff_mode if st.profile.takeoff_mode not in (None, st.mode) else None
+            if need_mode is None and not st.armed and st.mode in st.profile.leave_before_arming:
+                need_mode = st.profile.arming_mode  # e.g. relaunched where a PX4 RTL left it
             if st.armed and need_mode is None:
                 self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
                 self._set_phase(AgentPhase.TAKEOFF)
@@ -368,7 +374,7 @@ class Agent(OverridesMixin):
             self._fly(now)
         elif ph in (AgentPhase.YIELDED, AgentPhase.RTL):
             if not st.armed and st.relative_alt < 1.0:
-                self._set_phase(AgentPhase.LANDED, "landed under FCU control")
+                self._landed_after_takeover()
         elif ph == AgentPhase.LANDING:
             if not st.armed and st.relative_alt < 1.0:
                 self._set_phase(AgentPhase.LANDED)

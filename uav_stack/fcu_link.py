@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, profile_for
+from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, mode_name, profile_for
 from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
 from uav_stack.mav import mavlink, mavutil
 from uav_stack.rtf import RtfMeter
@@ -279,7 +279,7 @@ class FcuLink:
             st.base_mode = msg.base_mode
             st.custom_mode = msg.custom_mode
             st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            st.mode = mavutil.mode_string_v10(msg)
+            st.mode = mode_name(msg)
         elif mtype == "GLOBAL_POSITION_INT":
             st.lat, st.lon = msg.lat * 1e-7, msg.lon * 1e-7
             st.alt, st.relative_alt = msg.alt * 1e-3, msg.relative_alt * 1e-3
@@ -372,7 +372,7 @@ class FcuLink:
         return self.command(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
 
     def set_mode(self, name: str) -> CommandHandle:
-        """Mode by name in the autopilot's own terms (PX4: OFFBOARD, LOITER, ...; ArduPilot:
+        """Mode by name in the autopilot's own terms (PX4: OFFBOARD, HOLD, ...; ArduPilot:
         GUIDED, ...); ValueError for a name the autopilot does not have."""
         return self.command(mavlink.MAV_CMD_DO_SET_MODE, *self.state.profile.set_mode_params(name))
 

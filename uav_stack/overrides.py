@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from uav_stack.agent import Own
     from uav_stack.config import AgentConfig, Rect
     from uav_stack.fcu_link import FcuLink
+    from uav_stack.geo import LocalFrame
 
 log = logging.getLogger(__name__)
 
@@ -75,9 +76,13 @@ class OverridesMixin:
     _deferred: list[_DeferredAck]
     _gcs_takeover: str | None
     _mode_at_phase: str
+    _yielded_from: AgentPhase | None
+    frame: LocalFrame  # the swarm frame: ENU metres from the origin
+    go: bool  # fly the mission once airborne
 
     if TYPE_CHECKING:
         def _set_phase(self, phase: AgentPhase, detail: str = "") -> None: ...  # Agent's
+        def _begin_flight(self, detail: str = "") -> None: ...  # Agent's
 
     def _airborne(self) -> bool:
         st = self.link.state
@@ -104,8 +109,11 @@ class OverridesMixin:
 
     def _cmd_goto(self, args: dict[str, Any], now: float) -> tuple[bool, str]:
         try:
-            x, y = _number(args, "x"), _number(args, "y")
-            z = _number(args, "z") if args.get("z") is not None else self.alt_target
+            if isinstance(args, dict) and "lat" in args:  # geodetic: degrees, metres AMSL
+                x, y, z = self._geo_to_swarm(_number(args, "lat"), _number(args, "lon"), _number(args, "alt"))
+            else:
+                x, y = _number(args, "x"), _number(args, "y")
+                z = _number(args, "z") if args.get("z") is not None else self.alt_target
         except ValueError as exc:
             return False, f"goto: {exc}"
         g = self.cfg.gcs
@@ -148,6 +156,8 @@ class OverridesMixin:
             return True, "pending hold cancelled"
         if ph in (AgentPhase.HOVER, AgentPhase.MISSION, AgentPhase.DONE):
             return True, f"nothing to resume ({ph})"
+        if ph in (AgentPhase.LANDED, AgentPhase.KILLED):
+            return False, f"cannot resume in phase {ph}: on the ground; start relaunches it into the mission (takeoff: to hover)"
         return False, f"cannot resume in phase {ph}"
 
     def _cmd_rtl(self, args: dict[str, Any], now: float) -> tuple[bool, str] | _DeferredAck:
@@ -232,7 +242,46 @@ class OverridesMixin:
             return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"
         return None
 
+    def _geo_to_swarm(self, lat: float, lon: float, alt: float) -> tuple[float, float, float]:
+        """A geodetic point (deg, deg, m AMSL) in the swarm frame (m east, north, up from the origin)."""
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            raise ValueError(f"latitude/longitude {lat:g},{lon:g} out of range")
+        return self.frame.to_enu(lat, lon, alt)
+
+    def _relaunch(self, verb: str) -> tuple[bool, str]:
+        """``takeoff``/``start`` for a UAV on the ground after landing: fly again, from its mission's state."""
+        ph = self.phase
+        if ph == AgentPhase.YIELDED:
+            return False, f"yielded: the FCU is in {self.link.state.mode} (someone took over); send resume to take control back"
+        if ph not in (AgentPhase.LANDED, AgentPhase.KILLED):
+            return True, f"already {ph}"
+        if self._airborne():
+            return False, f"{verb}: still in the air ({self.link.state.mode}); wait until it has landed"
+        self.go = verb == "start"  # takeoff: climb and hover; start: back into the mission
+        self.override = ""
+        self._begin_flight(f"relaunched ({verb})")
+        return True, "taking off again" + (", then back to the mission" if self.go else "")
+
+    def _flown_by_someone_else(self) -> tuple[str, str] | None:
+        """(override, detail) when the UAV is in the air although the swarm is not flying it."""
+        if not self._airborne():
+            return None
+        if self._gcs_takeover is not None:
+            return f"gcs:{self._gcs_takeover}", f"a ground station sent {self._gcs_takeover}"
+        mode = self.link.state.mode
+        return f"fcu:{mode}", f"flying in {mode} under another controller"
+
+    def _landed_after_takeover(self) -> None:
+        """A yielded UAV is back on the ground: ready again if the swarm never flew it, else landed."""
+        if self.phase == AgentPhase.YIELDED and self._yielded_from in (AgentPhase.INIT, AgentPhase.READY):
+            self.override = ""
+            self._set_phase(AgentPhase.READY, "landed under FCU control")
+        else:
+            self._set_phase(AgentPhase.LANDED, "landed under FCU control")
+        self._yielded_from = None
+
     def _yield(self, why: tuple[str, str]) -> None:
+        self._yielded_from = self.phase
         self.override = why[0][:32]
         self._set_phase(AgentPhase.YIELDED, f"{why[1]}; setpoints stopped")
 

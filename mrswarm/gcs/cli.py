@@ -13,7 +13,7 @@ from typing import Any
 
 from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -66,11 +66,13 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="with --follow: stop after this many seconds")
 
     helps = {
+        "takeoff": "take off and hover (also relaunches a landed UAV)",
+        "start": "start the mission, taking off first if on the ground (relaunches a landed UAV into it)",
         "hold": "suspend the swarm behaviour and hold position (until resume)",
         "resume": "give control back to the swarm behaviour (also after a human took over)",
         "land": "land where they are",
         "rtl": "return to launch and land",
-        "goto": "fly to X Y Z (m east, north, up from the swarm origin) and hold there",
+        "goto": "fly to X Y Z (m east, north, up from the swarm origin), or --geo LAT,LON,ALT, and hold there",
         "arm": "arm the motors (on the ground)",
         "disarm": "disarm (on the ground)",
         "kill": "EMERGENCY: stop the motors now, also in flight (asks for confirmation)",
@@ -80,7 +82,9 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
         _common(p)
         _targets(p)
         if verb == "goto":
-            p.add_argument("xyz", nargs=3, type=float, metavar="X/Y/Z")
+            p.add_argument("xyz", nargs="*", type=float, metavar="X Y Z", help="m east, north, up from the swarm origin")
+            p.add_argument("--geo", metavar="LAT,LON,ALT",
+                           help="a geodetic target instead: degrees, degrees, m above sea level (negative: --geo=-33.9,...)")
         if verb == "kill":
             p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
 
@@ -123,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         err.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def _dispatch(args: argparse.Namespace, console: Any) -> int:
@@ -146,7 +150,7 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
     if args.sub == "goto":
         from mrswarm.gcs.commands import goto_args
 
-        goto_args(args.xyz)
+        goto_args(args.xyz, args.geo)
     target = resolve_target(args.run, args.connect, args.swarm, args.keys, args.identity)
     if args.sub == "nodes" and (args.discovery or args.discovery_key_file):
         target = _with_registry(target, args.discovery, args.discovery_key_file)
@@ -175,9 +179,9 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         if args.sub == "record":
             from mrswarm.gcs.record import run_record
 
-            counts = run_record(obs, args.file, duration=args.duration, quiet=args.quiet)
+            counts, interrupted = run_record(obs, args.file, duration=args.duration, quiet=args.quiet)
             console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
-            return EXIT_OK
+            return EXIT_INTERRUPTED if interrupted else EXIT_OK
         return _command(obs, args, ids, console)
     finally:
         obs.close()
@@ -244,8 +248,6 @@ def _with_registry(target: Any, server: str | None, key_file: str | None) -> Any
 
 
 def _nodes(obs: Any, args: argparse.Namespace, console: Any, target: Any = None) -> int:
-    from rich.table import Table
-
     from mrswarm.gcs.directory import LivelinessDirectory
     from mrswarm.gcs.session import wait_alive
 
@@ -272,14 +274,37 @@ def _nodes(obs: Any, args: argparse.Namespace, console: Any, target: Any = None)
             d["last_seen"] = None if math.isnan(n.last_seen) else n.last_seen
             sys.stdout.write(json.dumps(d) + "\n")
         return EXIT_OK
-    t = Table(title=f"swarm {obs.keys.swarm}: {sum(n.role == 'uav' and n.alive for n in nodes)} UAVs alive", title_justify="left")
+    print_table(console, nodes_table(obs.keys.swarm, nodes, now))
+    return EXIT_OK
+
+
+def nodes_table(swarm: str, nodes: list[Any], now: float) -> Any:
+    """The node list as a table; addresses and versions are plain text (an IPv6 ``[...]`` is not markup)."""
+    from rich.table import Table
+    from rich.text import Text
+
+    t = Table(title=f"swarm {swarm}: {sum(n.role == 'uav' and n.alive for n in nodes)} UAVs alive", title_justify="left")
     for c in ("id", "role", "realm", "version", "address", "last seen", "alive"):
         t.add_column(c)
     for n in nodes:
         seen = "-" if math.isnan(n.last_seen) else f"{max(0.0, now - n.last_seen):.1f} s ago"
-        t.add_row(str(n.id), n.role, n.realm, n.version, n.address, seen, "yes" if n.alive else "[red]no[/]")
-    console.print(t)
-    return EXIT_OK
+        t.add_row(str(n.id), n.role, n.realm, Text(n.version), Text(n.address), seen, "yes" if n.alive else "[red]no[/]")
+    return t
+
+
+def print_table(console: Any, table: Any) -> None:
+    """A table in full: in a pipe or a file (no terminal to fit) no column is cut to the 80 columns rich assumes."""
+    if console.is_terminal:
+        console.print(table)
+        return
+    from rich.measure import Measurement
+
+    width = console.width
+    console.width = max(width, Measurement.get(console, console.options.update(width=100_000), table).maximum)
+    try:
+        console.print(table)
+    finally:
+        console.width = width
 
 
 def telemetry_record(obs: Any, uav: int, now: float) -> dict[str, Any] | None:
@@ -349,7 +374,7 @@ def _print_telemetry(rec: dict[str, Any], as_json: bool, console: Any) -> None:
                    ("z", "{:.1f}"), ("speed", "{:.1f}"), ("battery", "{:.0%}"), ("rtf", "{:.2f}"), ("pose_age_ms", "{:.0f}")):
         if rec.get(k) not in (None, ""):
             parts.append(f"{k}={fmt.format(rec[k])}")
-    console.print(" ".join(parts), highlight=False)
+    console.print(" ".join(parts), highlight=False, soft_wrap=True)  # one line per update, also in a pipe
 
 
 def _command(obs: Any, args: argparse.Namespace, ids: list[int] | None, console: Any) -> int:
@@ -357,7 +382,7 @@ def _command(obs: Any, args: argparse.Namespace, ids: list[int] | None, console:
 
     verb = args.sub
     targets, _ = resolve_targets(obs, ids, wait=2.0 if ids is None else 3.0)
-    cmd_args = goto_args(args.xyz) if verb == "goto" else None
+    cmd_args = goto_args(args.xyz, args.geo) if verb == "goto" else None
     if verb == "kill" and not confirm_kill(targets, args.yes, console=console):
         console.print("not confirmed: nothing sent")
         return EXIT_FAILED

@@ -16,7 +16,7 @@ from rich.table import Table
 from mrswarm.gcs.session import GcsError, format_ids, wait_alive
 from swarmnet.observer import SwarmObserver
 
-VERBS = ("hold", "resume", "land", "rtl", "goto", "arm", "disarm", "kill")
+VERBS = ("takeoff", "start", "hold", "resume", "land", "rtl", "goto", "arm", "disarm", "kill")
 
 
 @dataclass
@@ -92,13 +92,31 @@ def print_results(results: list[Result], verb: str, console: Console, as_json: b
     console.print(t)
 
 
-def goto_args(xyz: list[float]) -> dict[str, float]:
+def goto_args(xyz: list[float], geo: str | None = None) -> dict[str, float]:
+    """The goto command's arguments: X Y Z in the swarm frame, or ``--geo LAT,LON,ALT``."""
+    if geo is not None:
+        if xyz:
+            raise GcsError("goto: give X Y Z or --geo LAT,LON,ALT, not both")
+        return geo_args(geo)
     if len(xyz) != 3:
-        raise GcsError("goto needs X Y Z (metres east, north and up from the swarm origin)")
+        raise GcsError("goto needs X Y Z (metres east, north and up from the swarm origin) or --geo LAT,LON,ALT")
     for name, v in zip("xyz", xyz, strict=True):
         if not math.isfinite(v):
             raise GcsError(f"goto: {name}={v} is not a finite number")
     return {"x": xyz[0], "y": xyz[1], "z": xyz[2]}
+
+
+def geo_args(text: str) -> dict[str, float]:
+    """``LAT,LON,ALT`` (degrees, degrees, metres AMSL) -> the goto command's geodetic arguments."""
+    try:
+        lat, lon, alt = (float(x) for x in text.split(","))
+    except ValueError:
+        raise GcsError(f"goto --geo {text!r}: expected LAT,LON,ALT (degrees, degrees, metres above sea level)") from None
+    if not all(math.isfinite(v) for v in (lat, lon, alt)):
+        raise GcsError(f"goto --geo {text!r}: not finite numbers")
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise GcsError(f"goto --geo {text!r}: latitude must be within -90..90 and longitude within -180..180")
+    return {"lat": lat, "lon": lon, "alt": alt}
 
 
 def confirm_kill(targets: list[int], yes: bool, stdin: TextIO = sys.stdin, console: Console | None = None) -> bool:

@@ -75,8 +75,12 @@ class Recorder:
 
 
 def run_record(obs: SwarmObserver, path: str | Path, *, duration: float | None = None, quiet: bool = False,
-               stop: Callable[[], bool] = lambda: False) -> dict[str, int]:
+               stop: Callable[[], bool] = lambda: False) -> tuple[dict[str, int], bool]:
+    """Record until ``duration``, ``stop()`` or Ctrl-C; returns (messages per kind, stopped by Ctrl-C).
+
+    The file is flushed and closed either way, so a Ctrl-C loses nothing."""
     rec = Recorder(path)
+    interrupted = False
     obs.tap = rec
     end = math.inf if duration is None else time.monotonic() + duration
     next_report = time.monotonic() + 5.0
@@ -89,11 +93,11 @@ def run_record(obs: SwarmObserver, path: str | Path, *, duration: float | None =
                 print(f"recording {path}: " + ", ".join(f"{k} {v}" for k, v in sorted(rec.counts.items())), flush=True)
             time.sleep(0.05)
     except KeyboardInterrupt:
-        pass
+        interrupted = True
     finally:
         obs.tap = None
         rec.close()
-    return rec.counts
+    return rec.counts, interrupted
 
 
 def read_recording(path: str | Path) -> Iterator[dict[str, Any]]:
@@ -108,8 +112,25 @@ def read_recording(path: str | Path) -> Iterator[dict[str, Any]]:
                 yield d
 
 
+LEGEND_MAX_UAVS = 20  # one colour each (tab20); more UAVs are told apart by the id at each track's end
+
+
 def plot_recording(path: str | Path, out: str | Path | None = None) -> tuple[Path, dict[str, Any]]:
     """Trajectories (x/y), altitude, battery and the phase timeline of every UAV -> PNG."""
+    import matplotlib.pyplot as plt
+
+    fig, info = draw_recording(path)
+    out = Path(out) if out else Path(path).with_suffix(".png")
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out, info
+
+
+def draw_recording(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """The figure of a recording (matplotlib Figure, not saved) and what it holds.
+
+    The trajectory panel has a legend (colour -> UAV) for up to LEGEND_MAX_UAVS UAVs, and every
+    track ends in its UAV's id, so a colour that repeats in a larger swarm is still named."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -141,16 +162,16 @@ def plot_recording(path: str | Path, out: str | Path | None = None) -> tuple[Pat
             continue
     if n == 0:
         raise ValueError(f"{path}: no recorded messages")
-    out = Path(out) if out else Path(path).with_suffix(".png")
     fig, axes = plt.subplots(2, 2, figsize=(13, 9))
     ax_xy, ax_z, ax_b, ax_ph = axes[0][0], axes[0][1], axes[1][0], axes[1][1]
     cmap = plt.get_cmap("tab20")
     uavs = sorted(set(poses) | set(battery) | set(phases))
     color = {u: cmap(i % 20) for i, u in enumerate(uavs)}
-    for u, pts in poses.items():
+    for u, pts in sorted(poses.items()):
         xs, ys = [p[1] for p in pts], [p[2] for p in pts]
-        ax_xy.plot(xs, ys, lw=0.8, color=color[u])
+        ax_xy.plot(xs, ys, lw=0.8, color=color[u], label=f"UAV {u}")
         ax_xy.plot(xs[-1:], ys[-1:], "o", ms=3, color=color[u])
+        ax_xy.annotate(str(u), (xs[-1], ys[-1]), xytext=(3, 3), textcoords="offset points", fontsize=7, color=color[u])
         ax_z.plot([p[0] - t0 for p in pts], [p[3] for p in pts], lw=0.8, color=color[u])
     for u, samples in battery.items():
         ax_b.plot([s[0] - t0 for s in samples], [s[1] for s in samples], lw=0.8, color=color[u])
@@ -172,13 +193,13 @@ def plot_recording(path: str | Path, out: str | Path | None = None) -> tuple[Pat
     ax_ph.set_yticks(range(len(uavs)), [str(u) for u in uavs], fontsize=6 if len(uavs) > 30 else 8)
     if palette:
         ax_ph.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    if poses and len(poses) <= LEGEND_MAX_UAVS:
+        ax_xy.legend(fontsize=7, loc="best", ncol=2 if len(poses) > 10 else 1, title="colour", title_fontsize=7)
     for ax in (ax_xy, ax_z, ax_b):
         ax.grid(alpha=0.3)
     fig.suptitle(f"{Path(path).name}: {len(uavs)} UAVs, {n} messages")
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out, {"messages": n, "uavs": len(uavs), "poses": sum(len(p) for p in poses.values())}
+    return fig, {"messages": n, "uavs": len(uavs), "poses": sum(len(p) for p in poses.values())}
 
 
 def _last_time(pts: list[tuple[float, float, float, float]] | None, default: float) -> float:

@@ -231,7 +231,15 @@ def cmd_set_home(v: Vehicle, c: MavCommand) -> Result:
         alt = alt_v if alt_v is not None else v.home.alt
     v.home = GeoPoint(lat, lon, alt)
     v.home_ned = v.ned_of(lat, lon, alt)
-    v.after_ack.append(ENCODERS["HOME_POSITION"](v))
+    _reply(v, ENCODERS["HOME_POSITION"](v))
+    return ACCEPTED, ""
+
+
+def _reply(v: Vehicle, msg: mavlink.MAVLink_message | None) -> Result:
+    """Send ``msg`` after the ACK; TEMPORARILY_REJECTED while there is nothing to send (no fix yet)."""
+    if msg is None:
+        return M.MAV_RESULT_TEMPORARILY_REJECTED, ""
+    v.after_ack.append(msg)
     return ACCEPTED, ""
 
 
@@ -245,17 +253,31 @@ def cmd_request_message(v: Vehicle, c: MavCommand) -> Result:
     fn = REQUESTABLE.get(int(c.p1))
     if fn is None:
         return DENIED, ""
-    v.after_ack.append(fn(v))
-    return ACCEPTED, ""
+    return _reply(v, fn(v))
 
 
 def cmd_autopilot_caps(v: Vehicle, c: MavCommand) -> Result:
-    v.after_ack.append(REQUESTABLE[M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
-    return ACCEPTED, ""
+    return _reply(v, REQUESTABLE[M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
 
 
 def cmd_get_home(v: Vehicle, c: MavCommand) -> Result:
-    v.after_ack.append(ENCODERS["HOME_POSITION"](v))
+    return _reply(v, ENCODERS["HOME_POSITION"](v))
+
+
+def cmd_mission_start(v: Vehicle, c: MavCommand) -> Result:
+    """MISSION_START: the mission mode, from item p1 if given (p2, the last item, is not supported)."""
+    if _finite(c.p1) and c.p1 > 0 and not v.mission.set_current(int(c.p1)):
+        return DENIED, f"Mission: no item {int(c.p1)}"
+    return v.request_mode(v.flavour.mode(v.flavour.mission_mode))
+
+
+def cmd_set_mission_current(v: Vehicle, c: MavCommand) -> Result:
+    """DO_SET_MISSION_CURRENT: fly item p1 next (p2 = 1, reset the mission: from its start)."""
+    seq = int(c.p1) if _finite(c.p1) else -1
+    if _finite(c.p2) and int(c.p2) == 1:
+        seq = v.mission.first
+    if not v.mission.set_current(seq):
+        return DENIED, f"Mission: no item {seq}"
     return ACCEPTED, ""
 
 
@@ -302,6 +324,8 @@ HANDLERS: dict[int, Callable[[Vehicle, MavCommand], Result]] = {
     M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: cmd_autopilot_caps,
     M.MAV_CMD_GET_HOME_POSITION: cmd_get_home,
     M.MAV_CMD_SET_MESSAGE_INTERVAL: cmd_set_message_interval,
+    M.MAV_CMD_MISSION_START: cmd_mission_start,
+    M.MAV_CMD_DO_SET_MISSION_CURRENT: cmd_set_mission_current,
     M.MAV_CMD_GET_MESSAGE_INTERVAL: cmd_get_message_interval,
 }
 

@@ -27,6 +27,7 @@ DEFAULT_STREAM_RATES: dict[str, float] = {
     "SYSTEM_TIME": 1.0,
     "NAMED_VALUE_FLOAT": 1.0,
     "ATTITUDE_QUATERNION": 0.0,
+    "MISSION_CURRENT": 1.0,  # and at once on every change (mission.py)
 }
 
 

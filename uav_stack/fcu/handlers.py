@@ -1,4 +1,5 @@
-"""Handlers for every MAVLink message the FCU understands (commands live in commands.py).
+"""Handlers for every MAVLink message the FCU understands (commands live in commands.py, the
+mission protocol in mission_transfer.py).
 
 VirtualFcu looks a message's handler up in ``HANDLERS`` (copied per instance), skips
 messages ``addressed_to`` another system/component, and wraps the call so an exception is
@@ -7,10 +8,11 @@ logged and counted and the vehicle keeps flying.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
+from uav_stack.fcu import mission_transfer
 from uav_stack.fcu.commands import MavCommand, handle_command
+from uav_stack.fcu.manual import from_manual_control
 from uav_stack.fcu.offboard import decode_global, decode_local
 from uav_stack.fcu.vehicle import ACCEPTED, Vehicle
 from uav_stack.mav import mavlink
@@ -19,7 +21,6 @@ M = mavlink
 FTP_ACK, FTP_NAK = 128, 129
 FTP_TERMINATE, FTP_RESET = 1, 2
 FTP_ERR_FILE_NOT_FOUND = 10
-UPLOAD_STALE_S = 5.0  # wall seconds without progress before a mission upload is abandoned
 
 Handler = Callable[[Vehicle, mavlink.MAVLink_message], None]
 
@@ -91,132 +92,6 @@ def on_param_set(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     v.send(_param_value(v, v.params.index(name)))
 
 
-# --------------------------------------------------------------------- mission
-def _mission_ack(v: Vehicle, m: mavlink.MAVLink_message, result: int, mission_type: int) -> None:
-    v.send(v.mav.mission_ack_encode(m.get_srcSystem(), m.get_srcComponent(), result, mission_type))
-
-
-def on_mission_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    items = v.missions.get(m.mission_type)
-    if items is None:
-        _mission_ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
-        return
-    v.send(v.mav.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), len(items), m.mission_type))
-
-
-def on_mission_count(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    if m.mission_type not in v.missions:
-        _mission_ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
-        return
-    if m.count == 0:
-        v.missions[m.mission_type] = []
-        v.upload = None
-        _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
-        return
-    if m.count > 1000:
-        _mission_ack(v, m, M.MAV_MISSION_NO_SPACE, m.mission_type)
-        return
-    v.upload = {"type": m.mission_type, "count": m.count, "items": [], "t": v.ctx.wall()}
-    _request_item(v, m, 0, m.mission_type)
-
-
-def _request_item(v: Vehicle, m: mavlink.MAVLink_message, seq: int, mission_type: int) -> None:
-    v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
-
-
-def _item_fields(m: mavlink.MAVLink_message) -> dict[str, object] | None:
-    """The item as MISSION_ITEM_INT fields; None if a float item's x/y cannot be one."""
-    is_int = m.get_type() == "MISSION_ITEM_INT"
-    if is_int:
-        x, y = m.x, m.y
-    else:
-        if not (math.isfinite(m.x) and math.isfinite(m.y) and abs(m.x) <= 180.0 and abs(m.y) <= 180.0):
-            return None
-        x, y = int(round(m.x * 1e7)), int(round(m.y * 1e7))
-    return {
-        "frame": m.frame,
-        "command": m.command,
-        "current": m.current,
-        "autocontinue": m.autocontinue,
-        "params": (m.param1, m.param2, m.param3, m.param4),
-        "x": x,
-        "y": y,
-        "z": m.z,
-    }
-
-
-def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    up = v.upload
-    if up is not None and v.ctx.wall() - float(up["t"]) > UPLOAD_STALE_S:  # type: ignore[arg-type]
-        v.upload = up = None
-    if up is None:
-        if m.current == 2 and not v.flavour.is_px4:  # ArduPilot "guided goto" item
-            _guided_item(v, m)
-        return
-    if m.mission_type != up["type"]:
-        return
-    items: list = up["items"]  # type: ignore[assignment]
-    if m.seq != len(items):
-        _request_item(v, m, len(items), m.mission_type)
-        return
-    f = _item_fields(m)
-    if f is None:
-        v.upload = None
-        _mission_ack(v, m, M.MAV_MISSION_INVALID_PARAM5_X, m.mission_type)
-        return
-    items.append(f)
-    up["t"] = v.ctx.wall()
-    if len(items) >= up["count"]:  # type: ignore[operator]
-        v.missions[m.mission_type] = items
-        v.upload = None
-        _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
-    else:
-        _request_item(v, m, len(items), m.mission_type)
-
-
-def _guided_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    f = _item_fields(m)
-    lat, lon = (int(f["x"]) * 1e-7, int(f["y"]) * 1e-7) if f is not None else (999.0, 999.0)  # type: ignore[call-overload]
-    ok_alt = math.isfinite(m.z) and abs(m.z) < 20000.0
-    if v.mode.name != "GUIDED" or not v.armed or v.landed or abs(lat) > 90 or abs(lon) > 180 or not ok_alt:
-        _mission_ack(v, m, M.MAV_MISSION_ERROR, m.mission_type)
-        return
-    rel = m.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
-    alt = float(m.z) + (v.home.alt if rel else 0.0)
-    target = v.ned_of(lat, lon, alt)
-    target[2] = min(target[2], float(v.ctx.dyn.ground_z[v.i]))
-    v.goto(target)
-    _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
-
-
-def on_mission_request(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    items = v.missions.get(m.mission_type)
-    if items is None or not 0 <= m.seq < len(items):
-        _mission_ack(v, m, M.MAV_MISSION_INVALID_SEQUENCE, m.mission_type)
-        return
-    f = items[m.seq]
-    p1, p2, p3, p4 = f["params"]
-    v.send(
-        v.mav.mission_item_int_encode(
-            m.get_srcSystem(), m.get_srcComponent(), m.seq, f["frame"], f["command"], f["current"],
-            f["autocontinue"], p1, p2, p3, p4, f["x"], f["y"], f["z"], m.mission_type,
-        )  # fmt: skip
-    )
-
-
-def on_mission_clear_all(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    if m.mission_type == M.MAV_MISSION_TYPE_ALL:
-        for k in v.missions:
-            v.missions[k] = []
-    elif m.mission_type in v.missions:
-        v.missions[m.mission_type] = []
-    else:
-        _mission_ack(v, m, M.MAV_MISSION_UNSUPPORTED, m.mission_type)
-        return
-    v.upload = None
-    _mission_ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
-
-
 # ------------------------------------------------------------------- setpoints
 def on_set_position_target_local_ned(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     d = v.ctx.dyn
@@ -229,6 +104,18 @@ def on_set_position_target_global_int(v: Vehicle, m: mavlink.MAVLink_message) ->
     sp = decode_global(m, v.frame, v.home.alt)
     if sp is not None:
         v.on_setpoint(sp)
+
+
+# ---------------------------------------------------------------------- sticks
+def on_manual_control(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """MANUAL_CONTROL (PX4's joystick input; its ``target`` is our sysid)."""
+    if m.target in (0, v.sysid):
+        v.on_sticks(from_manual_control(m))
+
+
+def on_rc_channels_override(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """RC_CHANNELS_OVERRIDE (ArduPilot's stick input from a GCS, e.g. MAVProxy's ``rc``)."""
+    v.on_sticks(v.sticks.rc.update(m))
 
 
 # ------------------------------------------------------------------ small stuff
@@ -272,13 +159,9 @@ HANDLERS: dict[str, Handler] = {
     "PARAM_REQUEST_LIST": on_param_request_list,
     "PARAM_REQUEST_READ": on_param_request_read,
     "PARAM_SET": on_param_set,
-    "MISSION_REQUEST_LIST": on_mission_request_list,
-    "MISSION_COUNT": on_mission_count,
-    "MISSION_ITEM_INT": on_mission_item,
-    "MISSION_ITEM": on_mission_item,
-    "MISSION_REQUEST_INT": on_mission_request,
-    "MISSION_REQUEST": on_mission_request,
-    "MISSION_CLEAR_ALL": on_mission_clear_all,
+    **mission_transfer.HANDLERS,
+    "MANUAL_CONTROL": on_manual_control,
+    "RC_CHANNELS_OVERRIDE": on_rc_channels_override,
     "SET_POSITION_TARGET_LOCAL_NED": on_set_position_target_local_ned,
     "SET_POSITION_TARGET_GLOBAL_INT": on_set_position_target_global_int,
     "TIMESYNC": on_timesync,

@@ -23,7 +23,23 @@ class Guidance(str, Enum):
     LAND = "land"  # descend at the landing speed, auto-disarm on the ground
     RTL = "rtl"  # climb, return at cruise speed, land at home
     OFFBOARD = "offboard"  # follow external setpoints (PX4 OFFBOARD, ArduPilot GUIDED)
-    MANUAL = "manual"  # needs RC: refused in the air without one; acts like HOLD
+    MISSION = "mission"  # fly the uploaded mission (PX4 MISSION, ArduPilot AUTO): mission.py
+    STICKS = "sticks"  # position/velocity under stick input, hold when centred (PX4 POSCTL, ArduPilot LOITER): manual.py
+    MANUAL = "manual"  # attitude/thrust under sticks: not emulated, refused in the air; acts like HOLD
+
+
+# What the vehicle is doing right now within its mode (Vehicle.phase): a mode's guidance goes
+# through these (RTL: climb, return, land); the mission uses them for its items.
+P_HOLD = "hold"
+P_TAKEOFF = "takeoff"
+P_LAND = "land"
+P_RTL_CLIMB = "rtl_climb"
+P_RTL_RETURN = "rtl_return"
+P_OFFBOARD = "offboard"
+P_MISSION = "mission"  # flying to a mission item, or holding at it
+P_STICKS = "sticks"  # under stick input (or holding with centred sticks)
+
+TAKEOFF_DONE_M = 0.3  # altitude error at which a takeoff counts as complete
 
 
 @dataclass(frozen=True)
@@ -48,12 +64,12 @@ _ASSIST = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STA
 B = Guidance
 PX4_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("MANUAL", px4_custom_mode(1), B.MANUAL, _MANUAL),
-    ModeSpec("ALTCTL", px4_custom_mode(2), B.HOLD, _ASSIST),
-    ModeSpec("POSCTL", px4_custom_mode(3), B.HOLD, _ASSIST),
+    ModeSpec("ALTCTL", px4_custom_mode(2), B.STICKS, _ASSIST),
+    ModeSpec("POSCTL", px4_custom_mode(3), B.STICKS, _ASSIST),
     ModeSpec("READY", px4_custom_mode(4, 1), B.HOLD, _AUTO),
     ModeSpec("TAKEOFF", px4_custom_mode(4, 2), B.TAKEOFF, _AUTO),
     ModeSpec("HOLD", px4_custom_mode(4, 3), B.HOLD, _AUTO),
-    ModeSpec("MISSION", px4_custom_mode(4, 4), B.HOLD, _AUTO),  # no mission execution: holds
+    ModeSpec("MISSION", px4_custom_mode(4, 4), B.MISSION, _AUTO),
     ModeSpec("RTL", px4_custom_mode(4, 5), B.RTL, _AUTO, can_arm=False),
     ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO),
     ModeSpec("ACRO", px4_custom_mode(5), B.MANUAL, _MANUAL),
@@ -66,13 +82,13 @@ _APM_GUIDED = _APM_BASE | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
 ARDUPILOT_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("STABILIZE", 0, B.MANUAL, _APM_BASE),
     ModeSpec("ACRO", 1, B.MANUAL, _APM_BASE),
-    ModeSpec("ALT_HOLD", 2, B.HOLD, _APM_BASE),
-    ModeSpec("AUTO", 3, B.HOLD, _APM_GUIDED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED, can_arm=False),
+    ModeSpec("ALT_HOLD", 2, B.STICKS, _APM_BASE),
+    ModeSpec("AUTO", 3, B.MISSION, _APM_GUIDED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED, can_arm=False),
     ModeSpec("GUIDED", 4, B.OFFBOARD, _APM_GUIDED),
-    ModeSpec("LOITER", 5, B.HOLD, _APM_BASE),
+    ModeSpec("LOITER", 5, B.STICKS, _APM_BASE),
     ModeSpec("RTL", 6, B.RTL, _APM_GUIDED, can_arm=False),
     ModeSpec("LAND", 9, B.LAND, _APM_GUIDED, can_arm=False),
-    ModeSpec("POSHOLD", 16, B.HOLD, _APM_BASE),
+    ModeSpec("POSHOLD", 16, B.STICKS, _APM_BASE),
     ModeSpec("BRAKE", 17, B.HOLD, _APM_GUIDED),
     ModeSpec("SMART_RTL", 21, B.RTL, _APM_GUIDED, can_arm=False),
 )
@@ -92,6 +108,7 @@ class Flavour:
     modes: tuple[ModeSpec, ...]
     initial_mode: str
     hold_mode: str  # target of "hold"-type failsafes
+    mission_mode: str  # the mode that flies the uploaded mission
     bytewise_params: bool  # PX4 PARAM_ENCODE_BYTEWISE; ArduPilot C cast
     flight_sw_version: int
 
@@ -133,6 +150,7 @@ PX4 = Flavour(
     modes=PX4_MODES,
     initial_mode="HOLD",
     hold_mode="HOLD",
+    mission_mode="MISSION",
     bytewise_params=True,
     flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 0xFF,  # v1.15.0 release
 )
@@ -143,6 +161,7 @@ ARDUPILOT = Flavour(
     modes=ARDUPILOT_MODES,
     initial_mode="STABILIZE",
     hold_mode="LOITER",
+    mission_mode="AUTO",
     bytewise_params=False,
     flight_sw_version=(4 << 24) | (5 << 16) | (0 << 8) | 0xFF,  # v4.5.0 release
 )

@@ -94,6 +94,15 @@ class Settings:
     gf_ver: float = 0.0
     guided_timeout: float = 3.0  # ArduPilot GUIDED velocity target timeout
     endurance_s: float = 1200.0
+    acc_rad: float = 2.0  # mission: waypoint acceptance radius when an item gives none, m
+    alt_rad: float = 0.8  # mission: vertical acceptance, m
+    vel_manual: float = 10.0  # stick modes: horizontal speed at full stick, m/s
+    pilot_vz_up: float = 0.0  # stick modes: climb at full stick, m/s (0 = z_vel_up)
+    pilot_vz_dn: float = 0.0  # stick modes: descent at full stick, m/s (0 = the climb speed)
+    stick_input: float = 1.0  # 0 = MANUAL_CONTROL / RC_CHANNELS_OVERRIDE ignored
+    rc_loss_t: float = 0.5  # stick stream silent this long in a stick mode = lost, s
+    rc_loss_act: Action = Action.RTL
+    gps_fix_t: float = 1.0  # sim seconds from boot to the first 3D fix (position, home, health)
     # internal helpers for flavour-specific combinations
     px4_low_bat_act: int = 0
     fence_enable: float = 1.0
@@ -106,6 +115,10 @@ _PX4_GF = {0: Action.NONE, 1: Action.WARN, 2: Action.HOLD, 3: Action.RTL, 4: Act
 _APM_GCS = {0: Action.NONE, 1: Action.RTL, 2: Action.RTL, 3: Action.RTL, 4: Action.RTL, 5: Action.LAND, 6: Action.RTL,
             7: Action.LAND}  # fmt: skip
 _APM_BATT = {0: Action.WARN, 1: Action.LAND, 2: Action.RTL, 3: Action.RTL, 4: Action.RTL, 5: Action.TERMINATE}
+_PX4_RCL = {0: Action.NONE, 1: Action.HOLD, 2: Action.RTL, 3: Action.LAND, 5: Action.TERMINATE, 6: Action.DISARM}
+_PX4_RC_IN = {0: 0.0, 1: 1.0, 2: 1.0, 3: 1.0, 4: 0.0}  # COM_RC_IN_MODE -> MAVLink sticks used (no RC receiver here)
+_APM_THR = {0: Action.NONE, 1: Action.RTL, 2: Action.RTL, 3: Action.LAND, 4: Action.RTL, 5: Action.LAND, 6: Action.RTL,
+            7: Action.LAND}  # fmt: skip
 _APM_FENCE = {0: Action.WARN, 1: Action.RTL, 2: Action.LAND, 3: Action.RTL, 4: Action.HOLD, 5: Action.RTL}
 
 
@@ -142,8 +155,15 @@ def px4_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
         P("GF_MAX_VER_DIST", 0.0, role="gf_ver", min=0.0, max=1e5),
         P("MAV_SYS_ID", sysid, INT32, min=1, max=255),  # takes effect after a reboot (never, here)
         P("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32),
-        P("COM_RC_IN_MODE", 4, INT32, min=4, max=4),  # 4 = no RC: swarms fly without sticks
+        # stick input: MANUAL_CONTROL (there is no RC receiver); 4 = none, 0 = RC only (so none either)
+        P("COM_RC_IN_MODE", 3, INT32, role="stick_input", min=0, max=4),
+        P("COM_RC_LOSS_T", 0.5, role="rc_loss_t", min=0.1, max=35.0),
+        P("NAV_RCL_ACT", 2, INT32, role="rc_loss_act", actions=_PX4_RCL),
+        P("MPC_VEL_MANUAL", 10.0, role="vel_manual", min=0.5, max=50.0),
+        P("NAV_ACC_RAD", 2.0, role="acc_rad", min=0.05, max=200.0),
+        P("NAV_MC_ALT_RAD", 0.8, role="alt_rad", min=0.05, max=200.0),
         P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
+        P("SIM_GPS_FIX_T", 1.0, role="gps_fix_t", min=0.0, max=600.0),  # emulator: s from boot to the first fix
     ]
 
 
@@ -165,7 +185,12 @@ def ardupilot_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
         P("DISARM_DELAY", 10, INT8, role="disarm_prflt_s", min=0),
         P("FS_GCS_ENABLE", 0, INT8, role="dll_act", actions=_APM_GCS),
         P("FS_GCS_TIMEOUT", 5.0, role="dll_t", min=2.0, max=3600.0),
-        P("FS_THR_ENABLE", 0, INT8, min=0, max=0),  # no RC receiver
+        P("FS_THR_ENABLE", 1, INT8, role="rc_loss_act", actions=_APM_THR),  # stick (RC override) loss
+        P("RC_OVERRIDE_TIME", 3.0, role="rc_loss_t", min=0.1, max=120.0),
+        P("LOIT_SPEED", 1250, role="vel_manual", scale=cm, min=20, max=3500),
+        P("PILOT_SPEED_UP", 250, INT16, role="pilot_vz_up", scale=cm, min=50, max=500),
+        P("PILOT_SPEED_DN", 0, INT16, role="pilot_vz_dn", scale=cm, min=0, max=500),
+        P("WPNAV_RADIUS", 200, role="acc_rad", scale=cm, min=5, max=1000),
         P("BATT_LOW_VOLT", 14.4, role="bat_low", min=0.0, max=100.0),  # volts, converted to a charge fraction
         P("BATT_CRT_VOLT", 14.2, role="bat_crit", min=0.0, max=100.0),
         P("BATT_FS_LOW_ACT", 0, INT8, role="bat_low_act", actions=_APM_BATT),
@@ -176,6 +201,7 @@ def ardupilot_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
         P("FENCE_ALT_MAX", 100.0, role="gf_ver", min=10.0, max=1e5),
         P("GUID_TIMEOUT", 3.0, role="guided_timeout", min=0.1, max=3600.0),
         P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
+        P("SIM_GPS_FIX_T", 1.0, role="gps_fix_t", min=0.0, max=600.0),  # emulator: s from boot to the first fix
     ]
 
 
@@ -212,7 +238,8 @@ def derive_settings(flavour: str, values: dict[str, float], defs: list[ParamDef]
         act = int(s.px4_low_bat_act)
         crit, emerg = {0: (Action.WARN, Action.WARN), 1: (Action.RTL, Action.RTL), 2: (Action.LAND, Action.LAND),
                        3: (Action.RTL, Action.LAND)}.get(act, (Action.WARN, Action.WARN))  # fmt: skip
-        s = replace(s, bat_low_act=Action.WARN, bat_crit_act=crit, bat_emerg_act=emerg)
+        s = replace(s, bat_low_act=Action.WARN, bat_crit_act=crit, bat_emerg_act=emerg,
+                    stick_input=_PX4_RC_IN.get(int(s.stick_input), 0.0), pilot_vz_up=s.z_vel_up, pilot_vz_dn=s.z_vel_dn)
     else:
         s = replace(
             s,
@@ -224,6 +251,8 @@ def derive_settings(flavour: str, values: dict[str, float], defs: list[ParamDef]
             gf_hor=s.gf_hor if s.fence_enable else 0.0,
             gf_ver=s.gf_ver if s.fence_enable else 0.0,
             of_loss_act=Action.NONE,
+            alt_rad=s.acc_rad,  # ArduCopter: one radius, in three dimensions
+            pilot_vz_dn=s.pilot_vz_dn or s.pilot_vz_up,
         )
     return s
 

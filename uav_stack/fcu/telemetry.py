@@ -34,6 +34,8 @@ SENSORS = (
 )
 PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
 FENCE = M.MAV_SYS_STATUS_GEOFENCE
+GPS = M.MAV_SYS_STATUS_SENSOR_GPS
+RC = M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER  # stick input (MANUAL_CONTROL / RC_CHANNELS_OVERRIDE)
 
 
 def _ms(v: Vehicle) -> int:
@@ -74,7 +76,9 @@ def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -
     return m
 
 
-def global_position_int(v: Vehicle) -> mavlink.MAVLink_message:
+def global_position_int(v: Vehicle) -> mavlink.MAVLink_message | None:
+    if not v.gps_ok:
+        return None  # no global position before the first fix (PX4 sends none either)
     lat, lon, alt = v.reported_geodetic()
     d = v.ctx.dyn
     vn, ve, vd = d.vel[v.i].tolist()
@@ -89,7 +93,9 @@ def global_position_int(v: Vehicle) -> mavlink.MAVLink_message:
     return m
 
 
-def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message:
+def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message | None:
+    if not v.gps_ok:
+        return None  # the local position comes from GPS here
     d = v.ctx.dyn
     m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
@@ -126,11 +132,18 @@ def attitude_quaternion(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
-    present = SENSORS | PREARM | FENCE
-    enabled = SENSORS | PREARM | (FENCE if v.fence_enabled else 0)
+    """Sensors present/enabled/healthy as MAVSDK's health() and QGC read them: GPS healthy from the
+    first fix, PREARM_CHECK while arming would pass, RC_RECEIVER while stick input arrives."""
+    sticks = RC if v.settings.stick_input else 0
+    present = SENSORS | PREARM | FENCE | sticks
+    enabled = SENSORS | PREARM | (FENCE if v.fence_enabled else 0) | sticks
     health = SENSORS | FENCE
+    if not v.gps_ok:
+        health &= ~GPS
     if v.prearm_ok():
         health |= PREARM
+    if v.sticks_fresh:
+        health |= RC
     if v.fence_breached:
         health &= ~FENCE
     volts, amps, pct = v.battery_readings()
@@ -143,7 +156,9 @@ def extended_sys_state(v: Vehicle) -> mavlink.MAVLink_message:
     return v.mav.extended_sys_state_encode(M.MAV_VTOL_STATE_MC, v.landed_state())
 
 
-def home_position(v: Vehicle) -> mavlink.MAVLink_message:
+def home_position(v: Vehicle) -> mavlink.MAVLink_message | None:
+    if not v.gps_ok:
+        return None  # home is set at the first fix
     h = v.home
     x, y, z = (float(c) for c in v.home_ned)
     return v.mav.home_position_encode(
@@ -194,6 +209,9 @@ def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
+    if not v.gps_ok:  # searching: no fix, no satellites
+        return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
+                                        65535, 65535, 0, 65535, 0)  # fmt: skip
     lat, lon, alt = v.reported_geodetic()
     vn, ve, _ = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
@@ -237,6 +255,10 @@ def named_value_rtf(v: Vehicle) -> mavlink.MAVLink_message:
     return v.mav.named_value_float_encode(_ms(v), b"RTF", rtf if math.isfinite(rtf) else 0.0)  # 0.0: not measured yet
 
 
+def mission_current(v: Vehicle) -> mavlink.MAVLink_message:
+    return v.mission.current_message()
+
+
 def autopilot_version(v: Vehicle) -> mavlink.MAVLink_message:
     cap = (
         M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
@@ -267,7 +289,8 @@ def autopilot_version(v: Vehicle) -> mavlink.MAVLink_message:
     )
 
 
-ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message]] = {
+# None: nothing to send yet (no position before the first GPS fix)
+ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
     "HEARTBEAT": heartbeat,
     "GLOBAL_POSITION_INT": global_position_int,
     "LOCAL_POSITION_NED": local_position_ned,
@@ -281,10 +304,11 @@ ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message]] = {
     "VFR_HUD": vfr_hud,
     "SYSTEM_TIME": system_time,
     "NAMED_VALUE_FLOAT": named_value_rtf,
+    "MISSION_CURRENT": mission_current,
 }
 
 # Messages REQUEST_MESSAGE can produce, by id (streams plus one-shot ones).
-REQUESTABLE: dict[int, Callable[[Vehicle], mavlink.MAVLink_message]] = {
+REQUESTABLE: dict[int, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
     M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
     **{getattr(M, f"MAVLINK_MSG_ID_{name}"): fn for name, fn in ENCODERS.items()},
 }

@@ -1,5 +1,6 @@
 """One virtual vehicle: mode state machine, arming, guidance into the shared dynamics arrays,
 the 10 Hz supervisor (takeoff/RTL/land progress, auto-disarm, failsafes) and its link.
+The mission it flies is mission.py's, the stick input manual.py's.
 
 Everything time-related runs on the fleet's sim clock (``ctx.clock.sim_time``), except the
 link-level heartbeat floor and peer bookkeeping, which use wall time.
@@ -18,7 +19,21 @@ from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import VehicleConfig
 from uav_stack.fcu.dynamics import G, MultirotorArray
 from uav_stack.fcu.link import DatagramParser, UdpLink
-from uav_stack.fcu.modes import Guidance, ModeSpec, get_flavour
+from uav_stack.fcu.manual import CENTRED, Sticks, StickStream, command
+from uav_stack.fcu.mission import MissionItem, MissionRun
+from uav_stack.fcu.modes import (
+    P_HOLD,
+    P_LAND,
+    P_OFFBOARD,
+    P_RTL_CLIMB,
+    P_RTL_RETURN,
+    P_STICKS,
+    P_TAKEOFF,
+    TAKEOFF_DONE_M,
+    Guidance,
+    ModeSpec,
+    get_flavour,
+)
 from uav_stack.fcu.offboard import Setpoint, SetpointStream
 from uav_stack.fcu.params import Action, ParamStore, Settings, ardupilot_param_defs, derive_settings, px4_param_defs
 from uav_stack.fcu.stats import FcuStats
@@ -32,15 +47,7 @@ ACCEPTED = M.MAV_RESULT_ACCEPTED
 DENIED = M.MAV_RESULT_DENIED
 FAILED = M.MAV_RESULT_FAILED
 
-# internal guidance phases
-P_HOLD = "hold"
-P_TAKEOFF = "takeoff"
-P_LAND = "land"
-P_RTL_CLIMB = "rtl_climb"
-P_RTL_RETURN = "rtl_return"
-P_OFFBOARD = "offboard"
 
-TAKEOFF_DONE_M = 0.3  # altitude error at which a takeoff counts as complete
 RTL_ARRIVED_M = 0.7  # horizontal distance to home at which RTL starts landing
 
 
@@ -102,8 +109,12 @@ class Vehicle:
         self.dll_tripped = False
         self.bat_level = 0  # 0 ok, 1 low, 2 critical, 3 emergency (latched)
         self.fence_breached = False
-        self.missions: dict[int, list[mavlink.MAVLink_message]] = {0: [], 1: [], 2: []}
+        self.missions: dict[int, list[MissionItem]] = {0: [], 1: [], 2: []}  # by MAV_MISSION_TYPE
         self.upload: dict[str, object] | None = None
+        self.mission = MissionRun(self)
+        self.sticks = StickStream()
+        self._sticks_in_mode = False  # a stick message arrived since the stick mode was entered
+        self._stick_xy_held = self._stick_z_held = False  # holding the braking point, per axis
         self.after_ack: list[mavlink.MAVLink_message] = []
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
@@ -182,8 +193,18 @@ class Vehicle:
             amps = d.params.hover_current_a() * (d.params.battery_idle_fraction if self.landed else 1.0)
         return volts, amps, int(round(soc * 100))
 
+    @property
+    def gps_ok(self) -> bool:
+        """The first 3D fix has come (SIM_GPS_FIX_T after boot): position, home and health are known."""
+        return self.now >= self.settings.gps_fix_t
+
+    @property
+    def sticks_fresh(self) -> bool:
+        s = self.settings
+        return bool(s.stick_input) and self.sticks.fresh(self.now, s.rc_loss_t)
+
     def prearm_ok(self) -> bool:
-        return float(self.ctx.dyn.battery[self.i]) > self.settings.bat_emerg
+        return self.gps_ok and float(self.ctx.dyn.battery[self.i]) > self.settings.bat_emerg
 
     def offboard_ready(self) -> bool:
         """PX4 entry rule for OFFBOARD (see offboard.py; SIM_OFB_STREAM_T = 0 relaxes it)."""
@@ -206,7 +227,9 @@ class Vehicle:
         for name in st.due(now):
             if name == "HEARTBEAT":
                 continue  # paced on wall time, see VirtualFcu.service
-            self.send(ENCODERS[name](self))
+            msg = ENCODERS[name](self)
+            if msg is not None:  # None: nothing to say yet (no position before the first fix)
+                self.send(msg)
 
     # --------------------------------------------------------------- settings
     def apply_settings(self) -> None:
@@ -224,16 +247,18 @@ class Vehicle:
         ph = self.phase
         if ph == P_OFFBOARD:
             vxy = s.xy_vel_max
+        elif ph == P_STICKS:
+            vxy = s.vel_manual
         elif ph in (P_RTL_CLIMB, P_RTL_RETURN):
             vxy = s.rtl_speed if s.rtl_speed > 0 else s.xy_cruise
         else:
             vxy = s.xy_cruise
         if self.speed_xy == self.speed_xy:
             vxy = self.speed_xy
-        up = s.tko_speed if ph == P_TAKEOFF else s.z_vel_up
+        up = s.tko_speed if ph == P_TAKEOFF else s.pilot_vz_up if ph == P_STICKS else s.z_vel_up
         if self.speed_up == self.speed_up:
             up = self.speed_up
-        dn = max(s.z_vel_dn, s.land_speed)
+        dn = s.pilot_vz_dn if ph == P_STICKS else max(s.z_vel_dn, s.land_speed)
         if self.speed_dn == self.speed_dn:
             dn = self.speed_dn
         d.vxy_max[i] = min(vxy, s.xy_vel_max)
@@ -346,6 +371,8 @@ class Vehicle:
         if self.flavour.is_px4:
             hold = self.flavour.mode(self.flavour.hold_mode)
             changed = hold is not self.mode
+            if changed and self.mode.guidance is Guidance.MISSION:
+                self.mission.pause()
             self.mode = hold
             self._start_hold(target, yaw)
             if changed:
@@ -360,10 +387,19 @@ class Vehicle:
     def enter_mode(self, spec: ModeSpec, hold_target: np.ndarray | None = None) -> None:
         """Switch to an (already validated) mode and start its guidance."""
         changed = spec is not self.mode
+        if changed and self.mode.guidance is Guidance.MISSION:
+            self.mission.pause()
         self.mode = spec
         if changed:
             self.speed_xy = self.speed_up = self.speed_dn = NAN
-        b = spec.guidance
+        self._start_guidance(hold_target)
+        if changed:
+            self.send_heartbeat()
+            self.mission.announce()  # MISSION_CURRENT says whether the mission mode is on
+
+    def _start_guidance(self, hold_target: np.ndarray | None = None) -> None:
+        """Start the current mode's guidance from where the vehicle is now."""
+        b = self.mode.guidance
         if b is Guidance.TAKEOFF:
             self._begin_takeoff_px4()
         elif b is Guidance.LAND:
@@ -372,10 +408,12 @@ class Vehicle:
             self._start_rtl()
         elif b is Guidance.OFFBOARD:
             self._start_offboard()
+        elif b is Guidance.MISSION:
+            self.mission.start()
+        elif b is Guidance.STICKS:
+            self._start_sticks(hold_target)
         else:
             self._start_hold(hold_target)
-        if changed:
-            self.send_heartbeat()
 
     def _begin_takeoff_px4(self) -> None:
         s = self.settings
@@ -395,6 +433,12 @@ class Vehicle:
             return DENIED, f"{spec.name} needs RC input (none here)"
         if self.flavour.is_px4 and spec.guidance is Guidance.OFFBOARD and not self.offboard_ready():
             return DENIED, "Offboard: no setpoint stream (>2Hz for 1s)"
+        if self.flavour.is_px4 and spec.guidance is Guidance.STICKS and not self.landed and not self.sticks_fresh:
+            return DENIED, f"{spec.name}: no manual control input"
+        if spec.guidance is Guidance.MISSION:
+            ok, why = self.mission.can_start()
+            if not ok:
+                return DENIED, why
         if spec.guidance is Guidance.TAKEOFF:
             self.takeoff_alt_amsl = NAN
             self.takeoff_yaw = NAN
@@ -406,12 +450,15 @@ class Vehicle:
         if self.armed:
             return ACCEPTED, ""
         if not force:
+            px4 = self.flavour.is_px4
             if not self.mode.can_arm:
-                return DENIED, f"Arming denied: not in {self.mode.name}"
-            if self.flavour.is_px4 and self.mode.guidance is Guidance.OFFBOARD and not self.offboard_ready():
+                return DENIED, f"Arming denied: {self.mode.name} mode not armable" if px4 else "Arm: Mode not armable"
+            if px4 and self.mode.guidance is Guidance.OFFBOARD and not self.offboard_ready():
                 return DENIED, "Arming denied: no offboard setpoints"
+            if not self.gps_ok:
+                return DENIED, "Arming denied: no 3D GPS fix yet" if px4 else "PreArm: Need 3D Fix"
             if not self.prearm_ok():
-                return DENIED, "Arming denied: battery too low"
+                return DENIED, "Arming denied: battery too low" if px4 else "PreArm: Battery below minimum"
             if not self.landed:
                 return DENIED, "Arming denied: not on the ground"
         d, i = self.ctx.dyn, self.i
@@ -421,16 +468,12 @@ class Vehicle:
         self.has_flown = False
         self.landed_since = self.now
         self.bat_level = 0
-        # restart the mode's guidance from where the vehicle is now (e.g. a pending takeoff)
+        # restart the mode's guidance from where the vehicle is now (a pending takeoff, a mission)
         self.speed_xy = self.speed_up = self.speed_dn = NAN
-        if self.mode.guidance is Guidance.TAKEOFF:
-            self._begin_takeoff_px4()
-        elif self.mode.guidance is Guidance.OFFBOARD:
-            self._start_offboard()
-        elif self.mode.guidance is Guidance.LAND:
-            self._start_land()
-        else:
+        if self.mode.guidance is Guidance.RTL:  # forced arming in RTL: hold, like any other refused mode
             self._start_hold()
+        else:
+            self._start_guidance()
         self.send_heartbeat()
         return ACCEPTED, ""
 
@@ -465,7 +508,8 @@ class Vehicle:
                     self.disarm(reason=why)
                     return
         ph = self.phase
-        if ph == P_TAKEOFF:
+        mission = self.mode.guidance is Guidance.MISSION
+        if ph == P_TAKEOFF and not mission:  # a mission's takeoff is the mission's to finish
             if self.armed and not landed and abs(d.pos[i, 2] - self.takeoff_target[2]) < TAKEOFF_DONE_M:
                 if self.flavour.is_px4:
                     self.enter_mode(self.flavour.mode(self.flavour.hold_mode), hold_target=self.takeoff_target)
@@ -486,6 +530,10 @@ class Vehicle:
         elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
             self.guided_vel = False
             self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
+        elif ph == P_STICKS:
+            self._stick_tick(landed)
+        if mission:
+            self.mission.tick(now)
         self._failsafes(now, landed)
 
     def _failsafes(self, now: float, landed: bool) -> None:
@@ -528,6 +576,57 @@ class Vehicle:
         elif not flying:
             self.fence_breached = False
 
+    # ----------------------------------------------------------------- sticks
+    def on_sticks(self, sticks: Sticks) -> None:
+        """A MANUAL_CONTROL / RC_CHANNELS_OVERRIDE arrived (ignored with COM_RC_IN_MODE 0 or 4)."""
+        if not self.settings.stick_input:
+            return
+        self.sticks.note(sticks, self.now)
+        if self.phase == P_STICKS:
+            self._sticks_in_mode = True
+            self._apply_sticks()
+
+    def _start_sticks(self, hold_target: np.ndarray | None = None) -> None:
+        self.phase = P_STICKS
+        self._sticks_in_mode = self.sticks_fresh
+        self._stick_xy_held = self._stick_z_held = False
+        self._apply_sticks(hold_target)
+        self._apply_limits()
+
+    def _apply_sticks(self, hold_target: np.ndarray | None = None) -> None:
+        """Deflected sticks command velocities; a centred axis brakes and holds where it stops."""
+        s, d, i = self.settings, self.ctx.dyn, self.i
+        sticks = self.sticks.current(self.now, s.rc_loss_t) if s.stick_input else CENTRED
+        cmd = command(sticks, float(d.yaw[i]), s.vel_manual, s.pilot_vz_up, s.pilot_vz_dn, math.radians(s.yaw_rate_max_deg))
+        pos, vel = d.pos_sp[i].copy(), d.vel_ff[i].copy()
+        stop = hold_target if hold_target is not None else d.stop_point(i)
+        if cmd.moving_xy:
+            pos[0] = pos[1] = NAN
+            vel[0], vel[1] = cmd.vn, cmd.ve
+            self._stick_xy_held = False
+        elif not self._stick_xy_held:
+            pos[0], pos[1] = stop[0], stop[1]
+            vel[0] = vel[1] = 0.0
+            self._stick_xy_held = True
+        if cmd.moving_z:
+            pos[2], vel[2] = NAN, cmd.vd
+            self._stick_z_held = False
+        elif not self._stick_z_held:
+            pos[2], vel[2] = min(stop[2], float(d.ground_z[i])), 0.0
+            self._stick_z_held = True
+        self._targets(pos, (float(vel[0]), float(vel[1]), float(vel[2])), NAN, cmd.yaw_rate)
+
+    def _stick_tick(self, landed: bool) -> None:
+        """Re-aim the sticks at the current heading; a stick stream lost in flight fails safe."""
+        s = self.settings
+        if self._sticks_in_mode and not self.sticks.lost and not self.sticks_fresh:
+            self.sticks.lost = True
+            self._apply_sticks()  # centred: brake and hold
+            if self.armed and not landed:
+                self.failsafe(s.rc_loss_act, "manual control lost")
+            return
+        self._apply_sticks()
+
     def failsafe(self, action: Action, reason: str) -> None:
         self.ctx.stats.failsafes[reason] += 1
         if action is Action.NONE:
@@ -554,5 +653,5 @@ class Vehicle:
             return
         if target is not self.mode:
             self.enter_mode(target)
-        elif target.guidance is Guidance.HOLD:
-            self._start_hold()  # already holding (e.g. flying to a reposition target): stop here
+        elif target.guidance in (Guidance.HOLD, Guidance.STICKS):
+            self._start_guidance()  # already holding (e.g. flying to a reposition target): stop here
