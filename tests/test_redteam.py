@@ -274,7 +274,8 @@ def test_without_security_the_same_impersonation_makes_them_collide(tmp_path: Pa
                     impersonate(attacker, seqs)
                     obs.poll()
                     time.sleep(0.02)
-        assert run.wait(60) == 0, (out / "run.stdout").read_text()[-3000:]
+        # 3: the run completed with a collision (docs/reliability.md, exit codes): what this attack causes
+        assert run.wait(60) in (0, 3), (out / "run.stdout").read_text()[-3000:]
     finally:
         stop_process(run)
     sep = json.loads((run_dir / "summary.json").read_text())["separation"]
