@@ -7,7 +7,8 @@ source: ``zenoh/src/net/protocol/gossip.rs``). Client-mode nodes (UAVs behind ca
 route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
-one batch of every UAV's latest pose per period instead of a message per neighbour.
+the poses that arrive within a short window (``--feed-window-ms``, 3 ms by default; 0 forwards
+at once) leave as one batch, instead of a message per neighbour.
 
 Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]`` (or ``mrswarm router``).
 """
@@ -25,7 +26,7 @@ from typing import Any
 import zenoh
 
 from swarmnet.connectivity import TransportTuning
-from swarmnet.feed import DEFAULT_PERIOD, PoseFeed
+from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
 
 
 def router_config(listen: list[str], tuning: TransportTuning | None = None) -> dict[str, Any]:
@@ -38,20 +39,21 @@ def router_config(listen: list[str], tuning: TransportTuning | None = None) -> d
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
-          feed_swarms: list[str] | None = None, feed_period: float = DEFAULT_PERIOD) -> None:
+          feed_swarms: list[str] | None = None, feed_window: float = DEFAULT_WINDOW) -> None:
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen))))
     try:
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}"
-              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
+              + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else ""),
               flush=True)
         if not feed_swarms:
             stop.wait(duration)
             return
-        feed = PoseFeed(session, feed_swarms, feed_period)
+        feed = PoseFeed(session, feed_swarms, feed_window)
         end = time.monotonic() + duration if duration is not None else float("inf")
-        while not stop.is_set() and time.monotonic() < end:
-            nxt = feed.step()
-            stop.wait(max(0.0, min(nxt - time.time(), end - time.monotonic())))
+        try:
+            feed.run(lambda: not stop.is_set() and time.monotonic() < end, idle_wait=0.2)
+        finally:
+            feed.close()
     finally:
         session.close()
 
@@ -61,13 +63,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--listen", action="append", default=None, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     ap.add_argument("--feed", action="append", default=[], metavar="SWARM",
                     help="run the edge pose feed for this swarm ('*' for all; repeatable)")
-    ap.add_argument("--feed-period", type=float, default=DEFAULT_PERIOD, help="seconds between pose batches")
+    ap.add_argument("--feed-window-ms", type=float, default=DEFAULT_WINDOW * 1000.0,
+                    help="a pose waits at most this long for others to share its batch (0: forward at once)")
     ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     args = ap.parse_args(argv)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_period)
+    if not 0.0 <= args.feed_window_ms <= 1000.0:
+        ap.error("--feed-window-ms must be in 0..1000")
+    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_window_ms / 1000.0)
     return 0
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import yaml
 from rich.console import Console
 
+from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.results import summarise_run
@@ -43,7 +44,6 @@ READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
-COMMAND_TIMEOUT = 6.0  # s to collect every acknowledgement of a command (re-sent once halfway)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
 
 
@@ -130,9 +130,13 @@ class Experiment:
             self.progress.stage = RunStage.WAITING
             self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n)
             self.progress.stage = RunStage.TAKING_OFF
-            self._command("takeoff", ids)
+            takeoff = self._command("takeoff", ids)
+            self.run_info.takeoff_sent, self.run_info.takeoff_sends = takeoff.sent_at, takeoff.sends
+            self.run_info.takeoff_acked_s = takeoff.duration
             climb = scn.flight.altitude / CLIMB_RATE / slowest
-            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb)
+            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb + command_deadline(n))
+            self.run_info.all_airborne_s = time.time() - takeoff.sent_at
+            self.progress.detail = f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff"
             self.progress.stage = RunStage.MISSION
             self._command("start", ids)
             start = time.time()
@@ -159,27 +163,22 @@ class Experiment:
         except ValueError:
             return None
 
-    def _command(self, verb: str, ids: list[int], timeout: float = COMMAND_TIMEOUT) -> None:
-        """Send ``verb`` to ``ids`` and collect every ack; re-send once to the silent ones."""
+    def _command(self, verb: str, ids: list[int]) -> CommandRound:
+        """Send ``verb`` to ``ids`` until all acknowledged (mrswarm/command_round.py), showing the progress."""
         assert self.observer is not None
-        acks: dict[int, Any] = {}
-        pending = self.observer.command(verb, ids)
-        for attempt in (1, 2):
-            deadline = time.time() + timeout / 2
-            while time.time() < deadline and not pending.complete:
-                time.sleep(0.05)
-                self.observer.poll()
-            acks.update(pending.acks)
-            missing = sorted(set(ids) - set(acks))
-            if not missing or attempt == 2:
-                break
-            pending = self.observer.command(verb, missing)  # commands are idempotent
-        failed = {u: a.message for u, a in acks.items() if not a.ok}
-        if failed:
-            raise RunAborted(f"'{verb}' refused by {failed}")
-        missing = sorted(set(ids) - set(acks))
-        if missing:
-            raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {missing}")
+
+        def show(r: CommandRound) -> None:
+            self.progress.detail = f"{verb}: {len(r.acks)}/{len(r.targets)} acknowledged ({r.sends} sends)"
+            self.display.refresh(self.observer)
+
+        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show)
+        if r.refused:
+            raise RunAborted(f"'{verb}' refused by {r.refused}")
+        if r.missing:
+            raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
+                             f"({r.sends} sends)")
+        self.progress.detail = f"{verb} acknowledged by all {len(ids)} in {1000 * (r.duration or 0.0):.0f} ms ({r.sends} sends)"
+        return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float) -> None:
         """Poll until every UAV in ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""

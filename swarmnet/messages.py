@@ -147,6 +147,10 @@ class Telemetry:
     lon: float
     alt: float  # AMSL, m
     rtf: float  # real-time factor of the FCU (1.0 for a physical UAV)
+    # the UAV's pose ages over its last full second, p50 in ms (-1: unknown, or from a sender
+    # that predates them): transport (sender's stamp -> arrival) and at use (arrival -> controller)
+    transport_ms: float = -1.0
+    use_ms: float = -1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -325,6 +329,10 @@ def decode_pose(data: bytes) -> Pose:
 _TELEMETRY_TAG = tag(Kind.TELEMETRY)
 
 
+def _ms_or_unknown(v: float) -> float:
+    return round(float(v), 2) if 0.0 <= v < 1e6 else -1.0  # NaN fails the comparison
+
+
 def encode_telemetry(t: Telemetry) -> bytes:
     return msgpack.packb(
         [
@@ -341,13 +349,17 @@ def encode_telemetry(t: Telemetry) -> bytes:
             float(t.lon),
             float(t.alt),
             float(t.rtf),
+            _ms_or_unknown(t.transport_ms),
+            _ms_or_unknown(t.use_ms),
         ]
     )
 
 
 def decode_telemetry(data: bytes) -> Telemetry:
+    """13 fields, or 15 with the pose ages (a sender of either kind is understood)."""
     o = _unpack(data, MAX_TELEMETRY_BYTES)
-    _expect(o, Kind.TELEMETRY, 13)
+    _expect(o, Kind.TELEMETRY, 15 if len(o) == 15 else 13)
+    ages = (_num(o[13], -1.0, 1e6, "transport_ms"), _num(o[14], -1.0, 1e6, "use_ms")) if len(o) == 15 else (-1.0, -1.0)
     if type(o[6]) is not bool:
         raise DecodeError("bad_field", f"armed={o[6]!r}")
     return Telemetry(
@@ -363,6 +375,8 @@ def decode_telemetry(data: bytes) -> Telemetry:
         lon=_num(o[10], -180.0, 180.0, "lon"),
         alt=_num(o[11], -1000.0, 100000.0, "alt"),
         rtf=_num(o[12], 0.0, 1000.0, "rtf"),
+        transport_ms=ages[0],
+        use_ms=ages[1],
     )
 
 

@@ -1,18 +1,25 @@
-"""The one receive path: drain a ring channel from the owner's loop, accept or reject each sample.
+"""The one receive path: stamp on arrival, queue, then accept or reject each sample in the owner's loop.
 
 Every subscription of :class:`~swarmnet.node.SwarmNode`, :class:`~swarmnet.observer.SwarmObserver`
-and :class:`~swarmnet.feed.PoseFeed` delivers into a bounded Zenoh ``RingChannel`` (the
-oldest sample is dropped when it is full), and the owner drains it with :func:`receive` from
-its own loop. No Python runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
+and :class:`~swarmnet.feed.PoseFeed` delivers into an :class:`Inlet`: a minimal callback, run
+by Zenoh on the thread that read the sample from the network, takes the wall-clock time and
+appends ``(time, sample)`` to a bounded deque (the oldest is dropped when it is full). That is
+all the Python that runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
 session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer by up
-to 11 s), whereas a ring nobody drains only loses its oldest samples. Draining in batches is
-also much cheaper than waking a Python thread per message.
+to 11 s), whereas an append takes about a microsecond and never blocks. The callback runs on
+Zenoh's own thread (``indirect=False``), not on a Python thread of its own, so a sample costs
+no extra thread wake-up.
+
+Streams that must be handled at once (commands, netem changes) also notify a :class:`Waker`,
+whose file descriptor the owner's loop waits on between its ticks; poses do not wake anyone:
+they are taken in at the next control tick, with their arrival time.
 
 The path, top to bottom::
 
-    drain(ring, budget)            at most `budget` samples per call, oldest first
+    Inlet (callback on Zenoh's thread): (arrival time, sample) -> bounded deque [-> Waker]
+    drain(inlet, budget)           at most `budget` samples per call, oldest first
       -> accept(key, payload)      decode + the stream's rules (swarmnet.messages.accept_*)
-      -> Accepted(key, item, payload), or Rejected: counted in NodeStats.rejected[reason]
+      -> Accepted(key, item, payload, at), or Rejected: counted in NodeStats.rejected[reason]
 
 What happens to an accepted item (the netem shim, the neighbour table, the inbox) is the
 owner's business; counting it as received is too, because the owner knows when it is
@@ -21,18 +28,17 @@ delivered.
 
 from __future__ import annotations
 
+import os
+import select
+import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
+
+import zenoh
 
 from swarmnet.messages import Rejected
 from swarmnet.stats import NodeStats
-
-if TYPE_CHECKING:
-    from typing import TypeAlias
-
-    import zenoh
-
-    Ring: TypeAlias = zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]
 
 T = TypeVar("T")
 Accept = Callable[[str, bytes], T]  # (key, payload) -> message, or raises Rejected
@@ -46,29 +52,128 @@ class Accepted(NamedTuple, Generic[T]):
     key: str  # the Zenoh key it arrived on
     item: T  # the decoded message
     payload: bytes  # as received (the edge feed forwards it; the netem shim's rate limit counts its length)
+    at: float  # wall-clock time it arrived in this process, s since the Unix epoch
 
 
-def drain(ring: Ring, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
-    """The samples waiting in ``ring``, oldest first, at most ``budget`` of them; the rest stay
-    for the next call. Never blocks."""
-    for _ in range(budget):
-        sample = ring.try_recv()
-        if sample is None:
+class Waker:
+    """A file descriptor that becomes readable when a waking stream receives something.
+
+    Notifications coalesce: any number of them before :meth:`clear` wake the owner once. An
+    ``eventfd`` on Linux (one syscall to notify), a pipe elsewhere.
+    """
+
+    def __init__(self) -> None:
+        if hasattr(os, "eventfd"):
+            self._r = self._w = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        else:  # pragma: no cover - not Linux
+            self._r, self._w = os.pipe()
+            os.set_blocking(self._r, False)
+            os.set_blocking(self._w, False)
+        self.notifications = 0  # how often a sample woke (or would have woken) the owner
+        self.closed = False
+
+    def fileno(self) -> int:
+        return self._r
+
+    def notify(self) -> None:
+        """Called on Zenoh's thread: never blocks (a full pipe means a wake-up is pending anyway)."""
+        self.notifications += 1
+        try:
+            os.write(self._w, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+        except (BlockingIOError, OSError):
+            pass
+
+    def clear(self) -> None:
+        """Consume the pending notifications (the owner is about to drain everything)."""
+        try:
+            os.read(self._r, 4096)
+        except (BlockingIOError, OSError):
+            pass
+
+    def wait(self, timeout: float) -> bool:
+        """Block until notified or ``timeout`` s have passed; True if notified (then cleared)."""
+        if timeout < 0.0:
+            timeout = 0.0
+        ready, _, _ = select.select((self._r,), (), (), timeout)
+        if ready:
+            self.clear()
+            return True
+        return False
+
+    def close(self) -> None:
+        if self.closed:
             return
-        yield sample
+        self.closed = True
+        for fd in {self._r, self._w}:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
-def accept_each(arrivals: Iterable[tuple[str, bytes]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
-    """Run ``accept`` on every ``(key, payload)``; count each rejection in ``stats`` and skip it."""
-    for key, payload in arrivals:
+class Inlet:
+    """Where one subscription's samples wait for the owner: ``(arrival time, sample)``, oldest first.
+
+    ``size`` bounds the queue (the oldest sample is dropped when full, as a ring channel does);
+    ``waker``, if given, is notified of every sample (for streams the owner handles at once).
+    ``clock`` stamps the arrival (wall time, s).
+    """
+
+    __slots__ = ("_q", "waker", "clock", "__weakref__")
+
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time):
+        self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
+        self.waker = waker
+        self.clock = clock
+
+    def handler(self) -> zenoh.handlers.Callback[zenoh.Sample]:
+        """The Zenoh handler to subscribe with: a closure that only stamps and appends (and notifies)."""
+        append, stamp, waker = self._q.append, self.clock, self.waker
+        if waker is None:
+            def on_sample(sample: zenoh.Sample) -> None:
+                append((stamp(), sample))
+        else:
+            notify = waker.notify
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                append((stamp(), sample))
+                notify()
+        return zenoh.handlers.Callback(on_sample, indirect=False)
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def drain(self, budget: int = DRAIN_BUDGET) -> Iterator[tuple[float, zenoh.Sample]]:
+        """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks."""
+        q = self._q
+        for _ in range(budget):
+            if not q:
+                return
+            yield q.popleft()
+
+
+def accept_each(arrivals: Iterable[tuple[str, bytes, float]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
+    """Run ``accept`` on every ``(key, payload, arrival time)``; count each rejection in ``stats`` and skip it."""
+    for key, payload, at in arrivals:
         try:
             item = accept(key, payload)
         except Rejected as exc:
             stats.reject(exc.reason, key, exc.detail)
             continue
-        yield Accepted(key, item, payload)
+        yield Accepted(key, item, payload, at)
 
 
-def receive(ring: Ring, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
-    """The accepted samples waiting in ``ring`` (at most ``budget`` drained per call)."""
-    return accept_each(((str(s.key_expr), s.payload.to_bytes()) for s in drain(ring, budget)), accept, stats)
+def _unpack(inlet: Inlet, budget: int) -> Iterator[tuple[str, bytes, float]]:
+    for at, s in inlet.drain(budget):
+        yield str(s.key_expr), s.payload.to_bytes(), at
+
+
+def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
+    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call)."""
+    return accept_each(_unpack(inlet, budget), accept, stats)
+
+
+def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> zenoh.Subscriber[None]:
+    """Declare a subscriber on ``key`` that feeds ``inlet`` (``options``: ``allowed_origin``...).
+    Keep the returned subscriber as long as the inlet is used; closing the session ends it too."""
+    return session.declare_subscriber(key, inlet.handler(), **options)

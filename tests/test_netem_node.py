@@ -83,7 +83,7 @@ def test_a_delayed_link_delays_and_an_unimpaired_one_does_not(rendezvous: Rendez
     fly([a], [b, c], 3.0)
     ls = link_stats(b, 1)
     assert ls["sent"] == ls["delivered"] == c.neighbours.get(1).received >= 25  # type: ignore[union-attr]
-    age_b, age_c = b.stats.pose_age, c.stats.pose_age
+    age_b, age_c = b.stats.ages.transport, c.stats.ages.transport
     assert age_c.percentile(50) < 0.15  # the same poses without the shim
     # the shim adds 250 ms; the arrival instant is estimated within the 40 ms poll period
     assert 0.25 - TICK <= age_b.percentile(50) <= 0.25 + 0.3
@@ -133,14 +133,14 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     got: list[Any] = []
 
     def ack_seen(cmd_id: int, ok: bool) -> bool:
-        while (s := acks.try_recv()) is not None:
+        for _at, s in acks.drain():
             got.append(decode_ack(s.payload.to_bytes()))
         return any(x.cmd_id == cmd_id and x.uav == 2 and x.ok is ok for x in got)
 
     assert wait_for(lambda: ack_seen(77, True), 5.0)
     assert "delay 300ms" in [x for x in got if x.cmd_id == 77][0].message
     fly([a], [b], 2.0)
-    assert b.stats.pose_age.percentile(50) >= 0.3 - TICK
+    assert b.stats.ages.transport.percentile(50) >= 0.3 - TICK
     # an invalid config: refused, counted, nacked; the old one stays
     publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(),
                                      config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))

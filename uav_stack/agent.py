@@ -30,7 +30,7 @@ from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
-from uav_stack.pose_age import PoseAgeLog
+from uav_stack.pose_age import AgeWindow, PoseAgeLog
 from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
@@ -126,6 +126,7 @@ class Agent(OverridesMixin):
         self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
         self._mode_at_phase = ""
         self.recorder: TrajectoryRecorder | None = None
+        self.age_window = AgeWindow(node.stats.ages)
         self.age_log: PoseAgeLog | None = None
         if cfg.record_dir:
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv")
@@ -171,14 +172,9 @@ class Agent(OverridesMixin):
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None
         have_pos = self._update_own()
-        inbox = node.poll(now)
-        for cmd in inbox.commands:
-            self._on_command(cmd, now)
-        if self._deferred:
-            self._settle_acks(now)
         st = link.state
-        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
-        # age at the neighbours is transport time, not the phase between two timers.
+        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
+        # anything else, so that its stamp (when the position was read) is its publication time.
         if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period):
             self._published_position_at = st.position_at
             o = self.own
@@ -186,6 +182,9 @@ class Agent(OverridesMixin):
                 t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
                 t_wall=st.position_at,
             )
+        self.react(now)
+        if self._deferred:
+            self._settle_acks(now)
         if now >= self._next_control:
             self._next_control = max(self._next_control + 1.0 / self.cfg.control_rate_hz, now)
             self._control(now, have_pos)
@@ -195,9 +194,11 @@ class Agent(OverridesMixin):
             self._next_telemetry = now + 1.0 / self.cfg.telemetry_rate_hz
             st = link.state
             rtf = link.rtf.value
+            ages = self.age_window.last  # of the last full second
             node.publish_telemetry(
                 mode=st.mode, armed=st.armed, battery=st.battery, voltage=st.voltage,
                 lat=st.lat, lon=st.lon, alt=st.alt, rtf=0.0 if math.isnan(rtf) else rtf,  # 0.0: unknown on the wire
+                transport_ms=1000.0 * ages.transport_p50, use_ms=1000.0 * ages.use_p50,  # NaN: -1 on the wire
             )
         if now >= self._next_state:
             self._next_state = now + 1.0
@@ -207,6 +208,14 @@ class Agent(OverridesMixin):
             self.write_stats(now)
         if router is not None:
             router.flush()
+
+    def react(self, now: float) -> None:
+        """Take in what arrived (poses into the neighbour table) and handle the commands at once.
+
+        Called by :meth:`step`, and by the loop between ticks when the node's waker says a
+        command arrived, so a command is acknowledged within a millisecond of its arrival."""
+        for cmd in self.node.poll(now).commands:
+            self._on_command(cmd, now)
 
     @property
     def behaviour_name(self) -> str:
@@ -374,12 +383,14 @@ class Agent(OverridesMixin):
                 self._set_phase(AgentPhase.MISSION, "more work after a re-split")
         if self.avoidance is not None:
             # only neighbours that could matter (avoidance looks at most neighbour_range away);
-            # at N = 50 this skips building ~40 views per tick
+            # at N = 50 this skips building ~40 views per tick. The time of use is taken now,
+            # after the poll: each pose's age (sender's stamp to now) and age at use are exact.
             reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
             r2 = reach * reach
+            t_use = self.clock()
             neigh = [
-                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
-                for n in self.node.neighbours
+                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(t_use))
+                for n in self.node.take_neighbours(t_use)
                 if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
             res = self.avoidance.adjust(me, (vx, vy), neigh)
@@ -427,8 +438,9 @@ class Agent(OverridesMixin):
             write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now))
         if self.recorder is not None:
             self.recorder.flush(now)
+        ages = self.age_window.sample()
         if self.age_log is not None:
-            self.age_log.sample(now)
+            self.age_log.write(now, ages)
 
     def close(self, now: float) -> None:
         self.write_stats(now)

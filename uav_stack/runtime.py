@@ -2,7 +2,8 @@
 
 One single-threaded loop on a fixed tick (:func:`run_loop`) drives everything: the virtual
 FCU's datagrams and physics (if any), the agent's MAVLink link, and the agent's step (which
-drains Zenoh's ring channels). No asyncio: it would cost ~10 MB per process.
+drains the swarm node's inlets). Between ticks it sleeps on the node's waker, so a command is
+handled as soon as it arrives. No asyncio: it would cost ~10 MB per process.
 """
 
 from __future__ import annotations
@@ -113,6 +114,10 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
     later, as over a real serial link. Fewer, fuller ticks are cheaper than waking on every
     datagram and timer: with other processes evicting the CPU caches between ticks, each
     code path costs several times its warm cost (docs/benchmarks.md).
+
+    Between ticks the loop waits on the swarm node's waker rather than sleeping: a command
+    (or a netem change) wakes it, and :meth:`Agent.react` handles it at once. Poses do not
+    wake it: they wait, stamped with their arrival, for the next tick's control.
     """
     parent = os.getppid()
     period = 1.0 / tick_hz
@@ -124,7 +129,8 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
         if now_m >= end:
             break
         if next_tick > now_m:
-            time.sleep(min(next_tick, end) - now_m)
+            if agent.node.waker.wait(min(next_tick, end) - now_m):
+                agent.react(time.time())
             continue
         next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
