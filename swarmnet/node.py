@@ -139,6 +139,7 @@ class SwarmNode:
         self.neighbours = NeighbourTable(stale_after, forget_after)
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
+        self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
         self.session: zenoh.Session | None = None
         # readable when a command or a netem change arrived: the owner's loop waits on it
         self.waker = Waker()
@@ -426,9 +427,11 @@ class SwarmNode:
                 if key not in self.alive:
                     self.alive.add(key)
                     inbox.joined.append(key)
+                    self._alive_uavs = None
             elif key in self.alive:
                 self.alive.discard(key)
                 inbox.left.append(key)
+                self._alive_uavs = None
 
     # ---- netem shim (docs/netem.md) ----------------------------------------------------------
     def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,
@@ -463,7 +466,7 @@ class SwarmNode:
 
     def _apply_netem_sets(self, now: float, budget: int) -> None:
         """Apply the runtime changes that arrived on ``mrs/<swarm>/netem/set``, each acked (ok or not)."""
-        if self._netem_inlet is None:
+        if self._netem_inlet is None or not len(self._netem_inlet):  # the usual case, every tick: nothing to import
             return
         from swarmnet.netem import NetemConfigError
 
@@ -492,12 +495,15 @@ class SwarmNode:
         return out
 
     def alive_uavs(self) -> set[int]:
-        """UAV ids whose liveliness token is present (the node's own included)."""
-        prefix = f"{self.keys.prefix}/alive/uav/"
-        out = set()
-        for key in self.alive:
-            if key.startswith(prefix):
-                tail = key[len(prefix):]
-                if tail.isdigit():
-                    out.add(int(tail))
-        return out
+        """UAV ids whose liveliness token is present (the node's own included). Parsed again only
+        after a token appeared or disappeared (the controller asks every tick)."""
+        if self._alive_uavs is None:
+            prefix = f"{self.keys.prefix}/alive/uav/"
+            out = set()
+            for key in self.alive:
+                if key.startswith(prefix):
+                    tail = key[len(prefix):]
+                    if tail.isdigit():
+                        out.add(int(tail))
+            self._alive_uavs = out
+        return set(self._alive_uavs)

@@ -163,14 +163,21 @@ class PoseAges:
         if age < self.most_negative:
             self.most_negative = age
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
+    def to_dict(self, links: bool = True) -> dict[str, Any]:
+        """``links=False`` leaves out the per-link histograms (the bulk of it with many neighbours)."""
+        out = {
             "transport_age": self.transport.to_dict(),
-            "transport_age_links": {str(u): h.to_dict() for u, h in self.links.items()},
             "use_age": self.use.to_dict(),
             "negative_ages": dict(self.negative),
             "most_negative_age": self.most_negative,
         }
+        if links:
+            out["transport_age_links"] = self.links_dict()
+        return out
+
+    def links_dict(self) -> dict[str, Any]:
+        """The per-link transport-age histograms, by sending UAV."""
+        return {str(u): h.to_dict() for u, h in self.links.items()}
 
 
 @dataclass
@@ -195,10 +202,10 @@ class NodeStats:
         else:
             self._suppressed += 1
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, links: bool = True) -> dict[str, Any]:
         return {
             "sent": dict(self.sent),
             "received": dict(self.received),
             "rejected": dict(self.rejected),
-            **self.ages.to_dict(),
+            **self.ages.to_dict(links),
         }

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from swarmnet.messages import Command, Realm
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
@@ -42,6 +44,7 @@ ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * 
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
+LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms in the counters file
 
 
 @dataclass
@@ -93,6 +96,7 @@ class Agent(OverridesMixin):
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
         self.own = Own()
+        self._own_at = -math.inf  # FcuState.position_at of the position in self.own
         self.phase = AgentPhase.INIT
         self.override = ""
         self.detail = ""
@@ -114,6 +118,8 @@ class Agent(OverridesMixin):
         self._next_telemetry = 0.0
         self._next_state = 0.0
         self._next_stats = 0.0
+        self._next_link_stats = 0.0
+        self._link_stats = msgspec.Raw(b"{}")
         self._offboard_stream_since: float | None = None
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
@@ -147,13 +153,16 @@ class Agent(OverridesMixin):
         if not st.has_position:
             return False
         o = self.own
+        o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)  # also from ATTITUDE, between two positions
+        if st.position_at == self._own_at:
+            return True  # no new position since the last tick: nothing to convert
+        self._own_at = st.position_at
         o.x, o.y, o.z = self.frame.to_enu(st.lat, st.lon, st.alt)
         # The swarm lives in wall-clock time: a virtual FCU at RTF 0.4 that reports 5 m/s is
         # really covering 2 m/s of ground per wall second, and neighbours extrapolate with that.
         k = self.link.rtf.value
         k = k if 0.0 < k < 1.0 else 1.0  # also NaN (not measured yet): take the FCU's word
         o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
-        o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
         return True
 
     @property
@@ -409,7 +418,8 @@ class Agent(OverridesMixin):
                                   int(st.armed), -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
-    def stats(self, now: float) -> dict[str, Any]:
+    def stats(self, now: float, links: bool = True) -> dict[str, Any]:
+        """The counters file's content; ``links=False`` leaves out the per-link pose-age histograms."""
         return {
             "uav": self.cfg.uav,
             "realm": self.realm.label,
@@ -423,7 +433,7 @@ class Agent(OverridesMixin):
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            "net": self.node.stats.to_dict(),
+            "net": self.node.stats.to_dict(links),
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}
@@ -433,9 +443,17 @@ class Agent(OverridesMixin):
             "written_at": now,
         }
 
-    def write_stats(self, now: float) -> None:
+    def write_stats(self, now: float, final: bool = False) -> None:
+        """The counters file (every second; the per-link histograms, its bulk with many neighbours,
+        every LINK_STATS_EVERY s and at the end), the trajectory's flush, the pose ages' second."""
         if self.cfg.record_dir:
-            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now))
+            links = final or now >= self._next_link_stats
+            if links:  # encoded once here, then copied into each write as it is
+                self._next_link_stats = now + LINK_STATS_EVERY
+                self._link_stats = msgspec.Raw(msgspec.json.encode(self.node.stats.ages.links_dict()))
+            d = self.stats(now, links=False)
+            d["net"]["transport_age_links"] = self._link_stats  # as of the last full write
+            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", d)
         if self.recorder is not None:
             self.recorder.flush(now)
         ages = self.age_window.sample()
@@ -443,7 +461,7 @@ class Agent(OverridesMixin):
             self.age_log.write(now, ages)
 
     def close(self, now: float) -> None:
-        self.write_stats(now)
+        self.write_stats(now, final=True)
         if self.recorder is not None:
             self.recorder.close()
         if self.age_log is not None:

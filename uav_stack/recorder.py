@@ -7,10 +7,11 @@ runner merges them afterwards.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, TextIO
+
+import msgspec
 
 TRAJECTORY_COLUMNS = ("t_wall", "t_sim", "x", "y", "z", "vx", "vy", "vz", "yaw", "phase", "mode", "armed", "rtf")
 
@@ -41,8 +42,15 @@ class TrajectoryRecorder:
             self._f.close()
 
 
+_encode = msgspec.json.Encoder().encode  # ~10x faster than json.dumps on the counters; NaN becomes null
+
+
 def write_json_atomic(path: str | Path, data: dict[str, Any]) -> None:
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data))
+    """Replace ``path`` with ``data`` as JSON (temporary file, then rename: a reader never sees half)."""
+    tmp = f"{path}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        os.write(fd, _encode(data))
+    finally:
+        os.close(fd)
     os.replace(tmp, path)
