@@ -163,14 +163,17 @@ def accept_each(arrivals: Iterable[tuple[str, bytes, float]], accept: Accept[T],
         yield Accepted(key, item, payload, at)
 
 
-def _unpack(inlet: Inlet, budget: int) -> Iterator[tuple[str, bytes, float]]:
-    for at, s in inlet.drain(budget):
-        yield str(s.key_expr), s.payload.to_bytes(), at
-
-
 def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
-    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call)."""
-    return accept_each(_unpack(inlet, budget), accept, stats)
+    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call): drain and
+    :func:`accept_each` in one loop (every pose passes here)."""
+    for at, s in inlet.drain(budget):
+        key, payload = str(s.key_expr), s.payload.to_bytes()
+        try:
+            item = accept(key, payload)
+        except Rejected as exc:
+            stats.reject(exc.reason, key, exc.detail)
+            continue
+        yield Accepted(key, item, payload, at)
 
 
 def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> zenoh.Subscriber[None]:

@@ -34,15 +34,19 @@ class LogHistogram:
         self.total = 0.0
         self.max = 0.0
 
-    @classmethod
-    def index(cls, value: float) -> int:
-        if not value > cls.LO:  # also NaN
+    @staticmethod
+    def index(value: float) -> int:
+        """The bin of ``value`` (0: at most LO, also NaN; NBINS - 1: overflow)."""
+        if not value > _LO:  # also NaN
             return 0
-        i = 1 + int(math.log10(value / cls.LO) * cls.PER_DECADE)
-        return i if i < cls.NBINS - 1 else cls.NBINS - 1
+        i = 1 + int((_log10(value) - _LOG_LO) * _PER_DECADE)
+        return i if i < _OVERFLOW else _OVERFLOW
 
     def add(self, value: float) -> None:
-        i = self.index(value)
+        self.add_at(self.index(value), value)
+
+    def add_at(self, i: int, value: float) -> None:
+        """Add ``value``, whose bin :meth:`index` is ``i``."""
         b = self.bins
         b[i] = b.get(i, 0) + 1
         self.n += 1
@@ -145,11 +149,12 @@ class PoseAges:
         if age < 0.0:
             self._negative("transport", age)
             return
-        self.transport.add(age)
         h = self.links.get(src)
         if h is None:
             h = self.links[src] = LogHistogram()
-        h.add(age)
+        i = LogHistogram.index(age)  # once for both histograms (a log10 per pose)
+        self.transport.add_at(i, age)
+        h.add_at(i, age)
 
     def used(self, age: float) -> None:
         """A pose was first used by the controller ``age`` s after it arrived."""
@@ -178,6 +183,12 @@ class PoseAges:
     def links_dict(self) -> dict[str, Any]:
         """The per-link transport-age histograms, by sending UAV."""
         return {str(u): h.to_dict() for u, h in self.links.items()}
+
+
+# LogHistogram.index's constants as module globals (it runs for every pose): 1 + (log10(v) - log10(LO)) * 50
+_LO, _PER_DECADE, _OVERFLOW = LogHistogram.LO, LogHistogram.PER_DECADE, LogHistogram.NBINS - 1
+_LOG_LO = math.log10(_LO)
+_log10 = math.log10
 
 
 @dataclass
