@@ -4,13 +4,16 @@ N agent processes on 127.0.0.1, each publishing a pose at 10 Hz (random phase) a
 every other agent's (full mesh). The transports, flown one after the other at every N (and
 ``--rounds`` times over), so that all see the machine's load of the same moment:
 
-| name | what | data path |
-|---|---|---|
-| ``mqtt`` | Mosquitto (started here from the Debian package, a config written here: listener on 127.0.0.1 only, no persistence, TCP_NODELAY) + paho-mqtt, QoS 0, MQTT 5 ``no_local`` | agent -> broker -> agents |
-| ``zenoh-peer`` | plain zenoh-python, explicit full peer mesh, a callback subscriber | agent -> agents |
-| ``zenoh-client`` | plain zenoh-python in client mode, one Zenoh router (``python -m discovery.rendezvous``) | agent -> router -> agents |
-| ``swarmnet`` | ``swarmnet.SwarmNode`` on the same peer mesh, its loop polling at the UAV tick (25 Hz) | agent -> agents |
-| ``swarmnet-edge`` | ``SwarmNode`` as client of the edge router's pose feed (``pose_feed: edge``, 3 ms window) | agent -> edge router (batches) -> agents |
+* ``mqtt``: Mosquitto (started here from the Debian package with a config written here:
+  listener on 127.0.0.1 only, no persistence, TCP_NODELAY) + paho-mqtt, QoS 0, MQTT 5
+  ``no_local``; agent -> broker -> agents;
+* ``zenoh-peer``: plain zenoh-python, explicit full peer mesh, a callback subscriber; agent -> agents;
+* ``zenoh-client``: plain zenoh-python in client mode through one Zenoh router
+  (``python -m discovery.rendezvous``); agent -> router -> agents;
+* ``swarmnet``: ``swarmnet.SwarmNode`` on the same peer mesh, its loop polling at the UAV tick
+  (25 Hz); agent -> agents;
+* ``swarmnet-edge``: ``SwarmNode`` as a client of the edge router's pose feed (``pose_feed:
+  edge``, 3 ms window); agent -> edge router (batches) -> agents.
 
 Raw transports send 48-byte payloads (sender, sequence number, send time, padding); swarmnet
 sends its own pose encoding (at most 48 bytes). The pose age is the receiving process's arrival
@@ -19,7 +22,9 @@ clock: for swarmnet that is its transport age (docs/benchmarks.md). Measured in 
 over the window: ages (log histogram, 50 bins per decade), poses received against poses
 published by the others (delivery ratio), the agent's own CPU time (all its threads) and RSS;
 the broker's or router's CPU by this script. ``--receivers K`` makes only K agents subscribe
-(every agent still publishes) for a large N whose full mesh would saturate the machine.
+(every agent still publishes) for a large N whose full mesh would saturate the machine; a
+swarmnet node always subscribes to poses, so its non-receivers still get them and only skip
+handling them (its figures with ``--receivers`` are pessimistic).
 
     python benchmarks/transport.py --sizes 10 25 50 --out benchmarks/results
     python benchmarks/transport.py --sizes 100 --receivers 20 --out benchmarks/results
@@ -235,7 +240,8 @@ def start_mosquitto(workdir: Path) -> tuple[subprocess.Popen[bytes], int]:
     conf = workdir / "mosquitto.conf"
     conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nset_tcp_nodelay true\n"
                     "log_type error\nlog_dest stderr\nmax_queued_messages 10000\n")
-    proc = subprocess.Popen([binary, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=open(workdir / "mosquitto.log", "wb"))
+    with open(workdir / "mosquitto.log", "wb") as log:  # the child keeps its own descriptor
+        proc = subprocess.Popen([binary, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=log)
     _wait_port(port, proc)
     return proc, port
 
@@ -319,7 +325,6 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     hist = LogHistogram()
     for r in reports:
         hist.merge(LogHistogram.from_dict(r["ages"]))
-    published = sum(r["published"] for r in reports)
     n_recv = sum(1 for r in reports if r["receives"])
     # every published pose should reach every receiver but its sender
     expected = sum(r["published"] * (n_recv - (1 if r["receives"] else 0)) for r in reports)
@@ -348,7 +353,10 @@ def merge_rounds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         h = LogHistogram()
         for r in rs:
             h.merge(LogHistogram.from_dict(r["ages"]))
-        med = lambda k: statistics.median(r[k] for r in rs if r[k] is not None) if any(r[k] is not None for r in rs) else None  # noqa: E731
+        def med(k: str, rs: list[dict[str, Any]] = rs) -> float | None:
+            vals = [r[k] for r in rs if r[k] is not None]
+            return statistics.median(vals) if vals else None
+
         out.append({"n": key[0], "transport": key[1], "rounds": len(rs), "receivers": rs[0]["receivers"],
                      "age_p50_ms": round(1000 * h.percentile(50), 3) if h.n else None,
                      "age_p99_ms": round(1000 * h.percentile(99), 3) if h.n else None,
