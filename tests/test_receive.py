@@ -70,8 +70,14 @@ def test_the_age_at_use_counts_each_pose_once_from_its_arrival(rendezvous: Rende
     b = SwarmNode(NodeIdentity("alpha", 2), rendezvous).open()
     try:
         assert wait_for(lambda: (a.poll(), b.poll(), {1, 2} <= b.alive_uavs())[2], 10.0)
-        a.publish_pose(t_sim=0.0, x=0.0, y=0.0, z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
-        assert wait_for(lambda: (b.poll(), 1 in b.neighbours)[1], 3.0)
+
+        def heard() -> bool:  # published until the peers' direct link carries it
+            a.publish_pose(t_sim=0.0, x=0.0, y=0.0, z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+            return (b.poll(), 1 in b.neighbours)[1]
+
+        assert wait_for(heard, 10.0, period=0.1)
+        time.sleep(0.3)
+        b.poll()  # a pose sent while the last one was on its way
         time.sleep(0.05)  # the controller uses it a while after it arrived
         t_use = time.time()
         [nb] = b.take_neighbours(t_use)
@@ -122,7 +128,14 @@ def test_the_edge_feed_forwards_each_pose_within_its_window_and_batches_those_th
     with zenoh.open(to_zenoh(edge_5ms.zenoh_config())) as s:
         feed = Inlet(1024)
         sub = subscribe(s, keys.pose_feed, feed)
-        time.sleep(0.5)
+
+        def flowing() -> bool:  # until the router's feed carries our poses
+            s.put(keys.pose(1), encode_pose(Pose(1, Realm.VIRTUAL, 0, 0.0, time.time(), 0, 0, 0, 0, 0, 0, 0)))
+            return len(feed) > 0
+
+        assert wait_for(flowing, 10.0, period=0.1)
+        time.sleep(0.1)
+        list(feed.drain())
         waits, sizes = [], []
         for k in range(20):
             for uav in (1, 2, 3):  # three UAVs publish at once: their poses share a window
