@@ -411,7 +411,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if links:
         network.transport_age_links = link_summary(links)
     if info.takeoff_sent is not None:
-        summary.takeoff = Takeoff(acked_s=info.takeoff_acked_s, all_airborne_s=info.all_airborne_s, sends=info.takeoff_sends)
+        summary.takeoff = Takeoff(acked_s=info.takeoff_acked_s, all_airborne_s=info.all_airborne_s, sends=info.takeoff_sends,
+                                  by_state=info.takeoff_by_state)
     ne = netem_report(stats)
     if ne is not None:
         network.netem = ne

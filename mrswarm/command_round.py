@@ -6,7 +6,10 @@ a fixed wait with one re-send is not enough. Here the command goes to every UAV,
 sleeps on its observer's waker (an acknowledgement wakes it at once), and the UAVs that have not
 answered are sent it again after 0.5 s, then 1, 2, 4, 4 ... s, until all answered or the
 deadline passed. Commands are idempotent in the agent (a second ``takeoff`` answers "already
-taking off"), and an acknowledgement of any of the sends counts.
+taking off"), and an acknowledgement of any of the sends counts. So does, if the caller gives
+``took_effect``, the UAV's own state showing the command took effect (a ``takeoff`` UAV that
+reports ``arming``): an acknowledgement is one message, sent once and droppable in a full
+queue, whereas the state is published every second.
 
 The deadline grows with the fleet: :func:`command_deadline` gives 6 s plus 0.15 s per UAV
 (21 s for 100 UAVs), because the UAVs answer one by one on a shared machine.
@@ -42,11 +45,12 @@ class CommandRound:
     sends: int = 0
     acks: dict[int, CommandAck] = field(default_factory=dict)
     acked_at: dict[int, float] = field(default_factory=dict)  # wall time each UAV's first ack arrived
-    complete_at: float | None = None  # wall time the last ack arrived
+    by_state: dict[int, float] = field(default_factory=dict)  # UAVs whose state showed it first, and when
+    complete_at: float | None = None  # wall time the last ack (or state) arrived
 
     @property
     def missing(self) -> list[int]:
-        return sorted(set(self.targets) - set(self.acks))
+        return sorted(set(self.targets) - set(self.acks) - set(self.by_state))
 
     @property
     def refused(self) -> dict[int, str]:
@@ -59,11 +63,13 @@ class CommandRound:
 
 
 def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeout: float,
-                  progress: Callable[[CommandRound], None] | None = None, clock: Callable[[], float] = time.time) -> CommandRound:
+                  progress: Callable[[CommandRound], None] | None = None, clock: Callable[[], float] = time.time,
+                  took_effect: Callable[[int], bool] | None = None) -> CommandRound:
     """Send ``verb`` to ``targets`` until each acknowledged or ``timeout`` s passed (see the module's docstring).
 
-    ``progress`` is called after every wake-up (for a display). Never raises for missing or
-    refused acknowledgements: the caller reads :attr:`CommandRound.missing` and ``refused``.
+    ``progress`` is called after every wake-up (for a display); ``took_effect(uav)`` tells from
+    the UAV's last reported state that it got the command. Never raises for missing or refused
+    acknowledgements: the caller reads :attr:`CommandRound.missing` and ``refused``.
     """
     r = CommandRound(verb, sorted(targets), sent_at=clock())
     deadline = r.sent_at + timeout
@@ -78,11 +84,15 @@ def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeou
                 if uav not in r.acks:
                     r.acks[uav] = ack
                     r.acked_at[uav] = p.acked_at.get(uav, clock())
+        if took_effect is not None:
+            for uav in r.missing:
+                if took_effect(uav):
+                    r.by_state[uav] = clock()
         if progress is not None:
             progress(r)
         now = clock()
         if not r.missing:
-            r.complete_at = max(r.acked_at.values(), default=now)
+            r.complete_at = max([*r.acked_at.values(), *r.by_state.values()], default=now)
             break
         if now >= deadline:
             break

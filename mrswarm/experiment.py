@@ -37,7 +37,7 @@ from mrswarm.summary import RunInfo, RunSummary
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
 from uav_stack.config import NetworkConfig
-from uav_stack.phases import FINISHED, AgentPhase
+from uav_stack.phases import FINISHED, WORKING, AgentPhase
 from uav_stack.runtime import make_connectivity
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
@@ -130,15 +130,17 @@ class Experiment:
             self.progress.stage = RunStage.WAITING
             self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n)
             self.progress.stage = RunStage.TAKING_OFF
-            takeoff = self._command("takeoff", ids)
+            takeoff = self._command("takeoff", ids, {AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD,
+                                                     AgentPhase.HOVER})
             self.run_info.takeoff_sent, self.run_info.takeoff_sends = takeoff.sent_at, takeoff.sends
             self.run_info.takeoff_acked_s = takeoff.duration
+            self.run_info.takeoff_by_state = len(takeoff.by_state)
             climb = scn.flight.altitude / CLIMB_RATE / slowest
             self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb + command_deadline(n))
             self.run_info.all_airborne_s = time.time() - takeoff.sent_at
             self.progress.detail = f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff"
             self.progress.stage = RunStage.MISSION
-            self._command("start", ids)
+            self._command("start", ids, set(WORKING))
             start = time.time()
             self.run_info.mission_start = self.progress.mission_start = start
             end = start + scn.duration
@@ -163,15 +165,18 @@ class Experiment:
         except ValueError:
             return None
 
-    def _command(self, verb: str, ids: list[int]) -> CommandRound:
-        """Send ``verb`` to ``ids`` until all acknowledged (mrswarm/command_round.py), showing the progress."""
+    def _command(self, verb: str, ids: list[int], took_effect: set[AgentPhase]) -> CommandRound:
+        """Send ``verb`` to ``ids`` until each acknowledged it or reports one of the ``took_effect``
+        phases (mrswarm/command_round.py), showing the progress."""
         assert self.observer is not None
 
         def show(r: CommandRound) -> None:
-            self.progress.detail = f"{verb}: {len(r.acks)}/{len(r.targets)} acknowledged ({r.sends} sends)"
+            done = len(r.targets) - len(r.missing)
+            self.progress.detail = f"{verb}: {done}/{len(r.targets)} acknowledged ({r.sends} sends)"
             self.display.refresh(self.observer)
 
-        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show)
+        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show,
+                          took_effect=lambda u: self._phase_of(u) in took_effect)
         if r.refused:
             raise RunAborted(f"'{verb}' refused by {r.refused}")
         if r.missing:

@@ -40,6 +40,7 @@ class RunInfo(Struct):
     takeoff_acked_s: float | None = None
     all_airborne_s: float | None = None
     takeoff_sends: int = 0
+    takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
     exit_codes: dict[str, int | None] = {}
     stopped: float | None = None  # wall
 
@@ -239,9 +240,10 @@ class PoseAgeOverTime(Struct):
 class Takeoff(Struct):
     """The runner's takeoff command, s after it was first sent."""
 
-    acked_s: float | None  # every UAV acknowledged it (None: not all did)
+    acked_s: float | None  # every UAV acknowledged it, or showed it in its state (None: not all did)
     all_airborne_s: float | None  # every UAV hovered at its altitude (None: not all did)
     sends: int  # times it was sent (re-sent to the UAVs that had not acknowledged)
+    by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
 
 
 class Network(Struct):

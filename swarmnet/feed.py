@@ -63,7 +63,8 @@ class PoseFeed:
         self._inlets: list[Inlet] = []
         self._subscribers: list[Any] = []
         for sw in swarms:
-            inlet = Inlet(8192, self.waker, clock)
+            # on a Python thread of its own: the router's receive threads never wait for this loop
+            inlet = Inlet(8192, self.waker, clock, own_thread=True)
             self._subscribers.append(subscribe(session, f"{ROOT}/{sw}/*/pose", inlet))
             self._inlets.append(inlet)
 

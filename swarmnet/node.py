@@ -123,6 +123,7 @@ class SwarmNode:
         clock: Callable[[], float] = time.time,
         netem: dict[str, Any] | None = None,
         netem_control: bool = True,
+        arrival_stamps: bool = True,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
@@ -155,6 +156,8 @@ class SwarmNode:
         self.netem: NetemShim | None = None
         self.netem_changes: list[dict[str, Any]] = []
         self.netem_control = netem_control and identity.role in ("uav", "gcs")
+        # False: data streams in Zenoh ring channels, arrival = drain time (swarmnet.receive.Inlet)
+        self.arrival_stamps = arrival_stamps
         self.own_position: tuple[float, float, float] | None = None  # as last published, for distance models
         if netem is not None:
             self.set_netem(netem, source="config")
@@ -177,7 +180,8 @@ class SwarmNode:
             clock = self.clock
 
             def inlet(key: str, size: int, wakes: bool = False, **options: Any) -> Inlet:
-                into = Inlet(size, self.waker if wakes else None, clock)
+                # a waking stream (rare messages) is always stamped by a callback
+                into = Inlet(size, self.waker if wakes else None, clock, stamped=self.arrival_stamps or wakes)
                 self._subscribers.append(subscribe(s, key, into, **options))
                 return into
             if ident.role == "uav":
@@ -200,8 +204,9 @@ class SwarmNode:
                 command_rule = partial(accept_command, me=me)
                 streams.append((COMMAND, inlet(k.cmd(me), 64, wakes=True), command_rule))
                 streams.append((COMMAND, inlet(k.swarm_cmd, 64, wakes=True), command_rule))
-            self._alive_inlet = Inlet(256, None, clock)
-            self._subscribers.append(s.liveliness().declare_subscriber(k.all_alive, self._alive_inlet.handler(), history=True))
+            self._alive_inlet = alive = Inlet(256, None, clock, stamped=self.arrival_stamps)
+            self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
+            alive.attach(sub)
             if self.netem_control:
                 self._netem_inlet = inlet(k.netem_set, 16, wakes=True)
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))

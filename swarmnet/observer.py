@@ -71,7 +71,9 @@ class SwarmObserver:
 
     def __init__(self, swarm: str, connectivity: Connectivity, *, node_id: int = 1, role: str = "observer",
                  name: str = "observer", clock: Callable[[], float] = time.time):
-        self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock)
+        # ring channels for the bulk streams: a runner's or ground station's loop is busy in Python
+        # with every UAV's messages, and a callback would make Zenoh's receive thread wait for it
+        self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock, arrival_stamps=False)
         self.name = name
         self.clock = clock
         self.keys = self.node.keys
@@ -95,8 +97,8 @@ class SwarmObserver:
         clock = self.clock
         for name, key, size, waker in (("telemetry", self.keys.all_telemetry, 1024, None),
                                        ("state", self.keys.all_states, 1024, None),
-                                       ("ack", self.keys.all_acks, 4096, self.node.waker)):
-            inlet = self._subs[name] = Inlet(size, waker, clock)
+                                       ("ack", self.keys.all_acks, 4096, self.node.waker)):  # acks: stamped, and wake
+            inlet = self._subs[name] = Inlet(size, waker, clock, stamped=waker is not None)
             self._subscribers.append(subscribe(s, key, inlet))
         return self
 

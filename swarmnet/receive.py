@@ -1,14 +1,15 @@
 """The one receive path: stamp on arrival, queue, then accept or reject each sample in the owner's loop.
 
 Every subscription of :class:`~swarmnet.node.SwarmNode`, :class:`~swarmnet.observer.SwarmObserver`
-and :class:`~swarmnet.feed.PoseFeed` delivers into an :class:`Inlet`: a minimal callback, run
+and :class:`~swarmnet.feed.PoseFeed` delivers into an :class:`Inlet`. In a UAV, a minimal callback, run
 by Zenoh on the thread that read the sample from the network, takes the wall-clock time and
 appends ``(time, sample)`` to a bounded deque (the oldest is dropped when it is full). That is
 all the Python that runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
 session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer by up
 to 11 s), whereas an append takes about a microsecond and never blocks. The callback runs on
 Zenoh's own thread (``indirect=False``), not on a Python thread of its own, so a sample costs
-no extra thread wake-up.
+no extra thread wake-up. (An observer, whose loop is busy in Python, keeps its bulk streams in
+Zenoh ring channels instead: see :class:`Inlet`.)
 
 Streams that must be handled at once (commands, netem changes) also notify a :class:`Waker`,
 whose file descriptor the owner's loop waits on between its ticks; poses do not wake anyone:
@@ -117,17 +118,40 @@ class Inlet:
     ``size`` bounds the queue (the oldest sample is dropped when full, as a ring channel does);
     ``waker``, if given, is notified of every sample (for streams the owner handles at once).
     ``clock`` stamps the arrival (wall time, s).
+
+    ``stamped=False`` keeps the samples in a Zenoh ``RingChannel`` instead, which runs no Python
+    at all on Zenoh's thread: the arrival is then the time of the drain. For an owner whose own
+    loop is busy in Python with many samples arriving (the runner and the ground station watch
+    every UAV): a callback needs the interpreter's lock, and while the owner holds it, Zenoh's
+    receive thread would wait, and with it everything the session receives (declarations too).
+    A stamped inlet takes the lock for about a microsecond per sample, which a UAV's loop, mostly
+    asleep, gives at once.
+
+    ``own_thread=True`` runs the callback on a Python thread of zenoh-python's (fed through a
+    bounded queue of 256 samples) instead of Zenoh's receive thread: a thread switch per sample,
+    but Zenoh's thread never waits for the lock. For the edge router, whose receive threads
+    forward every UAV's traffic while its Python loop batches poses.
     """
 
-    __slots__ = ("_q", "waker", "clock", "__weakref__")
+    __slots__ = ("_q", "_sub", "waker", "clock", "stamped", "own_thread", "size", "__weakref__")
 
-    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time):
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, stamped: bool = True,
+                 own_thread: bool = False):
+        if waker is not None and not stamped:
+            raise ValueError("only a stamped inlet (a callback) can wake its owner")
         self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
+        self._sub: Any = None  # the ring channel's subscriber (stamped=False)
         self.waker = waker
         self.clock = clock
+        self.stamped = stamped
+        self.own_thread = own_thread
+        self.size = size
 
-    def handler(self) -> zenoh.handlers.Callback[zenoh.Sample]:
-        """The Zenoh handler to subscribe with: a closure that only stamps and appends (and notifies)."""
+    def handler(self) -> Any:
+        """The Zenoh handler to subscribe with: a closure that only stamps and appends (and
+        notifies), or a ring channel (``stamped=False``)."""
+        if not self.stamped:
+            return zenoh.handlers.RingChannel(self.size)
         append, stamp, waker = self._q.append, self.clock, self.waker
         if waker is None:
             def on_sample(sample: zenoh.Sample) -> None:
@@ -138,13 +162,28 @@ class Inlet:
             def on_sample(sample: zenoh.Sample) -> None:
                 append((stamp(), sample))
                 notify()
-        return zenoh.handlers.Callback(on_sample, indirect=False)
+        return zenoh.handlers.Callback(on_sample, indirect=self.own_thread)
+
+    def attach(self, subscriber: Any) -> None:
+        """The subscriber declared with :meth:`handler` (a ring channel is drained through it)."""
+        self._sub = subscriber
 
     def __len__(self) -> int:
+        """Samples waiting (a stamped inlet; a ring channel cannot tell without taking them)."""
         return len(self._q)
 
     def drain(self, budget: int = DRAIN_BUDGET) -> Iterator[tuple[float, zenoh.Sample]]:
         """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks."""
+        if not self.stamped:
+            if self._sub is None:
+                return
+            now, take = self.clock(), self._sub.try_recv
+            for _ in range(budget):
+                sample = take()
+                if sample is None:
+                    return
+                yield now, sample
+            return
         q = self._q
         for _ in range(budget):
             if not q:
@@ -176,7 +215,9 @@ def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRA
         yield Accepted(key, item, payload, at)
 
 
-def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> zenoh.Subscriber[None]:
+def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> Any:
     """Declare a subscriber on ``key`` that feeds ``inlet`` (``options``: ``allowed_origin``...).
     Keep the returned subscriber as long as the inlet is used; closing the session ends it too."""
-    return session.declare_subscriber(key, inlet.handler(), **options)
+    sub = session.declare_subscriber(key, inlet.handler(), **options)
+    inlet.attach(sub)
+    return sub

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-h
 log = logging.getLogger(__name__)
 
 TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
+OPEN_TIMEOUT_S = 60.0  # s to keep trying to open the swarm node (a loaded router may accept late)
 _PR_SET_PDEATHSIG = 1
 
 
@@ -83,6 +84,28 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
     return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
+
+
+def open_node(cfg: AgentConfig, stop: StopFlag, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:
+    """The agent's swarm node, opened; a router that does not answer yet is tried again.
+
+    When a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), the
+    edge router can take longer than Zenoh's connect timeout to accept a client, and the
+    session refuses to open. Tried again after 0.5, 1, 2, 4, 4 ... s until ``timeout`` s.
+    """
+    import zenoh
+
+    deadline = time.monotonic() + timeout
+    delay = 0.5
+    while True:
+        try:
+            return make_node(cfg).open()
+        except zenoh.ZError as exc:
+            if stop.stopped or time.monotonic() + delay > deadline:
+                raise
+            log.warning("UAV %d: swarm node did not open (%s); again in %.1f s", cfg.uav, exc, delay)
+            time.sleep(delay)
+            delay = min(2 * delay, 4.0)
 
 
 def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
@@ -154,7 +177,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     )
     (host, port), = fcu.open()
     link, router = open_fcu_link(a, f"udpout:{host}:{port}")
-    node = make_node(a).open()
+    node = open_node(a, stop)
     agent = Agent(a, node, link, router=router)
     try:
         run_loop(agent, stop, fcu, cfg.duration)
@@ -170,7 +193,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
     link, router = open_fcu_link(cfg, cfg.fcu)
-    node = make_node(cfg).open()
+    node = open_node(cfg, stop)
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
