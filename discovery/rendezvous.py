@@ -51,7 +51,7 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
         feed = PoseFeed(session, feed_swarms, feed_window)
         end = time.monotonic() + duration if duration is not None else float("inf")
         try:
-            feed.run(lambda: not stop.is_set() and time.monotonic() < end, idle_wait=0.2)
+            feed.run(lambda: not stop.wait(0.2) and time.monotonic() < end, check_every=0.0)
         finally:
             feed.close()
     finally:

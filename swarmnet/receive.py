@@ -1,7 +1,7 @@
 """The one receive path: stamp on arrival, queue, then accept or reject each sample in the owner's loop.
 
-Every subscription of :class:`~swarmnet.node.SwarmNode`, :class:`~swarmnet.observer.SwarmObserver`
-and :class:`~swarmnet.feed.PoseFeed` delivers into an :class:`Inlet`. In a UAV, a minimal callback, run
+Every subscription of :class:`~swarmnet.node.SwarmNode` and :class:`~swarmnet.observer.SwarmObserver`
+delivers into an :class:`Inlet`. In a UAV, a minimal callback, run
 by Zenoh on the thread that read the sample from the network, takes the wall-clock time and
 appends ``(time, sample)`` to a bounded deque (the oldest is dropped when it is full). That is
 all the Python that runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
@@ -125,18 +125,13 @@ class Inlet:
     every UAV): a callback needs the interpreter's lock, and while the owner holds it, Zenoh's
     receive thread would wait, and with it everything the session receives (declarations too).
     A stamped inlet takes the lock for about a microsecond per sample, which a UAV's loop, mostly
-    asleep, gives at once.
-
-    ``own_thread=True`` runs the callback on a Python thread of zenoh-python's (fed through a
-    bounded queue of 256 samples) instead of Zenoh's receive thread: a thread switch per sample,
-    but Zenoh's thread never waits for the lock. For the edge router, whose receive threads
-    forward every UAV's traffic while its Python loop batches poses.
+    asleep, gives at once. (The edge router's feed uses neither: its own thread blocks on a ring
+    channel, see :mod:`swarmnet.feed`.)
     """
 
-    __slots__ = ("_q", "_sub", "waker", "clock", "stamped", "own_thread", "size", "__weakref__")
+    __slots__ = ("_q", "_sub", "waker", "clock", "stamped", "size", "__weakref__")
 
-    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, stamped: bool = True,
-                 own_thread: bool = False):
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, stamped: bool = True):
         if waker is not None and not stamped:
             raise ValueError("only a stamped inlet (a callback) can wake its owner")
         self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
@@ -144,7 +139,6 @@ class Inlet:
         self.waker = waker
         self.clock = clock
         self.stamped = stamped
-        self.own_thread = own_thread
         self.size = size
 
     def handler(self) -> Any:
@@ -162,7 +156,7 @@ class Inlet:
             def on_sample(sample: zenoh.Sample) -> None:
                 append((stamp(), sample))
                 notify()
-        return zenoh.handlers.Callback(on_sample, indirect=self.own_thread)
+        return zenoh.handlers.Callback(on_sample, indirect=False)
 
     def attach(self, subscriber: Any) -> None:
         """The subscriber declared with :meth:`handler` (a ring channel is drained through it)."""
