@@ -249,7 +249,7 @@ def start_mosquitto(workdir: Path) -> tuple[subprocess.Popen[bytes], int]:
 def start_router(feed: bool) -> tuple[subprocess.Popen[bytes], str]:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    argv = [sys.executable, "-m", "discovery.rendezvous", "--listen", endpoint]
+    argv = [sys.executable, "-m", "discovery.rendezvous", "--listen", endpoint, "--insecure"]  # loopback, as the others
     if feed:
         argv += ["--feed", "bench"]
     proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

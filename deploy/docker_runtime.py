@@ -14,10 +14,14 @@ It mirrors :class:`deploy.process_runtime.ProcessRuntime` (``start_network``, ``
 
 The run folder is bind-mounted at the same path in every UAV container, so the recorded
 trajectories and counters land where the runner analyses them, owned by the invoking
-user. Containers and network carry ``org.mrswarm.*`` labels (run, swarm, role, UAV) and
-names ``mrs-<run>-<name>``. :meth:`DockerRuntime.stop` saves every container's log into
-``<run>/logs/`` and removes containers, network and rules, also after Ctrl-C; for a runner
-killed outright, ``mrswarm deploy down`` removes whatever carries the labels.
+user. On a secured run (docs/security.md) each container gets only its own credentials: a
+bundle (CA certificate, roster, its key pair) made per container in ``<run>/secrets/`` and
+bind-mounted read-only at ``/run/secrets``; the run's key directory and the other bundles are
+hidden from the UAV containers (an empty tmpfs over them). Nothing is baked into the image.
+Containers and network carry ``org.mrswarm.*`` labels (run, swarm, role, UAV) and names
+``mrs-<run>-<name>``. :meth:`DockerRuntime.stop` saves every container's log into ``<run>/logs/``
+and removes containers, network and rules, also after Ctrl-C; for a runner killed outright,
+``mrswarm deploy down`` removes whatever carries the labels.
 """
 
 from __future__ import annotations
@@ -40,11 +44,12 @@ from msgspec.structs import replace
 
 from deploy import multicast
 from deploy.dockerutil import L_RUN, DeployError, client, labels
-from deploy.services import NetworkPlan, network_plan
+from deploy.services import KEYS_IN_CONTAINER, NetworkPlan, network_plan
 from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryService
 from swarmnet.schema import to_builtins
+from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
@@ -110,6 +115,7 @@ class DockerRuntime:
         if self.settings.multicast == "drop":
             multicast.check_available()
         self.boxes: dict[str, Box] = {}
+        self.keys: Path | None = None  # the swarm's key directory (host side); None: plain TCP
         self.network: Any = None
         self.sealed = False
         self._exited: dict[str, int] = {}
@@ -140,19 +146,23 @@ class DockerRuntime:
 
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      keys: Path | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
+        ``keys``: the swarm's key directory; each container is handed its own bundle of it.
         """
         self.swarm = swarm if swarm != "*" else self.swarm
+        self.keys = keys
         service = discovery or DiscoveryService()
         if connectivity == "discovery" and not service.key:
             from discovery.protocol import new_key
 
             service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
         self.discovery = service
-        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery")
+        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery",
+                            secured=keys is not None)
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -174,8 +184,9 @@ class DockerRuntime:
     def _start_services(self, plan: NetworkPlan) -> NetworkConfig:
         addresses: dict[str, str] = {}
         for svc in plan.services:
+            ident = NodeName.in_swarm(svc.identity, self.swarm) if svc.identity else None
             box = self._run(svc.name, "router" if svc.name == "router" else svc.name, list(svc.argv), uav=None,
-                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False)
+                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False, identity=ident)
             addresses[svc.name] = box.ip
             if svc.proto == "tcp":
                 wait_tcp(box.ip, svc.port, 30.0, alive=partial(self._running, box), period=0.2)
@@ -195,22 +206,41 @@ class DockerRuntime:
         path.write_text(cfg.to_json())
         self._run(f"uav{cfg.agent.uav}", "uav",
                   ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
-                  uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True)
+                  uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True,
+                  identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm))
+
+    def _bundle(self, identity: NodeName) -> Path:
+        """The credentials of one container: a bundle of the run's key directory, in <run>/secrets/<cn>."""
+        from swarmnet.security.pki import KeyDir
+
+        assert self.keys is not None
+        secrets_dir = self.run_dir / "secrets"
+        secrets_dir.mkdir(mode=0o700, exist_ok=True)
+        return KeyDir(self.keys).bundle(identity, secrets_dir / identity.cn)
 
     def _run(self, short: str, role: str, argv: list[str], uav: int | None, cpus: float, memory_mb: int,
-             mounts: bool) -> Box:
+             mounts: bool, identity: NodeName | None = None) -> Box:
         from docker.types import LogConfig
 
         kwargs: dict[str, Any] = {}
+        volumes: dict[str, dict[str, str]] = {}
+        tmpfs = {"/tmp": "size=16m"}
         if mounts:  # the run folder at the same path: config in, recorded data out
-            kwargs["volumes"] = {str(self.run_dir): {"bind": str(self.run_dir), "mode": "rw"}}
+            volumes[str(self.run_dir)] = {"bind": str(self.run_dir), "mode": "rw"}
+            for private in (self.run_dir / "secrets", self.keys):  # ... but no other node's credentials
+                if private is not None and private.resolve().is_relative_to(self.run_dir):
+                    tmpfs[str(private.resolve())] = "size=64k,mode=0700"
+        if self.keys is not None and identity is not None:
+            volumes[str(self._bundle(identity))] = {"bind": KEYS_IN_CONTAINER, "mode": "ro"}
+        if volumes:
+            kwargs["volumes"] = volumes
         name = self._name(short)
         container = self.docker.containers.create(
             self.image, argv, name=name, hostname=short, labels=labels(self.run, self.swarm, role, uav),
             network=self.network.name, user=f"{os.getuid()}:{os.getgid()}",
             nano_cpus=int(cpus * 1e9), mem_limit=f"{memory_mb}m", memswap_limit=f"{memory_mb}m",
             pids_limit=PIDS_LIMIT, cap_drop=["ALL"], security_opt=["no-new-privileges"],
-            read_only=True, tmpfs={"/tmp": "size=16m"}, sysctls=dict(multicast.IPV6_OFF),
+            read_only=True, tmpfs=tmpfs, sysctls=dict(multicast.IPV6_OFF),
             environment={"PYTHONUNBUFFERED": "1"},
             log_config=LogConfig(type="json-file", config={"max-size": "20m", "max-file": "1"}),
             **kwargs,

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions
+from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,17 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     return [python, "-S"], env
 
 
+def wait_file(path: Path, timeout: float, proc: subprocess.Popen[bytes] | None = None) -> None:
+    """Wait until ``path`` exists (a service's sign of life; bounded)."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"router exited with code {proc.returncode} before writing {path.name}")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no {path} after {timeout:.0f} s")
+        time.sleep(0.05)
+
+
 @dataclass
 class Child:
     name: str
@@ -63,35 +75,56 @@ class ProcessRuntime:
         self.python = python
         self.log_level = log_level
         self.children: dict[str, Child] = {}
+        self.keys: Path | None = None
         self._py, self._env = child_python(python)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      keys: Path | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
         ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
         router (pose feed, and the way in for ground stations).
+        ``keys``: the swarm's key directory: every link mutual TLS under the roster's access
+        control (docs/security.md); None: plain TCP.
         """
+        self.keys = keys
         if connectivity == "discovery":
             return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService())
         endpoint = self._start_router(pose_feed, swarm)
-        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
-                             pose_feed=pose_feed)
+        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=(f"{self._scheme}/127.0.0.1:0",),
+                             pose_feed=pose_feed, security=self._credentials())
+
+    @property
+    def _scheme(self) -> str:
+        return "tls" if self.keys is not None else "tcp"
+
+    def _credentials(self) -> Credentials | None:
+        """What every UAV process is given (each speaks as its own uav-<id>.<swarm>)."""
+        return Credentials(keys=str(self.keys)) if self.keys is not None else None
 
     def _start_router(self, pose_feed: str, swarm: str) -> str:
         port = free_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
+        endpoint = f"{self._scheme}/127.0.0.1:{port}"
         argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
+        stats = self.run_dir / "logs" / "router.stats.json"
+        if self.keys is not None:  # as edge.<swarm>; counts what it refuses in logs/router.stats.json
+            argv += ["--keys", str(self.keys), "--stats", str(stats)]
+        else:
+            argv += ["--insecure"]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
         self._spawn("router", argv)
         router = self.children["router"]
-        wait_tcp("127.0.0.1", port, timeout=20.0, alive=lambda: router.proc.poll() is None,
-                 what=f"the router (log: {router.log_path})")
+        if self.keys is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters
+            wait_file(stats, timeout=20.0, proc=router.proc)
+        else:
+            wait_tcp("127.0.0.1", port, timeout=20.0, alive=lambda: router.proc.poll() is None,
+                     what=f"the router (log: {router.log_path})")
         return endpoint
 
     def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService) -> NetworkConfig:
@@ -124,8 +157,9 @@ class ProcessRuntime:
         # Routing is interest-based, so it carries nothing until someone subscribes through it;
         # UAV-to-UAV data flows peer to peer over the links discovery introduced.
         endpoints = (self._start_router(pose_feed, swarm),)
-        return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=("tcp/127.0.0.1:0",),
-                             pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period))
+        return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=(f"{self._scheme}/127.0.0.1:0",),
+                             pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period),
+                             security=self._credentials())
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -47,6 +47,7 @@ from discovery.protocol import (
     Beacon,
     MsgType,
     NodeEntry,
+    PartAssembler,
     ProtocolError,
     ReplayGuard,
     beacon_body,
@@ -60,6 +61,7 @@ from discovery.protocol import (
 )
 from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
+from swarmnet.security.credentials import Credentials
 from swarmnet.version import __version__
 
 log = logging.getLogger(__name__)
@@ -123,6 +125,7 @@ class BeaconDiscovery:
     zid: str | None = None  # pin the session's Zenoh id (hex); default: random per session
     lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
+    credentials: Credentials | None = None  # mutual TLS and access control (None: plain TCP)
     name: str = "discovery"
 
     def __post_init__(self) -> None:
@@ -141,11 +144,12 @@ class BeaconDiscovery:
         self.proxy: DiscoveryProxy | None = None
 
     @classmethod
-    def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = ()) -> BeaconDiscovery:
+    def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = (),
+                     credentials: Credentials | None = None) -> BeaconDiscovery:
         """From a node's :class:`~discovery.options.ProxyOptions` (``NetworkConfig.discovery``) and its endpoints."""
         return cls(server=opts.server, key=opts.read_key(), listen=tuple(listen), connect=tuple(connect),
                    advertise=opts.advertise, period=opts.period, extra_swarms=dict(opts.extra_swarms), dial=opts.dial,
-                   zid=opts.zid, lanes=opts.lanes)
+                   zid=opts.zid, lanes=opts.lanes, credentials=credentials)
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""
@@ -159,7 +163,7 @@ class BeaconDiscovery:
     def zenoh_config(self) -> dict[str, Any]:
         if not self.scout_port:
             self.scout_port = free_port(socket.SOCK_DGRAM, LOCAL_HOST)
-        cfg = base_config("peer", self.connect, self.listen, self.tuning)
+        cfg = base_config("peer", self.connect, self.listen, self.tuning, self.credentials)
         cfg["scouting"] = {
             # a *unicast loopback* "multicast" address: no packet ever leaves the host
             "multicast": {
@@ -228,7 +232,7 @@ class DiscoveryProxy:
         self.guard = ReplayGuard(window)
         self.stats: Counter[str] = Counter()
         self.peers: dict[str, dict[tuple[str, int], NodeEntry]] = {s: {} for s in memberships}
-        self._snaps: dict[str, tuple[int, int, dict[int, tuple[NodeEntry, ...]]]] = {}
+        self._snaps: dict[str, PartAssembler] = {s: PartAssembler() for s in memberships}
         # zid -> (when we may hand its Hello to Zenoh again, the current retry delay)
         self._retry: dict[bytes, tuple[float, float]] = {}
         self.entry: NodeEntry | None = None
@@ -483,15 +487,14 @@ class DiscoveryProxy:
             self.stats["pushes"] += 1
             self._update(swarm, fresh, replace=False, now=now)
             return
-        snap, parts, got = self._snaps.get(swarm, (0, 0, {}))
-        if snap != p.snap:
-            snap, parts, got = p.snap, p.parts, {}
-        got[p.part] = tuple(fresh)
-        self._snaps[swarm] = (snap, parts, got)
-        if len(got) == parts:
-            del self._snaps[swarm]
+        snaps = self._snaps[swarm]
+        before = snaps.inconsistent
+        whole = snaps.add(p.snap, p.part, p.parts, fresh)
+        if snaps.inconsistent != before:  # parts that disagree on the snapshot's size: it starts over
+            self.stats["drop_inconsistent_snapshot"] += 1
+        if whole is not None:
             self.stats["snapshots"] += 1
-            self._update(swarm, [e for i in range(parts) for e in got[i]], replace=True, now=now)
+            self._update(swarm, whole, replace=True, now=now)
 
     def _update(self, swarm: str, entries: list[NodeEntry], replace: bool, now: float) -> None:
         with self._lock:

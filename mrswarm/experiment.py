@@ -25,17 +25,21 @@ from types import FrameType
 from typing import Any
 
 import yaml
+from msgspec.structs import replace
 from rich.console import Console
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.recorder.run_recorder import RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
 from mrswarm.summary import RunInfo, RunSummary
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
+from swarmnet.security.credentials import Credentials
+from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
 from uav_stack.runtime import make_connectivity
@@ -59,7 +63,8 @@ class Experiment:
     """
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
-                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None):
+                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
+                 record: bool = True):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -69,13 +74,35 @@ class Experiment:
             n += 1
             self.run_dir = out_root / f"{scenario.name}-{stamp}-{n}"
         self.run_dir.mkdir(parents=True)
-        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
+        self.keys = self._credentials()
+        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
         self.metrics = LiveMetrics(scenario)
         self.display = Display(self.console, live, scenario, self.progress, self.metrics)
         self.observer: SwarmObserver | None = None
         self.probe = probe
+        self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
+        self.recorder: RunRecorder | None = None
+
+    def _credentials(self) -> Path | None:
+        """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
+        from mrswarm.run_keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
+        from swarmnet.security.pki import KeysError
+
+        sec = self.scn.network.secured
+        self.run_info.security = str(sec.mode)
+        if not sec.enabled:
+            self.console.print("[yellow]warning: network.security: off: plain TCP without access control; anyone who "
+                               "reaches this machine's network can command or impersonate the UAVs[/]")
+            return None
+        names = run_identities(self.scn.swarm, [u.id for u in self.scn.uav_list()])
+        try:
+            if sec.keys is not None:
+                return check_keys(Path(sec.keys), self.scn.swarm, names)
+            return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names)
+        except KeysError as exc:
+            raise RuntimeError(f"network.security.keys: {exc}") from None
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
@@ -95,16 +122,20 @@ class Experiment:
             self.run_info.exit_codes = dict(self.runtime.stop())
             self.run_info.stopped = time.time()
             self.run_info.write(self.run_dir / "run.json")
+            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
+                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
             signal.signal(signal.SIGTERM, old)
         return summarise_run(self.run_dir, self.scn)
 
     def _fly(self) -> None:
         scn = self.scn
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
-                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery)
+                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
+                                         keys=self.keys)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
-        # `mrswarm netem set --run <dir>`
-        network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints)}
+        # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
+        network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
+                                        "security": {"mode": "mtls", "keys": str(self.keys)} if self.keys else {"mode": "off"}}
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
@@ -112,6 +143,12 @@ class Experiment:
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         (self.run_dir / "network.json").write_text(json.dumps(network_info))
+        if self.record:  # before the first UAV, so its first pose is recorded
+            try:
+                self.recorder = RunRecorder.start(self.run_dir)
+                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
+            except RuntimeError as exc:  # a run without its recording still flies
+                self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
@@ -122,8 +159,11 @@ class Experiment:
         self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
-        obs_net = NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net
-        self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
+        # (with the run's key directory as seen from here: a container's credentials sit elsewhere)
+        own = Credentials(keys=str(self.keys)) if self.keys is not None else None
+        obs_net = (NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=own)
+                   if net.endpoints else replace(net, security=own))
+        self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net, NodeName("ctl", 0, scn.swarm)), name="runner").open()
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
         with self.display:

@@ -24,8 +24,12 @@ class Runtime(Protocol):
     name: str  # "process" or "docker"
 
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
-        """Start what the connectivity needs (router, discovery server); return how UAVs reach it."""
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      keys: Path | None = None) -> NetworkConfig:
+        """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
+
+        ``keys``: the swarm's key directory (mutual TLS and access control on every link,
+        docs/security.md); None: plain TCP."""
         ...
 
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -32,6 +32,7 @@ from uav_stack.config import (
     CoverageStrategy,
     Flavour,
     GcsConfig,
+    MavlinkSigning,
     MissionConfig,
     MissionType,
     NetworkConfig,
@@ -107,18 +108,55 @@ class Flight(Config, frozen=True):
             raise ConfigError("collision_distance", "must be smaller than safety_distance")
 
 
+class Security(Config, frozen=True):
+    """Who may speak on the swarm's network (docs/security.md).
+
+    ``mtls`` (the default): every Zenoh link is mutual TLS under access control generated from
+    the swarm's roster, with throw-away credentials made per run in ``<run>/keys`` unless
+    ``keys`` names the swarm's key directory (``mrswarm keys init``; relative to the current
+    directory). ``off``: plain TCP, no access control; the run warns at start and its summary
+    says so. YAML reads an unquoted ``off`` as false, so ``mode: off`` and ``security: off`` both work.
+    """
+
+    mode: Literal["mtls", "off"] | bool = "mtls"
+    keys: Annotated[str, Meta(min_length=1)] | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode is False:
+            force_setattr(self, "mode", "off")
+        elif self.mode is True:
+            raise ConfigError("mode", "must be mtls or off, got true")
+        if self.mode == "off" and self.keys is not None:
+            raise ConfigError("keys", "a key directory needs mode mtls (security off uses no keys)")
+
+    @property
+    def enabled(self) -> bool:
+        return self.mode == "mtls"
+
+
 class Network(Config, frozen=True):
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
     mode: ZenohMode = "peer"
     pose_feed: PoseFeed = "direct"
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
+    security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
 
     def __post_init__(self) -> None:
+        if self.security is False:
+            force_setattr(self, "security", Security(mode="off"))
+        elif self.security is True:
+            force_setattr(self, "security", Security())
         if self.connectivity is None:  # client mode means "through the edge router": the rendezvous topology
             force_setattr(self, "connectivity", "rendezvous" if self.mode == "client" else "discovery")
         if self.mode == "client" and self.connectivity != "rendezvous":
             raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
+
+    @property
+    def secured(self) -> Security:
+        """``security`` as a :class:`Security` (``__post_init__`` turned a bool into one)."""
+        assert isinstance(self.security, Security)
+        return self.security
 
 
 class Spawn(Config, frozen=True):
@@ -153,6 +191,12 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
+    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
+    signing: MavlinkSigning | None = None
+
+    def __post_init__(self) -> None:
+        if self.signing is not None and not self.mavlink:
+            raise ConfigError("signing", "signs the MAVLink routers' links: set gcs.mavlink: true too")
 
 
 class Scenario(Config, kw_only=True, frozen=True):
@@ -270,7 +314,8 @@ class Scenario(Config, kw_only=True, frozen=True):
                 seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
                 avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon),
                 network=network,
-                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt),
+                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
+                              signing=self.gcs.signing),
             )
             out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
                                         heading=math.radians(u.heading), flavour=u.flavour))

@@ -24,7 +24,8 @@ opens a window, sleeps until the window closes, drains what came and sends the b
 wake-ups per batch, none while the swarm is silent.
 
 Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps,
-so receivers validate it again and measure its transport age exactly as for a direct pose.
+listed with the UAV id of the key it arrived on, so receivers validate it again (it must name
+that UAV) and measure its transport age exactly as for a direct pose.
 """
 
 from __future__ import annotations
@@ -128,7 +129,7 @@ class PoseFeed:
                         priority=zenoh.Priority.DATA_HIGH, express=True)
                 self.batches[swarm] += 1
                 self.stats.sent["pose_batch"] += 1
-            pub.put(encode_pose_batch(PoseBatch(next(self._seq), now, list(poses.values()))))
+            pub.put(encode_pose_batch(PoseBatch(next(self._seq), now, list(poses), list(poses.values()))))
             sent += len(poses)
             poses.clear()
         return sent

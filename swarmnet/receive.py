@@ -185,6 +185,17 @@ class Inlet:
             yield q.popleft()
 
 
+def drain(ring: Any, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
+    """The samples waiting in a subscriber with a Zenoh ring channel, oldest first, at most
+    ``budget`` of them; never blocks (for owners that subscribe with ring channels directly,
+    such as the flight recorder)."""
+    for _ in range(budget):
+        sample = ring.try_recv()
+        if sample is None:
+            return
+        yield sample
+
+
 def accept_each(arrivals: Iterable[tuple[str, bytes, float]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
     """Run ``accept`` on every ``(key, payload, arrival time)``; count each rejection in ``stats`` and skip it."""
     for key, payload, at in arrivals:

@@ -198,6 +198,7 @@ class NodeStats:
     sent: Counter[str] = field(default_factory=Counter)
     received: Counter[str] = field(default_factory=Counter)
     rejected: Counter[str] = field(default_factory=Counter)
+    refused: Counter[str] = field(default_factory=Counter)  # links refused (swarmnet/security/links.py)
     ages: PoseAges = field(default_factory=PoseAges)
     _last_log: float = 0.0
     _suppressed: int = 0
@@ -218,5 +219,6 @@ class NodeStats:
             "sent": dict(self.sent),
             "received": dict(self.received),
             "rejected": dict(self.rejected),
+            "refused": dict(self.refused),
             **self.ages.to_dict(links),
         }

@@ -23,6 +23,7 @@ from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError, convert
+from swarmnet.security.identity import NodeName
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
@@ -67,39 +68,52 @@ def die_with_parent() -> None:
         pass
 
 
-def make_connectivity(net: NetworkConfig) -> Connectivity:
+def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Connectivity:
+    """The node's connectivity strategy; ``name`` is who it is, for credentials that do not say."""
+    creds = net.security.for_node(name) if net.security is not None and name is not None else net.security
     if net.connectivity == "rendezvous":
-        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen))
+        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen), credentials=creds)
     if net.connectivity == "static":
-        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen))
+        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen), credentials=creds)
     if net.connectivity == "discovery":  # beacon relay through a discovery server (discovery/proxy.py)
         from discovery.proxy import BeaconDiscovery
 
         assert net.discovery is not None  # NetworkConfig requires it with this connectivity
-        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints)
+        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints, credentials=creds)
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
 def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
-    return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
+    conn = make_connectivity(cfg.network, NodeName.uav(cfg.uav, cfg.swarm))
+    return SwarmNode(ident, conn, pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
-def open_node(cfg: AgentConfig, stop: StopFlag, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:
-    """The agent's swarm node, opened; a router that does not answer yet is tried again.
+def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:
+    """The agent's node, opened. A secured node in its own process (``tap_zenoh_log``) also counts
+    the TLS handshakes its listener refuses (swarmnet/security/zenoh_log.py); an insecure one says
+    at start that anyone on its network can command it.
 
     When a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), the
-    edge router can take longer than Zenoh's connect timeout to accept a client, and the
-    session refuses to open. Tried again after 0.5, 1, 2, 4, 4 ... s until ``timeout`` s.
+    edge router can take longer than Zenoh's connect timeout to accept a client, and the session
+    refuses to open: it is tried again after 0.5, 1, 2, 4, 4 ... s until ``timeout`` s.
     """
     import zenoh
 
+    node = make_node(cfg)
+    if cfg.network.security is None:
+        log.warning("plain TCP without access control (network.security: off): anyone who reaches this node's "
+                    "network can command it and speak for any UAV (docs/security.md)")
+    elif tap_zenoh_log:
+        from swarmnet.security.zenoh_log import ZenohLogTap
+
+        ZenohLogTap(node.stats)
     deadline = time.monotonic() + timeout
     delay = 0.5
     while True:
         try:
-            return make_node(cfg).open()
+            return node.open()
         except zenoh.ZError as exc:
             if stop.stopped or time.monotonic() + delay > deadline:
                 raise
@@ -108,15 +122,19 @@ def open_node(cfg: AgentConfig, stop: StopFlag, timeout: float = OPEN_TIMEOUT_S)
             delay = min(2 * delay, 4.0)
 
 
-def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
-    """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router."""
+def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
+    """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
+    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known."""
     sysid = cfg.mavlink_sysid
-    link = FcuLink(url, source_system=sysid)
+    link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
     router = None
     if cfg.gcs.mavlink_endpoints:
-        from uav_stack.mavlink_router import MavlinkRouter
+        from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
 
-        router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component)).open()
+        sg = cfg.gcs.signing
+        signing = SigningPolicy(sg.read_key(), sg.require) if sg is not None else None
+        router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
+                               bind=cfg.gcs.bind, signing=signing).open()
         link.on_message = router.from_fcu
     try:
         link.open()
@@ -125,6 +143,15 @@ def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | 
             router.close()
         raise
     return link, router
+
+
+def check_signing_key(cfg: AgentConfig, ap: argparse.ArgumentParser) -> None:
+    """A MAVLink signing key file that cannot be used: a usage error naming the field, before anything starts."""
+    if cfg.gcs.signing is not None:
+        try:
+            cfg.gcs.signing.read_key()
+        except ConfigError as exc:
+            ap.error(f"gcs.signing.{exc}")
 
 
 def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
@@ -164,7 +191,7 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             break
 
 
-def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
+def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
     a = cfg.agent
@@ -176,9 +203,14 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
         )
     )
     (host, port), = fcu.open()
-    link, router = open_fcu_link(a, f"udpout:{host}:{port}")
-    node = open_node(a, stop)
+    link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    # the agent is its FCU's only client (ground stations come through its router): nobody
+    # else's datagrams reach the FCU, nor churn the agent out of its peers
+    assert link.local_address is not None
+    fcu.vehicles[0].link.set_owner(link.local_address, owner_only=True)
+    node = open_node(a, stop, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
+    agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
     try:
         run_loop(agent, stop, fcu, cfg.duration)
     finally:
@@ -191,9 +223,9 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     return 0
 
 
-def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
+def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:
     link, router = open_fcu_link(cfg, cfg.fcu)
-    node = open_node(cfg, stop)
+    node = open_node(cfg, stop, tap_zenoh_log)
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
@@ -229,14 +261,17 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
         cfg = VirtualUavConfig.load(args.config)
     except (ConfigError, OSError) as exc:
         ap.error(f"{args.config}: {exc}")
-    return run_virtual_uav(cfg, stop)
+    check_signing_key(cfg.agent, ap)
+    return run_virtual_uav(cfg, stop, tap_zenoh_log=True)
 
 
 def agent_main(argv: list[str] | None = None) -> int:
     """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
     ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
     ap.add_argument("--fcu", required=True,
-                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
+                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:127.0.0.1:14540, tcp:...")
+    ap.add_argument("--fcu-bind", default=None, metavar="ADDR",
+                    help="local address of a udpout FCU link (default: the one that routes to the FCU)")
     ap.add_argument("--swarm", required=True)
     ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
     ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
@@ -250,12 +285,24 @@ def agent_main(argv: list[str] | None = None) -> int:
                     help="find the swarm through this discovery server (instead of --connect's router)")
     ap.add_argument("--discovery-key-file", default=None, help="the swarm's discovery key (mrswarm discovery keygen)")
     ap.add_argument("--advertise", action="append", default=[], help="announce this address/locator to peers (public IP)")
+    ap.add_argument("--keys", default=None, metavar="DIR",
+                    help="this UAV's credentials: its bundle from `mrswarm keys bundle uav-<id>` (CA, roster, its certificate)")
+    ap.add_argument("--identity", default=None, help="certificate to speak as (default: uav-<id>.<swarm>)")
+    ap.add_argument("--insecure", action="store_true",
+                    help="plain TCP without access control: anyone on the network can command this UAV (labs only)")
     ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
     ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
                     help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
                          " repeatable")
+    ap.add_argument("--mavlink-bind", default=None, metavar="ADDR",
+                    help="local address of the udpout ground-station endpoints (default: the one that routes to each)")
+    ap.add_argument("--mavlink-key-file", default=None, metavar="FILE",
+                    help="sign the ground-station links with this passphrase file and refuse unsigned frames "
+                         "(MAVProxy: signing key <passphrase>)")
+    ap.add_argument("--mavlink-allow-unsigned", action="store_true",
+                    help="with --mavlink-key-file: still accept unsigned frames (counted)")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")
@@ -280,7 +327,25 @@ def agent_main(argv: list[str] | None = None) -> int:
             cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node
         except ConfigError as exc:
             ap.error(f"network.discovery.{exc}")
-    return run_agent(cfg, stop, args.duration)
+    check_security(cfg, args.insecure, ap)
+    check_signing_key(cfg, ap)
+    return run_agent(cfg, stop, args.duration, tap_zenoh_log=True)
+
+
+def check_security(cfg: AgentConfig, insecure: bool, ap: argparse.ArgumentParser) -> None:
+    """Credentials that work now, or an explicit ``--insecure``: say what is wrong before flying."""
+    sec = cfg.network.security
+    if sec is None:
+        if not insecure:
+            ap.error("no credentials: give --keys DIR (this UAV's bundle, `mrswarm keys bundle`; docs/security.md), "
+                     "or --insecure for plain TCP without access control")
+        return
+    try:
+        creds = sec.for_node(NodeName.uav(cfg.uav, cfg.swarm))
+        creds.files()
+        creds.roster()
+    except ConfigError as exc:
+        ap.error(f"network.security.{exc}")
 
 
 def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dict[str, Any]:
@@ -291,11 +356,18 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
         ap.error("--origin must be LAT,LON,ALT")
     net: dict[str, Any] = {"endpoints": args.connect, "mode": args.mode, "pose_feed": args.pose_feed,
                            "listen": args.listen or ["tcp/0.0.0.0:0"]}
+    if args.keys:
+        net["security"] = {"keys": args.keys, "identity": args.identity or ""}
     if args.discovery:
         if not args.discovery_key_file:
             ap.error("--discovery needs --discovery-key-file")
         net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
                                                          "advertise": args.advertise})
+    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind}
+    if args.mavlink_key_file:
+        gcs["signing"] = {"key_file": args.mavlink_key_file, "require": not args.mavlink_allow_unsigned}
+    elif args.mavlink_allow_unsigned:
+        ap.error("--mavlink-allow-unsigned needs --mavlink-key-file")
     return {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
-            "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir, "network": net,
-            "gcs": {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid}}
+            "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
+            "network": net, "gcs": gcs}
