@@ -114,8 +114,8 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
     while True:
         try:
             return node.open()
-        except zenoh.ZError as exc:
-            if stop.stopped or time.monotonic() + delay > deadline:
+        except zenoh.ZError as exc:  # only a router that did not answer is worth another try
+            if "Unable to connect" not in str(exc) or stop.stopped or time.monotonic() + delay > deadline:
                 raise
             log.warning("UAV %d: swarm node did not open (%s); again in %.1f s", cfg.uav, exc, delay)
             time.sleep(delay)
