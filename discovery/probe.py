@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     t_open = time.time()
     s = node.session
     assert s is not None
-    spy = Inlet(8192)
+    spy = Inlet(8192, how="ring")  # stamped at the drain, as this loop always did
     spy_sub = subscribe(s, "mrs/**", spy, allowed_origin=zenoh.Locality.REMOTE)
     lock = threading.Lock()
     pending: list[tuple[float, str, str]] = []  # (time, "put"/"delete", zid) from Zenoh's transport events

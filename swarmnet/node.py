@@ -56,7 +56,7 @@ from swarmnet.messages import (
     encode_telemetry,
 )
 from swarmnet.neighbours import Neighbour, NeighbourTable
-from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, Inlet, Waker, accept_each, receive, subscribe
+from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, accept_each, receive, subscribe
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
@@ -182,9 +182,10 @@ class SwarmNode:
             streams = self._streams
             clock = self.clock
 
-            def inlet(key: str, size: int, wakes: bool = False, **options: Any) -> Inlet:
-                # a waking stream (rare messages) is always stamped by a callback
-                into = Inlet(size, self.waker if wakes else None, clock, stamped=self.arrival_stamps or wakes)
+            def inlet(key: str, size: int, how: How, wakes: bool = False, **options: Any) -> Inlet:
+                if not self.arrival_stamps and not wakes:
+                    how = "ring"  # an observer: the drain's time will do
+                into = Inlet(size, self.waker if wakes else None, clock, how)
                 self._subscribers.append(subscribe(s, key, into, **options))
                 return into
             if ident.role == "uav":
@@ -196,22 +197,23 @@ class SwarmNode:
                 self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
             # poses first: the hot path
             if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
-                streams.append((_BATCH, inlet(k.pose_feed, 256), accept_pose_batch))
+                streams.append((_BATCH, inlet(k.pose_feed, 256, "thread"), accept_pose_batch))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                streams.append((POSE, inlet(k.all_poses, self.ring_size, allowed_origin=zenoh.Locality.REMOTE), pose_rule))
+                streams.append((POSE, inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE),
+                                pose_rule))
             message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
-            streams.append((MESSAGE, inlet(k.all_broadcast, 256, allowed_origin=zenoh.Locality.REMOTE), message_rule))
+            streams.append((MESSAGE, inlet(k.all_broadcast, 256, "ring", allowed_origin=zenoh.Locality.REMOTE), message_rule))
             if ident.role == "uav":
-                streams.append((MESSAGE, inlet(k.all_unicast(me), 64), message_rule))
+                streams.append((MESSAGE, inlet(k.all_unicast(me), 64, "ring"), message_rule))
                 command_rule = partial(accept_command, me=me)
-                streams.append((COMMAND, inlet(k.cmd(me), 64, wakes=True), command_rule))
-                streams.append((COMMAND, inlet(k.swarm_cmd, 64, wakes=True), command_rule))
-            self._alive_inlet = alive = Inlet(256, None, clock, stamped=self.arrival_stamps)
+                streams.append((COMMAND, inlet(k.cmd(me), 64, "callback", wakes=True), command_rule))
+                streams.append((COMMAND, inlet(k.swarm_cmd, 64, "callback", wakes=True), command_rule))
+            self._alive_inlet = alive = Inlet(256, None, clock, "ring")  # joins and leaves: the drain's time will do
             self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
             alive.attach(sub)
             if self.netem_control:
-                self._netem_inlet = inlet(k.netem_set, 16, wakes=True)
+                self._netem_inlet = inlet(k.netem_set, 16, "callback", wakes=True)
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
             self._watch_links(s)
             self.connectivity.attach(s)

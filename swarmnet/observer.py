@@ -98,7 +98,7 @@ class SwarmObserver:
         for name, key, size, waker in (("telemetry", self.keys.all_telemetry, 1024, None),
                                        ("state", self.keys.all_states, 1024, None),
                                        ("ack", self.keys.all_acks, 4096, self.node.waker)):  # acks: stamped, and wake
-            inlet = self._subs[name] = Inlet(size, waker, clock, stamped=waker is not None)
+            inlet = self._subs[name] = Inlet(size, waker, clock, "callback" if waker is not None else "ring")
             self._subscribers.append(subscribe(s, key, inlet))
         return self
 

@@ -1,15 +1,14 @@
 """The one receive path: stamp on arrival, queue, then accept or reject each sample in the owner's loop.
 
 Every subscription of :class:`~swarmnet.node.SwarmNode` and :class:`~swarmnet.observer.SwarmObserver`
-delivers into an :class:`Inlet`. In a UAV, a minimal callback, run
-by Zenoh on the thread that read the sample from the network, takes the wall-clock time and
-appends ``(time, sample)`` to a bounded deque (the oldest is dropped when it is full). That is
-all the Python that runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
-session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer by up
-to 11 s), whereas an append takes about a microsecond and never blocks. The callback runs on
-Zenoh's own thread (``indirect=False``), not on a Python thread of its own, so a sample costs
-no extra thread wake-up. (An observer, whose loop is busy in Python, keeps its bulk streams in
-Zenoh ring channels instead: see :class:`Inlet`.)
+delivers into an :class:`Inlet`, which stamps each sample's arrival (wall clock) and queues it
+in a bounded deque (the oldest is dropped when it is full) until the owner's loop takes it.
+No Python that could wait runs on Zenoh's threads: a slow zenoh-python callback stalls the
+whole session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer
+by up to 11 s), and even a fast one waits for the interpreter's lock while the owner holds it.
+So a hot stream (neighbour poses) is a Zenoh ring channel that a thread of the inlet's own
+empties and stamps; a rare stream (commands) may use a minimal callback; an owner that needs no
+stamps drains a ring channel itself (:class:`Inlet`).
 
 Streams that must be handled at once (commands, netem changes) also notify a :class:`Waker`,
 whose file descriptor the owner's loop waits on between its ticks; poses do not wake anyone:
@@ -17,7 +16,7 @@ they are taken in at the next control tick, with their arrival time.
 
 The path, top to bottom::
 
-    Inlet (callback on Zenoh's thread): (arrival time, sample) -> bounded deque [-> Waker]
+    Inlet: (arrival time, sample) -> bounded deque [-> Waker]
     drain(inlet, budget)           at most `budget` samples per call, oldest first
       -> accept(key, payload)      decode + the stream's rules (swarmnet.messages.accept_*)
       -> Accepted(key, item, payload, at), or Rejected: counted in NodeStats.rejected[reason]
@@ -31,10 +30,11 @@ from __future__ import annotations
 
 import os
 import select
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import zenoh
 
@@ -112,39 +112,52 @@ class Waker:
                 pass
 
 
+How = Literal["thread", "callback", "ring"]
+
+
 class Inlet:
     """Where one subscription's samples wait for the owner: ``(arrival time, sample)``, oldest first.
 
     ``size`` bounds the queue (the oldest sample is dropped when full, as a ring channel does);
-    ``waker``, if given, is notified of every sample (for streams the owner handles at once).
-    ``clock`` stamps the arrival (wall time, s).
+    ``waker``, if given, is notified of every sample (for streams the owner handles at once);
+    ``clock`` stamps the arrival (wall time, s). Three ways to take samples from Zenoh (``how``):
 
-    ``stamped=False`` keeps the samples in a Zenoh ``RingChannel`` instead, which runs no Python
-    at all on Zenoh's thread: the arrival is then the time of the drain. For an owner whose own
-    loop is busy in Python with many samples arriving (the runner and the ground station watch
-    every UAV): a callback needs the interpreter's lock, and while the owner holds it, Zenoh's
-    receive thread would wait, and with it everything the session receives (declarations too).
-    A stamped inlet takes the lock for about a microsecond per sample, which a UAV's loop, mostly
-    asleep, gives at once. (The edge router's feed uses neither: its own thread blocks on a ring
-    channel, see :mod:`swarmnet.feed`.)
+    * ``"thread"`` (a hot stream: a UAV's neighbour poses): a Zenoh ring channel, and a thread
+      of the inlet's own blocked in it (the interpreter's lock released) that stamps each sample
+      as it comes out and queues it. Nothing runs on Zenoh's threads; the channel drops its
+      oldest sample rather than ever making them wait.
+    * ``"callback"`` (a rare stream: commands, netem changes, acknowledgements): a minimal
+      callback on Zenoh's receive thread, no thread of its own. It needs the interpreter's lock
+      for about a microsecond per sample; while the owner holds it, Zenoh's receive thread waits,
+      and with it everything the session receives. Measured on 2 loaded cores at N = 25, a
+      callback on every pose raised the p99 transport age several times over and lost poses
+      (the senders' queues overflowed), so only rare streams take this way.
+    * ``"ring"`` (an owner that does not need arrival stamps: the runner and the ground station
+      watch every UAV): a ring channel drained by the owner; the arrival is the drain's time.
     """
 
-    __slots__ = ("_q", "_sub", "waker", "clock", "stamped", "size", "__weakref__")
+    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "_thread", "__weakref__")
 
-    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, stamped: bool = True):
-        if waker is not None and not stamped:
-            raise ValueError("only a stamped inlet (a callback) can wake its owner")
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback"):
+        if waker is not None and how == "ring":
+            raise ValueError("a ring inlet is drained by its owner: it cannot wake it")
         self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
-        self._sub: Any = None  # the ring channel's subscriber (stamped=False)
+        self._sub: Any = None  # the ring channel's subscriber ("thread", "ring")
+        self._thread: threading.Thread | None = None
         self.waker = waker
         self.clock = clock
-        self.stamped = stamped
+        self.how = how
         self.size = size
 
+    @property
+    def stamped(self) -> bool:
+        """Arrival times are the samples' own (taken as they arrive), not the drain's."""
+        return self.how != "ring"
+
     def handler(self) -> Any:
-        """The Zenoh handler to subscribe with: a closure that only stamps and appends (and
-        notifies), or a ring channel (``stamped=False``)."""
-        if not self.stamped:
+        """The Zenoh handler to subscribe with: a ring channel, or a closure that only stamps and
+        appends (and notifies)."""
+        if self.how != "callback":
             return zenoh.handlers.RingChannel(self.size)
         append, stamp, waker = self._q.append, self.clock, self.waker
         if waker is None:
@@ -159,8 +172,27 @@ class Inlet:
         return zenoh.handlers.Callback(on_sample, indirect=False)
 
     def attach(self, subscriber: Any) -> None:
-        """The subscriber declared with :meth:`handler` (a ring channel is drained through it)."""
+        """The subscriber declared with :meth:`handler`: drained through it ("ring"), or by the
+        inlet's thread, started here ("thread"), which ends when the subscription does."""
         self._sub = subscriber
+        if self.how == "thread":
+            self._thread = threading.Thread(target=self._receive, args=(subscriber.handler,), name="swarmnet-inlet",
+                                            daemon=True)
+            self._thread.start()
+
+    def _receive(self, channel: Any) -> None:
+        append, stamp, notify = self._q.append, self.clock, (self.waker.notify if self.waker is not None else None)
+        recv, try_recv = channel.recv, channel.try_recv
+        while True:
+            try:
+                sample = recv()  # blocks, the interpreter's lock released
+                append((stamp(), sample))
+                while (more := try_recv()) is not None:  # those that came meanwhile: one wake-up
+                    append((stamp(), more))
+            except zenoh.ZError:  # the subscription or the session ended
+                return
+            if notify is not None:
+                notify()
 
     def __len__(self) -> int:
         """Samples waiting (a stamped inlet; a ring channel cannot tell without taking them)."""
@@ -168,7 +200,7 @@ class Inlet:
 
     def drain(self, budget: int = DRAIN_BUDGET) -> Iterator[tuple[float, zenoh.Sample]]:
         """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks."""
-        if not self.stamped:
+        if self.how == "ring":
             if self._sub is None:
                 return
             now, take = self.clock(), self._sub.try_recv
