@@ -17,8 +17,9 @@ The deadline grows with the fleet: :func:`command_deadline` gives 6 s plus 0.15 
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from swarmnet.messages import CommandAck
@@ -48,9 +49,11 @@ class CommandRound:
     by_state: dict[int, float] = field(default_factory=dict)  # UAVs whose state showed it first, and when
     complete_at: float | None = None  # wall time the last ack (or state) arrived
 
+    gone: set[int] = field(default_factory=set)  # targets that stopped being expected (their process was lost)
+
     @property
     def missing(self) -> list[int]:
-        return sorted(set(self.targets) - set(self.acks) - set(self.by_state))
+        return sorted(set(self.targets) - set(self.acks) - set(self.by_state) - self.gone)
 
     @property
     def refused(self) -> dict[int, str]:
@@ -64,12 +67,15 @@ class CommandRound:
 
 def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeout: float,
                   progress: Callable[[CommandRound], None] | None = None, clock: Callable[[], float] = time.time,
-                  took_effect: Callable[[int], bool] | None = None) -> CommandRound:
+                  took_effect: Callable[[int], bool] | None = None, tick: Callable[[], None] | None = None,
+                  active: Callable[[], Iterable[int]] | None = None, tick_every: float = 0.1) -> CommandRound:
     """Send ``verb`` to ``targets`` until each acknowledged or ``timeout`` s passed (see the module's docstring).
 
     ``progress`` is called after every wake-up (for a display); ``took_effect(uav)`` tells from
-    the UAV's last reported state that it got the command. Never raises for missing or refused
-    acknowledgements: the caller reads :attr:`CommandRound.missing` and ``refused``.
+    the UAV's last reported state that it got the command; ``tick`` runs at least every
+    ``tick_every`` s (the runner's supervision; it may raise to abort); ``active()`` names the
+    targets still expected (a UAV whose process was lost is not waited for). Never raises for
+    missing or refused acknowledgements: the caller reads :attr:`CommandRound.missing` and ``refused``.
     """
     r = CommandRound(verb, sorted(targets), sent_at=clock())
     deadline = r.sent_at + timeout
@@ -78,6 +84,10 @@ def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeou
     backoff = FIRST_RESEND_S
     next_send = r.sent_at + backoff
     while True:
+        if tick is not None:
+            tick()
+        if active is not None:
+            r.gone = set(r.targets) - set(active())
         observer.poll()
         for p in sent:
             for uav, ack in p.acks.items():
@@ -101,7 +111,8 @@ def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeou
             r.sends += 1
             backoff = min(backoff * 2.0, MAX_BACKOFF_S)
             next_send = now + backoff
-        observer.waker.wait(max(0.0, min(next_send, deadline) - clock()))
+        wake = min(next_send, deadline, clock() + tick_every if tick is not None else math.inf)
+        observer.waker.wait(max(0.0, wake - clock()))
     for p in sent:
         observer.pending.pop(p.cmd.cmd_id, None)
     return r

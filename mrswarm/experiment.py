@@ -8,7 +8,14 @@ beside it: the way in for the runner and for ground stations (``mrswarm gcs watc
 reports ``ready`` -> command ``takeoff`` -> wait until all ``hover`` -> command ``start`` (the
 mission clock starts here, for every UAV at once) -> fly for ``duration`` seconds or until all
 are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.py).
-Ctrl-C (or SIGTERM) at any point still stops every process and summarises what was recorded.
+Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
+recorded; a second one stops faster (mrswarm/signals.py).
+
+A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
+services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
+on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
+mission (mrswarm/faults.py). The runner's own files are written atomically; one that cannot be
+written (a full disk) is reported, never the end of the run.
 
 Concerns elsewhere: the live estimates and the mission clock in mrswarm/live.py, the live panel
 in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
@@ -17,11 +24,9 @@ in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
 from __future__ import annotations
 
 import json
-import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import yaml
@@ -30,12 +35,15 @@ from rich.console import Console
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
+from mrswarm.faults import Chaos, Swarm, plan
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
-from mrswarm.recorder.run_recorder import RunRecorder
+from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
-from mrswarm.summary import RunInfo, RunSummary
+from mrswarm.signals import FAST_GRACE_S, GRACE_S, Interrupted, StopSignals
+from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
+from mrswarm.supervisor import Supervisor, uav_of
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
@@ -49,6 +57,7 @@ READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after 
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
+REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
 
 
 class RunAborted(RuntimeError):
@@ -64,7 +73,7 @@ class Experiment:
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
                  live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
-                 record: bool = True):
+                 record: bool = True, signals: StopSignals | None = None):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -84,6 +93,12 @@ class Experiment:
         self.probe = probe
         self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
         self.recorder: RunRecorder | None = None
+        self.signals = signals or StopSignals()
+        self.supervisor: Supervisor | None = None
+        self.chaos: Chaos | None = None
+        self.ids: list[int] = []
+        self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
+        self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -106,26 +121,81 @@ class Experiment:
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
-        (self.run_dir / "scenario.yaml").write_text(yaml.safe_dump(to_builtins(self.scn), sort_keys=False))
-        old = signal.signal(signal.SIGTERM, _raise_interrupt)
+        own_signals = not self.signals.installed
+        if own_signals:
+            self.signals.install()
         try:
-            self._fly()
-        except KeyboardInterrupt:
-            self.run_info.interrupted = True
-            self.console.print("[yellow]interrupted: stopping every UAV process[/]")
-        except RunAborted as exc:
-            self.run_info.aborted = str(exc)
-            self.console.print(f"[red]run aborted:[/] {exc}")
+            self._save("scenario.yaml", yaml.safe_dump(to_builtins(self.scn), sort_keys=False).encode())
+            self._save_info()
+            try:
+                self._fly()
+            except Interrupted:
+                self.run_info.interrupted = True
+                self._say(f"[yellow]{self.signals.names[0]}: stopping every UAV process[/]")
+            except RunAborted as exc:
+                self.run_info.aborted = str(exc)
+                self._say(f"[red]run aborted:[/] {exc}")
+            except OSError as exc:  # the results folder cannot take a UAV's configuration (a full or read-only disk)
+                self.run_info.aborted = f"cannot start: {exc.filename or ''}: {exc.strerror or exc}"
+                self._say(f"[red]run aborted:[/] {self.run_info.aborted}")
+            finally:
+                self._stop_all()
+            if self.signals.hangup:
+                self.console.quiet = True  # the terminal is gone
+            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast)
         finally:
-            if self.observer is not None:
+            if own_signals:
+                self.signals.restore()
+
+    def _stop_all(self) -> None:
+        """Stop every child (faster after a second signal) and write run.json; never raises on a dead observer."""
+        if self.observer is not None:
+            try:
                 self.observer.close()
-            self.run_info.exit_codes = dict(self.runtime.stop())
-            self.run_info.stopped = time.time()
+            except Exception as exc:  # noqa: BLE001 - stopping must go on
+                self.run_info.write_errors.append(f"observer close: {exc}")
+        self.run_info.exit_codes = dict(self.runtime.stop(FAST_GRACE_S if self.signals.fast else GRACE_S))
+        self.run_info.stopped = time.time()
+        self.run_info.stop_signals = self.signals.names
+        self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
+        self._save_info()
+        # the flight recorder after run.json, which it keeps; faster after a second signal
+        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
+            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+
+    # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
+    def _save(self, name: str, data: bytes) -> bool:
+        try:
+            write_atomic(self.run_dir / name, data)
+            return True
+        except OSError as exc:
+            msg = f"{name}: {exc.strerror or exc}"
+            if msg not in self.run_info.write_errors:
+                self.run_info.write_errors.append(msg)
+                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / name} ({exc.strerror or exc}); the run goes on")
+            return False
+
+    def _save_info(self) -> None:
+        if self.supervisor is not None:
+            self.run_info.events = list(self.supervisor.events)
+        if self.chaos is not None:
+            self.run_info.faults = list(self.chaos.records)
+            self.chaos.changed = False
+        try:
             self.run_info.write(self.run_dir / "run.json")
-            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
-                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
-            signal.signal(signal.SIGTERM, old)
-        return summarise_run(self.run_dir, self.scn)
+        except OSError as exc:
+            msg = f"run.json: {exc.strerror or exc}"
+            if msg not in self.run_info.write_errors:
+                self.run_info.write_errors.append(msg)
+                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / 'run.json'} ({exc.strerror or exc}); "
+                          "the run goes on")
+
+    def _say(self, text: str) -> None:
+        """Print, unless the terminal is gone (after SIGHUP a write to it fails)."""
+        try:
+            self.console.print(text, highlight=False)
+        except OSError:
+            self.console.quiet = True
 
     def _fly(self) -> None:
         scn = self.scn
@@ -142,21 +212,26 @@ class Experiment:
             key_file.write_text(f"{scn.swarm} {net.discovery.key}\n")
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
-        (self.run_dir / "network.json").write_text(json.dumps(network_info))
+        self._save("network.json", json.dumps(network_info).encode())
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
-                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
+                self._say(f"flight recording: {self.recorder.path}")
             except RuntimeError as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
-        ids = [c.agent.uav for c in configs]
+        self.ids = ids = [c.agent.uav for c in configs]
         for c in configs:
+            self.signals.check()
             self.runtime.start_uav(c)
         self.run_info.pids = self.runtime.pids()
+        self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+                                     last_pose=self._last_pose)
+        self.supervisor.adopt()
+        self._save_info()
         kind = "containers" if self.runtime.name == "docker" else "processes"
-        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
-        self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
+        self._say(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
+        self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer")
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere)
@@ -183,16 +258,40 @@ class Experiment:
             self._command("start", ids, set(WORKING))
             start = time.time()
             self.run_info.mission_start = self.progress.mission_start = start
+            if scn.faults:
+                self.chaos = Chaos(plan(scn.faults, scn.seed), self._swarm(net))
+            self._save_info()
             end = start + scn.duration
             while time.time() < end:
                 self._tick()
+                if self.chaos is not None:
+                    self.chaos.tick(time.time() - start)
+                    if self.chaos.changed:
+                        self._save_info()
                 if self.probe is not None:
                     self.probe(self, time.time() - start)
-                if all(self._phase_of(u) in FINISHED for u in ids):
+                active = self._active_ids()
+                if active and not self.rejoin and all(self._phase_of(u) in FINISHED for u in active) \
+                        and (self.chaos is None or not self.chaos.pending):
                     self.run_info.all_done_at = time.time() - start
                     break
             self.progress.stage = RunStage.STOPPING
             self.display.refresh(self.observer)
+
+    def _swarm(self, net: NetworkConfig) -> Swarm:
+        """What the fault schedule acts on."""
+        d = net.discovery
+        return Swarm(runtime=self.runtime, supervisor=self.supervisor, observer=self.observer,
+                     base_netem=to_builtins(self.scn.network.netem) if self.scn.network.netem is not None else None,
+                     discovery=(d.server, self.scn.swarm, d.read_key()) if d is not None else None, ids=list(self.ids))
+
+    def _active_ids(self) -> list[int]:
+        """UAVs flying with the swarm now: not lost, not rejoining."""
+        return [u for u in self.ids if u not in self.lost and u not in self.rejoin]
+
+    def _last_pose(self, uav: int) -> list[float] | None:
+        v = self.observer.uavs.get(uav) if self.observer is not None else None
+        return [round(v.pose.x, 2), round(v.pose.y, 2), round(v.pose.z, 2)] if v is not None and v.pose is not None else None
 
     def _phase_of(self, uav: int) -> AgentPhase | None:
         """The phase ``uav`` last reported (None: nothing yet, or a name this version does not know)."""
@@ -206,47 +305,102 @@ class Experiment:
             return None
 
     def _command(self, verb: str, ids: list[int], took_effect: set[AgentPhase]) -> CommandRound:
-        """Send ``verb`` to ``ids`` until each acknowledged it or reports one of the ``took_effect``
-        phases (mrswarm/command_round.py), showing the progress."""
+        """Send ``verb`` to the flying ones of ``ids`` until each acknowledged it or reports one of
+        the ``took_effect`` phases (mrswarm/command_round.py), supervising and showing the progress."""
         assert self.observer is not None
+        ids = [u for u in ids if u in self._active_ids()]
 
         def show(r: CommandRound) -> None:
-            done = len(r.targets) - len(r.missing)
-            self.progress.detail = f"{verb}: {done}/{len(r.targets)} acknowledged ({r.sends} sends)"
+            done = len(r.targets) - len(r.missing) - len(r.gone)
+            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({r.sends} sends)"
             self.display.refresh(self.observer)
 
+        def tick() -> None:
+            self.signals.check()
+            self._supervise()
+
         r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show,
-                          took_effect=lambda u: self._phase_of(u) in took_effect)
+                          took_effect=lambda u: self._phase_of(u) in took_effect, tick=tick, active=self._active_ids)
         if r.refused:
             raise RunAborted(f"'{verb}' refused by {r.refused}")
         if r.missing:
             raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
                              f"({r.sends} sends)")
-        self.progress.detail = f"{verb} acknowledged by all {len(ids)} in {1000 * (r.duration or 0.0):.0f} ms ({r.sends} sends)"
+        self.progress.detail = f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms " \
+                               f"({r.sends} sends)"
         return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float) -> None:
-        """Poll until every UAV in ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""
+        """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""
         deadline = time.time() + timeout
         while time.time() < deadline:
             self._tick()
-            if all(self._phase_of(u) in phases for u in ids):
+            active = [u for u in ids if u in self._active_ids()]
+            if active and all(self._phase_of(u) in phases for u in active):
                 return
         behind = {u: str(self._phase_of(u) or "?") for u in ids if self._phase_of(u) not in phases}
         raise RunAborted(f"timed out after {timeout:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
 
     def _tick(self) -> None:
-        """One poll of the swarm: live metrics, a dead process check, the display, then TICK s of sleep."""
+        """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""
         assert self.observer is not None
+        self.signals.check()
+        if self.signals.hangup:
+            self.console.quiet = True
         fresh = self.observer.poll()
         self.metrics.add_poses(self.observer, fresh)
         self.metrics.update_separation(self.observer)
-        dead = self.runtime.exited()
-        if dead:
-            raise RunAborted(f"processes exited early: {dead} (see {self.run_dir / 'logs'})")
-        self.display.refresh(self.observer)
+        self._supervise()
+        self._rejoin_tick()
+        try:
+            self.display.refresh(self.observer)
+        except OSError:  # the terminal is gone
+            self.console.quiet = True
         time.sleep(TICK)
 
+    def _supervise(self) -> None:
+        """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
+        assert self.supervisor is not None
+        events = self.supervisor.check()
+        for ev in events:
+            self._on_event(ev)
+        if events:
+            self._save_info()
+        if self.ids and not self._active_ids() and not self.rejoin and not any(
+                self.supervisor.restarting(f"uav{u}") for u in self.lost):
+            raise RunAborted(f"every UAV process has exited (see {self.run_dir / 'logs'})")
 
-def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
-    raise KeyboardInterrupt
+    def _on_event(self, ev: ProcessEvent) -> None:
+        uav = uav_of(ev.name)
+        if ev.event == "exited":
+            why = ev.signal or f"exit code {ev.exit_code}"
+            where = f" at {ev.last_pose}" if ev.last_pose else ""
+            self._say(f"[yellow]{ev.name} exited ({why}){where}[/]" + (f"; {ev.detail}" if ev.detail else ""))
+            if uav is not None:
+                self.lost.add(uav)
+                self.rejoin.pop(uav, None)
+        elif ev.event == "restarted":
+            self._say(f"[green]{ev.name} started again[/] ({ev.detail})")
+            if uav is not None:
+                self.lost.discard(uav)
+                self.rejoin[uav] = (ev.t, 0.0)
+        else:
+            self._say(f"[yellow]{ev.name}: {ev.event}[/] {ev.detail}")
+
+    def _rejoin_tick(self) -> None:
+        """A restarted UAV reports ready: send it start (takeoff before the mission), until it flies."""
+        assert self.observer is not None
+        now = time.time()
+        for uav, (since, next_send) in list(self.rejoin.items()):
+            v = self.observer.uavs.get(uav)
+            if v is None or v.state is None or v.state_recv <= since:
+                continue  # nothing from the new process yet
+            phase = v.state.phase
+            started = self.run_info.mission_start is not None
+            if phase == AgentPhase.READY and now >= next_send:
+                self.observer.command("start" if started else "takeoff", [uav])
+                self.rejoin[uav] = (since, now + REJOIN_EVERY_S)
+            elif phase not in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD):
+                del self.rejoin[uav]  # flying with the swarm again
+                if phase == AgentPhase.HOVER and started:
+                    self.observer.command("start", [uav])

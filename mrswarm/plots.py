@@ -2,7 +2,7 @@
 
 - ``<scenario>.png``: trajectories over the covered cells (coverage missions) or the goals
   (goto), and the minimum separation (plus coverage) over mission time;
-- ``pose_age.png``: pose age on arrival and age of information per second, per UAV and their
+- ``pose_age.png``: transport age, age at use and age of information per second, per UAV and their
   median, with the mission start and each netem change marked.
 """
 

@@ -58,7 +58,7 @@ class SwarmKeys:
         return f"{self.prefix}/alive/{role}/{node}"
 
     def fault(self, uav: int | str) -> str:
-        """Fault injection into a virtual UAV (the experiment controller only)."""
+        """Fault injection into a virtual UAV (the experiment controller only; docs/reliability.md)."""
         return f"{self.prefix}/{uav}/fault"
 
     # swarm-wide

@@ -39,12 +39,14 @@ from swarmnet.messages import (
     AgentState,
     Command,
     CommandAck,
+    FaultInjection,
     Pose,
     Realm,
     SwarmMessage,
     Telemetry,
     accept_batched_pose,
     accept_command,
+    accept_fault,
     accept_neighbour_pose,
     accept_pose,
     accept_pose_batch,
@@ -71,6 +73,7 @@ ROLES = ("uav", "gcs", "edge", "observer")
 # Where an accepted item goes; also the ``kind`` the netem shim keeps with an item it holds.
 POSE, MESSAGE, COMMAND = 0, 1, 2
 _BATCH = 3  # an edge-feed batch: unpacked into POSE items before the shim
+FAULT = 4  # an injected fault (docs/reliability.md); never impaired by the shim
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,7 @@ class Inbox:
 
     messages: list[SwarmMessage] = field(default_factory=list)
     commands: list[Command] = field(default_factory=list)
+    faults: list[FaultInjection] = field(default_factory=list)  # injected by the experiment controller
     joined: list[str] = field(default_factory=list)  # liveliness keys that appeared
     left: list[str] = field(default_factory=list)  # ... and disappeared
 
@@ -209,6 +213,7 @@ class SwarmNode:
                 command_rule = partial(accept_command, me=me)
                 streams.append((COMMAND, inlet(k.cmd(me), 64, "callback", wakes=True), command_rule))
                 streams.append((COMMAND, inlet(k.swarm_cmd, 64, "callback", wakes=True), command_rule))
+                streams.append((FAULT, inlet(k.fault(me), 16, "callback", wakes=True), partial(accept_fault, me=me)))
             self._alive_inlet = alive = Inlet(256, None, clock, "ring")  # joins and leaves: the drain's time will do
             self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
             alive.attach(sub)
@@ -261,6 +266,12 @@ class SwarmNode:
     def zid(self) -> str:
         assert self.session is not None
         return str(self.session.info.zid())
+
+    def routers(self) -> list[str]:
+        """ZIDs of the routers this session has a link to (the edge router; empty while it is down)."""
+        if self.session is None:
+            return []
+        return [str(z) for z in self.session.info.routers_zid()]
 
     def peers(self) -> list[str]:
         """ZIDs of the peers this session has a direct link to."""
@@ -429,6 +440,8 @@ class SwarmNode:
             if item.src == self.identity.uav and self.identity.role == "uav":
                 return None  # a UAV's message to itself crossed no link
             return shim.link(item.src)
+        if kind == FAULT:
+            return None
         return None if shim.config.exempt_commands else shim.link(f"gcs:{item.sender}")
 
     def _deliver(self, kind: int, item: Any, at: float, inbox: Inbox) -> None:
@@ -442,6 +455,9 @@ class SwarmNode:
         elif kind == MESSAGE:
             stats.received["broadcast" if item.dst == 0 else "unicast"] += 1
             inbox.messages.append(item)
+        elif kind == FAULT:
+            stats.received["fault"] += 1
+            inbox.faults.append(item)
         else:
             stats.received["cmd"] += 1
             inbox.commands.append(item)

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import NamedTuple, TextIO
+from typing import NamedTuple
 
 from swarmnet.node import SwarmNode
 from swarmnet.stats import LogHistogram, PoseAges
+from uav_stack.recorder import AppendLog, RecordHealth
 
 COLUMNS = ("t_wall", "poses", "transport_p50_ms", "transport_p99_ms", "transport_mean_ms", "used", "use_p50_ms", "use_p99_ms",
            "aoi_mean_ms", "aoi_max_ms", "neighbours")
@@ -80,15 +81,12 @@ class AgeWindow:
 
 
 class PoseAgeLog:
-    """``age_uav<N>.csv``: one row per second of :class:`AgeFigures` and the age of information."""
+    """``age_uav<N>.csv``: one row per second of :class:`AgeFigures` and the age of information
+    (an append-only log: a write error degrades, never raises)."""
 
-    def __init__(self, path: str | Path, node: SwarmNode):
+    def __init__(self, path: str | Path, node: SwarmNode, health: RecordHealth | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.exists()
-        self._f: TextIO = open(self.path, "a", buffering=8192)  # noqa: SIM115 (open until close())
-        if new:
-            self._f.write(",".join(COLUMNS) + "\n")
+        self._log = AppendLog(self.path, ",".join(COLUMNS) + "\n", health)  # errors degrade, never raise
         self.node = node
 
     def write(self, now: float, f: AgeFigures) -> None:
@@ -96,10 +94,9 @@ class PoseAgeLog:
         ages = [n_.age(now) for n_ in self.node.neighbours]
         aoi_mean = sum(ages) / len(ages) if ages else math.nan
         aoi_max = max(ages) if ages else math.nan
-        self._f.write(f"{now:.3f},{f.poses},{ms(f.transport_p50)},{ms(f.transport_p99)},{ms(f.transport_mean)},"
+        self._log.add(f"{now:.3f},{f.poses},{ms(f.transport_p50)},{ms(f.transport_p99)},{ms(f.transport_mean)},"
                       f"{f.used},{ms(f.use_p50)},{ms(f.use_p99)},{ms(aoi_mean)},{ms(aoi_max)},{len(ages)}\n")
-        self._f.flush()
+        self._log.flush(now)
 
     def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
+        self._log.close()
