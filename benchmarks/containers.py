@@ -129,7 +129,7 @@ def run_one(n: int, runtime: str, args: argparse.Namespace, console: Console) ->
     ex = sampler.extra
     shims = [v for k, v in ex.items() if k.startswith("shim:")]
     cgs = [v for k, v in ex.items() if k.startswith("cgroup:")]
-    age = summary.get("network", {}).get("pose_age_ms", {})
+    age = summary.get("network", {}).get("transport_age_ms", {})
     row = {
         "n": n,
         "runtime": runtime,
@@ -147,8 +147,8 @@ def run_one(n: int, runtime: str, args: argparse.Namespace, console: Console) ->
         "router_cpu_pct": round(sampler.result.get("router", {}).get("cpu_pct", math.nan), 2),
         "rtf_mean": summary.get("rtf", {}).get("mean"),
         "rtf_min": summary.get("rtf", {}).get("min"),
-        "pose_age_p50_ms": age.get("p50"),
-        "pose_age_p99_ms": age.get("p99"),
+        "transport_age_p50_ms": age.get("p50"),
+        "transport_age_p99_ms": age.get("p99"),
         "collisions": summary.get("separation", {}).get("collisions"),
         "wall_s": round(time.time() - t0, 1),
     }

@@ -7,10 +7,13 @@ mission starts, then measures every process over ``--window`` seconds:
 * CPU: user+system time of each UAV process over the window, in % of one core;
 * memory at the end of the window: RSS (the budget), plus USS and PSS (shared pages split);
 * RTF of every virtual FCU (sim time / wall time over the mission, from its own log);
-* pose age at the receivers (p50/p99, from every agent's histogram);
-* the rendezvous router's and the runner's own CPU, reported separately.
+* both pose ages, from every agent's histograms (p50/p99): the transport age (the sender's
+  stamp to the arrival in the receiving process) and the age at use (arrival to the
+  controller's first use);
+* the takeoff: every UAV's acknowledgement and every UAV airborne, s after the command;
+* the edge router's, the discovery server's and the runner's own CPU, reported separately.
 
-    python benchmarks/scale.py --sizes 1 10 25 50 --out benchmarks/results
+    python benchmarks/scale.py --sizes 1 10 25 50 100 --configs discovery-direct client-edge --out benchmarks/results
 
 flies every network configuration of ``--configs`` at every N (interleaved, so that all
 configurations share the machine's load of the moment) and writes ``scale.json``,
@@ -120,7 +123,9 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
     med = lambda key: statistics.median(v[key] for v in uavs.values())  # noqa: E731
     mx = lambda key: max(v[key] for v in uavs.values())  # noqa: E731
     rtf = summary.get("rtf", {})
-    age = summary.get("network", {}).get("pose_age_ms", {})
+    net = summary.get("network", {})
+    age, use = net.get("transport_age_ms", {}), net.get("use_age_ms", {})
+    takeoff = summary.get("takeoff", {})
     row = {
         "n": n,
         "config": config,
@@ -136,9 +141,15 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
         "threads_median": med("threads"),
         "rtf_mean": rtf.get("mean"),
         "rtf_min": rtf.get("min"),
-        "pose_age_p50_ms": age.get("p50"),
-        "pose_age_p99_ms": age.get("p99"),
-        "pose_loss": summary.get("network", {}).get("pose_loss"),
+        "transport_age_p50_ms": age.get("p50"),
+        "transport_age_p99_ms": age.get("p99"),
+        "transport_age_max_ms": age.get("max"),
+        "use_age_p50_ms": use.get("p50"),
+        "use_age_p99_ms": use.get("p99"),
+        "pose_loss": net.get("pose_loss"),
+        "takeoff_acked_s": takeoff.get("acked_s"),
+        "all_airborne_s": takeoff.get("all_airborne_s"),
+        "takeoff_sends": takeoff.get("sends"),
         "router_cpu_pct": round(sampler.result.get("router", {}).get("cpu_pct", math.nan), 2),
         "discovery_cpu_pct": round(sampler.result.get("discovery", {}).get("cpu_pct", math.nan), 2),
         "runner_cpu_pct": round(sampler.result.get("runner", {}).get("cpu_pct", math.nan), 2),
@@ -156,7 +167,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 4, figsize=(18, 4.2))
+    fig, ax = plt.subplots(1, 5, figsize=(22, 4.2))
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for i, cfg in enumerate(configs):
         rs = sorted((r for r in rows if r["config"] == cfg), key=lambda r: r["n"])
@@ -166,9 +177,12 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax[1].plot(ns, [r["rss_mb_median"] for r in rs], "o-", color=c, label=f"{cfg} RSS")
         ax[1].plot(ns, [r["pss_mb_median"] for r in rs], "s:", color=c, alpha=0.6, label=f"{cfg} PSS")
         ax[2].plot(ns, [r["rtf_min"] for r in rs], "o-", color=c, label=f"{cfg} (min)")
-        ax[3].plot(ns, [r["pose_age_p50_ms"] for r in rs], "o-", color=c, label=f"{cfg} p50")
-        ax[3].plot(ns, [r["pose_age_p99_ms"] for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} p99")
-    ax[0].axhline(2.0, color="r", ls=":", label="budget 2 %")
+        ax[3].plot(ns, [r.get("transport_age_p50_ms") for r in rs], "o-", color=c, label=f"{cfg} transport p50")
+        ax[3].plot(ns, [r.get("transport_age_p99_ms") for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} transport p99")
+        ax[3].plot(ns, [r.get("use_age_p50_ms") for r in rs], "s:", color=c, alpha=0.8, label=f"{cfg} at use p50")
+        ax[4].plot(ns, [r.get("all_airborne_s") for r in rs], "o-", color=c, label=f"{cfg} all airborne")
+        ax[4].plot(ns, [r.get("takeoff_acked_s") for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} all acknowledged")
+    ax[0].axhline(1.5, color="r", ls=":", label="budget 1.5 %")
     ax[0].set_title("CPU per UAV process, median (% of one core)")
     ax[1].axhline(60.0, color="r", ls=":", label="budget 60 MB RSS")
     ax[1].set_title("memory per UAV process, median (MB)")
@@ -176,7 +190,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax[2].set_ylim(min([0.95] + [r["rtf_min"] - 0.02 for r in rows if r["rtf_min"] is not None]), 1.02)
     ax[2].set_title("real-time factor, slowest UAV")
     ax[3].set_yscale("log")
-    ax[3].set_title("pose age at the receivers (ms)")
+    ax[3].set_title("pose ages at the receivers (ms)")
+    ax[4].set_title("takeoff: s after the command")
     for a in ax:
         a.set_xlabel("virtual UAVs (N)")
         a.legend(fontsize=7)

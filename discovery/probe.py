@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from swarmnet.messages import DecodeError, Realm, decode_pose
     from swarmnet.node import NodeIdentity, SwarmNode
-    from swarmnet.receive import drain
+    from swarmnet.receive import Inlet, subscribe
 
     if sys.platform.startswith("linux"):  # die with whoever launched us (a test harness): no orphans
         import ctypes
@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     t_open = time.time()
     s = node.session
     assert s is not None
-    spy = s.declare_subscriber("mrs/**", zenoh.handlers.RingChannel(8192), allowed_origin=zenoh.Locality.REMOTE)
+    spy = Inlet(8192, how="ring")  # stamped at the drain, as this loop always did
+    spy_sub = subscribe(s, "mrs/**", spy, allowed_origin=zenoh.Locality.REMOTE)
     lock = threading.Lock()
     pending: list[tuple[float, str, str]] = []  # (time, "put"/"delete", zid) from Zenoh's transport events
 
@@ -150,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             for k in inbox.left:
                 alive_left[k] = now
                 alive_since.pop(k, None)
-            for sample in drain(spy):  # bounded per loop, like every other receiver
+            for _at, sample in spy.drain():  # bounded per loop, like every other receiver
                 key = str(sample.key_expr)
                 parts = key.split("/")
                 if len(parts) < 3:
@@ -205,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                 os.replace(tmp, status_path)
             time.sleep(args.poll)
     finally:
-        spy.undeclare()
+        spy_sub.undeclare()
         transports.undeclare()
         node.close()
     return 0

@@ -7,7 +7,8 @@ source: ``zenoh/src/net/protocol/gossip.rs``). Client-mode nodes (UAVs behind ca
 route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
-one batch of every UAV's latest pose per period instead of a message per neighbour.
+the poses that arrive within a short window (``--feed-window-ms``, 3 ms by default; 0 forwards
+at once) leave as one batch, instead of a message per neighbour.
 
 With ``--keys DIR`` (the swarm's key directory, or the router's bundle of it) every link is
 mutual TLS and the router enforces the swarm's access control on what enters and what leaves
@@ -33,7 +34,7 @@ from typing import Any
 import zenoh
 
 from swarmnet.connectivity import TransportTuning, secured
-from swarmnet.feed import DEFAULT_PERIOD, PoseFeed
+from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
 from swarmnet.schema import ConfigError
 from swarmnet.security.credentials import Credentials
 from swarmnet.stats import NodeStats
@@ -72,39 +73,42 @@ def write_stats(path: Path, stats: NodeStats, feed: PoseFeed | None) -> None:
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
-          feed_swarms: list[str] | None = None, feed_period: float = DEFAULT_PERIOD,
+          feed_swarms: list[str] | None = None, feed_window: float = DEFAULT_WINDOW,
           credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None) -> None:
     """Run the router until ``stop`` is set (or ``duration`` s); ``stats`` receives its refusals."""
     stats = stats if stats is not None else NodeStats()
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials))))
     links = None
+    feed = None
     try:
         shown = [e.replace("tcp/", "tls/", 1) if credentials else e for e in listen]
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
               + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
-              + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
+              + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else ""),
               flush=True)
         if credentials is not None:
             from swarmnet.security.acl import member_names
             from swarmnet.security.links import LinkWatch
 
             links = LinkWatch(session, member_names(credentials.roster()), stats)
-        feed = PoseFeed(session, feed_swarms, feed_period) if feed_swarms else None
+        # the feed runs in threads of its own (swarmnet/feed.py); this loop only watches
+        feed = PoseFeed(session, feed_swarms, feed_window).start() if feed_swarms else None
         end = time.monotonic() + duration if duration is not None else float("inf")
         next_stats = 0.0
         while not stop.is_set() and time.monotonic() < end:
-            nxt = feed.step() - time.time() if feed is not None else TICK
             if links is not None:
                 links.poll()
             if stats_file is not None and time.monotonic() >= next_stats:
                 write_stats(stats_file, stats, feed)
                 next_stats = time.monotonic() + STATS_PERIOD
-            stop.wait(max(0.0, min(nxt, TICK, end - time.monotonic())))
+            stop.wait(max(0.0, min(TICK, end - time.monotonic())))
         if stats_file is not None:
             if links is not None:
                 links.poll()
             write_stats(stats_file, stats, feed)
     finally:
+        if feed is not None:
+            feed.close()
         if links is not None:
             links.close()
         session.close()
@@ -115,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--listen", action="append", default=None, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     ap.add_argument("--feed", action="append", default=[], metavar="SWARM",
                     help="run the edge pose feed for this swarm ('*' for all; repeatable)")
-    ap.add_argument("--feed-period", type=float, default=DEFAULT_PERIOD, help="seconds between pose batches")
+    ap.add_argument("--feed-window-ms", type=float, default=DEFAULT_WINDOW * 1000.0,
+                    help="a pose waits at most this long for others to share its batch (0: forward at once)")
     ap.add_argument("--keys", default=None, metavar="DIR",
                     help="the swarm's key directory (mrswarm keys init), or the router's bundle: mutual TLS and access control")
     ap.add_argument("--identity", default=None, help="certificate to speak as (default: edge.<swarm of --keys>)")
@@ -126,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.keys and not args.insecure:
         ap.error("give the swarm's keys (--keys DIR, see `mrswarm keys`), or --insecure for plain TCP")
+    if not 0.0 <= args.feed_window_ms <= 1000.0:
+        ap.error("--feed-window-ms must be in 0..1000")
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
@@ -143,8 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print("WARNING: plain TCP without access control: anyone who reaches this router can command the swarm "
               "(docs/security.md)", file=sys.stderr, flush=True)
-    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_period, credentials, stats,
-          Path(args.stats) if args.stats else None)
+    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_window_ms / 1000.0, credentials,
+          stats, Path(args.stats) if args.stats else None)
     return 0
 
 

@@ -30,6 +30,8 @@ from mrswarm.summary import (
     Coverage,
     Encounter,
     Goal,
+    LinkAge,
+    LinkAges,
     Network,
     PoseAge,
     Rtf,
@@ -37,6 +39,7 @@ from mrswarm.summary import (
     RunSummary,
     Security,
     Separation,
+    Takeoff,
 )
 from swarmnet.stats import LogHistogram
 from uav_stack.phases import WORKING
@@ -98,6 +101,7 @@ class RunData:
     t_end: float  # wall time of the end of the analysed mission
     coverage: CoverageMap | None
     pose_age: PoseAgeSeries | None
+    links: list[LinkAge]  # transport age per link, for transport_links.csv
 
 
 def load_tracks(run_dir: Path) -> dict[int, Track]:
@@ -287,35 +291,73 @@ def rtf_report(tracks: dict[int, Track], t0: float, t1: float) -> Rtf:
     return Rtf(per_uav=per, mean=float(np.mean(vals)) if vals else None, min=float(np.min(vals)) if vals else None)
 
 
+def _age(h: LogHistogram) -> PoseAge:
+    return PoseAge(p50=_ms(h.percentile(50)), p99=_ms(h.percentile(99)), mean=_ms(h.mean), max=_ms(h.max), n=h.n)
+
+
+def _ms(v: float) -> float | None:
+    return round(v * 1000.0, 2) if v == v else None
+
+
+def _hist(d: Any) -> LogHistogram | None:
+    try:
+        return LogHistogram.from_dict(d)
+    except (KeyError, ValueError, TypeError, AttributeError):
+        return None
+
+
+def link_ages(stats: dict[int, dict[str, Any]]) -> list[LinkAge]:
+    """The transport age of every link ``sender -> receiver`` the UAVs recorded, by link."""
+    out = []
+    for uav, s in sorted(stats.items()):
+        for src, d in sorted((s.get("net", {}).get("transport_age_links") or {}).items(), key=lambda kv: str(kv[0])):
+            h = _hist(d)
+            if h is not None and h.n:
+                out.append(LinkAge(link=f"{src}->{uav}", p50=_ms(h.percentile(50)), p99=_ms(h.percentile(99)), max=_ms(h.max),
+                                   n=h.n))
+    return out
+
+
+def link_summary(links: list[LinkAge], worst: int = 5) -> LinkAges:
+    def med(vals: list[float | None]) -> float | None:
+        v = [x for x in vals if x is not None]
+        return round(float(np.median(v)), 2) if v else None
+
+    ranked = sorted((lk for lk in links if lk.p99 is not None), key=lambda lk: lk.p99 or 0.0, reverse=True)
+    return LinkAges(links=len(links), p50_median_ms=med([lk.p50 for lk in links]), p99_median_ms=med([lk.p99 for lk in links]),
+                    p99_max_ms=ranked[0].p99 if ranked else None, worst=ranked[:worst])
+
+
 def network_report(stats: dict[int, dict[str, Any]]) -> Network:
-    """Pose age (merged histograms), message counters summed over UAVs, and pose loss from sequence gaps."""
-    h = LogHistogram()
+    """Both pose ages (merged histograms), message counters summed over UAVs, and pose loss from sequence gaps."""
+    transport, use = LogHistogram(), LogHistogram()
     sent: dict[str, int] = {}
     recv: dict[str, int] = {}
     rej: dict[str, int] = {}
+    negative: dict[str, int] = {}
     lost = received = 0
     for s in stats.values():
         net = s.get("net", {})
-        try:
-            h.merge(LogHistogram.from_dict(net["pose_age"]))
-        except (KeyError, ValueError, TypeError):
-            pass
-        for src, dst in ((net.get("sent", {}), sent), (net.get("received", {}), recv), (net.get("rejected", {}), rej)):
+        # "pose_age": the name of the transport age in run folders of earlier versions
+        for h, key in ((transport, "transport_age" if "transport_age" in net else "pose_age"), (use, "use_age")):
+            part = _hist(net.get(key))
+            if part is not None:
+                h.merge(part)
+        for src, dst in ((net.get("sent", {}), sent), (net.get("received", {}), recv), (net.get("rejected", {}), rej),
+                         (net.get("negative_ages", {}), negative)):
             for k, v in src.items():
                 dst[k] = dst.get(k, 0) + int(v)
         for nb in s.get("neighbours", {}).values():
             lost += int(nb.get("lost", 0))
             received += int(nb.get("received", 0))
-
-    def ms(v: float) -> float | None:
-        return round(v * 1000.0, 2) if v == v else None
-
     return Network(
-        pose_age_ms=PoseAge(p50=ms(h.percentile(50)), p99=ms(h.percentile(99)), mean=ms(h.mean), max=ms(h.max), n=h.n),
+        transport_age_ms=_age(transport),
+        use_age_ms=_age(use),
         messages_sent=sent,
         messages_received=recv,
         messages_rejected=rej,
         pose_loss=round(lost / (lost + received), 5) if lost + received else 0.0,
+        negative_ages=negative,
     )
 
 
@@ -415,6 +457,12 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
             (area[1] - area[0]) * (area[3] - area[2]) if area is not None and m.type == "coverage" else None)
     summary.rtf = rtf_report(tracks, t0, t_end)
     network = network_report(stats)
+    links = link_ages(stats)
+    if links:
+        network.transport_age_links = link_summary(links)
+    if info.takeoff_sent is not None:
+        summary.takeoff = Takeoff(acked_s=info.takeoff_acked_s, all_airborne_s=info.all_airborne_s, sends=info.takeoff_sends,
+                                  by_state=info.takeoff_by_state)
     ne = netem_report(stats)
     if ne is not None:
         network.netem = ne
@@ -429,5 +477,5 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     summary.network = network
     summary.duration_s = float(t_end - t0)
     data = RunData(tracks=tracks, grid=grid, pos=pos, ids=ids, min_separation=sep.per_step, t0=t0, t_end=t_end,
-                   coverage=cov_map, pose_age=age_series)
+                   coverage=cov_map, pose_age=age_series, links=links)
     return summary, data

@@ -24,29 +24,35 @@ LINE_EVERY_S = 5.0  # without a terminal: one status line this often
 
 
 def status_table(scenario: Scenario, progress: RunProgress, metrics: LiveMetrics, obs: SwarmObserver | None) -> Group:
-    """The live panel: stage and mission clock, agents per phase, coverage, separation, RTF, pose age."""
+    """The live panel: stage and mission clock, agents per phase, coverage, separation, RTF, pose ages."""
     phases: dict[str, int] = {}
     rtfs = []
-    ages = []
+    transport, use = [], []  # ms, each UAV's p50 over its last second (from its telemetry)
     if obs is not None:
         for v in obs.uavs.values():
             if v.state is not None:
                 phases[v.state.phase] = phases.get(v.state.phase, 0) + 1
-            if v.telemetry is not None and v.telemetry.rtf > 0:
-                rtfs.append(v.telemetry.rtf)
-            if v.pose is not None:
-                ages.append(max(0.0, v.pose_recv - v.pose.t_wall))
+            tm = v.telemetry
+            if tm is not None:
+                if tm.rtf > 0:
+                    rtfs.append(tm.rtf)
+                if tm.transport_ms >= 0:
+                    transport.append(tm.transport_ms)
+                if tm.use_ms >= 0:
+                    use.append(tm.use_ms)
     elapsed = progress.elapsed()
     m = metrics
     t = Table.grid(padding=(0, 2))
     t.add_row("scenario", f"[bold]{scenario.name}[/] ({len(scenario.uav_list())} UAVs, swarm '{scenario.swarm}')")
-    t.add_row("stage", str(progress.stage) + (f"  {elapsed:5.1f} / {scenario.duration:.0f} s" if elapsed is not None else ""))
+    t.add_row("stage", str(progress.stage) + (f"  {elapsed:5.1f} / {scenario.duration:.0f} s" if elapsed is not None else "")
+              + (f"  ({progress.detail})" if progress.detail else ""))
     t.add_row("agents", ", ".join(f"{k} {v}" for k, v in sorted(phases.items())) or "-")
     if m.coverage is not None:
         t.add_row("coverage", f"{100 * m.coverage:5.1f} %")
     t.add_row("min separation", "-" if m.min_sep == math.inf else f"{m.min_sep_now:5.1f} m now, {m.min_sep:5.1f} m lowest")
     t.add_row("RTF", f"mean {np.mean(rtfs):.3f}, min {min(rtfs):.3f}" if rtfs else "-")
-    t.add_row("pose age", f"p50 {1000 * float(np.median(ages)):.1f} ms (at the runner)" if ages else "-")
+    t.add_row("pose age", (f"transport {float(np.median(transport)):.1f} ms" if transport else "transport -")
+              + (f", at use {float(np.median(use)):.1f} ms" if use else "") + " (p50, median over UAVs)")
     bar = ProgressBar(total=scenario.duration, completed=min(elapsed or 0.0, scenario.duration), width=60)
     return Group(Panel(t, title="mrswarm run", expand=False), bar)
 
@@ -56,6 +62,7 @@ def status_line(progress: RunProgress, metrics: LiveMetrics) -> str:
     elapsed = progress.elapsed()
     cov = metrics.coverage
     return (f"[{progress.stage}]"
+            + (f" {progress.detail}" if progress.detail else "")
             + (f" t={elapsed:.0f}s" if elapsed is not None else "")
             + (f" coverage={100 * cov:.1f}%" if cov is not None else "")
             + ("" if metrics.min_sep == math.inf else f" min_sep={metrics.min_sep:.1f}m"))

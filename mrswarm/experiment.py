@@ -33,6 +33,7 @@ import yaml
 from msgspec.structs import replace
 from rich.console import Console
 
+from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
@@ -48,14 +49,13 @@ from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig
-from uav_stack.phases import FINISHED, AgentPhase
+from uav_stack.phases import FINISHED, WORKING, AgentPhase
 from uav_stack.runtime import make_connectivity
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
-COMMAND_TIMEOUT = 6.0  # s to collect every acknowledgement of a command (re-sent once halfway)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
 
@@ -248,11 +248,17 @@ class Experiment:
             self.progress.stage = RunStage.WAITING
             self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n)
             self.progress.stage = RunStage.TAKING_OFF
-            self._command("takeoff", ids)
+            takeoff = self._command("takeoff", ids, {AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD,
+                                                     AgentPhase.HOVER})
+            self.run_info.takeoff_sent, self.run_info.takeoff_sends = takeoff.sent_at, takeoff.sends
+            self.run_info.takeoff_acked_s = takeoff.duration
+            self.run_info.takeoff_by_state = len(takeoff.by_state)
             climb = scn.flight.altitude / CLIMB_RATE / slowest
-            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb)
+            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb + command_deadline(n))
+            self.run_info.all_airborne_s = time.time() - takeoff.sent_at
+            self.progress.detail = f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff"
             self.progress.stage = RunStage.MISSION
-            self._command("start", ids)
+            self._command("start", ids, set(WORKING))
             start = time.time()
             self.run_info.mission_start = self.progress.mission_start = start
             if scn.faults:
@@ -313,30 +319,31 @@ class Experiment:
         except ValueError:
             return None
 
-    def _command(self, verb: str, ids: list[int], timeout: float = COMMAND_TIMEOUT) -> None:
-        """Send ``verb`` to the flying ones of ``ids`` and collect every ack; re-send once to the silent ones."""
+    def _command(self, verb: str, ids: list[int], took_effect: set[AgentPhase]) -> CommandRound:
+        """Send ``verb`` to the flying ones of ``ids`` until each acknowledged it or reports one of
+        the ``took_effect`` phases (mrswarm/command_round.py), supervising and showing the progress."""
         assert self.observer is not None
         ids = [u for u in ids if u in self._active_ids()]
-        acks: dict[int, Any] = {}
-        pending = self.observer.command(verb, ids)
-        for attempt in (1, 2):
-            deadline = time.time() + timeout / 2
-            while time.time() < deadline and not pending.complete:
-                self.signals.check()
-                time.sleep(0.05)
-                self.observer.poll()
-                self._supervise()
-            acks.update(pending.acks)
-            missing = sorted(set(self._active_ids()) & set(ids) - set(acks))
-            if not missing or attempt == 2:
-                break
-            pending = self.observer.command(verb, missing)  # commands are idempotent
-        failed = {u: a.message for u, a in acks.items() if not a.ok}
-        if failed:
-            raise RunAborted(f"'{verb}' refused by {failed}")
-        missing = sorted(set(self._active_ids()) & set(ids) - set(acks))
-        if missing:
-            raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {missing}")
+
+        def show(r: CommandRound) -> None:
+            done = len(r.targets) - len(r.missing) - len(r.gone)
+            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({r.sends} sends)"
+            self.display.refresh(self.observer)
+
+        def tick() -> None:
+            self.signals.check()
+            self._supervise()
+
+        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show,
+                          took_effect=lambda u: self._phase_of(u) in took_effect, tick=tick, active=self._active_ids)
+        if r.refused:
+            raise RunAborted(f"'{verb}' refused by {r.refused}")
+        if r.missing:
+            raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
+                             f"({r.sends} sends)")
+        self.progress.detail = f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms " \
+                               f"({r.sends} sends)"
+        return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float) -> None:
         """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""

@@ -41,6 +41,7 @@ class RunProgress:
     duration: float  # s of mission the scenario asks for
     stage: RunStage = RunStage.STARTING
     mission_start: float | None = None  # wall time of the "start" command
+    detail: str = ""  # what the stage is doing (a command's acknowledgements so far, the takeoff time)
 
     def elapsed(self, now: float | None = None) -> float | None:
         """Seconds since the mission started (None before)."""

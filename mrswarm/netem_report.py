@@ -2,7 +2,7 @@
 
 Inputs are what every UAV writes while flying: the ``netem`` section of ``uav<N>.json``
 (per-link counters and delay histograms, the history of configuration changes) and
-``age_uav<N>.csv`` (per-second pose age and age of information, uav_stack/pose_age.py).
+``age_uav<N>.csv`` (per-second pose ages and age of information, uav_stack/pose_age.py).
 """
 
 from __future__ import annotations
@@ -116,7 +116,10 @@ def load_age_series(run_dir: Path) -> dict[int, dict[str, np.ndarray]]:
                 for k, v in vals.items():
                     cols.setdefault(k, []).append(v)
         if cols.get("t_wall"):
-            out[uav] = {k: np.array(v) for k, v in cols.items()}
+            series = {k: np.array(v) for k, v in cols.items()}
+            if "transport_p50_ms" not in series and "age_p50_ms" in series:  # a run folder of an earlier version
+                series["transport_p50_ms"] = series["age_p50_ms"]
+            out[uav] = series
     return out
 
 
@@ -127,7 +130,8 @@ class PoseAgeSeries:
     grid: np.ndarray  # s since mission start, one per second
     series: dict[int, dict[str, np.ndarray]]  # per UAV: the columns of age_uav<N>.csv
     t0: float  # wall time of the mission start
-    age_med: np.ndarray  # ms, median over UAVs, per grid second (NaN: no UAV had a value)
+    transport_med: np.ndarray  # ms, transport age p50, median over UAVs, per grid second (NaN: no UAV had a value)
+    use_med: np.ndarray  # ms, age at use p50, median over UAVs
     aoi_med: np.ndarray  # ms
 
 
@@ -142,23 +146,25 @@ def pose_age_report(run_dir: Path, t0: float, t_end: float) -> tuple[PoseAgeOver
     def on_grid(key: str) -> np.ndarray:
         m = np.full((len(series), len(grid)), np.nan)
         for k, s in enumerate(series.values()):
+            if key not in s:
+                continue
             idx = np.round(s["t_wall"] - t0).astype(int) - int(grid[0])
             ok = (idx >= 0) & (idx < len(grid))
             m[k, idx[ok]] = s[key][ok]
         return m
 
-    age = on_grid("age_mean_ms")
-    aoi = on_grid("aoi_mean_ms")
     with warnings.catch_warnings():  # seconds where no UAV has a value are NaN, which is what we want
         warnings.simplefilter("ignore", RuntimeWarning)
-        age_med = np.nanmedian(age, axis=0)
-        aoi_med = np.nanmedian(aoi, axis=0)
+        transport_med = np.nanmedian(on_grid("transport_p50_ms"), axis=0)
+        use_med = np.nanmedian(on_grid("use_p50_ms"), axis=0)
+        aoi_med = np.nanmedian(on_grid("aoi_mean_ms"), axis=0)
         aoi_max = np.nanmax(on_grid("aoi_max_ms"), axis=0)
-    keep = ~np.isnan(age_med) | ~np.isnan(aoi_med)
+    keep = ~np.isnan(transport_med) | ~np.isnan(aoi_med)
 
     def r(a: np.ndarray) -> list[float | None]:
-        return [None if v != v else round(float(v), 1) for v in a[keep]]
+        return [None if v != v else round(float(v), 2) for v in a[keep]]
 
-    report = PoseAgeOverTime(t_s=[float(t) for t in grid[keep]], age_mean_ms=r(age_med), aoi_mean_ms=r(aoi_med),
-                             aoi_max_ms=r(aoi_max))
-    return report, PoseAgeSeries(grid=grid, series=series, t0=t0, age_med=age_med, aoi_med=aoi_med)
+    report = PoseAgeOverTime(t_s=[float(t) for t in grid[keep]], transport_p50_ms=r(transport_med), use_p50_ms=r(use_med),
+                             aoi_mean_ms=r(aoi_med), aoi_max_ms=r(aoi_max))
+    return report, PoseAgeSeries(grid=grid, series=series, t0=t0, transport_med=transport_med, use_med=use_med,
+                                 aoi_med=aoi_med)

@@ -2,7 +2,7 @@
 
 - ``<scenario>.png``: trajectories over the covered cells (coverage missions) or the goals
   (goto), and the minimum separation (plus coverage) over mission time;
-- ``pose_age.png``: pose age on arrival and age of information per second, per UAV and their
+- ``pose_age.png``: transport age, age at use and age of information per second, per UAV and their
   median, with the mission start and each netem change marked.
 """
 
@@ -90,16 +90,19 @@ def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
 
 
 def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange]) -> None:
-    """Pose age on arrival (top) and age of information (bottom) per second -> ``path`` (PNG)."""
+    """Transport age and age at use (top) and age of information (bottom) per second -> ``path`` (PNG)."""
     plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     for s in age.series.values():
         t = s["t_wall"] - age.t0
-        ax1.plot(t, s["age_mean_ms"], lw=0.6, alpha=0.45)
+        if "transport_p50_ms" in s:
+            ax1.plot(t, s["transport_p50_ms"], lw=0.6, alpha=0.45)
         ax2.plot(t, s["aoi_mean_ms"], lw=0.6, alpha=0.45)
-    ax1.plot(age.grid, age.age_med, color="k", lw=2, label="median over UAVs")
+    ax1.plot(age.grid, age.transport_med, color="k", lw=2, label="transport age, median over UAVs")
+    if not np.all(np.isnan(age.use_med)):
+        ax1.plot(age.grid, age.use_med, color="tab:blue", lw=2, ls="--", label="age at use, median over UAVs")
     ax2.plot(age.grid, age.aoi_med, color="k", lw=2, label="median over UAVs")
-    ax1.set_ylabel("pose age on arrival,\nmean per second (ms)")
+    ax1.set_ylabel("pose age, p50 per second (ms)")
     ax2.set_ylabel("age of information, mean over\nneighbours (ms)")
     ax2.set_xlabel("time since mission start (s)")
     for ax in (ax1, ax2):
@@ -114,7 +117,7 @@ def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange]) ->
         ax1.annotate(label, (x, 0.04), xycoords=("data", "axes fraction"), xytext=(3, 0), textcoords="offset points",
                      rotation=90, va="bottom", ha="left", fontsize=8, color="tab:red")
     ax1.legend(loc="upper left", fontsize=8)
-    ax1.set_title(f"pose age over time ({len(age.series)} UAVs; thin lines: each UAV, per second)")
+    ax1.set_title(f"pose age over time ({len(age.series)} UAVs; thin lines: each UAV's transport age, per second)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

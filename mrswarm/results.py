@@ -7,13 +7,14 @@ same files later from what the run folder holds (the scenario the run flew is sa
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Callable
 from pathlib import Path
 
 from mrswarm.analysis import analyse_run
 from mrswarm.plots import plot_pose_age, plot_run
 from mrswarm.scenario import Scenario, ScenarioError, load_scenario
-from mrswarm.summary import RunInfo, RunSummary
+from mrswarm.summary import LinkAge, RunInfo, RunSummary
 
 
 class ResultsError(Exception):
@@ -33,6 +34,10 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
     except ValueError as exc:
         raise ResultsError(str(exc)) from None
     summary, data = analyse_run(run_dir, scenario, info)
+    if data is not None and data.links and summary.network and summary.network.transport_age_links:
+        path = run_dir / "transport_links.csv"
+        write_link_ages(path, data.links)
+        summary.network.transport_age_links.csv = str(path)
     if data is not None and stop():
         summary.plot_error = "skipped: the run was asked to stop fast (mrswarm results draws it later)"
     elif data is not None:
@@ -58,6 +63,16 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
     except OSError as exc:
         summary.write_error = f"{run_dir / 'summary.json'}: {exc.strerror or exc}"
     return summary
+
+
+def write_link_ages(path: Path, links: list[LinkAge]) -> None:
+    """``transport_links.csv``: the transport age of every link, one row per ``sender->receiver``."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(("link", "n", "p50_ms", "p99_ms", "max_ms"))
+        for lk in links:
+            w.writerow((lk.link, lk.n, "" if lk.p50 is None else lk.p50, "" if lk.p99 is None else lk.p99,
+                        "" if lk.max is None else lk.max))
 
 
 def rebuild_results(run_dir: Path) -> RunSummary:

@@ -63,6 +63,12 @@ class RunInfo(Struct):
     pids: dict[str, int] = {}  # process (or container's main process) per name: "uav3", "router", "discovery"
     mission_start: float | None = None  # wall time of the "start" command; None if the mission never started
     all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
+    # the takeoff: command sent (wall), every UAV acknowledged (s after it), every UAV airborne (s after it), sends
+    takeoff_sent: float | None = None
+    takeoff_acked_s: float | None = None
+    all_airborne_s: float | None = None
+    takeoff_sends: int = 0
+    takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
     exit_codes: dict[str, int | None] = {}
     stopped: float | None = None  # wall
     stop_signals: list[str] = []  # SIGINT, SIGTERM, SIGHUP received by the runner, in order
@@ -145,13 +151,35 @@ class Rtf(Struct):
 
 
 class PoseAge(Struct):
-    """Pose age on arrival (receive wall time minus the sender's stamp), merged over every UAV, ms."""
+    """A pose age merged over every UAV, ms: transport (the sender's stamp to the arrival in the
+    receiving process) or at use (arrival to the controller's first use)."""
 
     p50: float | None
     p99: float | None
     mean: float | None
     max: float | None
     n: int  # poses
+
+
+class LinkAge(Struct):
+    """The transport age of one link, ms."""
+
+    link: str  # "<sender>-><receiver>"
+    p50: float | None
+    p99: float | None
+    max: float | None
+    n: int
+
+
+class LinkAges(Struct):
+    """How the links compare: per-link transport ages summarised; every link is in ``csv``."""
+
+    links: int
+    p50_median_ms: float | None  # median over the links of each link's p50
+    p99_median_ms: float | None
+    p99_max_ms: float | None  # the worst link's p99
+    worst: list[LinkAge]  # the links with the highest p99 (at most 5)
+    csv: str | UnsetType = UNSET  # transport_links.csv: link, n, p50_ms, p99_ms, max_ms
 
 
 class Delay(Struct):
@@ -230,22 +258,38 @@ class Netem(Struct):
 
 
 class PoseAgeOverTime(Struct):
-    """Per second since the mission start: medians over UAVs (pose age, age of information) and the max AoI, ms."""
+    """Per second since the mission start: medians over UAVs (transport age p50, age at use p50,
+    age of information) and the max AoI, ms."""
 
     t_s: list[float]
-    age_mean_ms: list[float | None]
+    transport_p50_ms: list[float | None]
+    use_p50_ms: list[float | None]
     aoi_mean_ms: list[float | None]
     aoi_max_ms: list[float | None]
     plot: str | UnsetType = UNSET  # pose_age.png
     plot_error: str | UnsetType = UNSET
 
 
+class Takeoff(Struct):
+    """The runner's takeoff command, s after it was first sent."""
+
+    acked_s: float | None  # every UAV acknowledged it, or showed it in its state (None: not all did)
+    all_airborne_s: float | None  # every UAV hovered at its altitude (None: not all did)
+    sends: int  # times it was sent (re-sent to the UAVs that had not acknowledged)
+    by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
+
+
 class Network(Struct):
-    pose_age_ms: PoseAge
+    transport_age_ms: PoseAge  # sender's stamp -> arrival in the receiving process, every link
+    use_age_ms: PoseAge  # arrival -> first use by the controller
     messages_sent: dict[str, int]  # per message kind, summed over UAVs
     messages_received: dict[str, int]
     messages_rejected: dict[str, int]  # per reason
     pose_loss: float  # fraction of neighbours' poses lost (sequence gaps)
+    # ages below zero, left out of the histograms: a receiver whose clock is behind its sender's
+    # (two hosts); never on one host
+    negative_ages: dict[str, int] = {}
+    transport_age_links: LinkAges | UnsetType = UNSET
     netem: Netem | UnsetType = UNSET
     pose_age_over_time: PoseAgeOverTime | UnsetType = UNSET
     pose_age_over_time_error: str | UnsetType = UNSET
@@ -337,6 +381,7 @@ class RunSummary(Struct):
     goals: dict[str, Goal] | UnsetType = UNSET  # per UAV id
     encounter: Encounter | None | UnsetType = UNSET  # goto with 2 UAVs; None: they were never airborne together
     rtf: Rtf | UnsetType = UNSET
+    takeoff: Takeoff | UnsetType = UNSET
     network: Network | UnsetType = UNSET
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
     processes: dict[str, int | None] = {}  # exit code per process

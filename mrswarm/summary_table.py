@@ -27,9 +27,17 @@ def summary_table(s: RunSummary) -> Table:
         t.add_row("collisions", str(sep.collisions))
     if (rtf := s.rtf) and rtf.mean is not None and rtf.min is not None:
         t.add_row("RTF", f"mean {rtf.mean:.3f}, min {rtf.min:.3f}")
+    if to := s.takeoff:
+        t.add_row("takeoff", f"acknowledged after {_fmt(to.acked_s)} s ({to.sends} sends), "
+                             f"all airborne after {_fmt(to.all_airborne_s)} s")
     if net := s.network:
-        age = net.pose_age_ms
-        t.add_row("pose age", f"p50 {_fmt(age.p50)} ms, p99 {_fmt(age.p99)} ms over {age.n} poses")
+        age, use = net.transport_age_ms, net.use_age_ms
+        worst = f"; worst link p99 {_fmt(lk.p99_max_ms)} ms" if (lk := net.transport_age_links) else ""
+        t.add_row("transport age",
+                  f"p50 {_fmt(age.p50)} ms, p99 {_fmt(age.p99)} ms, max {_fmt(age.max)} ms over {age.n} poses{worst}")
+        t.add_row("age at use", f"p50 {_fmt(use.p50)} ms, p99 {_fmt(use.p99)} ms over {use.n} poses")
+        if net.negative_ages:
+            t.add_row("negative ages", f"{net.negative_ages} (clocks of two hosts disagree)")
         t.add_row("messages", f"sent {sum(net.messages_sent.values())}, received {sum(net.messages_received.values())}, "
                               f"rejected {sum(net.messages_rejected.values())}, pose loss {100 * net.pose_loss:.2f} %")
         for cls, c in (net.netem.classes if net.netem else {}).items():  # docs/netem.md

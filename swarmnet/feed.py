@@ -1,4 +1,4 @@
-"""The edge pose feed: one batch of every UAV's latest pose per tick, instead of N-1 messages.
+"""The edge pose feed: every UAV's latest poses in a few batches instead of N-1 messages each.
 
 With direct pose keys every UAV receives a message per neighbour per pose period: 490
 messages a second each at N = 50, and Zenoh's receive path alone then costs ~2-4 % of a
@@ -6,17 +6,32 @@ core per UAV before any Python runs (docs/benchmarks.md). A cellular downlink al
 few full packets to many tiny ones. The feed runs on the edge (inside the rendezvous/edge
 router process): it subscribes to ``mrs/<swarm>/*/pose``, accepts every pose with the rule
 a UAV applies to direct poses (:func:`~swarmnet.messages.accept_pose`: it decodes and names
-the UAV of its key), keeps the latest per UAV, and every ``period`` s publishes the new ones
-as one ``PoseBatch`` on ``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
+the UAV of its key) and keeps the latest per UAV. Agents with ``pose_feed: edge`` subscribe
+to ``mrs/<swarm>/feed/poses`` only.
+
+**When a batch leaves.** A pose arriving at an idle feed opens a *window*; when it closes
+(``window`` s later, 3 ms by default) the poses received meanwhile leave as one ``PoseBatch``
+per swarm, at most one per UAV. A pose therefore waits at most ``window`` at the edge, and a
+UAV's download is bounded by one batch per window whatever N is (at most 333 messages a
+second at 3 ms, against 10 (N-1) with direct poses). ``window=0`` forwards at once: what
+arrived while the previous batch was being sent leaves together.
+
+**No Python on the router's receive threads.** The feed runs in the edge router, whose Zenoh
+threads forward every UAV's traffic (commands, acknowledgements, states). Its subscriptions
+are Zenoh ring channels, which never make those threads wait, and one Python thread per
+subscription blocks in the channel's ``recv`` (the interpreter lock released) until a pose
+opens a window, sleeps until the window closes, drains what came and sends the batch: two
+wake-ups per batch, none while the swarm is silent.
 
 Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps,
 listed with the UAV id of the key it arrived on, so receivers validate it again (it must name
-that UAV) and measure its age exactly as for a direct pose; the batching adds on average half a
-period of age.
+that UAV) and measure its transport age exactly as for a direct pose.
 """
 
 from __future__ import annotations
 
+import itertools
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable
@@ -25,71 +40,114 @@ from typing import Any
 import zenoh
 
 from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
-from swarmnet.messages import PoseBatch, accept_pose, encode_pose_batch
-from swarmnet.receive import DRAIN_BUDGET, receive
+from swarmnet.messages import PoseBatch, Rejected, accept_pose, encode_pose_batch
+from swarmnet.receive import DRAIN_BUDGET
 from swarmnet.stats import NodeStats
 
-DEFAULT_PERIOD = 0.04
+DEFAULT_WINDOW = 0.003  # s a pose may wait at the edge for others to share its batch
+MAX_WINDOW = 1.0  # s
 
 
 class PoseFeed:
     """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session.
 
-    ``period``: seconds between batches (default 40 ms, one UAV tick at 25 Hz).
+    ``window``: seconds from the first pose of a batch to its departure (0: forward at once).
+    :meth:`start` runs one worker thread per swarm subscription; :meth:`close` ends them.
     """
 
-    def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), period: float = DEFAULT_PERIOD,
+    def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), window: float = DEFAULT_WINDOW,
                  clock: Callable[[], float] = time.time):
-        if period <= 0:
-            raise ValueError("period must be > 0")
+        if not 0.0 <= window <= MAX_WINDOW:
+            raise ValueError(f"window must be in 0..{MAX_WINDOW} s, got {window}")
         self.session = session
-        self.period = period
+        self.window = window
         self.clock = clock
         self.stats = NodeStats()
         self.batches: Counter[str] = Counter()
-        self._latest: dict[str, dict[int, bytes]] = {}
         self._pubs: dict[str, Any] = {}
-        self._seq = 0
-        self._subs = [
-            session.declare_subscriber(f"{ROOT}/{sw}/*/pose", zenoh.handlers.RingChannel(8192)) for sw in swarms
-        ]
-        self.next_flush = clock()
+        self._seq = itertools.count()
+        self._lock = threading.Lock()  # publishers and counters, shared by the workers
+        self._subscribers = [session.declare_subscriber(f"{ROOT}/{sw}/*/pose", zenoh.handlers.RingChannel(8192))
+                             for sw in swarms]
+        self._threads: list[threading.Thread] = []
 
-    def poll(self, max_samples: int = DRAIN_BUDGET) -> None:
-        """Drain the poses that arrived (at most ``max_samples`` per swarm subscription) and keep
-        the newest payload per UAV; each must pass :func:`~swarmnet.messages.accept_pose`."""
-        stats = self.stats
-        for ring in self._subs:
-            for key, pose, payload in receive(ring, accept_pose, stats, max_samples):
-                swarm = swarm_from_key(key)
-                assert swarm is not None  # the subscription only matches mrs/<swarm>/...
-                stats.received["pose"] += 1
-                self._latest.setdefault(swarm, {})[pose.uav] = payload
+    def start(self) -> PoseFeed:
+        for k, sub in enumerate(self._subscribers):
+            th = threading.Thread(target=self._work, args=(sub.handler,), name=f"pose-feed-{k}", daemon=True)
+            th.start()
+            self._threads.append(th)
+        return self
 
-    def flush(self) -> int:
-        """Publish one batch per swarm with the poses received since the last flush."""
+    def _work(self, channel: Any) -> None:
+        """One subscription: wait for a pose, let the window run, send what came; until closed."""
+        latest: dict[str, dict[int, bytes]] = {}
+        while True:
+            try:
+                first = channel.recv()  # blocks, the interpreter's lock released
+            except zenoh.ZError:  # closed: the feed or the session ends
+                return
+            due = self.clock() + self.window
+            self._take(first, latest)
+            wait = due - self.clock()
+            if wait > 0.0:
+                time.sleep(wait)
+            for _ in range(DRAIN_BUDGET):
+                try:
+                    sample = channel.try_recv()
+                except zenoh.ZError:
+                    return
+                if sample is None:
+                    break
+                self._take(sample, latest)
+            self._flush(latest)
+
+    def _take(self, sample: zenoh.Sample, latest: dict[str, dict[int, bytes]]) -> None:
+        """Keep the newest payload per UAV; each must pass :func:`~swarmnet.messages.accept_pose`."""
+        key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        try:
+            pose = accept_pose(key, payload)
+        except Rejected as exc:
+            self.stats.reject(exc.reason, key, exc.detail)
+            return
+        swarm = swarm_from_key(key)
+        assert swarm is not None  # the subscription only matches mrs/<swarm>/...
+        self.stats.received["pose"] += 1
+        latest.setdefault(swarm, {})[pose.uav] = payload
+
+    def _flush(self, latest: dict[str, dict[int, bytes]]) -> int:
+        """Publish one batch per swarm with the poses taken since the last one; return how many left."""
         now = self.clock()
-        self.next_flush = max(self.next_flush + self.period, now)
         sent = 0
-        for swarm, latest in self._latest.items():
-            if not latest:
+        for swarm, poses in latest.items():
+            if not poses:
                 continue
-            pub = self._pubs.get(swarm)
-            if pub is None:
-                pub = self._pubs[swarm] = self.session.declare_publisher(
-                    SwarmKeys(swarm).pose_feed, congestion_control=zenoh.CongestionControl.DROP,
-                    priority=zenoh.Priority.DATA_HIGH, express=True)
-            pub.put(encode_pose_batch(PoseBatch(self._seq, now, list(latest), list(latest.values()))))
-            self._seq += 1
-            self.batches[swarm] += 1
-            self.stats.sent["pose_batch"] += 1
-            sent += len(latest)
-            latest.clear()
+            with self._lock:
+                pub = self._pubs.get(swarm)
+                if pub is None:
+                    pub = self._pubs[swarm] = self.session.declare_publisher(
+                        SwarmKeys(swarm).pose_feed, congestion_control=zenoh.CongestionControl.DROP,
+                        priority=zenoh.Priority.DATA_HIGH, express=True)
+                self.batches[swarm] += 1
+                self.stats.sent["pose_batch"] += 1
+            pub.put(encode_pose_batch(PoseBatch(next(self._seq), now, list(poses), list(poses.values()))))
+            sent += len(poses)
+            poses.clear()
         return sent
 
-    def step(self) -> float:
-        """poll + flush when due; return the time of the next flush."""
-        self.poll()
-        if self.clock() >= self.next_flush:
-            self.flush()
-        return self.next_flush
+    def run(self, keep_going: Callable[[], bool], check_every: float = 0.2) -> None:
+        """Start the workers, return once ``keep_going()`` (checked every ``check_every`` s) is False."""
+        self.start()
+        while keep_going():
+            time.sleep(check_every)
+
+    def close(self) -> None:
+        """End the workers (their channels close) and wait for them."""
+        for sub in self._subscribers:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:  # the session is already closed
+                pass
+        for th in self._threads:
+            th.join(2.0)
+        self._subscribers.clear()
+        self._threads.clear()

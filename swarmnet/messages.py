@@ -25,9 +25,10 @@ import math
 import re
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any
+from typing import Annotated, Any
 
 import msgpack
+import msgspec
 
 from swarmnet.keyspace import message_route, uav_from_key
 
@@ -151,6 +152,10 @@ class Telemetry:
     lon: float
     alt: float  # AMSL, m
     rtf: float  # real-time factor of the FCU (1.0 for a physical UAV)
+    # the UAV's pose ages over its last full second, p50 in ms (-1: unknown, or from a sender
+    # that predates them): transport (sender's stamp -> arrival) and at use (arrival -> controller)
+    transport_ms: float = -1.0
+    use_ms: float = -1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -337,8 +342,44 @@ _POSE_FIELDS = (  # name, lo, hi of the integer fields 1..12, in wire order
 _REALMS = (Realm.VIRTUAL, Realm.PHYSICAL)
 
 
+class _PoseWire(msgspec.Struct, array_like=True, forbid_unknown_fields=True, gc=False):
+    """The pose's wire layout with every range, so that msgspec checks a valid pose in C (the fast path)."""
+
+    tag: Annotated[int, msgspec.Meta(ge=_POSE_TAG, le=_POSE_TAG)]
+    uav: Annotated[int, msgspec.Meta(ge=UAV_ID_MIN, le=UAV_ID_MAX)]
+    realm: Annotated[int, msgspec.Meta(ge=0, le=1)]
+    seq: Annotated[int, msgspec.Meta(ge=0, le=0xFFFF)]
+    t_sim: Annotated[int, msgspec.Meta(ge=0, le=_UINT32)]
+    t_wall: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]  # us; msgspec bounds stop at int64 (year 292 277)
+    x: Annotated[int, msgspec.Meta(ge=-_INT32, le=_INT32)]
+    y: Annotated[int, msgspec.Meta(ge=-_INT32, le=_INT32)]
+    z: Annotated[int, msgspec.Meta(ge=-_INT16, le=_INT16)]
+    vx: Annotated[int, msgspec.Meta(ge=-_INT16, le=_INT16)]
+    vy: Annotated[int, msgspec.Meta(ge=-_INT16, le=_INT16)]
+    vz: Annotated[int, msgspec.Meta(ge=-_INT16, le=_INT16)]
+    yaw: Annotated[int, msgspec.Meta(ge=-31416, le=31416)]
+
+
+_decode_pose_wire = msgspec.msgpack.Decoder(_PoseWire).decode
+
+
 def decode_pose(data: bytes) -> Pose:
-    """The hot path (every neighbour pose): one loop of integer range checks, then scaling."""
+    """The hot path (every neighbour pose, ~500 a second per UAV at N = 50): msgspec decodes and
+    range-checks a valid pose in C (3x faster than msgpack + Python checks); anything it refuses
+    goes through :func:`_decode_pose_checked`, which names the reason."""
+    if len(data) <= MAX_POSE_BYTES:
+        try:
+            o = _decode_pose_wire(data)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            pass
+        else:
+            return Pose(o.uav, _REALMS[o.realm], o.seq, o.t_sim / 1000.0, o.t_wall / 1e6, o.x / 100.0, o.y / 100.0,
+                        o.z / 100.0, o.vx / 100.0, o.vy / 100.0, o.vz / 100.0, o.yaw / 1e4)
+    return _decode_pose_checked(data)
+
+
+def _decode_pose_checked(data: bytes) -> Pose:
+    """One loop of integer range checks, then scaling; raises :class:`DecodeError` with the reason."""
     o = _unpack(data, MAX_POSE_BYTES)
     _expect(o, Kind.POSE, 13)
     for i, (name, lo, hi) in enumerate(_POSE_FIELDS, 1):
@@ -351,6 +392,10 @@ def decode_pose(data: bytes) -> Pose:
 
 # --- telemetry -----------------------------------------------------------------------------
 _TELEMETRY_TAG = tag(Kind.TELEMETRY)
+
+
+def _ms_or_unknown(v: float) -> float:
+    return round(float(v), 2) if 0.0 <= v < 1e6 else -1.0  # NaN fails the comparison
 
 
 def encode_telemetry(t: Telemetry) -> bytes:
@@ -369,13 +414,17 @@ def encode_telemetry(t: Telemetry) -> bytes:
             float(t.lon),
             float(t.alt),
             float(t.rtf),
+            _ms_or_unknown(t.transport_ms),
+            _ms_or_unknown(t.use_ms),
         ]
     )
 
 
 def decode_telemetry(data: bytes) -> Telemetry:
+    """13 fields, or 15 with the pose ages (a sender of either kind is understood)."""
     o = _unpack(data, MAX_TELEMETRY_BYTES)
-    _expect(o, Kind.TELEMETRY, 13)
+    _expect(o, Kind.TELEMETRY, 15 if len(o) == 15 else 13)
+    ages = (_num(o[13], -1.0, 1e6, "transport_ms"), _num(o[14], -1.0, 1e6, "use_ms")) if len(o) == 15 else (-1.0, -1.0)
     if type(o[6]) is not bool:
         raise DecodeError("bad_field", f"armed={o[6]!r}")
     return Telemetry(
@@ -391,6 +440,8 @@ def decode_telemetry(data: bytes) -> Telemetry:
         lon=_num(o[10], -180.0, 180.0, "lon"),
         alt=_num(o[11], -1000.0, 100000.0, "alt"),
         rtf=_num(o[12], 0.0, 1000.0, "rtf"),
+        transport_ms=ages[0],
+        use_ms=ages[1],
     )
 
 

@@ -16,7 +16,8 @@ _RATE_ALPHA = 0.2  # EWMA weight of the newest inter-arrival interval
 class Neighbour:
     pose: Pose
     first_seen: float  # local wall time of the first pose
-    last_recv: float  # local wall time the latest pose arrived
+    last_recv: float  # local wall time the latest pose arrived (its arrival stamp)
+    used: bool = False  # the latest pose was used by the controller (SwarmNode.take_neighbours)
     received: int = 1
     lost: int = 0  # poses missing from seq gaps
     duplicates: int = 0
@@ -57,7 +58,8 @@ class NeighbourTable:
         self._table: dict[int, Neighbour] = {}
 
     def update(self, pose: Pose, now: float) -> bool:
-        """Apply a received pose; return False if it was a duplicate or older than what we have."""
+        """Apply a pose that arrived at ``now`` (local wall time); return False if it was a
+        duplicate or older than what we have."""
         n = self._table.get(pose.uav)
         if n is None:
             self._table[pose.uav] = Neighbour(pose=pose, first_seen=now, last_recv=now)
@@ -75,13 +77,14 @@ class NeighbourTable:
             diff = 1
         n.lost += diff - 1
         n.received += 1
-        # Rate from the sender's sampling times: the poll loop drains in batches, so arrival
-        # times would say nothing; lost poses lengthen the interval, as they should.
+        # Rate from the sender's sampling times, so transport jitter does not enter it; lost
+        # poses lengthen the interval, as they should.
         gap = pose.t_wall - n.pose.t_wall
         if gap > 0.0:
             n.interval = gap if n.interval == 0.0 else n.interval + _RATE_ALPHA * (gap - n.interval)
         n.pose = pose
         n.last_recv = now
+        n.used = False
         return True
 
     def get(self, uav: int) -> Neighbour | None:

@@ -1,18 +1,24 @@
 """SwarmNode: one Zenoh session per agent, speaking the swarm key space.
 
-Receiving never runs Python code on Zenoh's threads: every subscription is a bounded
-``RingChannel`` that :meth:`SwarmNode.poll` drains from the owner's loop through the one
-receive path of :mod:`swarmnet.receive` (a slow zenoh-python callback stalls the whole session;
-a slow owner only loses its oldest samples). ``poll`` reads top to bottom:
+Receiving runs almost no Python on Zenoh's threads: every subscription is an
+:class:`~swarmnet.receive.Inlet`, whose callback only stamps each sample's arrival and queues
+it (a slow zenoh-python callback stalls the whole session; a slow owner only loses its oldest
+samples). Commands and netem changes also notify :attr:`SwarmNode.waker`, so the owner's loop
+can handle them at once. :meth:`SwarmNode.poll` drains the inlets from the owner's loop through
+the one receive path of :mod:`swarmnet.receive`, top to bottom:
 
 1. runtime netem changes (``mrs/<swarm>/netem/set``), so a change applies to this poll;
 2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
    messages, commands), rejections counted in :attr:`SwarmNode.stats`;
 3. edge-feed batches unpacked into the poses they carry;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
-5. delivery: poses into the neighbour table, messages and commands into the :class:`Inbox`;
+5. delivery: poses into the neighbour table with their arrival time (their transport age
+   recorded), messages and commands into the :class:`Inbox`;
 6. liveliness changes, links of identities outside the roster (secured swarms), and
    neighbours silent too long forgotten.
+
+The controller takes the neighbours with :meth:`SwarmNode.take_neighbours`, which records
+each pose's age at use (arrival to first use). Both ages live in ``stats.ages``.
 """
 
 from __future__ import annotations
@@ -51,15 +57,14 @@ from swarmnet.messages import (
     encode_swarm_message,
     encode_telemetry,
 )
-from swarmnet.neighbours import NeighbourTable
-from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, accept_each, drain, receive
+from swarmnet.neighbours import Neighbour, NeighbourTable
+from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, accept_each, receive, subscribe
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
     from swarmnet.netem import NetemShim
     from swarmnet.netem.control import NetemSet
     from swarmnet.netem.shim import Link
-    from swarmnet.receive import Ring
     from swarmnet.security.links import LinkWatch
 
 log = logging.getLogger(__name__)
@@ -124,6 +129,7 @@ class SwarmNode:
         clock: Callable[[], float] = time.time,
         netem: dict[str, Any] | None = None,
         netem_control: bool = True,
+        arrival_stamps: bool = True,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
@@ -140,11 +146,15 @@ class SwarmNode:
         self.neighbours = NeighbourTable(stale_after, forget_after)
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
+        self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
         self.session: zenoh.Session | None = None
-        # the data streams poll() drains, in order: (where accepted items go, ring, acceptance rule)
-        self._streams: list[tuple[int, Ring, Accept[Any]]] = []
-        self._alive_ring: Ring | None = None
-        self._netem_ring: Ring | None = None
+        # readable when a command or a netem change arrived: the owner's loop waits on it
+        self.waker = Waker()
+        # the data streams poll() drains, in order: (where accepted items go, inlet, acceptance rule)
+        self._streams: list[tuple[int, Inlet, Accept[Any]]] = []
+        self._subscribers: list[Any] = []  # kept for as long as the session is open
+        self._alive_inlet: Inlet | None = None
+        self._netem_inlet: Inlet | None = None
         self._links: LinkWatch | None = None  # secured swarms: counts links of non-members
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
@@ -153,6 +163,8 @@ class SwarmNode:
         self.netem: NetemShim | None = None
         self.netem_changes: list[dict[str, Any]] = []
         self.netem_control = netem_control and identity.role in ("uav", "gcs")
+        # False: data streams in Zenoh ring channels, arrival = drain time (swarmnet.receive.Inlet)
+        self.arrival_stamps = arrival_stamps
         self.own_position: tuple[float, float, float] | None = None  # as last published, for distance models
         if netem is not None:
             self.set_netem(netem, source="config")
@@ -165,12 +177,21 @@ class SwarmNode:
         bind = getattr(self.connectivity, "bind", None)
         if callable(bind):  # strategies that announce the node (discovery) take its identity
             bind(ident)
+        if self.waker.closed:  # opened again after a close
+            self.waker = Waker()
         self.session = s = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))
         try:
             k = self.keys
-            ring = zenoh.handlers.RingChannel
             me = ident.uav
             streams = self._streams
+            clock = self.clock
+
+            def inlet(key: str, size: int, how: How, wakes: bool = False, **options: Any) -> Inlet:
+                if not self.arrival_stamps and not wakes:
+                    how = "ring"  # an observer: the drain's time will do
+                into = Inlet(size, self.waker if wakes else None, clock, how)
+                self._subscribers.append(subscribe(s, key, into, **options))
+                return into
             if ident.role == "uav":
                 self._pubs["pose"] = s.declare_publisher(
                     k.pose(me), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
@@ -179,24 +200,25 @@ class SwarmNode:
                 self._pubs["state"] = s.declare_publisher(k.state(me))
                 self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
             # poses first: the hot path
-            if self.pose_feed == "edge":  # one batch per edge tick instead of a message per neighbour
-                streams.append((_BATCH, s.declare_subscriber(k.pose_feed, ring(64)), accept_pose_batch))
+            if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
+                streams.append((_BATCH, inlet(k.pose_feed, 256, "thread"), accept_pose_batch))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                streams.append((POSE, s.declare_subscriber(k.all_poses, ring(self.ring_size),
-                                                            allowed_origin=zenoh.Locality.REMOTE), pose_rule))
+                streams.append((POSE, inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE),
+                                pose_rule))
             message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
-            streams.append((MESSAGE, s.declare_subscriber(k.all_broadcast, ring(256), allowed_origin=zenoh.Locality.REMOTE),
-                            message_rule))
+            streams.append((MESSAGE, inlet(k.all_broadcast, 256, "ring", allowed_origin=zenoh.Locality.REMOTE), message_rule))
             if ident.role == "uav":
-                streams.append((MESSAGE, s.declare_subscriber(k.all_unicast(me), ring(64)), message_rule))
+                streams.append((MESSAGE, inlet(k.all_unicast(me), 64, "ring"), message_rule))
                 command_rule = partial(accept_command, me=me)
-                streams.append((COMMAND, s.declare_subscriber(k.cmd(me), ring(64)), command_rule))
-                streams.append((COMMAND, s.declare_subscriber(k.swarm_cmd, ring(64)), command_rule))
-                streams.append((FAULT, s.declare_subscriber(k.fault(me), ring(16)), partial(accept_fault, me=me)))
-            self._alive_ring = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
+                streams.append((COMMAND, inlet(k.cmd(me), 64, "callback", wakes=True), command_rule))
+                streams.append((COMMAND, inlet(k.swarm_cmd, 64, "callback", wakes=True), command_rule))
+                streams.append((FAULT, inlet(k.fault(me), 16, "callback", wakes=True), partial(accept_fault, me=me)))
+            self._alive_inlet = alive = Inlet(256, None, clock, "ring")  # joins and leaves: the drain's time will do
+            self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
+            alive.attach(sub)
             if self.netem_control:
-                self._netem_ring = s.declare_subscriber(k.netem_set, ring(16))
+                self._netem_inlet = inlet(k.netem_set, 16, "callback", wakes=True)
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
             self._watch_links(s)
             self.connectivity.attach(s)
@@ -225,12 +247,14 @@ class SwarmNode:
                 self._links.close()
                 self._links = None
             self._streams.clear()
-            self._alive_ring = self._netem_ring = None
+            self._alive_inlet = self._netem_inlet = None
             self._pubs.clear()
             try:
                 s.close()
             except zenoh.ZError as exc:  # closing twice or a dead runtime must not raise on shutdown
                 log.debug("zenoh close: %s", exc)
+            self._subscribers.clear()
+            self.waker.close()
 
     def __enter__(self) -> SwarmNode:
         return self.open()
@@ -286,10 +310,12 @@ class SwarmNode:
         return pose
 
     def publish_telemetry(self, *, mode: str, armed: bool, battery: float, voltage: float, lat: float, lon: float, alt: float,
-                          rtf: float) -> None:
+                          rtf: float, transport_ms: float = -1.0, use_ms: float = -1.0) -> None:
+        """Flight-controller status, and the UAV's pose ages (p50 over its last second, ms; -1 or NaN: unknown)."""
         t = Telemetry(
             uav=self.identity.uav, realm=self.identity.realm, seq=self._next("telemetry", 1 << 32), t_wall=self.clock(),
             mode=mode, armed=armed, battery=battery, voltage=voltage, lat=lat, lon=lon, alt=alt, rtf=rtf,
+            transport_ms=transport_ms, use_ms=use_ms,
         )
         self._pubs["telemetry"].put(encode_telemetry(t))
         self.stats.sent["telemetry"] += 1
@@ -332,13 +358,29 @@ class SwarmNode:
             return inbox
         self._apply_netem_sets(now, max_samples)  # first, so a change applies to what this poll drains
         arrivals = self._unbatch(self._arrivals(max_samples))
-        for kind, item in self._through_netem(arrivals, now):
-            self._deliver(kind, item, now, inbox)
+        for kind, item, at in self._through_netem(arrivals, now):
+            self._deliver(kind, item, at, inbox)
         self._track_liveliness(inbox, max_samples)
         if self._links is not None:
             self._links.poll()
         self.neighbours.expire(now)
         return inbox
+
+    def take_neighbours(self, now: float | None = None) -> list[Neighbour]:
+        """Every neighbour, for the controller about to use them at ``now`` (default: the clock).
+
+        Records the age at use (``now`` minus its arrival) of each pose used for the first time.
+        Call it right before the poses are used, after :meth:`poll`, so that ``now`` is never
+        earlier than an arrival.
+        """
+        now = self.clock() if now is None else now
+        out = list(self.neighbours)
+        used = self.stats.ages.used
+        for n in out:
+            if not n.used:
+                n.used = True
+                used(now - n.last_recv)
+        return out
 
     def _arrivals(self, budget: int) -> Iterator[tuple[int, Accepted[Any]]]:
         """Every accepted sample of the data streams, stream by stream (poses first)."""
@@ -358,31 +400,32 @@ class SwarmNode:
                 continue
             self.stats.received["pose_batch"] += 1
             batch = arrival.item
-            carried = ((pose_key(uav), data) for uav, data in zip(batch.senders, batch.poses, strict=True))
+            carried = ((pose_key(uav), data, arrival.at) for uav, data in zip(batch.senders, batch.poses, strict=True))
             for pose in accept_each(carried, accept_batched_pose, self.stats):
                 if pose.item.uav != own:  # our own pose comes back in the swarm's batch: not a neighbour
                     yield POSE, pose
 
-    def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any]]:
+    def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any, float]]:
         """The netem shim as a filter (docs/netem.md): the one place items are offered to it and released.
 
-        Without a shim every item passes. With one, each item crosses the link from its sender
-        (:meth:`_netem_link`): a pass-through link delivers it at once; otherwise the shim holds
-        it until its time to send, or drops it. Items due at ``now`` follow the fresh ones.
+        Yields ``(kind, item, arrival time)``. Without a shim every item passes with its arrival
+        stamp. With one, each item crosses the link from its sender (:meth:`_netem_link`) from
+        its arrival stamp on: a pass-through link delivers it at once; otherwise the shim holds
+        it until its time to send, which becomes its arrival, or drops it. Items due at ``now``
+        follow the fresh ones.
         """
         shim = self.netem
         if shim is None:
             for kind, arrival in arrivals:
-                yield kind, arrival.item
+                yield kind, arrival.item, arrival.at
             return
-        t_in = shim.arrival_time(now)
         for kind, arrival in arrivals:
             item = arrival.item
             link = self._netem_link(shim, kind, item)
-            if link is None or shim.offer(link, t_in, kind, item, arrival.key, len(arrival.payload)):
-                yield kind, item
-        for kind, item, _key in shim.release(now):
-            yield kind, item
+            if link is None or shim.offer(link, arrival.at, kind, item, arrival.key, len(arrival.payload)):
+                yield kind, item, arrival.at
+        for kind, item, _key, tts in shim.release(now):
+            yield kind, item, tts
 
     def _netem_link(self, shim: NetemShim, kind: int, item: Any) -> Link | None:
         """The link ``item`` crossed to reach this node (None: a link the shim never impairs)."""
@@ -401,13 +444,14 @@ class SwarmNode:
             return None
         return None if shim.config.exempt_commands else shim.link(f"gcs:{item.sender}")
 
-    def _deliver(self, kind: int, item: Any, now: float, inbox: Inbox) -> None:
-        """Count ``item`` as received and hand it over: a pose to the neighbour table, the rest to ``inbox``."""
+    def _deliver(self, kind: int, item: Any, at: float, inbox: Inbox) -> None:
+        """Count ``item`` (arrived at ``at``) as received and hand it over: a pose to the neighbour
+        table (its transport age recorded), the rest to ``inbox``."""
         stats = self.stats
         if kind == POSE:
             stats.received["pose"] += 1
-            if self.neighbours.update(item, now):
-                stats.pose_age.add(now - item.t_wall)
+            if self.neighbours.update(item, at):
+                stats.ages.arrived(item.uav, at - item.t_wall)
         elif kind == MESSAGE:
             stats.received["broadcast" if item.dst == 0 else "unicast"] += 1
             inbox.messages.append(item)
@@ -420,17 +464,19 @@ class SwarmNode:
 
     def _track_liveliness(self, inbox: Inbox, budget: int) -> None:
         """Update :attr:`alive` from the liveliness tokens that appeared or disappeared."""
-        if self._alive_ring is None:
+        if self._alive_inlet is None:
             return
-        for sample in drain(self._alive_ring, budget):
+        for _at, sample in self._alive_inlet.drain(budget):
             key = str(sample.key_expr)
             if sample.kind == zenoh.SampleKind.PUT:
                 if key not in self.alive:
                     self.alive.add(key)
                     inbox.joined.append(key)
+                    self._alive_uavs = None
             elif key in self.alive:
                 self.alive.discard(key)
                 inbox.left.append(key)
+                self._alive_uavs = None
 
     # ---- netem shim (docs/netem.md) ----------------------------------------------------------
     def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,
@@ -465,11 +511,11 @@ class SwarmNode:
 
     def _apply_netem_sets(self, now: float, budget: int) -> None:
         """Apply the runtime changes that arrived on ``mrs/<swarm>/netem/set``, each acked (ok or not)."""
-        if self._netem_ring is None:
+        if self._netem_inlet is None or not len(self._netem_inlet):  # the usual case, every tick: nothing to import
             return
         from swarmnet.netem import NetemConfigError
 
-        for arrival in receive(self._netem_ring, _accept_netem_set, self.stats, budget):
+        for arrival in receive(self._netem_inlet, _accept_netem_set, self.stats, budget):
             m = arrival.item
             if m.targets is not None and self.identity.uav not in m.targets:
                 continue  # a change for other UAVs
@@ -494,12 +540,15 @@ class SwarmNode:
         return out
 
     def alive_uavs(self) -> set[int]:
-        """UAV ids whose liveliness token is present (the node's own included)."""
-        prefix = f"{self.keys.prefix}/alive/uav/"
-        out = set()
-        for key in self.alive:
-            if key.startswith(prefix):
-                tail = key[len(prefix):]
-                if tail.isdigit():
-                    out.add(int(tail))
-        return out
+        """UAV ids whose liveliness token is present (the node's own included). Parsed again only
+        after a token appeared or disappeared (the controller asks every tick)."""
+        if self._alive_uavs is None:
+            prefix = f"{self.keys.prefix}/alive/uav/"
+            out = set()
+            for key in self.alive:
+                if key.startswith(prefix):
+                    tail = key[len(prefix):]
+                    if tail.isdigit():
+                        out.add(int(tail))
+            self._alive_uavs = out
+        return set(self._alive_uavs)

@@ -2,8 +2,9 @@
 
 It reads every UAV's pose, telemetry, agent state and command acks, and sends commands to
 one UAV or the whole swarm. Poses, liveliness and swarm messages come through its
-:class:`~swarmnet.node.SwarmNode`; telemetry, agent states and acks through ring channels of
-its own. :meth:`SwarmObserver.poll` drains all of them through the one receive path
+:class:`~swarmnet.node.SwarmNode`; telemetry, agent states and acks through inlets of its own
+(acks wake :attr:`SwarmObserver.waker`, so a runner waiting for them can sleep on it).
+:meth:`SwarmObserver.poll` drains all of them through the one receive path
 (:mod:`swarmnet.receive`) with the same rules as a UAV: a message on a per-UAV key must name
 that UAV (``key_mismatch`` otherwise).
 """
@@ -14,7 +15,7 @@ import itertools
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, TypeVar
 
 import zenoh
 
@@ -33,11 +34,8 @@ from swarmnet.messages import (
     encode_fault,
 )
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.receive import Accept, receive
+from swarmnet.receive import Accept, Inlet, Waker, receive, subscribe
 from swarmnet.stats import NodeStats
-
-if TYPE_CHECKING:
-    from swarmnet.receive import Ring
 
 T = TypeVar("T")
 
@@ -48,7 +46,7 @@ class UavView:
 
     uav: int
     pose: Pose | None = None
-    pose_recv: float = 0.0
+    pose_recv: float = 0.0  # wall time the pose arrived (its transport age: pose_recv - pose.t_wall)
     telemetry: Telemetry | None = None
     state: AgentState | None = None
     state_recv: float = 0.0
@@ -60,6 +58,7 @@ class PendingCommand:
     cmd: Command
     targets: set[int]
     acks: dict[int, CommandAck] = field(default_factory=dict)
+    acked_at: dict[int, float] = field(default_factory=dict)  # wall time each ack arrived
 
     @property
     def complete(self) -> bool:
@@ -74,14 +73,17 @@ class SwarmObserver:
 
     def __init__(self, swarm: str, connectivity: Connectivity, *, node_id: int = 1, role: str = "observer",
                  name: str = "observer", clock: Callable[[], float] = time.time):
-        self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock)
+        # ring channels for the bulk streams: a runner's or ground station's loop is busy in Python
+        # with every UAV's messages, and a callback would make Zenoh's receive thread wait for it
+        self.node = SwarmNode(NodeIdentity(swarm, node_id, role=role), connectivity, clock=clock, arrival_stamps=False)
         self.name = name
         self.clock = clock
         self.keys = self.node.keys
         self.uavs: dict[int, UavView] = {}
         self.pending: dict[int, PendingCommand] = {}
         self._ids = itertools.count(int(clock() * 1000) % 1_000_000)
-        self._subs: dict[str, Ring] = {}  # telemetry, state, ack
+        self._subs: dict[str, Inlet] = {}  # telemetry, state, ack
+        self._subscribers: list[Any] = []
         # optional sink for everything poll() receives, as (kind, message): "pose", "telemetry",
         # "state", "ack", "joined"/"left" (liveliness keys). Used by `mrswarm gcs record`.
         self.tap: Callable[[str, Any], None] | None = None
@@ -94,15 +96,23 @@ class SwarmObserver:
         self.node.open()
         s = self.node.session
         assert s is not None
-        ring = zenoh.handlers.RingChannel
-        self._subs["telemetry"] = s.declare_subscriber(self.keys.all_telemetry, ring(1024))
-        self._subs["state"] = s.declare_subscriber(self.keys.all_states, ring(1024))
-        self._subs["ack"] = s.declare_subscriber(self.keys.all_acks, ring(4096))
+        clock = self.clock
+        for name, key, size, waker in (("telemetry", self.keys.all_telemetry, 1024, None),
+                                       ("state", self.keys.all_states, 1024, None),
+                                       ("ack", self.keys.all_acks, 4096, self.node.waker)):  # acks: stamped, and wake
+            inlet = self._subs[name] = Inlet(size, waker, clock, "callback" if waker is not None else "ring")
+            self._subscribers.append(subscribe(s, key, inlet))
         return self
+
+    @property
+    def waker(self) -> Waker:
+        """Readable when a command or an ack arrived (wait on it instead of sleeping)."""
+        return self.node.waker
 
     def close(self) -> None:
         self._subs.clear()
         self.node.close()
+        self._subscribers.clear()
 
     def __enter__(self) -> SwarmObserver:
         return self.open()
@@ -116,15 +126,16 @@ class SwarmObserver:
             v = self.uavs[uav] = UavView(uav)
         return v
 
-    def _receive(self, name: str, accept: Accept[T]) -> Iterator[T]:
-        """The accepted messages of stream ``name`` (telemetry, state, ack), counted as received."""
-        ring = self._subs.get(name)
-        if ring is None:  # not open
+    def _receive(self, name: str, accept: Accept[T]) -> Iterator[tuple[T, float]]:
+        """The accepted messages of stream ``name`` (telemetry, state, ack) with their arrival
+        time, counted as received."""
+        inlet = self._subs.get(name)
+        if inlet is None:  # not open
             return
         received = self.stats.received
-        for arrival in receive(ring, accept, self.stats):
+        for arrival in receive(inlet, accept, self.stats):
             received[name] += 1
-            yield arrival.item
+            yield arrival.item, arrival.at
 
     def poll(self) -> list[Pose]:
         """Drain everything that arrived; return the new poses (the newest per UAV is kept in ``uavs``).
@@ -150,21 +161,22 @@ class SwarmObserver:
                     fresh.append(n.pose)
                     if tap is not None:
                         tap("pose", n.pose)
-        for t in self._receive("telemetry", accept_telemetry):
+        for t, _at in self._receive("telemetry", accept_telemetry):
             self.view(t.uav).telemetry = t
             if tap is not None:
                 tap("telemetry", t)
-        for st in self._receive("state", accept_state):
+        for st, at in self._receive("state", accept_state):
             v = self.view(st.uav)
-            v.state, v.state_recv = st, now
+            v.state, v.state_recv = st, at
             if tap is not None:
                 tap("state", st)
-        for ack in self._receive("ack", accept_ack):
+        for ack, at in self._receive("ack", accept_ack):
             if tap is not None:
                 tap("ack", ack)
             p = self.pending.get(ack.cmd_id)
             if p is not None and ack.uav in p.targets:
                 p.acks[ack.uav] = ack
+                p.acked_at.setdefault(ack.uav, at)
         return fresh
 
     def alive_uavs(self) -> set[int]:
@@ -179,14 +191,17 @@ class SwarmObserver:
         assert s is not None
         cmd_id = next(self._ids) & 0xFFFFFFFF
         tset = set(targets) if targets is not None else self.alive_uavs()
+        # commands are rare and must arrive: never dropped in a full queue (BLOCK), not batched (express)
+        qos: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.BLOCK, "priority": zenoh.Priority.INTERACTIVE_HIGH,
+                               "express": True}
         if targets is None:
             cmd = Command(self.name, cmd_id, 0, verb, args or {}, self.clock())
-            s.put(self.keys.swarm_cmd, encode_command(cmd))
+            s.put(self.keys.swarm_cmd, encode_command(cmd), **qos)
         else:
             cmd = Command(self.name, cmd_id, 0, verb, args or {}, self.clock())
             for t in sorted(tset):
                 one = Command(self.name, cmd_id, t, verb, args or {}, cmd.t_wall)
-                s.put(self.keys.cmd(t), encode_command(one))
+                s.put(self.keys.cmd(t), encode_command(one), **qos)
         p = self.pending[cmd_id] = PendingCommand(cmd, tset)
         self.stats.sent["cmd"] += 1
         return p

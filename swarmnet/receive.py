@@ -1,18 +1,25 @@
-"""The one receive path: drain a ring channel from the owner's loop, accept or reject each sample.
+"""The one receive path: stamp on arrival, queue, then accept or reject each sample in the owner's loop.
 
-Every subscription of :class:`~swarmnet.node.SwarmNode`, :class:`~swarmnet.observer.SwarmObserver`
-and :class:`~swarmnet.feed.PoseFeed` delivers into a bounded Zenoh ``RingChannel`` (the
-oldest sample is dropped when it is full), and the owner drains it with :func:`receive` from
-its own loop. No Python runs on Zenoh's threads: a slow zenoh-python callback stalls the whole
-session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer by up
-to 11 s), whereas a ring nobody drains only loses its oldest samples. Draining in batches is
-also much cheaper than waking a Python thread per message.
+Every subscription of :class:`~swarmnet.node.SwarmNode` and :class:`~swarmnet.observer.SwarmObserver`
+delivers into an :class:`Inlet`, which stamps each sample's arrival (wall clock) and queues it
+in a bounded deque (the oldest is dropped when it is full) until the owner's loop takes it.
+No Python that could wait runs on Zenoh's threads: a slow zenoh-python callback stalls the
+whole session (measured: one slow callback delayed an unrelated 10 Hz topic from the same peer
+by up to 11 s), and even a fast one waits for the interpreter's lock while the owner holds it.
+So a hot stream (neighbour poses) is a Zenoh ring channel that a thread of the inlet's own
+empties and stamps; a rare stream (commands) may use a minimal callback; an owner that needs no
+stamps drains a ring channel itself (:class:`Inlet`).
+
+Streams that must be handled at once (commands, netem changes) also notify a :class:`Waker`,
+whose file descriptor the owner's loop waits on between its ticks; poses do not wake anyone:
+they are taken in at the next control tick, with their arrival time.
 
 The path, top to bottom::
 
-    drain(ring, budget)            at most `budget` samples per call, oldest first
+    Inlet: (arrival time, sample) -> bounded deque [-> Waker]
+    drain(inlet, budget)           at most `budget` samples per call, oldest first
       -> accept(key, payload)      decode + the stream's rules (swarmnet.messages.accept_*)
-      -> Accepted(key, item, payload), or Rejected: counted in NodeStats.rejected[reason]
+      -> Accepted(key, item, payload, at), or Rejected: counted in NodeStats.rejected[reason]
 
 What happens to an accepted item (the netem shim, the neighbour table, the inbox) is the
 owner's business; counting it as received is too, because the owner knows when it is
@@ -21,18 +28,18 @@ delivered.
 
 from __future__ import annotations
 
+import os
+import select
+import threading
+import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar
+from typing import Any, Generic, Literal, NamedTuple, TypeVar
+
+import zenoh
 
 from swarmnet.messages import Rejected
 from swarmnet.stats import NodeStats
-
-if TYPE_CHECKING:
-    from typing import TypeAlias
-
-    import zenoh
-
-    Ring: TypeAlias = zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]
 
 T = TypeVar("T")
 Accept = Callable[[str, bytes], T]  # (key, payload) -> message, or raises Rejected
@@ -46,11 +53,174 @@ class Accepted(NamedTuple, Generic[T]):
     key: str  # the Zenoh key it arrived on
     item: T  # the decoded message
     payload: bytes  # as received (the edge feed forwards it; the netem shim's rate limit counts its length)
+    at: float  # wall-clock time it arrived in this process, s since the Unix epoch
 
 
-def drain(ring: Ring, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
-    """The samples waiting in ``ring``, oldest first, at most ``budget`` of them; the rest stay
-    for the next call. Never blocks."""
+class Waker:
+    """A file descriptor that becomes readable when a waking stream receives something.
+
+    Notifications coalesce: any number of them before :meth:`clear` wake the owner once. An
+    ``eventfd`` on Linux (one syscall to notify), a pipe elsewhere.
+    """
+
+    def __init__(self) -> None:
+        if hasattr(os, "eventfd"):
+            self._r = self._w = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        else:  # pragma: no cover - not Linux
+            self._r, self._w = os.pipe()
+            os.set_blocking(self._r, False)
+            os.set_blocking(self._w, False)
+        self.notifications = 0  # how often a sample woke (or would have woken) the owner
+        self.closed = False
+
+    def fileno(self) -> int:
+        return self._r
+
+    def notify(self) -> None:
+        """Called on Zenoh's thread: never blocks (a full pipe means a wake-up is pending anyway)."""
+        self.notifications += 1
+        try:
+            os.write(self._w, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+        except (BlockingIOError, OSError):
+            pass
+
+    def clear(self) -> None:
+        """Consume the pending notifications (the owner is about to drain everything)."""
+        try:
+            os.read(self._r, 4096)
+        except (BlockingIOError, OSError):
+            pass
+
+    def wait(self, timeout: float) -> bool:
+        """Block until notified or ``timeout`` s have passed; True if notified (then cleared)."""
+        if timeout < 0.0:
+            timeout = 0.0
+        ready, _, _ = select.select((self._r,), (), (), timeout)
+        if ready:
+            self.clear()
+            return True
+        return False
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for fd in {self._r, self._w}:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+How = Literal["thread", "callback", "ring"]
+
+
+class Inlet:
+    """Where one subscription's samples wait for the owner: ``(arrival time, sample)``, oldest first.
+
+    ``size`` bounds the queue (the oldest sample is dropped when full, as a ring channel does);
+    ``waker``, if given, is notified of every sample (for streams the owner handles at once);
+    ``clock`` stamps the arrival (wall time, s). Three ways to take samples from Zenoh (``how``):
+
+    * ``"thread"`` (a hot stream: a UAV's neighbour poses): a Zenoh ring channel, and a thread
+      of the inlet's own blocked in it (the interpreter's lock released) that stamps each sample
+      as it comes out and queues it. Nothing runs on Zenoh's threads; the channel drops its
+      oldest sample rather than ever making them wait.
+    * ``"callback"`` (a rare stream: commands, netem changes, acknowledgements): a minimal
+      callback on Zenoh's receive thread, no thread of its own. It needs the interpreter's lock
+      for about a microsecond per sample; while the owner holds it, Zenoh's receive thread waits,
+      and with it everything the session receives. Measured on 2 loaded cores at N = 25, a
+      callback on every pose raised the p99 transport age several times over and lost poses
+      (the senders' queues overflowed), so only rare streams take this way.
+    * ``"ring"`` (an owner that does not need arrival stamps: the runner and the ground station
+      watch every UAV): a ring channel drained by the owner; the arrival is the drain's time.
+    """
+
+    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "_thread", "__weakref__")
+
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback"):
+        if waker is not None and how == "ring":
+            raise ValueError("a ring inlet is drained by its owner: it cannot wake it")
+        self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
+        self._sub: Any = None  # the ring channel's subscriber ("thread", "ring")
+        self._thread: threading.Thread | None = None
+        self.waker = waker
+        self.clock = clock
+        self.how = how
+        self.size = size
+
+    @property
+    def stamped(self) -> bool:
+        """Arrival times are the samples' own (taken as they arrive), not the drain's."""
+        return self.how != "ring"
+
+    def handler(self) -> Any:
+        """The Zenoh handler to subscribe with: a ring channel, or a closure that only stamps and
+        appends (and notifies)."""
+        if self.how != "callback":
+            return zenoh.handlers.RingChannel(self.size)
+        append, stamp, waker = self._q.append, self.clock, self.waker
+        if waker is None:
+            def on_sample(sample: zenoh.Sample) -> None:
+                append((stamp(), sample))
+        else:
+            notify = waker.notify
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                append((stamp(), sample))
+                notify()
+        return zenoh.handlers.Callback(on_sample, indirect=False)
+
+    def attach(self, subscriber: Any) -> None:
+        """The subscriber declared with :meth:`handler`: drained through it ("ring"), or by the
+        inlet's thread, started here ("thread"), which ends when the subscription does."""
+        self._sub = subscriber
+        if self.how == "thread":
+            self._thread = threading.Thread(target=self._receive, args=(subscriber.handler,), name="swarmnet-inlet",
+                                            daemon=True)
+            self._thread.start()
+
+    def _receive(self, channel: Any) -> None:
+        append, stamp, notify = self._q.append, self.clock, (self.waker.notify if self.waker is not None else None)
+        recv, try_recv = channel.recv, channel.try_recv
+        while True:
+            try:
+                sample = recv()  # blocks, the interpreter's lock released
+                append((stamp(), sample))
+                while (more := try_recv()) is not None:  # those that came meanwhile: one wake-up
+                    append((stamp(), more))
+            except zenoh.ZError:  # the subscription or the session ended
+                return
+            if notify is not None:
+                notify()
+
+    def __len__(self) -> int:
+        """Samples waiting (a stamped inlet; a ring channel cannot tell without taking them)."""
+        return len(self._q)
+
+    def drain(self, budget: int = DRAIN_BUDGET) -> Iterator[tuple[float, zenoh.Sample]]:
+        """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks."""
+        if self.how == "ring":
+            if self._sub is None:
+                return
+            now, take = self.clock(), self._sub.try_recv
+            for _ in range(budget):
+                sample = take()
+                if sample is None:
+                    return
+                yield now, sample
+            return
+        q = self._q
+        for _ in range(budget):
+            if not q:
+                return
+            yield q.popleft()
+
+
+def drain(ring: Any, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
+    """The samples waiting in a subscriber with a Zenoh ring channel, oldest first, at most
+    ``budget`` of them; never blocks (for owners that subscribe with ring channels directly,
+    such as the flight recorder)."""
     for _ in range(budget):
         sample = ring.try_recv()
         if sample is None:
@@ -58,17 +228,33 @@ def drain(ring: Ring, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
         yield sample
 
 
-def accept_each(arrivals: Iterable[tuple[str, bytes]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
-    """Run ``accept`` on every ``(key, payload)``; count each rejection in ``stats`` and skip it."""
-    for key, payload in arrivals:
+def accept_each(arrivals: Iterable[tuple[str, bytes, float]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
+    """Run ``accept`` on every ``(key, payload, arrival time)``; count each rejection in ``stats`` and skip it."""
+    for key, payload, at in arrivals:
         try:
             item = accept(key, payload)
         except Rejected as exc:
             stats.reject(exc.reason, key, exc.detail)
             continue
-        yield Accepted(key, item, payload)
+        yield Accepted(key, item, payload, at)
 
 
-def receive(ring: Ring, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
-    """The accepted samples waiting in ``ring`` (at most ``budget`` drained per call)."""
-    return accept_each(((str(s.key_expr), s.payload.to_bytes()) for s in drain(ring, budget)), accept, stats)
+def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
+    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call): drain and
+    :func:`accept_each` in one loop (every pose passes here)."""
+    for at, s in inlet.drain(budget):
+        key, payload = str(s.key_expr), s.payload.to_bytes()
+        try:
+            item = accept(key, payload)
+        except Rejected as exc:
+            stats.reject(exc.reason, key, exc.detail)
+            continue
+        yield Accepted(key, item, payload, at)
+
+
+def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> Any:
+    """Declare a subscriber on ``key`` that feeds ``inlet`` (``options``: ``allowed_origin``...).
+    Keep the returned subscriber as long as the inlet is used; closing the session ends it too."""
+    sub = session.declare_subscriber(key, inlet.handler(), **options)
+    inlet.attach(sub)
+    return sub

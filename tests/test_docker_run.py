@@ -51,7 +51,7 @@ def test_coverage_in_five_containers_covers_without_collisions_and_leaves_nothin
     assert summary["separation"]["collisions"] == 0
     assert summary["separation"]["min_m"] > 1.0
     assert summary["rtf"]["min"] > 0.8
-    assert summary["network"]["pose_age_ms"]["n"] > 100
+    assert summary["network"]["transport_age_ms"]["n"] > 100
     # really containers: one per UAV plus the discovery server and the edge router (the runner's
     # way in), each with its own IP, multicast sealed. UAVs reach each other only through what
     # the discovery server relays: gossip is off and 1.9+ routers do not relay between peers.

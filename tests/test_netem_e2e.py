@@ -48,7 +48,7 @@ def test_coverage_with_10_uavs_under_5g_campus(tmp_path: Path) -> None:
     v2v = s["network"]["netem"]["classes"]["v2v"]
     assert 9.0 <= v2v["delay_ms"]["mean"] <= 12.0  # 9.81 ms one way, plus the odd handover hold
     assert v2v["loss"] < 0.03  # 0.8 % in bursts of 2
-    assert s["network"]["pose_age_ms"]["p50"] < 60
+    assert s["network"]["transport_age_ms"]["p50"] < 60
     assert s["coverage"]["final"] > 0.3
 
 
@@ -59,7 +59,7 @@ def test_coverage_with_10_uavs_under_degraded(tmp_path: Path) -> None:
     assert 0.06 <= v2v["loss"] <= 0.14  # 10 % in bursts
     assert v2v["dropped_by"].keys() == {"loss"}
     assert 0.06 <= s["network"]["pose_loss"] <= 0.14  # the neighbour tables see the same loss as sequence gaps
-    assert s["network"]["pose_age_ms"]["p50"] >= 100
+    assert s["network"]["transport_age_ms"]["p50"] >= 100
     assert s["coverage"]["final"] > 0.3
 
 
@@ -106,6 +106,6 @@ def test_profile_change_from_the_cli_takes_effect_within_one_second(tmp_path: Pa
         before = [r for r in rows if t_sent - 3.0 <= r["t_wall"] <= t_sent and r["poses"] > 0]
         after = [r for r in rows if t_sent + 2.0 <= r["t_wall"] and r["poses"] > 0]  # each row covers the second before it
         assert before and after
-        assert max(r["age_mean_ms"] for r in before) < 200
+        assert max(r["transport_mean_ms"] for r in before) < 200
         # every pose delivered from 1 s after the command on carries the new 400 ms delay
-        assert min(r["age_mean_ms"] for r in after) >= 400 - 40
+        assert min(r["transport_mean_ms"] for r in after) >= 400 - 40

@@ -38,10 +38,7 @@ def meshed(nodes: list[SwarmNode], ids: set[int]) -> None:
 
 
 def settle(nodes: list[SwarmNode], seconds: float) -> None:
-    """Poll every TICK for ``seconds``, as the UAV loop does, ending with a poll.
-
-    The shim dates an arrival at a random instant since the node's previous poll, so a node
-    left unpolled for 0.3 s could date a message sent just now up to 0.3 s in the past."""
+    """Poll every TICK for ``seconds``, as the UAV loop does, ending with a poll."""
     end = time.time() + seconds
     while time.time() < end:
         for n in nodes:
@@ -83,12 +80,45 @@ def test_a_delayed_link_delays_and_an_unimpaired_one_does_not(rendezvous: Rendez
     fly([a], [b, c], 3.0)
     ls = link_stats(b, 1)
     assert ls["sent"] == ls["delivered"] == c.neighbours.get(1).received >= 25  # type: ignore[union-attr]
-    age_b, age_c = b.stats.pose_age, c.stats.pose_age
+    age_b, age_c = b.stats.ages.transport, c.stats.ages.transport
     assert age_c.percentile(50) < 0.15  # the same poses without the shim
     # the shim adds 250 ms; the arrival instant is estimated within the 40 ms poll period
     assert 0.25 - TICK <= age_b.percentile(50) <= 0.25 + 0.3
     assert age_b.percentile(50) - age_c.percentile(50) == pytest.approx(0.25, abs=0.1)
     assert ls["delay"]["total"] / ls["delay"]["n"] == pytest.approx(0.25)
+
+
+def test_transport_age_shows_a_fixed_netem_delay_exactly(rendezvous: Rendezvous, opened: list[Any]) -> None:
+    """A 20 ms +- 0 profile: the transport age of the same poses is the unshimmed one plus 20 ms,
+    within 1 ms at p50, however late the receiver polls (each pose is stamped on arrival and the
+    shim delivers it at arrival + 20 ms)."""
+    a = node(rendezvous, 1)
+    b = node(rendezvous, 2, netem={"v2v": {"delay": {"ms": 20.0}}})
+    c = node(rendezvous, 3)
+    opened += [a, b, c]
+    meshed([a, b, c], {1, 2, 3})
+    ages: dict[int, dict[int, float]] = {2: {}, 3: {}}  # receiver -> pose seq -> transport age, s (exact, per pose)
+
+    def take(n: SwarmNode) -> None:
+        n.poll(time.time())
+        nb = n.neighbours.get(1)
+        if nb is not None:
+            ages[n.identity.uav].setdefault(nb.pose.seq, nb.last_recv - nb.pose.t_wall)
+
+    for k in range(60):
+        a.publish_pose(t_sim=k * 0.1, x=0.0, y=float(k), z=10.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+        end = time.time() + 0.1
+        while time.time() < end:  # poll more often than poses come, so each one is seen
+            take(b)
+            take(c)
+            time.sleep(0.004)
+    both = sorted(set(ages[2]) & set(ages[3]))
+    assert len(both) >= 50
+    shimmed = sorted(ages[2][q] for q in both)
+    plain = sorted(ages[3][q] for q in both)
+    assert min(plain) >= 0.0 and min(shimmed) >= 0.020
+    p50 = len(both) // 2
+    assert shimmed[p50] - plain[p50] == pytest.approx(0.020, abs=0.001)
 
 
 def test_a_lossy_link_drops_and_the_neighbour_table_sees_the_gaps(rendezvous: Rendezvous, opened: list[Any]) -> None:
@@ -133,14 +163,14 @@ def test_runtime_change_over_the_control_key_is_validated_counted_and_acked(rend
     got: list[Any] = []
 
     def ack_seen(cmd_id: int, ok: bool) -> bool:
-        while (s := acks.try_recv()) is not None:
+        for _at, s in acks.drain():
             got.append(decode_ack(s.payload.to_bytes()))
         return any(x.cmd_id == cmd_id and x.uav == 2 and x.ok is ok for x in got)
 
     assert wait_for(lambda: ack_seen(77, True), 5.0)
     assert "delay 300ms" in [x for x in got if x.cmd_id == 77][0].message
     fly([a], [b], 2.0)
-    assert b.stats.pose_age.percentile(50) >= 0.3 - TICK
+    assert b.stats.ages.transport.percentile(50) >= 0.3 - TICK
     # an invalid config: refused, counted, nacked; the old one stays
     publish_set(rendezvous, NetemSet(id=78, sender="test", t_wall=time.time(),
                                      config={"v2v": {"loss": {"model": "bernoulli", "p": 2}}}))

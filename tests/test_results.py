@@ -38,12 +38,15 @@ def record(run_dir: Path, uav: int, xyz: np.ndarray, phases: list[AgentPhase], t
     rec.close()
 
 
-def stats(run_dir: Path, uav: int, ages_s: list[float], lost: int, received: int) -> None:
-    h = LogHistogram()
+def stats(run_dir: Path, uav: int, ages_s: list[float], lost: int, received: int, use_s: float = 0.05) -> None:
+    """What a UAV writes: the transport age of its poses (all from UAV 9) and their age at use."""
+    h, use = LogHistogram(), LogHistogram()
     for a in ages_s:
         h.add(a)
+        use.add(use_s)
     (run_dir / f"uav{uav}.json").write_text(json.dumps({
-        "net": {"pose_age": h.to_dict(), "sent": {"pose": 100}, "received": {"pose": received}, "rejected": {"malformed": 1}},
+        "net": {"transport_age": h.to_dict(), "transport_age_links": {"9": h.to_dict()}, "use_age": use.to_dict(),
+                "sent": {"pose": 100}, "received": {"pose": received}, "rejected": {"malformed": 1}},
         "neighbours": {"9": {"lost": lost, "received": received}},
     }))
 
@@ -82,7 +85,11 @@ def test_head_on_summary_reports_the_collision_where_and_when_it_happened(head_o
     assert s.goals and s.goals["1"].reached and s.goals["2"].reached  # each ends 2.5 m past the other's start
     assert s.rtf and s.rtf.per_uav == {"1": pytest.approx(1.0), "2": pytest.approx(0.5)}
     net = s.network
-    assert net and net.pose_age_ms.n == 200 and net.pose_age_ms.p50 is not None and 20 <= net.pose_age_ms.p50 <= 22
+    assert net and net.transport_age_ms.n == 200 and net.transport_age_ms.p50 is not None and 20 <= net.transport_age_ms.p50 <= 22
+    assert net.use_age_ms.n == 200 and net.use_age_ms.p50 == pytest.approx(50.0, rel=0.05) and net.negative_ages == {}
+    links = net.transport_age_links
+    assert links and links.links == 2 and {lk.link for lk in links.worst} == {"9->1", "9->2"}
+    assert (head_on_dir / "transport_links.csv").read_text().splitlines()[0] == "link,n,p50_ms,p99_ms,max_ms"
     assert net.pose_loss == pytest.approx(0.01) and net.messages_rejected == {"malformed": 2}
     assert not s.coverage  # not a coverage mission: no such key
     assert (head_on_dir / "head_on.png").stat().st_size > 10_000 and s.plot == str(head_on_dir / "head_on.png")

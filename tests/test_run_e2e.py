@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -56,7 +57,17 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     assert summary["separation"]["collisions"] == 0
     assert summary["separation"]["min_m"] > 1.0
     assert summary["rtf"]["min"] > 0.8
-    assert summary["network"]["pose_age_ms"]["n"] > 100
+    net = summary["network"]
+    assert net["transport_age_ms"]["n"] > 100 and net["use_age_ms"]["n"] > 100
+    # ages are never negative, from the first second on: stamped on arrival, on one host's clock
+    assert net["negative_ages"] == {}
+    for path in run_dir.glob("age_uav*.csv"):
+        rows = list(csv.DictReader(path.open()))
+        assert rows and all(float(r[k]) >= 0.0 for r in rows for k in ("transport_p50_ms", "transport_mean_ms", "use_p50_ms")
+                            if r[k] != "")
+    assert net["transport_age_links"]["links"] == 12  # 4 UAVs, every ordered pair
+    takeoff = summary["takeoff"]
+    assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
     run = json.loads((run_dir / "run.json").read_text())
     # discovery is the default; the edge router runs beside it as the way in for ground stations

@@ -43,8 +43,9 @@ def test_poses_flow_between_all_nodes_and_fill_the_neighbour_table(nodes: list[S
             assert nb.lost == 0 and nb.uav != n.identity.uav
             assert nb.pose.y == 9.0
             assert 10 <= nb.rate <= 40  # published every 50 ms
-        assert n.stats.pose_age.n == 20
-        assert n.stats.pose_age.percentile(99) < 1.0
+        assert n.stats.ages.transport.n == 20
+        assert n.stats.ages.transport.percentile(99) < 1.0
+        assert not n.stats.ages.negative  # one host, one clock: a pose never arrives before it was sent
     # the mesh is direct: every node links to the other two (plus the router)
     assert all(len(n.peers()) >= 2 for n in nodes)
 

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from swarmnet.messages import Command, FaultInjection, Realm
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
@@ -32,7 +34,7 @@ from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
-from uav_stack.pose_age import PoseAgeLog
+from uav_stack.pose_age import AgeWindow, PoseAgeLog
 from uav_stack.recorder import RecordHealth, TrajectoryRecorder, write_json_atomic
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
@@ -44,6 +46,7 @@ ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * 
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
+LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms in the counters file
 
 
 @dataclass
@@ -97,6 +100,7 @@ class Agent(OverridesMixin):
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
         self.own = Own()
+        self._own_at = -math.inf  # FcuState.position_at of the position in self.own
         self.phase = AgentPhase.INIT
         self.override = ""
         self.detail = ""
@@ -118,6 +122,8 @@ class Agent(OverridesMixin):
         self._next_telemetry = 0.0
         self._next_state = 0.0
         self._next_stats = 0.0
+        self._next_link_stats = 0.0
+        self._link_stats = msgspec.Raw(b"{}")
         self._offboard_stream_since: float | None = None
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
@@ -139,6 +145,7 @@ class Agent(OverridesMixin):
         self.truth: Callable[[], tuple[float, float, float, float, float, float, bool]] | None = None
         self.records = RecordHealth()  # recording errors degrade, never stop the flight
         self.recorder: TrajectoryRecorder | None = None
+        self.age_window = AgeWindow(node.stats.ages)
         self.age_log: PoseAgeLog | None = None
         if cfg.record_dir:
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv", health=self.records)
@@ -159,13 +166,16 @@ class Agent(OverridesMixin):
         if not st.has_position:
             return False
         o = self.own
+        o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)  # also from ATTITUDE, between two positions
+        if st.position_at == self._own_at:
+            return True  # no new position since the last tick: nothing to convert
+        self._own_at = st.position_at
         o.x, o.y, o.z = self.frame.to_enu(st.lat, st.lon, st.alt)
         # The swarm lives in wall-clock time: a virtual FCU at RTF 0.4 that reports 5 m/s is
         # really covering 2 m/s of ground per wall second, and neighbours extrapolate with that.
         k = self.link.rtf.value
         k = k if 0.0 < k < 1.0 else 1.0  # also NaN (not measured yet): take the FCU's word
         o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
-        o.yaw = math.remainder(math.pi / 2 - st.yaw, math.tau)
         return True
 
     @property
@@ -184,17 +194,10 @@ class Agent(OverridesMixin):
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None
         have_pos = self._update_own()
-        inbox = node.poll(now)
-        for cmd in inbox.commands:
-            self._on_command(cmd, now)
-        for fault in inbox.faults:
-            self._on_fault(fault, now)
-        if self._deferred:
-            self._settle_acks(now)
         st = link.state
-        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
-        # age at the neighbours is transport time, not the phase between two timers.
-        # no pose while the FCU link is lost: neighbours must see it go stale, not trust an old one
+        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
+        # anything else, so that its stamp (when the position was read) is its publication time.
+        # No pose while the FCU link is lost: neighbours must see it go stale, not trust an old one.
         if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period) \
                 and not self.failsafes.fcu_link_lost:
             self._published_position_at = st.position_at
@@ -203,6 +206,9 @@ class Agent(OverridesMixin):
                 t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
                 t_wall=st.position_at,
             )
+        self.react(now)
+        if self._deferred:
+            self._settle_acks(now)
         if now >= self._next_control:
             self._next_control = max(self._next_control + 1.0 / self.cfg.control_rate_hz, now)
             self.failsafes.step(self, now)
@@ -213,9 +219,11 @@ class Agent(OverridesMixin):
             self._next_telemetry = now + 1.0 / self.cfg.telemetry_rate_hz
             st = link.state
             rtf = link.rtf.value
+            ages = self.age_window.last  # of the last full second
             node.publish_telemetry(
                 mode=st.mode, armed=st.armed, battery=st.battery, voltage=st.voltage,
                 lat=st.lat, lon=st.lon, alt=st.alt, rtf=0.0 if math.isnan(rtf) else rtf,  # 0.0: unknown on the wire
+                transport_ms=1000.0 * ages.transport_p50, use_ms=1000.0 * ages.use_p50,  # NaN: -1 on the wire
             )
         if now >= self._next_state:
             self._next_state = now + 1.0
@@ -225,6 +233,18 @@ class Agent(OverridesMixin):
             self.write_stats(now)
         if router is not None:
             router.flush()
+
+    def react(self, now: float) -> None:
+        """Take in what arrived (poses into the neighbour table) and handle the commands and
+        injected faults at once.
+
+        Called by :meth:`step`, and by the loop between ticks when the node's waker says a
+        command (or fault) arrived, so a command is acknowledged within a millisecond of its arrival."""
+        inbox = self.node.poll(now)
+        for cmd in inbox.commands:
+            self._on_command(cmd, now)
+        for fault in inbox.faults:
+            self._on_fault(fault, now)
 
     @property
     def behaviour_name(self) -> str:
@@ -413,12 +433,14 @@ class Agent(OverridesMixin):
                 self._set_phase(AgentPhase.MISSION, "more work after a re-split")
         if self.avoidance is not None:
             # only neighbours that could matter (avoidance looks at most neighbour_range away);
-            # at N = 50 this skips building ~40 views per tick
+            # at N = 50 this skips building ~40 views per tick. The time of use is taken now,
+            # after the poll: each pose's age (sender's stamp to now) and age at use are exact.
             reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
             r2 = reach * reach
+            t_use = self.clock()
             neigh = [
-                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(now))
-                for n in self.node.neighbours
+                NeighbourView(uav=n.uav, pos=(p.x, p.y), vel=(p.vx, p.vy), age=n.age(t_use))
+                for n in self.node.take_neighbours(t_use)
                 if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
             res = self.avoidance.adjust(me, (vx, vy), neigh)
@@ -438,7 +460,8 @@ class Agent(OverridesMixin):
                                   -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
-    def stats(self, now: float) -> dict[str, Any]:
+    def stats(self, now: float, links: bool = True) -> dict[str, Any]:
+        """The counters file's content; ``links=False`` leaves out the per-link pose-age histograms."""
         return {
             "uav": self.cfg.uav,
             "realm": self.realm.label,
@@ -452,7 +475,7 @@ class Agent(OverridesMixin):
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            "net": self.node.stats.to_dict(),
+            "net": self.node.stats.to_dict(links),
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}
@@ -465,16 +488,25 @@ class Agent(OverridesMixin):
             "written_at": now,
         }
 
-    def write_stats(self, now: float) -> None:
+    def write_stats(self, now: float, final: bool = False) -> None:
+        """The counters file (every second; the per-link histograms, its bulk with many neighbours,
+        every LINK_STATS_EVERY s and at the end), the trajectory's flush, the pose ages' second."""
         if self.cfg.record_dir:
-            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now), self.records, now)
+            links = final or now >= self._next_link_stats
+            if links:  # encoded once here, then copied into each write as it is
+                self._next_link_stats = now + LINK_STATS_EVERY
+                self._link_stats = msgspec.Raw(msgspec.json.encode(self.node.stats.ages.links_dict()))
+            d = self.stats(now, links=False)
+            d["net"]["transport_age_links"] = self._link_stats  # as of the last full write
+            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", d, self.records, now)
         if self.recorder is not None:
             self.recorder.flush(now)
+        ages = self.age_window.sample()
         if self.age_log is not None:
-            self.age_log.sample(now)
+            self.age_log.write(now, ages)
 
     def close(self, now: float) -> None:
-        self.write_stats(now)
+        self.write_stats(now, final=True)
         if self.recorder is not None:
             self.recorder.close(now)
         if self.age_log is not None:

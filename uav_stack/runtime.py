@@ -2,7 +2,8 @@
 
 One single-threaded loop on a fixed tick (:func:`run_loop`) drives everything: the virtual
 FCU's datagrams and physics (if any), the agent's MAVLink link, and the agent's step (which
-drains Zenoh's ring channels). No asyncio: it would cost ~10 MB per process.
+drains the swarm node's inlets). Between ticks it sleeps on the node's waker, so a command is
+handled as soon as it arrives. No asyncio: it would cost ~10 MB per process.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-h
 log = logging.getLogger(__name__)
 
 TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
+OPEN_TIMEOUT_S = 60.0  # s to keep trying to open the swarm node (a loaded router may accept late)
 _PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
@@ -92,10 +94,17 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
 
 
-def open_node(cfg: AgentConfig, tap_zenoh_log: bool = False) -> SwarmNode:
+def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:
     """The agent's node, opened. A secured node in its own process (``tap_zenoh_log``) also counts
     the TLS handshakes its listener refuses (swarmnet/security/zenoh_log.py); an insecure one says
-    at start that anyone on its network can command it."""
+    at start that anyone on its network can command it.
+
+    When a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), the
+    edge router can take longer than Zenoh's connect timeout to accept a client, and the session
+    refuses to open: it is tried again after 0.5, 1, 2, 4, 4 ... s until ``timeout`` s.
+    """
+    import zenoh
+
     node = make_node(cfg)
     if cfg.network.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this node's "
@@ -104,7 +113,17 @@ def open_node(cfg: AgentConfig, tap_zenoh_log: bool = False) -> SwarmNode:
         from swarmnet.security.zenoh_log import ZenohLogTap
 
         ZenohLogTap(node.stats)
-    return node.open()
+    deadline = time.monotonic() + timeout
+    delay = 0.5
+    while True:
+        try:
+            return node.open()
+        except zenoh.ZError as exc:  # only a router that did not answer is worth another try
+            if "Unable to connect" not in str(exc) or stop.stopped or time.monotonic() + delay > deadline:
+                raise
+            log.warning("UAV %d: swarm node did not open (%s); again in %.1f s", cfg.uav, exc, delay)
+            time.sleep(delay)
+            delay = min(2 * delay, 4.0)
 
 
 def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
@@ -149,6 +168,10 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
     later, as over a real serial link. Fewer, fuller ticks are cheaper than waking on every
     datagram and timer: with other processes evicting the CPU caches between ticks, each
     code path costs several times its warm cost (docs/benchmarks.md).
+
+    Between ticks the loop waits on the swarm node's waker rather than sleeping: a command
+    (or a netem change) wakes it, and :meth:`Agent.react` handles it at once. Poses do not
+    wake it: they wait, stamped with their arrival, for the next tick's control.
     """
     parent = os.getppid()
     period = 1.0 / tick_hz
@@ -160,7 +183,8 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
         if now_m >= end:
             break
         if next_tick > now_m:
-            time.sleep(min(next_tick, end) - now_m)
+            if agent.node.waker.wait(min(next_tick, end) - now_m):
+                agent.react(time.time())
             continue
         next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
@@ -188,7 +212,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     # else's datagrams reach the FCU, nor churn the agent out of its peers
     assert link.local_address is not None
     fcu.vehicles[0].link.set_owner(link.local_address, owner_only=True)
-    node = open_node(a, tap_zenoh_log)
+    node = open_node(a, stop, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
     agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
     faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
@@ -228,7 +252,7 @@ def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:
     link, router = open_fcu_link(cfg, cfg.fcu)
-    node = open_node(cfg, tap_zenoh_log)
+    node = open_node(cfg, stop, tap_zenoh_log)
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)

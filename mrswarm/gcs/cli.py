@@ -49,7 +49,7 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
 
     p = sub.add_parser("watch", help="live table of every UAV (q quits; s sort, f filter, n/p page)")
     _common(p)
-    p.add_argument("--sort", default="id", help="id, phase, mode, alt, speed, battery, rtf, age, seen or loss")
+    p.add_argument("--sort", default="id", help="id, phase, mode, alt, speed, battery, rtf, age, rx, use, seen or loss")
     p.add_argument("--reverse", action="store_true")
     p.add_argument("--filter", action="append", default=[], metavar="KEY[=VALUE]",
                    help="id=1-20, phase=mission, mode=RTL, realm=physical, override, stale (repeatable: all must hold)")
@@ -316,6 +316,8 @@ def telemetry_record(obs: Any, uav: int, now: float) -> dict[str, Any] | None:
         t = v.telemetry
         d.update(realm=t.realm.label, mode=t.mode, armed=t.armed, lat=t.lat, lon=t.lon, alt_amsl=t.alt,
                  battery=t.battery, voltage=t.voltage, rtf=t.rtf, telemetry_age_s=round(max(0.0, now - t.t_wall), 3))
+        if t.transport_ms >= 0:  # the UAV's own pose ages (p50 over its last second), if it reports them
+            d.update(neighbour_transport_age_ms=t.transport_ms, neighbour_use_age_ms=t.use_ms if t.use_ms >= 0 else None)
     if v.pose is not None:
         p = v.pose
         d.update(x=p.x, y=p.y, z=p.z, vx=p.vx, vy=p.vy, vz=p.vz, yaw=p.yaw,

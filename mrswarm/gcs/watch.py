@@ -30,7 +30,7 @@ from uav_stack.phases import AgentPhase
 
 STALE_S = 3.0  # no data for this long: the row is dim
 LOST_S = 10.0  # ... and red after this
-SORT_KEYS = ("id", "phase", "mode", "alt", "speed", "battery", "rtf", "age", "seen", "loss")
+SORT_KEYS = ("id", "phase", "mode", "alt", "speed", "battery", "rtf", "age", "rx", "use", "seen", "loss")
 
 
 @dataclass
@@ -47,7 +47,9 @@ class Row:
     speed: float = math.nan
     battery: float = math.nan  # 0..1
     rtf: float = math.nan
-    age: float = math.nan  # pose age at arrival, s
+    age: float = math.nan  # transport age of its latest pose to this ground station, s
+    rx: float = math.nan  # its own transport age of its neighbours' poses, p50 over its last second, ms
+    use: float = math.nan  # its own age at use of those poses (arrival -> controller), p50, ms
     seen: float = math.nan  # s since anything arrived from it
     rate: float = math.nan  # poses/s
     loss: float = math.nan  # fraction of poses lost
@@ -77,6 +79,8 @@ def rows_from(obs: SwarmObserver, now: float) -> list[Row]:
             r.mode, r.armed = t.mode, t.armed
             r.battery = t.battery if t.battery >= 0 else math.nan
             r.rtf = t.rtf if t.rtf > 0 else math.nan
+            r.rx = t.transport_ms if t.transport_ms >= 0 else math.nan
+            r.use = t.use_ms if t.use_ms >= 0 else math.nan
             times.append(t.t_wall)
         if v.state is not None:
             r.phase, r.override = v.state.phase, v.state.override
@@ -161,11 +165,11 @@ def sort_rows(rows: list[Row], key: str, reverse: bool = False) -> list[Row]:
 COLUMNS: dict[str, tuple[JustifyMethod, int]] = {
     "id": ("right", 3), "R": ("left", 1), "phase": ("left", 7), "override": ("left", 8), "mode": ("left", 8),
     "arm": ("left", 3), "x": ("right", 6), "y": ("right", 6), "alt": ("right", 5), "m/s": ("right", 4),
-    "bat%": ("right", 4), "rtf": ("right", 4), "age ms": ("right", 6), "Hz": ("right", 4), "loss%": ("right", 5),
-    "seen s": ("right", 6),
+    "bat%": ("right", 4), "rtf": ("right", 4), "age ms": ("right", 6), "rx ms": ("right", 5), "use ms": ("right", 6),
+    "Hz": ("right", 4), "loss%": ("right", 5), "seen s": ("right", 6),
 }
 # dropped first when the terminal is narrow (the realm is R: V = virtual, P = physical)
-_DROP_ORDER = ("loss%", "Hz", "R", "arm", "rtf", "m/s")
+_DROP_ORDER = ("loss%", "Hz", "use ms", "rx ms", "R", "arm", "rtf", "m/s")
 
 
 def fit_columns(width: int) -> list[str]:
@@ -234,7 +238,8 @@ class WatchView:
                 "override": r.override or "", "mode": r.mode, "arm": "-" if r.armed is None else ("yes" if r.armed else "no"),
                 "x": _f(r.x, ".1f"), "y": _f(r.y, ".1f"), "alt": _f(r.alt, ".1f"), "m/s": _f(r.speed, ".1f"),
                 "bat%": _f(r.battery * 100 if r.battery == r.battery else math.nan, ".0f"), "rtf": _f(r.rtf, ".2f"),
-                "age ms": _f(r.age * 1000 if r.age == r.age else math.nan, ".0f"), "Hz": _f(r.rate, ".1f"),
+                "age ms": _f(r.age * 1000 if r.age == r.age else math.nan, ".1f"), "rx ms": _f(r.rx, ".1f"),
+                "use ms": _f(r.use, ".0f"), "Hz": _f(r.rate, ".1f"),
                 "loss%": _f(r.loss * 100 if r.loss == r.loss else math.nan, ".1f"), "seen s": _f(r.seen, ".1f"),
             }
             t.add_row(*(cells[c] for c in cols), style=style)

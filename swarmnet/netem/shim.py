@@ -4,8 +4,10 @@ A receiving node hands every accepted message to :meth:`NetemShim.offer` with th
 arrived. A link whose profile does nothing answers "deliver now" after bumping two counters
 (the no-impairment path). Otherwise the link runs netem's per-packet pipeline and the message
 waits in the heap until :meth:`NetemShim.release` is called at or after its time to send.
-No threads, no timers: the owner calls ``release`` from its own loop, so delivery happens at
-the owner's poll resolution (40 ms for a UAV at 25 Hz) while the shim's own times are exact.
+No threads, no timers: the owner calls ``release`` from its own loop, so delivery to the
+controller happens at the owner's poll resolution, while the shim's own times are exact: the
+owner offers each message with its arrival stamp and takes each released one with its time
+to send, which is its arrival through the emulated link (its transport age counts from there).
 
 Per message, in order (netem's ``netem_enqueue`` plus the wireless stages in front):
 
@@ -37,8 +39,6 @@ from swarmnet.messages import Realm
 from swarmnet.netem.config import LinkProfile, NetemConfig, OutageSpec
 from swarmnet.netem.models import DelayGen, LossGen, OutageSchedule
 from swarmnet.stats import LogHistogram
-
-MAX_ARRIVAL_SPREAD = 1.0  # s; see NetemShim.arrival_time
 
 
 class Link:
@@ -122,9 +122,7 @@ class NetemShim:
         self.links: dict[int | str, Link] = {}
         self._heap: list[tuple[float, int, Link, int, float, int, Any, str]] = []
         self._seq = 0
-        self._ready: list[tuple[int, Any, str]] = []
-        self._last_poll: float | None = None
-        self._tick_rng = random.Random(f"netem-tick/{config.seed}/{me}")
+        self._ready: list[tuple[int, Any, str, float]] = []
         self._radios: dict[tuple[int | str, OutageSpec], OutageSchedule] = {}
 
     # ---- configuration ------------------------------------------------------------------------
@@ -174,8 +172,6 @@ class NetemShim:
 
     def reconfigure(self, config: NetemConfig) -> None:
         """Switch every link to a new configuration (queued messages keep their times; model state resets)."""
-        if config.seed != self.config.seed:
-            self._tick_rng = random.Random(f"netem-tick/{config.seed}/{self.me}")
         self.config = config
         self._radios.clear()
         for link in self.links.values():
@@ -193,20 +189,6 @@ class NetemShim:
         return lk
 
     # ---- the data path ------------------------------------------------------------------------------
-    def arrival_time(self, now: float) -> float:
-        """When the messages drained at poll time ``now`` arrived: uniform in (previous poll, now].
-
-        A message waits in its ring channel for part of a poll period before the owner sees it.
-        Taking ``now`` as its arrival would add that wait on top of the configured delay and,
-        after rounding up to the next poll, bias every delay up by about one period (a 9.8 ms
-        link would behave like a 40 ms one at 25 Hz). One draw per poll (not per message)
-        keeps messages of one poll in their order.
-        """
-        last, self._last_poll = self._last_poll, now
-        if last is None or now <= last:
-            return now
-        return now - self._tick_rng.random() * min(now - last, MAX_ARRIVAL_SPREAD)
-
     def offer(self, link: Link, now: float, kind: int, item: Any, key: str = "", size: int = 48) -> bool:
         """Give the shim a message that arrived at ``now``. True: deliver it now (pass-through link);
         False: the shim has it (queued for :meth:`release`, or dropped)."""
@@ -312,10 +294,11 @@ class NetemShim:
                 link.reordered += 1
             else:
                 link.max_released = idx
-            ready.append((kind, item, key))
+            ready.append((kind, item, key, tts))
 
-    def release(self, now: float) -> list[tuple[int, Any, str]]:
-        """Everything due at ``now``, in order: ``(kind, item, key)`` as given to :meth:`offer`."""
+    def release(self, now: float) -> list[tuple[int, Any, str, float]]:
+        """Everything due at ``now``, in order: ``(kind, item, key, time to send)``, the first three
+        as given to :meth:`offer`; the time to send is when the emulated link delivers the item."""
         if self._heap and self._heap[0][0] <= now:
             self._advance(now)
         if not self._ready:
