@@ -25,10 +25,12 @@ import zenoh
 
 from swarmnet.messages import (
     Actuation,
+    AgentState,
     Reading,
     Traffic,
     accept_actuation,
     accept_reading,
+    accept_state,
     accept_traffic,
     encode_actuation,
     encode_reading,
@@ -86,15 +88,25 @@ class UavSensing:
 
 
 class WorldSensing:
-    """The world's end for one swarm: actuator requests in, readings and traffic out."""
+    """The world's end for one swarm: actuator requests and agent states in, readings and traffic out.
+
+    (The agent states tell the world when the swarm's mission starts: experiment time 0.)
+    """
 
     def __init__(self, node: SwarmNode):
         s = _session(node)
         self.node = node
-        self._acts: Ring = s.declare_subscriber(node.keys.all_acts, zenoh.handlers.RingChannel(4096))
+        ring = zenoh.handlers.RingChannel
+        self._acts: Ring = s.declare_subscriber(node.keys.all_acts, ring(4096))
+        self._states: Ring = s.declare_subscriber(node.keys.all_states, ring(1024))
         self._pubs: dict[tuple[int, str], Any] = {}
         self._traffic_pub: Any = None
-        self._traffic_seq = 0
+
+    def states(self, budget: int = DRAIN_BUDGET) -> list[AgentState]:
+        """The agent states that arrived since the last call."""
+        out = [a.item for a in receive(self._states, accept_state, self.node.stats, budget)]
+        self.node.stats.received["state"] += len(out)
+        return out
 
     def actuations(self, budget: int = DRAIN_BUDGET) -> list[Actuation]:
         """The actuator requests that arrived since the last call, oldest first."""
