@@ -140,10 +140,12 @@ class DockerRuntime:
 
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
+        ``extra_keys``: more swarms the discovery server serves (swarm -> key).
         """
         self.swarm = swarm if swarm != "*" else self.swarm
         service = discovery or DiscoveryService()
@@ -152,7 +154,8 @@ class DockerRuntime:
 
             service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
         self.discovery = service
-        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery")
+        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery",
+                            extra_keys=extra_keys)
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -185,6 +188,13 @@ class DockerRuntime:
         net = plan.uav_network(addresses)
         self._write_manifest()
         return net
+
+    # ---- the world service (docs/world.md) ----------------------------------------------------
+    def start_world(self, config: Path) -> None:
+        """The world service in its own container on the run's network (the run folder mounted:
+        its configuration in, its records out)."""
+        self._run("world", "world", ["python3", "-m", "world", "--config", str(config.resolve()), "--log-level", self.log_level],
+                  uav=None, cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=True)
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:

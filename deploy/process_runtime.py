@@ -69,15 +69,17 @@ class ProcessRuntime:
 
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
         ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
-        router (pose feed, and the way in for ground stations).
+        router (pose feed, and the way in for ground stations). ``extra_keys``: more swarms the
+        discovery server serves (swarm -> key), for swarms sharing the airspace.
         """
         if connectivity == "discovery":
-            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService())
+            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
         endpoint = self._start_router(pose_feed, swarm)
         return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=("tcp/127.0.0.1:0",),
                              pose_feed=pose_feed)
@@ -94,13 +96,14 @@ class ProcessRuntime:
                  what=f"the router (log: {router.log_path})")
         return endpoint
 
-    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService) -> NetworkConfig:
+    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService,
+                         extra_keys: dict[str, str]) -> NetworkConfig:
         from discovery.client import QueryTimeout, query_registry
         from discovery.protocol import new_key
 
         key = service.key or new_key()  # a fresh key per run unless the scenario sets one
         keys = self.run_dir / "config" / "discovery.keys"
-        keys.write_text(f"{swarm} {key}\n")
+        keys.write_text("".join(f"{s} {k}\n" for s, k in {swarm: key, **extra_keys}.items()))
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
@@ -127,6 +130,12 @@ class ProcessRuntime:
         return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=("tcp/127.0.0.1:0",),
                              pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period))
 
+    # ---- the world service (docs/world.md) ----------------------------------------------------
+    def start_world(self, config: Path) -> None:
+        """The world service beside the edge router; it joins the swarms as the router's client."""
+        self._spawn("world", [*self._py, "-m", "world", "--config", str(config), "--log-level", self.log_level,
+                              "--die-with-parent"])
+
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:
         path = self.run_dir / "config" / f"uav{cfg.agent.uav}.json"
@@ -151,8 +160,9 @@ class ProcessRuntime:
         return {n: c.proc.pid for n, c in self.children.items()}
 
     def stop(self, grace: float = 5.0) -> dict[str, int]:
-        """SIGTERM every UAV, then the router and discovery server; SIGKILL whatever is left after ``grace``."""
-        helpers = [n for n in ("router", "discovery") if n in self.children]
+        """SIGTERM every UAV, then the world service, the router and the discovery server; SIGKILL whatever is left
+        after ``grace``."""
+        helpers = [n for n in ("world", "router", "discovery") if n in self.children]
         order = [n for n in self.children if n not in helpers] + helpers
         for n in order:
             c = self.children[n]

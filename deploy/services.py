@@ -45,7 +45,8 @@ class NetworkPlan:
 
 
 def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct",
-                 swarm: str = "*", discovery: DiscoveryService | None = None, with_router: bool = False) -> NetworkPlan:
+                 swarm: str = "*", discovery: DiscoveryService | None = None, with_router: bool = False,
+                 extra_keys: dict[str, str] | None = None) -> NetworkPlan:
     """The services and the UAVs' network config for a connectivity.
 
     ``discovery`` (for ``connectivity: discovery``) must carry a key: the runtime draws one
@@ -71,7 +72,9 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
         if not key:
             raise ValueError("discovery needs a key (the runtime draws one per run if the scenario sets none)")
         server = Service("discovery", ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}",
-                                       "--key", f"{swarm}={key}", "--ttl", str(service.ttl), "--rate", "5000"),
+                                       "--key", f"{swarm}={key}",
+                                       *(a for s, k in (extra_keys or {}).items() for a in ("--key", f"{s}={k}")),
+                                       "--ttl", str(service.ttl), "--rate", "5000"),
                          DISCOVERY_PORT, proto="udp")
         routed = pose_feed == "edge" or with_router
         services = (server, router) if routed else (server,)

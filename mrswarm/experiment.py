@@ -33,11 +33,17 @@ from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
 from mrswarm.summary import RunInfo, RunSummary
+from mrswarm.world_setup import (
+    open_observer,
+    other_swarm_keys,
+    swarm_networks,
+    uav_configs,
+    world_service_config,
+    write_world_config,
+)
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
-from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, AgentPhase
-from uav_stack.runtime import make_connectivity
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
@@ -100,8 +106,10 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
+        keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
-                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery)
+                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
+                                         extra_keys=keys)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints)}
@@ -112,7 +120,11 @@ class Experiment:
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         (self.run_dir / "network.json").write_text(json.dumps(network_info))
-        configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
+        nets = swarm_networks(scn, net, keys)
+        world = world_service_config(scn, nets, self.run_dir)
+        if world is not None:  # before the UAVs, so that it tracks them from their first pose
+            self.runtime.start_world(write_world_config(world, self.run_dir))
+        configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
         ids = [c.agent.uav for c in configs]
         for c in configs:
             self.runtime.start_uav(c)
@@ -121,9 +133,9 @@ class Experiment:
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
-        # discovery with the router beside it), else as a discovery peer (role "observer")
-        obs_net = NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net
-        self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net), name="runner").open()
+        # discovery with the router beside it), else as a discovery peer (role "observer");
+        # one observer per swarm when several share the airspace
+        self.observer = open_observer(scn, nets)
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
         with self.display:

@@ -24,8 +24,16 @@ class Runtime(Protocol):
     name: str  # "process" or "docker"
 
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None) -> NetworkConfig:
-        """Start what the connectivity needs (router, discovery server); return how UAVs reach it."""
+                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
+                      extra_keys: dict[str, str] | None = None) -> NetworkConfig:
+        """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
+
+        ``extra_keys``: the discovery keys of more swarms in the same airspace (swarm -> key).
+        """
+        ...
+
+    def start_world(self, config: Path) -> None:
+        """Start the world service (``python -m world``) with this configuration file (docs/world.md)."""
         ...
 
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -22,6 +22,8 @@ import msgspec
 import numpy as np
 from msgspec import UNSET, Struct, UnsetType
 
+from mrswarm.world_summary import WorldSummary
+
 # ---- run.json ---------------------------------------------------------------------------------
 
 
@@ -233,6 +235,7 @@ class RunSummary(Struct):
     encounter: Encounter | None | UnsetType = UNSET  # goto with 2 UAVs; None: they were never airborne together
     rtf: Rtf | UnsetType = UNSET
     network: Network | UnsetType = UNSET
+    world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png
