@@ -46,6 +46,7 @@ FRESH_S = 1.5  # a reading older than this says nothing about now
 FULL = 0.98  # of the capacity: the tank counts as full
 EMPTY_L = 0.05  # litres: the tank counts as empty
 MAX_SHARED_CELLS = 48
+HUB_INSIDE = 0.8  # of the hub's radius: far enough inside to refill, so wait there
 
 IDLE, ON_DUTY, FIGHTING, RETURNING = "idle", "on duty", "fire fighting", "returning"
 
@@ -166,10 +167,12 @@ class FireFighter:
             full = tank is not None and tank >= FULL * self.capacity
             if burning and full:
                 self._go(ON_DUTY, now)
+            elif math.dist(me.pos, hub) <= HUB_INSIDE * self.cfg.hub_radius:
+                return (0.0, 0.0)  # anywhere in the hub will do (the thesis' assumption): no crowding at its centre
             else:
-                return self._towards(me.pos, hub, slow_within=self.cfg.hub_radius)
+                return self._towards(me.pos, hub)
         if self.state == RETURNING:
-            if math.dist(me.pos, hub) <= self.cfg.hub_radius:
+            if math.dist(me.pos, hub) <= HUB_INSIDE * self.cfg.hub_radius:
                 self._go(IDLE, now)
                 return (0.0, 0.0)
             return self._towards(me.pos, hub)
