@@ -24,8 +24,8 @@ cells in its footprint):
 report of the detection system (``fire_hint``); here every UAV also broadcasts what its camera
 sees once a second (``fire/cells``: the burning cells in its footprint, and the footprint,
 inside which every other known cell is out), and flies to the nearest burning cell it knows
-of. With none known, it searches around the last known fire (random points within
-``search_radius``). The tank, its refilling at the hub and the effect of spraying are the world's
+of. With none known, it flies to the last known fire and searches around it (random points
+within ``search_radius``). The tank, its refilling at the hub and the effect of spraying are the world's
 (a virtual actuator and a ``tank`` sensor); the UAV only asks for litres.
 """
 
@@ -76,6 +76,7 @@ class FireFighter:
         self.known: dict[tuple[int, int], tuple[float, float, float]] = {}  # burning cells: key -> (x, y, t seen)
         self.last_fire: Vec2 = cfg.fire_hint
         self.search_point: Vec2 | None = None
+        self._searched_from: Vec2 | None = None  # the last known fire a search started from
         self.sprayed_l = 0.0
         self.transitions: list[tuple[float, str, str]] = []
         self._last_spray = math.nan
@@ -212,7 +213,12 @@ class FireFighter:
         if cells:
             self.search_point = None
             return min(cells, key=lambda q: math.dist(p, q))
-        # nothing known: search around the last known fire
+        # nothing known: to the last known fire (at first, the detection system's report), then search around it
+        if self._searched_from != self.last_fire:
+            if math.dist(p, self.last_fire) > self.cfg.arrive_m:
+                return self.last_fire
+            self._searched_from = self.last_fire
+            self.search_point = None
         if self.search_point is None or math.dist(p, self.search_point) < self.cfg.arrive_m:
             for _ in range(20):
                 a = self.rng.uniform(0.0, math.tau)
