@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
@@ -228,6 +229,9 @@ def agent_main(argv: list[str] | None = None) -> int:
                     help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
                          " repeatable")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
+    ap.add_argument("--zones", default=None, metavar="FILE",
+                    help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
+                         "YAML or JSON (docs/world.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
@@ -267,6 +271,24 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
             ap.error("--discovery needs --discovery-key-file")
         net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
                                                          "advertise": args.advertise})
-    return {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
-            "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir, "network": net,
-            "gcs": {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid}}
+    out = {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
+           "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir, "network": net,
+           "gcs": {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid}}
+    if args.zones:
+        out["avoidance"] = {"zones": read_zones(args.zones, ap)}
+    return out
+
+
+def read_zones(path: str, ap: argparse.ArgumentParser) -> Any:
+    """The zones of ``--zones``: a scenario's ``world.zones`` or a bare list, in YAML or JSON."""
+    import yaml  # once, at the start of the agent; YAML is a superset of JSON
+
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        ap.error(f"--zones {path}: {exc}")
+    if isinstance(data, dict):
+        data = (data.get("world") or {}).get("zones")
+    if not isinstance(data, list):
+        ap.error(f"--zones {path}: expected a list of zones, or a scenario with world.zones")
+    return data

@@ -1,0 +1,83 @@
+"""The world in scenarios and configurations: errors that name the field, what each UAV gets,
+the world service's configuration, and the command lines (``mrswarm world``, ``mrswarm agent --zones``)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from discovery.options import ProxyOptions
+from mrswarm.scenario import ScenarioError, load_scenario
+from mrswarm.world_setup import swarm_networks, uav_configs, world_service_config
+from swarmnet.keyspace import check_swarm, traffic_key
+from uav_stack.config import NetworkConfig
+from uav_stack.runtime import agent_main
+
+ROOT = Path(__file__).resolve().parents[1]
+SCN = ROOT / "scenarios"
+
+
+@pytest.mark.parametrize(("scenario", "override", "field"), [
+    ("plume.yaml", "world.sensors=[]", "mission.plume.sensor"),
+    ("plume.yaml", "mission.plume.wind_sensor=anemometer", "mission.plume.wind_sensor"),
+    ("wildfire.yaml", "world.actuators=[]", "mission.wildfire.spray"),
+    ("wildfire.yaml", "world.fire.cell_m=0.05", "world.fire.cell_m"),
+    ("wildfire.yaml", "world.zones.0.polygon=[[0, 0], [1, 1]]", "world.zones.0.polygon"),
+    ("plume.yaml", "world.plume.model=puff", "world.plume"),
+    ("two_swarms.yaml", "other_swarms.0.uavs.0.id=1", "other_swarms"),
+    ("two_swarms.yaml", "other_swarms.0.swarm=airspace", "other_swarms.0.swarm"),
+    ("two_swarms.yaml", "other_swarms.0.swarm=alpha", "other_swarms"),
+])
+def test_bad_world_settings_name_the_field(scenario: str, override: str, field: str) -> None:
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(SCN / scenario, [override])
+    assert f"{scenario}: {field}" in str(err.value), str(err.value)
+
+
+def test_airspace_is_not_a_swarm_name() -> None:
+    with pytest.raises(ValueError, match="airspace"):
+        check_swarm("airspace")
+    assert traffic_key("alpha") == "mrs/airspace/alpha/traffic"
+
+
+def test_every_uav_of_every_swarm_gets_the_world_it_needs() -> None:
+    scn = load_scenario(SCN / "two_swarms.yaml")
+    net = NetworkConfig(connectivity="discovery", endpoints=("tcp/127.0.0.1:7447",),
+                        discovery=ProxyOptions(server="127.0.0.1:7450", key="k" * 32))
+    nets = swarm_networks(scn, net, {"bravo": "b" * 32})
+    cfgs = {c.agent.uav: c.agent for c in uav_configs(scn, nets, None)}
+    assert sorted(cfgs) == [1, 2, 3, 11, 12, 13]
+    assert {cfgs[u].swarm for u in (1, 2, 3)} == {"alpha"} and {cfgs[u].swarm for u in (11, 12, 13)} == {"bravo"}
+    assert cfgs[1].network.discovery is not None and cfgs[1].network.discovery.key == "k" * 32
+    assert cfgs[11].network.discovery is not None and cfgs[11].network.discovery.key == "b" * 32  # its own key
+    assert all(c.traffic for c in cfgs.values())
+    assert cfgs[12].mission.goal == (-40.0, 0.0)
+    world = world_service_config(scn, nets, None)
+    assert world is not None and [s.name for s in world.swarms] == ["alpha", "bravo"]
+    assert world.swarms[1].network.mode == "client"  # a client of the edge router, like the runner
+    off = load_scenario(SCN / "two_swarms.yaml", ["world.airspace.feed=false"])
+    assert not any(c.agent.traffic for c in uav_configs(off, swarm_networks(off, net, {"bravo": "b" * 32}), None))
+    fire = load_scenario(SCN / "wildfire.yaml")
+    a = uav_configs(fire, {"alpha": net}, None)[0].agent
+    assert [z.name for z in a.avoidance.zones] == ["village"]
+    assert [s.name for s in a.sensors] == ["fire", "tank", "alarm"] and a.actuators[0].capacity_l == 15.0
+    assert a.mission.type == "wildfire" and a.mission.wildfire is not None and not a.traffic
+
+
+def test_mrswarm_world_refuses_a_scenario_without_world_naming_it() -> None:
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "world", str(SCN / "coverage.yaml"), "--connect", "tcp/127.0.0.1:9"],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert res.returncode == 2 and "coverage.yaml: no world section" in res.stderr
+
+
+def test_agent_zones_flag_rejects_a_file_without_zones(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "z.yaml"
+    bad.write_text("name: nothing here\n")
+    with pytest.raises(SystemExit) as ex:
+        agent_main(["--fcu", "udpin:127.0.0.1:0", "--swarm", "alpha", "--uav", "3", "--origin", "46.6,14.2,446",
+                    "--zones", str(bad)])
+    assert ex.value.code == 2
+    assert "--zones" in capsys.readouterr().err
