@@ -48,7 +48,10 @@ def one_run(n: int, duration: float, work: Path, seed: int) -> dict[str, Any]:
     }
 
 
-def table(rows: list[dict[str, Any]], cell_m2: float, cells_total: int) -> str:
+BURNT_DOWN = 0.9  # of the burnable cells: a fire that got this far went out because nothing was left
+
+
+def table(rows: list[dict[str, Any]], cells_total: int) -> str:
     lines = ["| UAVs | burnt area (m²) | burnt share | cells put out | sprayed (l) | fire out at (s) | how it ended |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -59,10 +62,10 @@ def table(rows: list[dict[str, Any]], cell_m2: float, cells_total: int) -> str:
         put_out = r["cells_extinguished"] or 0
         if out is None:
             how = f"still burning ({r['cells_burning_at_end']} cells)"
-        elif put_out and (r["cells_ignited"] - put_out) * cell_m2 < 0.9 * cells_total * cell_m2:
-            how = "put out by the swarm"
-        else:
+        elif r["cells_ignited"] >= BURNT_DOWN * cells_total:
             how = "the forest burnt down"
+        else:
+            how = "put out by the swarm"
         lines.append(f"| {r['n']} | {r['burnt_area_m2']:.0f} | {100 * r['cells_ignited'] / cells_total:.0f} % | {put_out} | "
                      f"{r['sprayed_l']:.0f} | {'-' if out is None else f'{out:.0f}'} | {how} |")
     return "\n".join(lines)
@@ -95,8 +98,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=150.0, help="mission seconds per run")
     ap.add_argument("--repeats", type=int, default=1, help="runs per size (seeds 5, 6, ...)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    ap.add_argument("--redraw", action="store_true", help="only redraw the table and figure from the JSON in --out")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
+    out = Path(args.out)
+    if args.redraw:
+        meta = json.loads((out / "wildfire_table.json").read_text())
+        md = table(meta["runs"], meta["burnable_cells"])
+        (out / "wildfire_table.md").write_text(md + "\n")
+        plot(meta["runs"], out / "wildfire_table.png")
+        print(md)
+        return 0
     from mrswarm.scenario import load_scenario
     from world.fire import FireGrid
 
@@ -104,7 +116,6 @@ def main(argv: list[str] | None = None) -> int:
     assert scn.world is not None and scn.world.fire is not None
     grid = FireGrid(scn.world.fire, scn.world.wind)
     burnable = int((grid.fuel > 0).sum())
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     with tempfile.TemporaryDirectory(prefix="wildfire-table-") as work:
@@ -116,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"scenario": "scenarios/wildfire.yaml", "duration_s": args.duration, "burnable_cells": burnable,
             "cell_m": scn.world.fire.cell_m, "measured": time.strftime("%Y-%m-%d %H:%M"), "runs": rows}
     (out / "wildfire_table.json").write_text(json.dumps(meta, indent=1))
-    md = table(rows, scn.world.fire.cell_m ** 2, burnable)
+    md = table(rows, burnable)
     (out / "wildfire_table.md").write_text(md + "\n")
     plot(rows, out / "wildfire_table.png")
     print(md)

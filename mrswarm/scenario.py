@@ -316,7 +316,7 @@ class Scenario(Config, kw_only=True, frozen=True):
             return self.gcs.geofence.as_tuple()
         if self.mission.area is not None:
             return self.mission.area.as_tuple()
-        pts = [u.start for u in self.uav_list()] + [u.goal for u in self.uav_list() if u.goal is not None]
+        pts = [u.start for u in self.all_uavs()] + [u.goal for u in self.all_uavs() if u.goal is not None]
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
         return (min(xs) - 50.0, max(xs) + 50.0, min(ys) - 50.0, max(ys) + 50.0)
 
