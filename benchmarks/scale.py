@@ -27,6 +27,7 @@ import math
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -103,9 +104,13 @@ class Sampler:
                                          "threads": 0}
 
 
-def run_size(n: int, config: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:
+def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
+             adapt: Callable[[Scenario], Scenario] | None = None) -> dict[str, Any]:
+    """One run of N UAVs in ``config``; ``adapt`` changes the scenario first (benchmarks/security.py)."""
     sampler = Sampler(args.warmup, args.window)
     scn = scenario_for(n, args.warmup + args.window + 2.0, config)
+    if adapt is not None:
+        scn = adapt(scn)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
     summary = exp.run().to_dict()

@@ -14,10 +14,14 @@ It mirrors :class:`deploy.process_runtime.ProcessRuntime` (``start_network``, ``
 
 The run folder is bind-mounted at the same path in every UAV container, so the recorded
 trajectories and counters land where the runner analyses them, owned by the invoking
-user. Containers and network carry ``org.mrswarm.*`` labels (run, swarm, role, UAV) and
-names ``mrs-<run>-<name>``. :meth:`DockerRuntime.stop` saves every container's log into
-``<run>/logs/`` and removes containers, network and rules, also after Ctrl-C; for a runner
-killed outright, ``mrswarm deploy down`` removes whatever carries the labels.
+user. On a secured run (docs/security.md) each container gets only its own credentials: a
+bundle (CA certificate, roster, its key pair) made per container in ``<run>/secrets/`` and
+bind-mounted read-only at ``/run/secrets``; the run's key directory and the other bundles are
+hidden from the UAV containers (an empty tmpfs over them). Nothing is baked into the image.
+Containers and network carry ``org.mrswarm.*`` labels (run, swarm, role, UAV) and names
+``mrs-<run>-<name>``. :meth:`DockerRuntime.stop` saves every container's log into ``<run>/logs/``
+and removes containers, network and rules, also after Ctrl-C; for a runner killed outright,
+``mrswarm deploy down`` removes whatever carries the labels.
 """
 
 from __future__ import annotations
@@ -40,11 +44,13 @@ from msgspec.structs import replace
 
 from deploy import multicast
 from deploy.dockerutil import L_RUN, DeployError, client, labels
-from deploy.services import NetworkPlan, network_plan
+from deploy.services import KEYS_IN_CONTAINER, NetworkPlan, network_plan
 from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryService
 from swarmnet.schema import to_builtins
+from swarmnet.security.credentials import Credentials
+from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
@@ -110,6 +116,7 @@ class DockerRuntime:
         if self.settings.multicast == "drop":
             multicast.check_available()
         self.boxes: dict[str, Box] = {}
+        self.keys: Path | None = None  # the swarm's key directory (host side); None: plain TCP
         self.network: Any = None
         self.sealed = False
         self._exited: dict[str, int] = {}
@@ -141,13 +148,17 @@ class DockerRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      extra_keys: dict[str, str] | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
-        ``extra_keys``: more swarms the discovery server serves (swarm -> key).
+        ``keys``: the swarm's key directory; each container is handed its own bundle of it.
+        ``extra_keys`` (more swarms in one airspace) is for the process runtime only.
         """
+        if extra_keys:
+            raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
         self.swarm = swarm if swarm != "*" else self.swarm
+        self.keys = keys
         service = discovery or DiscoveryService()
         if connectivity == "discovery" and not service.key:
             from discovery.protocol import new_key
@@ -155,7 +166,7 @@ class DockerRuntime:
             service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
         self.discovery = service
         plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery",
-                            extra_keys=extra_keys)
+                            secured=keys is not None)
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -177,8 +188,9 @@ class DockerRuntime:
     def _start_services(self, plan: NetworkPlan) -> NetworkConfig:
         addresses: dict[str, str] = {}
         for svc in plan.services:
+            ident = NodeName.in_swarm(svc.identity, self.swarm) if svc.identity else None
             box = self._run(svc.name, "router" if svc.name == "router" else svc.name, list(svc.argv), uav=None,
-                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False)
+                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False, identity=ident)
             addresses[svc.name] = box.ip
             if svc.proto == "tcp":
                 wait_tcp(box.ip, svc.port, 30.0, alive=partial(self._running, box), period=0.2)
@@ -189,12 +201,24 @@ class DockerRuntime:
         self._write_manifest()
         return net
 
-    # ---- the world service (docs/world.md) ----------------------------------------------------
+    # ---- more swarms, the world service (docs/world.md) -----------------------------------------
+    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
+        raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
+
     def start_world(self, config: Path) -> None:
-        """The world service in its own container on the run's network (the run folder mounted:
-        its configuration in, its records out)."""
+        """The world service in its own container on the run's network: the run folder mounted (its
+        configuration in, its records out) and, in a secured run, the edge's credentials as its own."""
+        from world.config import WorldServiceConfig
+
+        cfg = WorldServiceConfig.load(config)
+        if self.keys is not None:  # the container sees its own bundle at KEYS_IN_CONTAINER, not the host's directory
+            swarms = tuple(replace(s, network=replace(s.network, security=Credentials(keys=KEYS_IN_CONTAINER)))
+                           for s in cfg.swarms)
+            config = config.with_name("world.container.json")
+            config.write_text(replace(cfg, swarms=swarms).to_json())
         self._run("world", "world", ["python3", "-m", "world", "--config", str(config.resolve()), "--log-level", self.log_level],
-                  uav=None, cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=True)
+                  uav=None, cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=True,
+                  identity=NodeName("edge", 0, cfg.swarms[0].name))
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:
@@ -205,22 +229,41 @@ class DockerRuntime:
         path.write_text(cfg.to_json())
         self._run(f"uav{cfg.agent.uav}", "uav",
                   ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
-                  uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True)
+                  uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True,
+                  identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm))
+
+    def _bundle(self, identity: NodeName) -> Path:
+        """The credentials of one container: a bundle of the run's key directory, in <run>/secrets/<cn>."""
+        from swarmnet.security.pki import KeyDir
+
+        assert self.keys is not None
+        secrets_dir = self.run_dir / "secrets"
+        secrets_dir.mkdir(mode=0o700, exist_ok=True)
+        return KeyDir(self.keys).bundle(identity, secrets_dir / identity.cn)
 
     def _run(self, short: str, role: str, argv: list[str], uav: int | None, cpus: float, memory_mb: int,
-             mounts: bool) -> Box:
+             mounts: bool, identity: NodeName | None = None) -> Box:
         from docker.types import LogConfig
 
         kwargs: dict[str, Any] = {}
+        volumes: dict[str, dict[str, str]] = {}
+        tmpfs = {"/tmp": "size=16m"}
         if mounts:  # the run folder at the same path: config in, recorded data out
-            kwargs["volumes"] = {str(self.run_dir): {"bind": str(self.run_dir), "mode": "rw"}}
+            volumes[str(self.run_dir)] = {"bind": str(self.run_dir), "mode": "rw"}
+            for private in (self.run_dir / "secrets", self.keys):  # ... but no other node's credentials
+                if private is not None and private.resolve().is_relative_to(self.run_dir):
+                    tmpfs[str(private.resolve())] = "size=64k,mode=0700"
+        if self.keys is not None and identity is not None:
+            volumes[str(self._bundle(identity))] = {"bind": KEYS_IN_CONTAINER, "mode": "ro"}
+        if volumes:
+            kwargs["volumes"] = volumes
         name = self._name(short)
         container = self.docker.containers.create(
             self.image, argv, name=name, hostname=short, labels=labels(self.run, self.swarm, role, uav),
             network=self.network.name, user=f"{os.getuid()}:{os.getgid()}",
             nano_cpus=int(cpus * 1e9), mem_limit=f"{memory_mb}m", memswap_limit=f"{memory_mb}m",
             pids_limit=PIDS_LIMIT, cap_drop=["ALL"], security_opt=["no-new-privileges"],
-            read_only=True, tmpfs={"/tmp": "size=16m"}, sysctls=dict(multicast.IPV6_OFF),
+            read_only=True, tmpfs=tmpfs, sysctls=dict(multicast.IPV6_OFF),
             environment={"PYTHONUNBUFFERED": "1"},
             log_config=LogConfig(type="json-file", config={"max-size": "20m", "max-file": "1"}),
             **kwargs,

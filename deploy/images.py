@@ -117,8 +117,9 @@ def make_base_image(tag: str = BASE_TAG, suite: str = "bookworm", mirror: str = 
 
 
 # ---- wheelhouse ----------------------------------------------------------------------------------
-# Left out of the image unless --full: only the runner's analysis plots use it, on the host.
-IMAGE_EXCLUDES = ("matplotlib",)
+# Left out of the image unless --full: only the runner uses them, on the host (analysis plots, the flight
+# recorder's MCAP, the web map's server); a UAV container never imports them.
+IMAGE_EXCLUDES = ("matplotlib", "mcap", "websockets")
 
 
 def project_requirements(root: Path = ROOT, full: bool = False) -> list[str]:

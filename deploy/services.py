@@ -16,11 +16,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from discovery.options import DiscoveryService, ProxyOptions
+from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, ZenohMode
 
 ROUTER_PORT = 7447  # Zenoh's registered port
 UAV_PORT = 7447  # each UAV container listens on its own IP
 DISCOVERY_PORT = 7450  # discovery server (UDP beacons, docs/discovery.md)
+# where a container finds its credentials (docs/security.md): its bundle mounted read-only by the
+# container runtime, or the stack's secrets on Docker Swarm; never in the image
+KEYS_IN_CONTAINER = "/run/secrets"
 
 
 @dataclass(frozen=True)
@@ -29,6 +33,7 @@ class Service:
     argv: tuple[str, ...]  # command inside the image
     port: int
     proto: str = "tcp"  # tcp: the runtime waits until it accepts connections
+    identity: str | None = None  # the swarm identity whose credentials it is handed ("edge"), if any
 
 
 @dataclass(frozen=True)
@@ -46,7 +51,7 @@ class NetworkPlan:
 
 def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct",
                  swarm: str = "*", discovery: DiscoveryService | None = None, with_router: bool = False,
-                 extra_keys: dict[str, str] | None = None) -> NetworkPlan:
+                 secured: bool = False) -> NetworkPlan:
     """The services and the UAVs' network config for a connectivity.
 
     ``discovery`` (for ``connectivity: discovery``) must carry a key: the runtime draws one
@@ -54,16 +59,21 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
     also runs the edge router beside the discovery server, and every UAV keeps one link to
     it: the way in for ground stations and runners outside the UAVs' network (they join as
     Zenoh clients of the router). UAV-to-UAV data still flows peer to peer.
+    ``secured``: every Zenoh link mutual TLS under the roster's access control, each container
+    reading its credentials from :data:`KEYS_IN_CONTAINER` (the runtime puts them there).
     """
-    router_argv = ["python3", "-m", "discovery.rendezvous", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}"]
+    scheme = "tls" if secured else "tcp"
+    creds = Credentials(keys=KEYS_IN_CONTAINER) if secured else None  # each UAV speaks as its own uav-<id>
+    router_argv = ["python3", "-m", "discovery.rendezvous", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}"]
+    router_argv += ["--keys", KEYS_IN_CONTAINER] if secured else ["--insecure"]
     if pose_feed == "edge":
         router_argv += ["--feed", swarm]
-    router = Service("router", tuple(router_argv), ROUTER_PORT)
+    router = Service("router", tuple(router_argv), ROUTER_PORT, identity="edge" if secured else None)
     if connectivity == "rendezvous":
 
         def make(addr: dict[str, str]) -> NetworkConfig:
-            return NetworkConfig(connectivity="rendezvous", endpoints=(f"tcp/{addr['router']}:{ROUTER_PORT}",), mode=mode,
-                                 listen=(f"tcp/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed)
+            return NetworkConfig(connectivity="rendezvous", endpoints=(f"{scheme}/{addr['router']}:{ROUTER_PORT}",), mode=mode,
+                                 listen=(f"{scheme}/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed, security=creds)
 
         return NetworkPlan((router,), make)
     if connectivity == "discovery":
@@ -72,9 +82,7 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
         if not key:
             raise ValueError("discovery needs a key (the runtime draws one per run if the scenario sets none)")
         server = Service("discovery", ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}",
-                                       "--key", f"{swarm}={key}",
-                                       *(a for s, k in (extra_keys or {}).items() for a in ("--key", f"{s}={k}")),
-                                       "--ttl", str(service.ttl), "--rate", "5000"),
+                                       "--key", f"{swarm}={key}", "--ttl", str(service.ttl), "--rate", "5000"),
                          DISCOVERY_PORT, proto="udp")
         routed = pose_feed == "edge" or with_router
         services = (server, router) if routed else (server,)
@@ -84,9 +92,10 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
             # server is remote, so peers dial each other's container (or task) address
             return NetworkConfig(
                 connectivity="discovery",
-                endpoints=(f"tcp/{addr['router']}:{ROUTER_PORT}",) if routed else (),
-                mode="peer", listen=(f"tcp/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed,
+                endpoints=(f"{scheme}/{addr['router']}:{ROUTER_PORT}",) if routed else (),
+                mode="peer", listen=(f"{scheme}/0.0.0.0:{UAV_PORT}",), pose_feed=pose_feed,
                 discovery=ProxyOptions(server=f"{addr['discovery']}:{DISCOVERY_PORT}", key=key, period=service.period),
+                security=creds,
             )
 
         return NetworkPlan(services, make_d)

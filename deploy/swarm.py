@@ -13,7 +13,11 @@ and deploys it with ``docker stack deploy``:
   before the stack (external to it). Its multicast is dropped on every server that runs a
   sentinel container (``deploy/multicast.py``): ``up`` starts one on the manager, and
   ``mrswarm deploy swarm seal`` on each other edge server. Discovery can then only go through
-  the rendezvous/discovery service, as on a cellular network.
+  the rendezvous/discovery service, as on a cellular network;
+* on a secured swarm (docs/security.md), the credentials as Swarm secrets from the swarm's key
+  directory, mounted in ``/run/secrets`` (never in the image): the router gets the CA
+  certificate, the roster and ``edge``'s key pair; the ``uav`` service every UAV's pair of the
+  fleet, since Swarm hands secrets per service, not per replica (each replica uses its own).
 
 Other edge servers join with ``docker swarm join`` and replicas spread over them
 (``docs/deploy.md``). The stack's name is ``mrswarm-<swarm>``; ``down`` runs ``docker stack rm``
@@ -38,6 +42,8 @@ from deploy.multicast import IPV6_OFF
 from deploy.services import ROUTER_PORT, NetworkPlan
 from deploy.settings import ContainerSettings
 from swarmnet.schema import to_builtins
+from swarmnet.security.identity import NodeName
+from swarmnet.security.roster import CA_CERT_FILE, ROSTER_FILE
 from uav_stack.config import VirtualUavConfig
 
 FLEET_PATH = "/etc/mrswarm/fleet.json"
@@ -64,6 +70,30 @@ class Fleet:
     swarm: str
     plan: NetworkPlan
     uavs: tuple[VirtualUavConfig, ...]
+    keys: Path | None = None  # the swarm's key directory, relative to the stack file's folder or absolute; None: plain TCP
+
+
+def _secret(key_file: str) -> str:
+    """A secret's name in the stack file: ``uav-3.alpha.key`` -> ``uav-3_alpha_key``."""
+    return key_file.replace(".", "_")
+
+
+def _secrets(fleet: Fleet, name: str, common_labels: dict[str, str]) -> tuple[dict[str, Any], dict[str, list[Any]]]:
+    """The stack's secrets (name -> file) and each service's (service -> mounts), from the key directory."""
+    assert fleet.keys is not None
+    base = [CA_CERT_FILE, ROSTER_FILE]
+    pairs: dict[str, list[str]] = {}
+    for svc in fleet.plan.services:
+        if svc.identity is not None:
+            cn = NodeName.in_swarm(svc.identity, fleet.swarm).cn
+            pairs[svc.name] = [*base, f"{cn}.pem", f"{cn}.key"]
+    pairs["uav"] = [*base, *(f"{NodeName.uav(c.agent.uav, fleet.swarm).cn}.{ext}" for c in fleet.uavs for ext in ("pem", "key"))]
+    files = sorted({f for fs in pairs.values() for f in fs})
+    top = {_secret(f): {"file": f"{fleet.keys / f}" if fleet.keys.is_absolute() else f"./{fleet.keys / f}",
+                        "name": f"{name}-{f}", "labels": common_labels} for f in files}
+    mounts = {svc: [{"source": _secret(f), "target": f, "mode": 0o400 if f.endswith(".key") else 0o444} for f in fs]
+              for svc, fs in pairs.items()}
+    return top, mounts
 
 
 def stack_name(swarm: str) -> str:
@@ -130,6 +160,10 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         "volumes": {"data": {"labels": common_labels}},
         "configs": {"fleet": {"name": f"{name}-fleet-{digest}", "file": "./fleet.json", "labels": common_labels}},
     }
+    if fleet.keys is not None:  # the credentials, as Swarm secrets (docs/security.md)
+        stack["secrets"], mounts = _secrets(fleet, name, common_labels)
+        for service, m in mounts.items():
+            services[service]["secrets"] = m
     return stack, fleet_json
 
 
@@ -246,7 +280,8 @@ def up(fleet: Fleet, opts: StackOptions, out: Path, wait: float = 120.0) -> dict
     want = {f"{name}_{s}": 1 for s in stack_spec(fleet, opts)[0]["services"]}
     want[f"{name}_uav"] = len(fleet.uavs)
     running = wait_running(cl, want, wait)
-    return {"stack": name, "file": str(path), "services": running, "router": f"tcp/<manager>:{opts.port}"}
+    scheme = "tls" if fleet.keys is not None else "tcp"
+    return {"stack": name, "file": str(path), "services": running, "router": f"{scheme}/<manager>:{opts.port}"}
 
 
 def wait_running(cl: Any, want: dict[str, int], timeout: float) -> dict[str, int]:
@@ -284,6 +319,7 @@ def down(swarm: str, wait: float = 90.0, volumes: bool = False) -> dict[str, int
             "containers": len(cl.containers.list(all=True, sparse=True, filters={"label": ns})),
             "networks": len(cl.networks.list(filters={"label": ns})),
             "configs": len(cl.configs.list(filters={"label": label})),
+            "secrets": len(cl.secrets.list(filters={"label": label})),
         }
         if not any(left.values()):
             break

@@ -60,6 +60,7 @@ from discovery.protocol import (
 )
 from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
+from swarmnet.security.credentials import Credentials
 from swarmnet.version import __version__
 
 log = logging.getLogger(__name__)
@@ -123,6 +124,7 @@ class BeaconDiscovery:
     zid: str | None = None  # pin the session's Zenoh id (hex); default: random per session
     lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
+    credentials: Credentials | None = None  # mutual TLS and access control (None: plain TCP)
     name: str = "discovery"
 
     def __post_init__(self) -> None:
@@ -141,11 +143,12 @@ class BeaconDiscovery:
         self.proxy: DiscoveryProxy | None = None
 
     @classmethod
-    def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = ()) -> BeaconDiscovery:
+    def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = (),
+                     credentials: Credentials | None = None) -> BeaconDiscovery:
         """From a node's :class:`~discovery.options.ProxyOptions` (``NetworkConfig.discovery``) and its endpoints."""
         return cls(server=opts.server, key=opts.read_key(), listen=tuple(listen), connect=tuple(connect),
                    advertise=opts.advertise, period=opts.period, extra_swarms=dict(opts.extra_swarms), dial=opts.dial,
-                   zid=opts.zid, lanes=opts.lanes)
+                   zid=opts.zid, lanes=opts.lanes, credentials=credentials)
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""
@@ -159,7 +162,7 @@ class BeaconDiscovery:
     def zenoh_config(self) -> dict[str, Any]:
         if not self.scout_port:
             self.scout_port = free_port(socket.SOCK_DGRAM, LOCAL_HOST)
-        cfg = base_config("peer", self.connect, self.listen, self.tuning)
+        cfg = base_config("peer", self.connect, self.listen, self.tuning, self.credentials)
         cfg["scouting"] = {
             # a *unicast loopback* "multicast" address: no packet ever leaves the host
             "multicast": {

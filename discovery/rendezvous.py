@@ -9,50 +9,104 @@ route all data through it instead.
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
 one batch of every UAV's latest pose per period instead of a message per neighbour.
 
-Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]`` (or ``mrswarm router``).
+With ``--keys DIR`` (the swarm's key directory, or the router's bundle of it) every link is
+mutual TLS and the router enforces the swarm's access control on what enters and what leaves
+it (docs/security.md), as ``edge.<swarm>``. It counts the handshakes its listener refused and
+the links of certificates outside the roster, and ``--stats FILE`` writes those counters.
+
+Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha] [--keys keys/alpha]``
+(or ``mrswarm router``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from swarmnet.connectivity import TransportTuning
+from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_PERIOD, PoseFeed
+from swarmnet.schema import ConfigError
+from swarmnet.security.credentials import Credentials
+from swarmnet.stats import NodeStats
+
+TICK = 0.2  # s between two looks at the link events and the stats file when no feed runs
+STATS_PERIOD = 1.0  # s between two writes of --stats
 
 
-def router_config(listen: list[str], tuning: TransportTuning | None = None) -> dict[str, Any]:
+def router_config(listen: list[str], tuning: TransportTuning | None = None,
+                  credentials: Credentials | None = None) -> dict[str, Any]:
     cfg: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": listen},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}},
     }
-    return (tuning or TransportTuning()).apply(cfg)
+    return secured((tuning or TransportTuning()).apply(cfg), credentials)
+
+
+def router_credentials(keys: str, identity: str | None = None) -> Credentials:
+    """The router's credentials in key directory ``keys``: ``edge.<swarm>`` unless named."""
+    if identity:
+        return Credentials(keys=keys, identity=identity)
+    from swarmnet.security.roster import Roster
+
+    return Credentials(keys=keys, identity=f"edge.{Roster.load(keys).swarm}")
+
+
+def write_stats(path: Path, stats: NodeStats, feed: PoseFeed | None) -> None:
+    out: dict[str, Any] = {"refused": dict(stats.refused)}
+    if feed is not None:
+        out["feed"] = {"received": dict(feed.stats.received), "rejected": dict(feed.stats.rejected),
+                       "sent": dict(feed.stats.sent)}
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    tmp.write_text(json.dumps(out))
+    os.replace(tmp, path)
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
-          feed_swarms: list[str] | None = None, feed_period: float = DEFAULT_PERIOD) -> None:
-    session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen))))
+          feed_swarms: list[str] | None = None, feed_period: float = DEFAULT_PERIOD,
+          credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None) -> None:
+    """Run the router until ``stop`` is set (or ``duration`` s); ``stats`` receives its refusals."""
+    stats = stats if stats is not None else NodeStats()
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials))))
+    links = None
     try:
-        print(f"rendezvous router {session.info.zid()} listening on {', '.join(listen)}"
+        shown = [e.replace("tcp/", "tls/", 1) if credentials else e for e in listen]
+        print(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
+              + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
               + (f", pose feed for {', '.join(feed_swarms)} every {feed_period * 1000:.0f} ms" if feed_swarms else ""),
               flush=True)
-        if not feed_swarms:
-            stop.wait(duration)
-            return
-        feed = PoseFeed(session, feed_swarms, feed_period)
+        if credentials is not None:
+            from swarmnet.security.acl import member_names
+            from swarmnet.security.links import LinkWatch
+
+            links = LinkWatch(session, member_names(credentials.roster()), stats)
+        feed = PoseFeed(session, feed_swarms, feed_period) if feed_swarms else None
         end = time.monotonic() + duration if duration is not None else float("inf")
+        next_stats = 0.0
         while not stop.is_set() and time.monotonic() < end:
-            nxt = feed.step()
-            stop.wait(max(0.0, min(nxt - time.time(), end - time.monotonic())))
+            nxt = feed.step() - time.time() if feed is not None else TICK
+            if links is not None:
+                links.poll()
+            if stats_file is not None and time.monotonic() >= next_stats:
+                write_stats(stats_file, stats, feed)
+                next_stats = time.monotonic() + STATS_PERIOD
+            stop.wait(max(0.0, min(nxt, TICK, end - time.monotonic())))
+        if stats_file is not None:
+            if links is not None:
+                links.poll()
+            write_stats(stats_file, stats, feed)
     finally:
+        if links is not None:
+            links.close()
         session.close()
 
 
@@ -62,12 +116,35 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--feed", action="append", default=[], metavar="SWARM",
                     help="run the edge pose feed for this swarm ('*' for all; repeatable)")
     ap.add_argument("--feed-period", type=float, default=DEFAULT_PERIOD, help="seconds between pose batches")
+    ap.add_argument("--keys", default=None, metavar="DIR",
+                    help="the swarm's key directory (mrswarm keys init), or the router's bundle: mutual TLS and access control")
+    ap.add_argument("--identity", default=None, help="certificate to speak as (default: edge.<swarm of --keys>)")
+    ap.add_argument("--insecure", action="store_true", help="plain TCP without access control (labs only; says so at start)")
+    ap.add_argument("--stats", default=None, metavar="FILE",
+                    help="write the router's counters (refusals, feed) here every second")
     ap.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
     args = ap.parse_args(argv)
+    if not args.keys and not args.insecure:
+        ap.error("give the swarm's keys (--keys DIR, see `mrswarm keys`), or --insecure for plain TCP")
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_period)
+    stats = NodeStats()
+    credentials = None
+    if args.keys:
+        try:
+            credentials = router_credentials(args.keys, args.identity)
+            credentials.files()
+        except ConfigError as exc:
+            ap.error(f"--keys: {exc.msg}")
+        from swarmnet.security.zenoh_log import ZenohLogTap
+
+        ZenohLogTap(stats)  # counts the handshakes the listener refuses
+    else:
+        print("WARNING: plain TCP without access control: anyone who reaches this router can command the swarm "
+              "(docs/security.md)", file=sys.stderr, flush=True)
+    serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_period, credentials, stats,
+          Path(args.stats) if args.stats else None)
     return 0
 
 

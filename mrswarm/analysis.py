@@ -23,7 +23,19 @@ import numpy as np
 
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
-from mrswarm.summary import CollisionPair, Coverage, Encounter, Goal, Network, PoseAge, Rtf, RunInfo, RunSummary, Separation
+from mrswarm.summary import (
+    CollisionPair,
+    Coverage,
+    Encounter,
+    Goal,
+    Network,
+    PoseAge,
+    Rtf,
+    RunInfo,
+    RunSummary,
+    Security,
+    Separation,
+)
 from mrswarm.world_report import WorldData, world_report
 from swarmnet.stats import LogHistogram
 from uav_stack.phases import WORKING
@@ -293,6 +305,19 @@ def network_report(stats: dict[int, dict[str, Any]]) -> Network:
     )
 
 
+def security_report(run_dir: Path, mode: str, stats: dict[int, dict[str, Any]]) -> Security:
+    """The run's security mode and the refusals its UAVs and its edge router counted."""
+    uavs: dict[str, int] = {}
+    for s in stats.values():
+        for k, v in s.get("net", {}).get("refused", {}).items():
+            uavs[k] = uavs.get(k, 0) + int(v)
+    try:
+        router = {str(k): int(v) for k, v in json.loads((run_dir / "logs" / "router.stats.json").read_text())["refused"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        router = {}  # insecure, or a runtime whose router writes no counters (docker)
+    return Security(mode=mode, refused_by_uavs=uavs, refused_by_router=router)
+
+
 def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
     """The summary of a finished (or interrupted, or aborted) run, and the series its figures need.
 
@@ -312,6 +337,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         processes=dict(info.exit_codes),
         aborted=info.aborted,
     )
+    if info.security is not None:
+        summary.security = security_report(run_dir, info.security, stats)
     if not tracks:
         summary.error = "no trajectory was recorded"
         return summary, None

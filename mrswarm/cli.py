@@ -25,7 +25,8 @@ def _run(args: argparse.Namespace) -> int:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
     try:
-        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level)
+        exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level,
+                         record=not args.no_record)
     except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
@@ -45,8 +46,15 @@ def _results(args: argparse.Namespace) -> int:
     from mrswarm.summary_table import print_summary
 
     console = Console()
+    path = Path(args.run_dir)
     try:
-        summary = rebuild_results(Path(args.run_dir))
+        if path.is_file():  # a recording (docs/recording.md): its run folder first
+            from mrswarm.recorder.cli import results_from_recording
+
+            path = results_from_recording(path, Path(args.out) if args.out else None)
+        elif args.out:
+            raise ResultsError("--out is for a recording (run.mcap); a run folder's results go into the folder")
+        summary = rebuild_results(path)
     except ResultsError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         return 2
@@ -68,10 +76,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-level", default="INFO", help="log level of the UAV processes (their logs go to <run>/logs)")
     p.add_argument("--runtime", choices=["process", "docker"], default=None,
                    help="one OS process or one Docker container per virtual UAV (default: the scenario's, else process)")
+    p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 
-    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder from its recorded files")
-    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000")
+    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap)")
+    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
+    p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 
     p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
@@ -99,9 +109,20 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("gcs", help="ground station: watch, telemetry, overrides, record (docs/gcs.md)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
+    p = sub.add_parser("export", help="a recording (run.mcap) as a run folder of CSVs or as JSON Lines (docs/recording.md)",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.recorder.cli", "export_main", a.rest))
+    p = sub.add_parser("replay", help="republish a recording under its own swarm name, for gcs watch/web and Foxglove",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.recorder.cli", "replay_main", a.rest))
+
+    p = sub.add_parser("keys", help="the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
+                       add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.keys_cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "world"):
+    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay", "keys",
+                        "world"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

@@ -21,8 +21,14 @@ if TYPE_CHECKING:
     from mrswarm.scenario import Scenario
 
 
+STACK_KEYS = Path("keys")  # a secured stack's key directory, beside its stack file (unless the scenario names one)
+
+
 def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
-    """The first ``uavs`` UAVs of the scenario as swarm-mode replicas (they reach the services by DNS name)."""
+    """The first ``uavs`` UAVs of the scenario as swarm-mode replicas (they reach the services by DNS name).
+
+    Secured (the default): the stack takes its credentials from ``network.security.keys``, else
+    from ``keys/`` beside the stack file (:func:`stack_keys` fills it)."""
     from deploy.services import network_plan
 
     if uavs < 1:
@@ -38,12 +44,35 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
 
         service = replace(service, key=new_key())  # a fresh key per deployment unless the scenario sets one
     # the edge router runs beside the discovery server: ground stations join through it
-    plan = network_plan(net.connectivity or "discovery", net.mode, net.pose_feed, scn.swarm, service, with_router=True)
+    sec = net.secured
+    keys = (Path(sec.keys).resolve() if sec.keys else STACK_KEYS) if sec.enabled else None
+    plan = network_plan(net.connectivity or "discovery", net.mode, net.pose_feed, scn.swarm, service, with_router=True,
+                        secured=keys is not None)
     netcfg = plan.uav_network({s.name: s.name for s in plan.services})
     cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[:uavs]
     if autostart:
         cfgs = [replace(c, agent=replace(c.agent, autostart=True)) for c in cfgs]
-    return Fleet(scn.swarm, plan, tuple(cfgs))
+    return Fleet(scn.swarm, plan, tuple(cfgs), keys)
+
+
+def stack_keys(fleet: Fleet, out: Path) -> None:
+    """The credentials a secured stack needs: the scenario's key directory must hold them; the
+    stack's own (``<out>/keys``, made on first use and kept) gets whatever identity is missing."""
+    from mrswarm.run_keys import check_keys, ensure_keys
+    from swarmnet.security.identity import NodeName
+    from swarmnet.security.pki import KeysError
+
+    if fleet.keys is None:
+        return
+    names = [NodeName("edge", 0, fleet.swarm), NodeName("ctl", 0, fleet.swarm), NodeName("gcs", 1, fleet.swarm),
+             *(NodeName.uav(c.agent.uav, fleet.swarm) for c in fleet.uavs)]
+    try:
+        if fleet.keys.is_absolute():
+            check_keys(fleet.keys, fleet.swarm, names)
+        else:
+            ensure_keys(out / fleet.keys, fleet.swarm, names)
+    except KeysError as exc:
+        raise DeployError(f"network.security.keys: {exc}") from None
 
 
 def _swarm_up(args: argparse.Namespace) -> int:
@@ -64,6 +93,7 @@ def _swarm_up(args: argparse.Namespace) -> int:
     if args.dry_run:
         print(swarm.write_stack(fleet, opts, out))
         return 0
+    stack_keys(fleet, out)
     if args.init and swarm.init_swarm(client()):
         print("initialised a single-node swarm (this engine is its manager)")
     print(json.dumps(swarm.up(fleet, opts, out, wait=args.wait), indent=2))

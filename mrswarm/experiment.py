@@ -29,12 +29,14 @@ from rich.console import Console
 
 from mrswarm.display import Display
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.recorder.run_recorder import RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
 from mrswarm.summary import RunInfo, RunSummary
 from mrswarm.world_setup import (
     open_observer,
+    other_swarm_credentials,
     other_swarm_keys,
     swarm_networks,
     uav_configs,
@@ -65,7 +67,8 @@ class Experiment:
     """
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
-                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None):
+                 live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
+                 record: bool = True):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -75,13 +78,36 @@ class Experiment:
             n += 1
             self.run_dir = out_root / f"{scenario.name}-{stamp}-{n}"
         self.run_dir.mkdir(parents=True)
-        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
+        self.keys = self._credentials()
+        self.swarm_keys = {scenario.swarm: self.keys, **other_swarm_credentials(scenario, self.run_dir, self.keys is not None)}
+        self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
         self.metrics = LiveMetrics(scenario)
         self.display = Display(self.console, live, scenario, self.progress, self.metrics)
         self.observer: SwarmObserver | None = None
         self.probe = probe
+        self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
+        self.recorder: RunRecorder | None = None
+
+    def _credentials(self) -> Path | None:
+        """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
+        from mrswarm.run_keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
+        from swarmnet.security.pki import KeysError
+
+        sec = self.scn.network.secured
+        self.run_info.security = str(sec.mode)
+        if not sec.enabled:
+            self.console.print("[yellow]warning: network.security: off: plain TCP without access control; anyone who "
+                               "reaches this machine's network can command or impersonate the UAVs[/]")
+            return None
+        names = run_identities(self.scn.swarm, [u.id for u in self.scn.uav_list()])
+        try:
+            if sec.keys is not None:
+                return check_keys(Path(sec.keys), self.scn.swarm, names)
+            return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names)
+        except KeysError as exc:
+            raise RuntimeError(f"network.security.keys: {exc}") from None
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
@@ -101,18 +127,21 @@ class Experiment:
             self.run_info.exit_codes = dict(self.runtime.stop())
             self.run_info.stopped = time.time()
             self.run_info.write(self.run_dir / "run.json")
+            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
+                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
             signal.signal(signal.SIGTERM, old)
         return summarise_run(self.run_dir, self.scn)
 
     def _fly(self) -> None:
         scn = self.scn
-        keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
+        discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
                                          connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
-                                         extra_keys=keys)
+                                         keys=self.keys, extra_keys=discovery_keys)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
-        # `mrswarm netem set --run <dir>`
-        network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints)}
+        # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
+        network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
+                                        "security": {"mode": "mtls", "keys": str(self.keys)} if self.keys else {"mode": "off"}}
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
@@ -120,8 +149,14 @@ class Experiment:
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         (self.run_dir / "network.json").write_text(json.dumps(network_info))
-        nets = swarm_networks(scn, net, keys)
-        world = world_service_config(scn, nets, self.run_dir)
+        if self.record:  # before the first UAV, so its first pose is recorded
+            try:
+                self.recorder = RunRecorder.start(self.run_dir)
+                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
+            except RuntimeError as exc:  # a run without its recording still flies
+                self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
+        nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
+        world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))
         configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
@@ -133,9 +168,10 @@ class Experiment:
         self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
         self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
         # the runner joins as a client of the edge router if there is one (rendezvous, or
-        # discovery with the router beside it), else as a discovery peer (role "observer");
+        # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
+        # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
         # one observer per swarm when several share the airspace
-        self.observer = open_observer(scn, nets)
+        self.observer = open_observer(scn, nets, self.swarm_keys)
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
         with self.display:

@@ -2,13 +2,15 @@
 
     mrswarm netem presets
     mrswarm netem set --run results/coverage-20250101-120000 --preset degraded
-    mrswarm netem set --connect tcp/127.0.0.1:7447 --swarm alpha --class v2v --delay 150ms --jitter 40ms \\
+    mrswarm netem set --connect tls/127.0.0.1:7447 --swarm alpha --keys keys/alpha --class v2v --delay 150ms --jitter 40ms \\
         --distribution normal --loss 10% --burst 3
     mrswarm netem status --run results/coverage-20250101-120000
 
 ``set`` builds a ``network.netem`` mapping (docs/netem.md) from a preset, a file and flags,
 validates it here (errors name the field), publishes it on ``mrs/<swarm>/netem/set`` and
-waits until every live UAV has acknowledged it. The change replaces the UAVs' whole netem
+waits until every live UAV has acknowledged it. On a secured swarm only the experiment
+controller (``ctl.<swarm>``) may publish there: ``--run`` takes the run's credentials,
+``--connect`` needs ``--keys`` (docs/security.md). The change replaces the UAVs' whole netem
 configuration (their seed is kept unless ``--seed`` is given). Light imports only: no
 scenario loader or rich, so the command starts fast.
 """
@@ -21,7 +23,10 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from swarmnet.security.credentials import Credentials
 
 _UNITS_S = {"us": 1e-6, "ms": 1e-3, "s": 1.0, "": 1e-3}
 _UNITS_KBIT = {"bit": 1e-3, "kbit": 1.0, "mbit": 1e3, "gbit": 1e6, "": 1.0}
@@ -119,28 +124,50 @@ def build_config(a: argparse.Namespace) -> dict[str, Any]:
     return cfg
 
 
-def endpoint_and_swarm(a: argparse.Namespace) -> tuple[list[str], str]:
+def endpoint_and_swarm(a: argparse.Namespace) -> tuple[list[str], str, Credentials | None]:
+    """Where the swarm's router is, the swarm's name, and the experiment controller's credentials.
+
+    Only the controller (``ctl.<swarm>``) may change netem on a secured swarm (docs/security.md):
+    ``--keys`` (the swarm's key directory, or the controller's bundle), else the run's key directory.
+    """
+    from swarmnet.security.credentials import Credentials
+    from swarmnet.security.identity import NodeName
+
+    keys = a.keys
     if a.run:
         info_path = Path(a.run) / "network.json"
         try:
             info = json.loads(info_path.read_text())
         except (OSError, ValueError) as exc:
             raise ValueError(f"--run: cannot read {info_path}: {exc}") from None
-        return list(info["endpoints"]), a.swarm or info["swarm"]
-    if not a.connect:
+        endpoints, swarm = list(info["endpoints"]), a.swarm or info["swarm"]
+        sec = info.get("security") or {}
+        if keys is None and isinstance(sec, dict) and sec.get("mode") == "mtls":
+            keys = sec.get("keys")
+    elif not a.connect:
         raise ValueError("give --run RUN_DIR (of a running `mrswarm run`) or --connect ENDPOINT --swarm NAME")
-    return list(a.connect), a.swarm or "alpha"
+    else:
+        endpoints, swarm = list(a.connect), a.swarm or "alpha"
+    if keys is None:
+        if any(ep.startswith("tls/") for ep in endpoints):
+            raise ValueError("the swarm's router speaks TLS: give the controller's credentials with --keys DIR "
+                             "(docs/security.md)")
+        return endpoints, swarm, None
+    name = NodeName.in_swarm(a.identity, swarm) if a.identity else NodeName("ctl", 0, swarm)
+    creds = Credentials(keys=str(keys), identity=name.cn)
+    creds.files()
+    return endpoints, swarm, creds
 
 
 def send(endpoints: list[str], swarm: str, config: dict[str, Any], targets: list[int] | None, wait: bool,
-         timeout: float, sender: str = "cli") -> tuple[int, dict[int, Any], set[int]]:
+         timeout: float, sender: str = "cli", credentials: Credentials | None = None) -> tuple[int, dict[int, Any], set[int]]:
     """Publish a netem set; return (message id, acks by UAV, UAVs that were expected to answer)."""
     from swarmnet.connectivity import Rendezvous
     from swarmnet.messages import Command
     from swarmnet.netem.control import NetemSet, encode_netem_set
     from swarmnet.observer import PendingCommand, SwarmObserver
 
-    obs = SwarmObserver(swarm, Rendezvous(tuple(endpoints), mode="client"), name=sender).open()
+    obs = SwarmObserver(swarm, Rendezvous(tuple(endpoints), mode="client", credentials=credentials), name=sender).open()
     try:
         expected: set[int] = set(targets) if targets else set()
         if wait and not targets:  # every UAV alive now; liveliness history arrives right after the session opens
@@ -176,14 +203,14 @@ def _cmd_set(a: argparse.Namespace) -> int:
     try:
         cfg = build_config(a)
         parsed = parse_netem(cfg)
-        endpoints, swarm = endpoint_and_swarm(a)
+        endpoints, swarm, creds = endpoint_and_swarm(a)
         targets = [int(t) for t in a.targets.split(",")] if a.targets else None
-    except (NetemConfigError, ValueError, OSError) as exc:
+    except (NetemConfigError, ValueError, OSError) as exc:  # ConfigError (bad --keys) is a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"netem -> swarm '{swarm}' via {', '.join(endpoints)}: {parsed.describe()}")
     t0 = time.time()
-    msg_id, acks, expected = send(endpoints, swarm, cfg, targets, not a.no_wait, a.timeout)
+    msg_id, acks, expected = send(endpoints, swarm, cfg, targets, not a.no_wait, a.timeout, credentials=creds)
     if a.no_wait:
         print(f"sent (id {msg_id})")
         return 0
@@ -248,6 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--run", help="results folder of a running `mrswarm run` (reads its network.json)")
     where.add_argument("--connect", action="append", help="Zenoh endpoint of the swarm's router (repeatable)")
     where.add_argument("--swarm", help="swarm name (default: from --run, else alpha)")
+    where.add_argument("--keys", metavar="DIR", help="the experiment controller's credentials (the swarm's key directory "
+                                                     "or a ctl bundle; default with --run: the run's)")
+    where.add_argument("--identity", help="certificate to speak as (default ctl): only the controller may change netem")
     where.add_argument("--targets", help="comma-separated UAV ids (default: every node of the swarm)")
     what = p.add_argument_group("what (docs/netem.md)")
     what.add_argument("--preset", help="none, lan, 5g-campus, lte, degraded, wifi-mesh")

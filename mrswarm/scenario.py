@@ -126,18 +126,55 @@ class Flight(Config, frozen=True):
             raise ConfigError("collision_distance", "must be smaller than safety_distance")
 
 
+class Security(Config, frozen=True):
+    """Who may speak on the swarm's network (docs/security.md).
+
+    ``mtls`` (the default): every Zenoh link is mutual TLS under access control generated from
+    the swarm's roster, with throw-away credentials made per run in ``<run>/keys`` unless
+    ``keys`` names the swarm's key directory (``mrswarm keys init``; relative to the current
+    directory). ``off``: plain TCP, no access control; the run warns at start and its summary
+    says so. YAML reads an unquoted ``off`` as false, so ``mode: off`` and ``security: off`` both work.
+    """
+
+    mode: Literal["mtls", "off"] | bool = "mtls"
+    keys: Annotated[str, Meta(min_length=1)] | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode is False:
+            force_setattr(self, "mode", "off")
+        elif self.mode is True:
+            raise ConfigError("mode", "must be mtls or off, got true")
+        if self.mode == "off" and self.keys is not None:
+            raise ConfigError("keys", "a key directory needs mode mtls (security off uses no keys)")
+
+    @property
+    def enabled(self) -> bool:
+        return self.mode == "mtls"
+
+
 class Network(Config, frozen=True):
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
     mode: ZenohMode = "peer"
     pose_feed: PoseFeed = "direct"
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
+    security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
 
     def __post_init__(self) -> None:
+        if self.security is False:
+            force_setattr(self, "security", Security(mode="off"))
+        elif self.security is True:
+            force_setattr(self, "security", Security())
         if self.connectivity is None:  # client mode means "through the edge router": the rendezvous topology
             force_setattr(self, "connectivity", "rendezvous" if self.mode == "client" else "discovery")
         if self.mode == "client" and self.connectivity != "rendezvous":
             raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
+
+    @property
+    def secured(self) -> Security:
+        """``security`` as a :class:`Security` (``__post_init__`` turned a bool into one)."""
+        assert isinstance(self.security, Security)
+        return self.security
 
 
 class Spawn(Config, frozen=True):

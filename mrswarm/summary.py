@@ -39,6 +39,7 @@ class RunInfo(Struct):
     all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
     exit_codes: dict[str, int | None] = {}
     stopped: float | None = None  # wall
+    security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -220,6 +221,14 @@ class Network(Struct):
     pose_age_over_time_error: str | UnsetType = UNSET
 
 
+class Security(Struct):
+    """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
+
+    mode: str  # "mtls": mutual TLS and access control on every link; "off": plain TCP
+    refused_by_uavs: dict[str, int]  # summed over UAVs: tls_handshake (their listeners), non_member_link
+    refused_by_router: dict[str, int]  # the edge router's: tls_handshake, non_member_link (process runtime)
+
+
 class RunSummary(Struct):
     """``summary.json``: the outcome of one run, computed from the files its UAVs recorded."""
 
@@ -236,6 +245,7 @@ class RunSummary(Struct):
     rtf: Rtf | UnsetType = UNSET
     network: Network | UnsetType = UNSET
     world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
+    security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png

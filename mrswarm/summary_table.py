@@ -34,6 +34,14 @@ def summary_table(s: RunSummary) -> Table:
         for cls, c in (net.netem.classes if net.netem else {}).items():  # docs/netem.md
             t.add_row(f"netem {cls}", f"{c.links} links: delay mean {_fmt(c.delay_ms.mean)} ms, p99 "
                                       f"{_fmt(c.delay_ms.p99)} ms, lost {100 * c.loss:.2f} %, reordered {c.reordered}")
+    if sec := s.security:
+        if sec.mode == "off":
+            t.add_row("security", "[yellow]off: plain TCP, no access control[/]")
+        else:
+            refused = {k: sec.refused_by_uavs.get(k, 0) + sec.refused_by_router.get(k, 0)
+                       for k in {*sec.refused_by_uavs, *sec.refused_by_router}}
+            t.add_row("security", "mutual TLS, access control; refused: "
+                      + (", ".join(f"{k} {v}" for k, v in sorted(refused.items())) if any(refused.values()) else "nothing"))
     if w := s.world:
         for row in world_rows(w):
             t.add_row(*row)

@@ -3,10 +3,12 @@
 ``mrswarm run`` starts the world service itself. For physical UAVs (or any swarm not started by
 ``mrswarm run``) run it on the edge server with the scenario and the edge router's endpoint::
 
-    mrswarm world scenarios/wildfire.yaml --connect tcp/<edge>:7447 [--record results/fire1] [--start now]
+    mrswarm world scenarios/wildfire.yaml --connect tls/<edge>:7447 --keys alpha-keys/ [--record results/fire1]
 
 It serves the scenario's swarm and its ``other_swarms``, joining each as a Zenoh client of the
-router. ``--config world.json`` runs a configuration the runner wrote instead.
+router, as the swarm's ``edge`` identity from its key directory (``--keys DIR`` for the
+scenario's swarm, ``--keys SWARM=DIR`` for another; ``--insecure``: plain TCP, no access control).
+``--config world.json`` runs a configuration the runner wrote instead.
 """
 
 from __future__ import annotations
@@ -29,6 +31,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", default=None, help="a world service configuration (JSON) instead of a scenario")
     ap.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                     help="the edge router, e.g. tcp/10.0.0.1:7447 (repeatable)")
+    ap.add_argument("--keys", action="append", default=[], metavar="[SWARM=]DIR",
+                    help="a swarm's key directory (or the edge's bundle of it): DIR for the scenario's swarm, SWARM=DIR "
+                         "for another (docs/security.md)")
+    ap.add_argument("--insecure", action="store_true", help="plain TCP without access control")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario field")
     ap.add_argument("--record", default=None, metavar="DIR", help="write the world's records into this folder")
     ap.add_argument("--start", choices=["mission", "now"], default="mission",
@@ -51,9 +57,17 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(str(exc))
         if scn.world is None:
             ap.error(f"{args.scenario}: no world section")
-        net = observer_network(NetworkConfig(connectivity="rendezvous", endpoints=tuple(args.connect), mode="client"))
-        swarms = tuple(ServedSwarm(name=s, origin=scn.origin.point(), network=net)
-                       for s in [scn.swarm] + [o.swarm for o in scn.other_swarms])
+        names = [scn.swarm] + [o.swarm for o in scn.other_swarms]
+        keys: dict[str, Path | None] = {}
+        for k in args.keys:
+            swarm, sep, d = k.rpartition("=")
+            keys[swarm if sep else scn.swarm] = Path(d)
+        missing = [s for s in names if s not in keys]
+        if missing and not args.insecure:
+            ap.error(f"no --keys for swarm {', '.join(missing)}: give its key directory, or --insecure")
+        net = NetworkConfig(connectivity="rendezvous", endpoints=tuple(args.connect), mode="client")
+        swarms = tuple(ServedSwarm(name=s, origin=scn.origin.point(), network=observer_network(net, keys.get(s)))
+                       for s in names)
         if args.record:
             Path(args.record).mkdir(parents=True, exist_ok=True)
         cfg = WorldServiceConfig(world=scn.world, swarms=swarms, record_dir=args.record, seed=scn.seed, start=args.start,

@@ -1,9 +1,11 @@
 """The runner's part of the world (docs/world.md): every swarm's network, its UAVs, the world service, the observers.
 
 A scenario may fly more than one swarm in one airspace (``other_swarms``). Each swarm has its
-own discovery key (drawn per run unless the scenario gives one) and its own sessions: its UAVs
-find only each other, and the runner watches and commands each swarm through an observer of
-its own. The world service joins every swarm as a client of the edge router, like the runner.
+own discovery key (drawn per run unless the scenario gives one), its own credentials (a
+throw-away CA per swarm and run, like the scenario's swarm unless ``network.security`` is off),
+its own edge router and its own sessions: its UAVs find only each other, and the runner watches
+and commands each swarm through an observer of its own, as that swarm's ``ctl``. The world
+service joins every swarm as a client of its edge router, as that swarm's ``edge``.
 """
 
 from __future__ import annotations
@@ -14,10 +16,13 @@ from typing import Any
 
 from msgspec.structs import replace
 
+from mrswarm.runtime import Runtime
 from mrswarm.scenario import Scenario
 from swarmnet.connectivity import Connectivity
 from swarmnet.messages import Command, Pose
 from swarmnet.observer import PendingCommand, SwarmObserver
+from swarmnet.security.credentials import Credentials
+from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, VirtualUavConfig
 from uav_stack.runtime import make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
@@ -30,19 +35,35 @@ def other_swarm_keys(scn: Scenario) -> dict[str, str]:
     return {o.swarm: o.key or new_key() for o in scn.other_swarms}
 
 
-def swarm_networks(scn: Scenario, net: NetworkConfig, keys: dict[str, str]) -> dict[str, NetworkConfig]:
-    """How the UAVs of each swarm reach it: the runtime's network, with each swarm's own key."""
+def other_swarm_credentials(scn: Scenario, run_dir: Path, secured: bool) -> dict[str, Path | None]:
+    """Every other swarm's key directory for this run: a throw-away CA each (``<run>/keys-<swarm>``)
+    with its UAVs, its edge, its ctl and one ground station; None each when the run is not secured."""
+    if not secured:
+        return {o.swarm: None for o in scn.other_swarms}
+    from mrswarm.run_keys import run_identities, throwaway_keys
+
+    return {o.swarm: throwaway_keys(run_dir / f"keys-{o.swarm}", o.swarm, run_identities(o.swarm, [u.id for u in o.uav_list()]))
+            for o in scn.other_swarms}
+
+
+def swarm_networks(scn: Scenario, net: NetworkConfig, runtime: Runtime, discovery_keys: dict[str, str],
+                   keys: dict[str, Path | None]) -> dict[str, NetworkConfig]:
+    """How the UAVs of each swarm reach it: the runtime's network for the scenario's swarm, and for
+    every other swarm its own edge router, discovery key and credentials (``Runtime.add_swarm``)."""
     out = {scn.swarm: net}
     for o in scn.other_swarms:
-        d = net.discovery
-        out[o.swarm] = replace(net, discovery=replace(d, key=keys[o.swarm], key_file=None)) if d is not None else net
+        out[o.swarm] = runtime.add_swarm(o.swarm, net, discovery_keys.get(o.swarm), keys.get(o.swarm))
     return out
 
 
-def observer_network(net: NetworkConfig) -> NetworkConfig:
+def observer_network(net: NetworkConfig, keys: Path | None) -> NetworkConfig:
     """How the runner and the world service join a swarm: as clients of its edge router if there
-    is one (rendezvous, or discovery with the router beside it), else as discovery peers."""
-    return NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client") if net.endpoints else net
+    is one (rendezvous, or discovery with the router beside it), else as discovery peers; with
+    the swarm's key directory as seen from here (the identity is the caller's: ctl, edge)."""
+    own = Credentials(keys=str(keys)) if keys is not None else None
+    if net.endpoints:
+        return NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=own)
+    return replace(net, security=own)
 
 
 def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None) -> list[VirtualUavConfig]:
@@ -53,12 +74,13 @@ def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str |
     return out
 
 
-def world_service_config(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: Path | None) -> WorldServiceConfig | None:
+def world_service_config(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str, Path | None],
+                         record_dir: Path | None) -> WorldServiceConfig | None:
     """What the world service of this run reads (None: the scenario has no world)."""
     if scn.world is None:
         return None
     origin = scn.origin.point()
-    swarms = tuple(ServedSwarm(name=s, origin=origin, network=observer_network(n)) for s, n in nets.items())
+    swarms = tuple(ServedSwarm(name=s, origin=origin, network=observer_network(n, keys.get(s))) for s, n in nets.items())
     return WorldServiceConfig(world=scn.world, swarms=swarms, record_dir=str(record_dir) if record_dir else None,
                               seed=scn.seed)
 
@@ -134,13 +156,18 @@ class FleetObserver(SwarmObserver):
         return combined
 
 
-def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], name: str = "runner") -> SwarmObserver:
-    """The runner's observer: of the scenario's swarm, or of every swarm of the airspace."""
+def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str, Path | None],
+                  name: str = "runner") -> SwarmObserver:
+    """The runner's observer (as each swarm's ``ctl``): of the scenario's swarm, or of every swarm of the airspace."""
+
+    def conn(s: str) -> Connectivity:
+        return make_connectivity(observer_network(nets[s], keys.get(s)), NodeName("ctl", 0, s))
+
     obs: SwarmObserver
     if not scn.other_swarms:
-        obs = SwarmObserver(scn.swarm, make_connectivity(observer_network(nets[scn.swarm])), name=name)
+        obs = SwarmObserver(scn.swarm, conn(scn.swarm), name=name)
     else:
         swarm_ids = {scn.swarm: {u.id for u in scn.uav_list()}} | {o.swarm: {u.id for u in o.uav_list()} for o in
                                                                    scn.other_swarms}
-        obs = FleetObserver([(s, make_connectivity(observer_network(n)), swarm_ids[s]) for s, n in nets.items()], name=name)
+        obs = FleetObserver([(s, conn(s), swarm_ids[s]) for s in nets], name=name)
     return obs.open()

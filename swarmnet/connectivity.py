@@ -6,15 +6,22 @@ talks to this interface, so strategies can be swapped without touching the data 
 
 Multicast scouting is always **off** in the configs built here: cellular networks carry no
 multicast, and our test machines must not send any outside namespaces we create.
+
+Every strategy takes the node's :class:`~swarmnet.security.credentials.Credentials`: with them,
+every link is mutual TLS under the swarm's access control (docs/security.md); without them
+(``None``, the library's insecure mode for tests and labs) links are plain TCP.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import zenoh
+
+if TYPE_CHECKING:
+    from swarmnet.security.credentials import Credentials
 
 
 @runtime_checkable
@@ -24,6 +31,11 @@ class Connectivity(Protocol):
     @property
     def name(self) -> str:
         """A short label for logs and status ("rendezvous", "static", ...); read-only."""
+        ...
+
+    @property
+    def credentials(self) -> Credentials | None:
+        """Mutual TLS and access control for every link (None: plain TCP, no access control)."""
         ...
 
     def zenoh_config(self) -> dict[str, Any]:
@@ -54,7 +66,8 @@ class TransportTuning:
         return cfg
 
 
-def base_config(mode: str, connect: tuple[str, ...], listen: tuple[str, ...], tuning: TransportTuning) -> dict[str, Any]:
+def base_config(mode: str, connect: tuple[str, ...], listen: tuple[str, ...], tuning: TransportTuning,
+                credentials: Credentials | None = None) -> dict[str, Any]:
     cfg: dict[str, Any] = {
         "mode": mode,
         "scouting": {
@@ -71,7 +84,12 @@ def base_config(mode: str, connect: tuple[str, ...], listen: tuple[str, ...], tu
     }
     if mode == "client":
         cfg["listen"] = {"endpoints": []}
-    return tuning.apply(cfg)
+    return secured(tuning.apply(cfg), credentials)
+
+
+def secured(cfg: dict[str, Any], credentials: Credentials | None) -> dict[str, Any]:
+    """``cfg`` secured with ``credentials`` (TLS, tls/ endpoints, access control), or as is without."""
+    return cfg if credentials is None else credentials.secure(cfg)
 
 
 def to_zenoh(cfg: dict[str, Any]) -> zenoh.Config:
@@ -97,6 +115,7 @@ class Rendezvous:
     mode: str = "peer"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     tuning: TransportTuning = field(default_factory=TransportTuning)
+    credentials: Credentials | None = None
     name: str = "rendezvous"
 
     def __post_init__(self) -> None:
@@ -106,7 +125,7 @@ class Rendezvous:
             raise ValueError("a rendezvous needs at least one router endpoint")
 
     def zenoh_config(self) -> dict[str, Any]:
-        return base_config(self.mode, self.endpoints, self.listen, self.tuning)
+        return base_config(self.mode, self.endpoints, self.listen, self.tuning, self.credentials)
 
     def attach(self, session: zenoh.Session) -> None:
         return None
@@ -122,10 +141,11 @@ class StaticPeers:
     endpoints: tuple[str, ...] = ()
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     tuning: TransportTuning = field(default_factory=TransportTuning)
+    credentials: Credentials | None = None
     name: str = "static"
 
     def zenoh_config(self) -> dict[str, Any]:
-        return base_config("peer", self.endpoints, self.listen, self.tuning)
+        return base_config("peer", self.endpoints, self.listen, self.tuning, self.credentials)
 
     def attach(self, session: zenoh.Session) -> None:
         return None

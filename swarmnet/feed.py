@@ -9,9 +9,10 @@ a UAV applies to direct poses (:func:`~swarmnet.messages.accept_pose`: it decode
 the UAV of its key), keeps the latest per UAV, and every ``period`` s publishes the new ones
 as one ``PoseBatch`` on ``mrs/<swarm>/feed/poses``. Agents with ``pose_feed: edge`` subscribe to that key only.
 
-Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps, so
-receivers validate it again and measure its age exactly as for a direct pose; the batching
-adds on average half a period of age.
+Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps,
+listed with the UAV id of the key it arrived on, so receivers validate it again (it must name
+that UAV) and measure its age exactly as for a direct pose; the batching adds on average half a
+period of age.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ class PoseFeed:
                 pub = self._pubs[swarm] = self.session.declare_publisher(
                     SwarmKeys(swarm).pose_feed, congestion_control=zenoh.CongestionControl.DROP,
                     priority=zenoh.Priority.DATA_HIGH, express=True)
-            pub.put(encode_pose_batch(PoseBatch(self._seq, now, list(latest.values()))))
+            pub.put(encode_pose_batch(PoseBatch(self._seq, now, list(latest), list(latest.values()))))
             self._seq += 1
             self.batches[swarm] += 1
             self.stats.sent["pose_batch"] += 1

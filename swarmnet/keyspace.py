@@ -5,7 +5,9 @@ other's traffic unless a node subscribes across swarms on purpose (``mrs/*/...``
 routes data only towards matching subscribers.
 
 UAV ids are decimal integers (1..65535); the words ``alive``, ``msg``, ``cmd``, ``feed`` and ``netem``
-are reserved segment names and can never be mistaken for a UAV id.
+are reserved segment names and can never be mistaken for a UAV id. Everything a UAV publishes
+sits under its own id (``mrs/<swarm>/<uav>/...``, its swarm messages too), so access control
+can bind each key to the certificate of the UAV it names (swarmnet/security/acl.py).
 
 One key tree lies outside every swarm: ``mrs/airspace/<swarm>/traffic``, the traffic feed the
 edge publishes into each swarm (the other swarms' UAVs as position and velocity only), so
@@ -73,6 +75,9 @@ class SwarmKeys:
     def act(self, uav: int | str, actuator: str) -> str:
         """Requests of one UAV's virtual actuator (spray), to the world service."""
         return f"{self.prefix}/{uav}/act/{actuator}"
+    def fault(self, uav: int | str) -> str:
+        """Fault injection into a virtual UAV (the experiment controller only)."""
+        return f"{self.prefix}/{uav}/fault"
 
     # swarm-wide
     @property
@@ -89,11 +94,12 @@ class SwarmKeys:
     def swarm_cmd(self) -> str:
         return f"{self.prefix}/cmd"
 
-    def broadcast(self, topic: str) -> str:
-        return f"{self.prefix}/msg/{topic}"
+    # swarm messages sit under the sender's id, so access control can bind them to its certificate
+    def broadcast(self, src: int | str, topic: str) -> str:
+        return f"{self.prefix}/{src}/msg/{topic}"
 
-    def unicast(self, uav: int, topic: str) -> str:
-        return f"{self.prefix}/{uav}/msg/{topic}"
+    def unicast(self, src: int | str, dst: int | str, topic: str) -> str:
+        return f"{self.prefix}/{src}/to/{dst}/{topic}"
 
     # wildcards for subscribers
     @property
@@ -118,10 +124,11 @@ class SwarmKeys:
 
     @property
     def all_broadcast(self) -> str:
-        return f"{self.prefix}/msg/**"
+        return f"{self.prefix}/*/msg/**"
 
-    def all_unicast(self, uav: int) -> str:
-        return f"{self.prefix}/{uav}/msg/**"
+    def all_unicast(self, uav: int | str) -> str:
+        """Every unicast message to ``uav``, from any sender."""
+        return f"{self.prefix}/*/to/{uav}/**"
 
     def all_senses(self, uav: int | str) -> str:
         """Every virtual sensor reading for ``uav`` (what that UAV subscribes to, and nobody else)."""
@@ -148,6 +155,22 @@ def uav_from_key(key: str) -> int | None:
         uav = int(seg)
         if 1 <= uav <= 65535:
             return uav
+    return None
+
+
+def message_route(key: str) -> tuple[int, int] | None:
+    """``(src, dst)`` of a swarm message's key: ``mrs/<swarm>/<src>/msg/<topic>`` -> (src, 0),
+    ``mrs/<swarm>/<src>/to/<dst>/<topic>`` -> (src, dst); None for any other key."""
+    parts = key.split("/", 5)
+    src = uav_from_key(key)
+    if src is None or len(parts) < 5:
+        return None
+    if parts[3] == "msg":
+        return src, 0
+    if parts[3] == "to" and len(parts) == 6:
+        dst = uav_from_key(f"{ROOT}/_/{parts[4]}")
+        if dst is not None:
+            return src, dst
     return None
 
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import msgpack
 
-from swarmnet.keyspace import uav_from_key
+from swarmnet.keyspace import message_route, uav_from_key
 
 
 class Rejected(ValueError):
@@ -77,6 +77,7 @@ class Realm(IntEnum):
 
 
 VERSION = 1
+BATCH_VERSION = 2  # v2 carries the key (sender) of every pose; v1 carried the payloads only
 
 
 def tag(kind: Kind, version: int = VERSION) -> int:
@@ -208,10 +209,16 @@ class CommandAck:
 
 @dataclass(frozen=True, slots=True)
 class PoseBatch:
-    """Poses of many UAVs in one message (the edge pose feed), each still a pose payload."""
+    """Poses of many UAVs in one message (the edge pose feed), each still a pose payload.
+
+    ``senders[i]`` is the UAV whose key ``poses[i]`` arrived on at the edge (the edge's access
+    control bound that key to the UAV's certificate), so a receiver checks it again exactly as
+    for a direct pose (:func:`accept_batched_pose`).
+    """
 
     seq: int
     t_wall: float
+    senders: list[int]  # the UAV id of each pose's key, in order
     poses: list[bytes]  # encoded Pose payloads, validated again by every receiver
 
 
@@ -290,14 +297,14 @@ def _unpack(data: bytes | bytearray | memoryview, limit: int) -> list[Any]:
     return obj
 
 
-def _expect(obj: list[Any], kind: Kind, n: int) -> None:
+def _expect(obj: list[Any], kind: Kind, n: int, version: int = VERSION) -> None:
     t = obj[0]
     if type(t) is not int:
         raise DecodeError("malformed", "tag is not an integer")
     if t >> 4 != kind:
         raise DecodeError("wrong_type", f"expected {kind.name.lower()}, got kind {t >> 4}")
-    if t & 0xF != VERSION:
-        raise DecodeError("wrong_version", f"{kind.name.lower()} version {t & 0xF}, this node speaks {VERSION}")
+    if t & 0xF != version:
+        raise DecodeError("wrong_version", f"{kind.name.lower()} version {t & 0xF}, this node speaks {version}")
     if len(obj) != n:
         raise DecodeError("malformed", f"{kind.name.lower()} has {len(obj)} fields, expected {n}")
 
@@ -537,26 +544,33 @@ def decode_ack(data: bytes) -> CommandAck:
 
 
 # --- pose batches (edge feed) ---------------------------------------------------------------
-_BATCH_TAG = tag(Kind.POSE_BATCH)
+_BATCH_TAG = tag(Kind.POSE_BATCH, BATCH_VERSION)
 
 
 def encode_pose_batch(b: PoseBatch) -> bytes:
     if len(b.poses) > MAX_BATCH_POSES:
         raise ValueError(f"{len(b.poses)} poses in one batch, over {MAX_BATCH_POSES}")
-    return msgpack.packb([_BATCH_TAG, b.seq & 0xFFFFFFFF, _us(b.t_wall), b.poses], use_bin_type=True)
+    if len(b.senders) != len(b.poses):
+        raise ValueError(f"{len(b.senders)} senders for {len(b.poses)} poses")
+    return msgpack.packb([_BATCH_TAG, b.seq & 0xFFFFFFFF, _us(b.t_wall), b.senders, b.poses], use_bin_type=True)
 
 
 def decode_pose_batch(data: bytes) -> PoseBatch:
     """Checks the envelope; every pose inside is decoded (and validated) by the caller."""
     o = _unpack(data, MAX_BATCH_BYTES)
-    _expect(o, Kind.POSE_BATCH, 4)
-    poses = o[3]
+    _expect(o, Kind.POSE_BATCH, 5, BATCH_VERSION)
+    senders, poses = o[3], o[4]
     if type(poses) is not list or len(poses) > MAX_BATCH_POSES:
         raise DecodeError("bad_field", f"poses must be a list of at most {MAX_BATCH_POSES} payloads")
+    if type(senders) is not list or len(senders) != len(poses):
+        raise DecodeError("bad_field", "senders must list one UAV id per pose")
     for p in poses:
         if type(p) is not bytes or len(p) > MAX_POSE_BYTES:
             raise DecodeError("bad_field", "a batched pose is not a <= 48-byte payload")
-    return PoseBatch(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, poses=poses)
+    for u in senders:
+        check_uav_id(u, "sender")
+    return PoseBatch(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, senders=senders,
+                     poses=poses)
 
 
 # --- virtual sensors and actuators (world service) -----------------------------------------
@@ -685,11 +699,18 @@ def check_not_own_id(uav: int, me: int) -> None:
         raise Rejected("own_id", "another node publishes poses with our UAV id")
 
 
-def check_destination(key: str, dst: int, me: int) -> None:
-    """A swarm message goes where its key says: ``dst`` 0 on a broadcast key
-    (``mrs/<swarm>/msg/...``), this node's id on its unicast key (``mrs/<swarm>/<me>/msg/...``)."""
-    addressee = uav_from_key(key)
-    if addressee is None:
+def check_route(key: str, src: int, dst: int, me: int) -> None:
+    """A swarm message sits where it says: its key names its sender (``key_mismatch``: access
+    control bound that key to the sender's certificate), and it goes where its key says
+    (``wrong_destination``): ``dst`` 0 on a broadcast key (``mrs/<swarm>/<src>/msg/...``), this
+    node's id on a unicast key to it (``mrs/<swarm>/<src>/to/<me>/...``)."""
+    route = message_route(key)
+    if route is None:
+        raise Rejected("wrong_destination", "not a swarm-message key")
+    sender, addressee = route
+    if sender != src:
+        raise Rejected("key_mismatch", f"payload says sender {src}")
+    if addressee == 0:
         if dst != 0:
             raise Rejected("wrong_destination", "unicast payload on a broadcast key")
     elif dst != me or addressee != me:
@@ -730,10 +751,11 @@ def accept_pose_batch(key: str, data: bytes) -> PoseBatch:
 
 
 def accept_batched_pose(key: str, data: bytes) -> Pose:
-    """The batch rule: a pose inside an edge-feed batch must decode. ``key`` is the feed's key,
-    which names no UAV; the edge accepted every pose on its own key (:func:`accept_pose`)
-    before batching it."""
-    return decode_pose(data)
+    """The batch rule: a pose inside an edge-feed batch is accepted as a direct pose on ``key``,
+    the pose key of the sender the batch lists for it (:attr:`PoseBatch.senders`): it decodes
+    and names that UAV. The edge accepted it on that key (:func:`accept_pose`) before batching
+    it; a receiver checks again rather than trust the batch."""
+    return accept_pose(key, data)
 
 
 def accept_telemetry(key: str, data: bytes) -> Telemetry:
@@ -759,9 +781,9 @@ def accept_ack(key: str, data: bytes) -> CommandAck:
 
 def accept_swarm_message(key: str, data: bytes, me: int, max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> SwarmMessage:
     """A broadcast or unicast swarm message for node ``me``: it decodes within ``max_bytes``
-    (bytes) and goes where its key says (:func:`check_destination`)."""
+    (bytes), its key names its sender and it goes where its key says (:func:`check_route`)."""
     msg = decode_swarm_message(data, max_bytes)
-    check_destination(key, msg.dst, me)
+    check_route(key, msg.src, msg.dst, me)
     return msg
 
 

@@ -11,7 +11,8 @@ a slow owner only loses its oldest samples). ``poll`` reads top to bottom:
 3. edge-feed batches unpacked into the poses they carry;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
 5. delivery: poses into the neighbour table, messages and commands into the :class:`Inbox`;
-6. liveliness changes, and neighbours silent too long forgotten.
+6. liveliness changes, links of identities outside the roster (secured swarms), and
+   neighbours silent too long forgotten.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ if TYPE_CHECKING:
     from swarmnet.netem.control import NetemSet
     from swarmnet.netem.shim import Link
     from swarmnet.receive import Ring
+    from swarmnet.security.links import LinkWatch
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +141,7 @@ class SwarmNode:
         self._streams: list[tuple[int, Ring, Accept[Any]]] = []
         self._alive_ring: Ring | None = None
         self._netem_ring: Ring | None = None
+        self._links: LinkWatch | None = None  # secured swarms: counts links of non-members
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
         self._next_pose = 0.0
@@ -190,11 +193,21 @@ class SwarmNode:
             if self.netem_control:
                 self._netem_ring = s.declare_subscriber(k.netem_set, ring(16))
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
+            self._watch_links(s)
             self.connectivity.attach(s)
         except BaseException:
             self.close()
             raise
         return self
+
+    def _watch_links(self, session: zenoh.Session) -> None:
+        creds = self.connectivity.credentials
+        if creds is None:
+            return
+        from swarmnet.security.acl import member_names
+        from swarmnet.security.links import LinkWatch
+
+        self._links = LinkWatch(session, member_names(creds.roster()), self.stats)
 
     def close(self) -> None:
         if self.session is None:
@@ -203,6 +216,9 @@ class SwarmNode:
             self.connectivity.detach()
         finally:
             s, self.session = self.session, None
+            if self._links is not None:
+                self._links.close()
+                self._links = None
             self._streams.clear()
             self._alive_ring = self._netem_ring = None
             self._pubs.clear()
@@ -281,7 +297,8 @@ class SwarmNode:
         msg = SwarmMessage(src=self.identity.uav, dst=to or 0, topic=topic, seq=self._next("msg", 1 << 32), t_wall=self.clock(),
                            body=body)
         data = encode_swarm_message(msg, self.max_message_bytes)
-        key = self.keys.broadcast(topic) if to is None else self.keys.unicast(to, topic)
+        me = self.identity.uav
+        key = self.keys.broadcast(me, topic) if to is None else self.keys.unicast(me, to, topic)
         self.session.put(key, data)
         self.stats.sent["broadcast" if to is None else "unicast"] += 1
 
@@ -307,6 +324,8 @@ class SwarmNode:
         for kind, item in self._through_netem(arrivals, now):
             self._deliver(kind, item, now, inbox)
         self._track_liveliness(inbox, max_samples)
+        if self._links is not None:
+            self._links.poll()
         self.neighbours.expire(now)
         return inbox
 
@@ -317,15 +336,18 @@ class SwarmNode:
                 yield kind, arrival
 
     def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
-        """An edge-feed batch becomes the poses it carries, each accepted on its own
-        (:func:`~swarmnet.messages.accept_batched_pose`: a bad one is counted, the others kept)."""
+        """An edge-feed batch becomes the poses it carries, each accepted on its own on the key of
+        the sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a bad
+        one is counted, the others kept)."""
         own = self.identity.uav if self.identity.role == "uav" else None
+        pose_key = self.keys.pose
         for kind, arrival in arrivals:
             if kind != _BATCH:
                 yield kind, arrival
                 continue
             self.stats.received["pose_batch"] += 1
-            carried = ((arrival.key, data) for data in arrival.item.poses)
+            batch = arrival.item
+            carried = ((pose_key(uav), data) for uav, data in zip(batch.senders, batch.poses, strict=True))
             for pose in accept_each(carried, accept_batched_pose, self.stats):
                 if pose.item.uav != own:  # our own pose comes back in the swarm's batch: not a neighbour
                     yield POSE, pose

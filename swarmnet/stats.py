@@ -98,6 +98,7 @@ class NodeStats:
     sent: Counter[str] = field(default_factory=Counter)
     received: Counter[str] = field(default_factory=Counter)
     rejected: Counter[str] = field(default_factory=Counter)
+    refused: Counter[str] = field(default_factory=Counter)  # links refused (swarmnet/security/links.py)
     pose_age: LogHistogram = field(default_factory=LogHistogram)
     _last_log: float = 0.0
     _suppressed: int = 0
@@ -118,5 +119,6 @@ class NodeStats:
             "sent": dict(self.sent),
             "received": dict(self.received),
             "rejected": dict(self.rejected),
+            "refused": dict(self.refused),
             "pose_age": self.pose_age.to_dict(),
         }

@@ -48,13 +48,22 @@ def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
     stack, fleet_json = stack_spec(swarm_fleet(scn, 7), StackOptions(image="img:1"))
     fleet = json.loads(fleet_json)
     assert [f["agent"]["uav"] for f in fleet] == [1, 2, 3, 4, 5, 6, 7]
-    assert all(f["agent"]["network"]["endpoints"] == ["tcp/router:7447"] for f in fleet)
+    assert all(f["agent"]["network"]["endpoints"] == ["tls/router:7447"] for f in fleet)  # secured by default
+    assert all(f["agent"]["network"]["security"] == {"keys": "/run/secrets", "identity": ""} for f in fleet)
     uav = stack["services"]["uav"]
     assert uav["deploy"]["replicas"] == 7 and uav["environment"]["MRSWARM_SLOT"] == "{{.Task.Slot}}"
     assert uav["deploy"]["resources"]["limits"] == {"cpus": "0.5", "memory": "256M"}
     assert uav["sysctls"]["net.ipv6.conf.all.disable_ipv6"] == 1
     assert stack["services"]["router"]["deploy"]["endpoint_mode"] == "dnsrr"
     assert stack["networks"]["swarm"] == {"external": True, "name": "mrswarm-alpha"}
+    # credentials as Swarm secrets, never in the image: the router gets edge's pair, the replicas every UAV's
+    assert {m["target"] for m in stack["services"]["router"]["secrets"]} == {"ca.pem", "roster.json", "edge.alpha.pem",
+                                                                            "edge.alpha.key"}
+    uav_secrets = {m["target"] for m in uav["secrets"]}
+    assert {"uav-1.alpha.key", "uav-7.alpha.pem", "ca.pem"} <= uav_secrets and "edge.alpha.key" not in uav_secrets
+    assert stack["secrets"]["ca_pem"]["file"] == "./keys/ca.pem"  # the stack's key directory beside stack.yml
+    insecure = stack_spec(swarm_fleet(load_scenario(COVERAGE, ["network.security=off"]), 2), StackOptions(image="img:1"))[0]
+    assert "secrets" not in insecure and "--insecure" in insecure["services"]["router"]["command"]
 
 
 EXAMPLE_KEY = "network.discovery.key=example-key-regenerate-for-real-deployments"

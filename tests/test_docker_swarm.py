@@ -19,6 +19,8 @@ import pytest
 
 from deploy.dockerutil import L_ROLE, L_RUN
 from swarmnet.observer import SwarmObserver
+from swarmnet.security.credentials import Credentials
+from swarmnet.security.identity import NodeName
 from tests.conftest import free_port, wait_for
 from tests.docker_support import docker_client, docker_image  # noqa: F401
 from uav_stack.config import NetworkConfig
@@ -75,10 +77,11 @@ def multicast_on(cl: Any, image: str, network: str) -> tuple[dict[str, Any], lis
             b.remove(force=True)
 
 
-def fly(port: int, swarm: str, ids: list[int]) -> dict[int, tuple[float, float, float]]:
-    """Command the swarm through the router's published port, like a ground station; return where they went."""
-    net = NetworkConfig(endpoints=(f"tcp/127.0.0.1:{port}",), mode="client")
-    with SwarmObserver(swarm, make_connectivity(net), name="test-gcs") as obs:
+def fly(port: int, swarm: str, ids: list[int], keys: Path) -> dict[int, tuple[float, float, float]]:
+    """Command the swarm through the router's published port, like a ground station (as ``ctl``, with the stack's
+    key directory); return where they went."""
+    net = NetworkConfig(endpoints=(f"tls/127.0.0.1:{port}",), mode="client", security=Credentials(keys=str(keys)))
+    with SwarmObserver(swarm, make_connectivity(net, NodeName("ctl", 0, swarm)), name="test-gcs") as obs:
         def phases_are(ok: set[str]) -> bool:
             obs.poll()
             return all(obs.phases().get(u) in ok for u in ids)
@@ -133,7 +136,7 @@ def test_swarm_stack_with_five_replicas_discovers_flies_and_goes_down_cleanly(
         assert got["unicast"] > 20 and got["multicast"] == 0 and got["broadcast"] == 0, got
         assert all(z["heard"] == [] for z in zs), zs
         # the replicas got unique UAV ids 1..5 from their slots and fly as a swarm
-        fly(port, swarm, [1, 2, 3, 4, 5])
+        fly(port, swarm, [1, 2, 3, 4, 5], tmp_path / "stack" / "keys")  # made by `up` beside stack.yml
         time.sleep(1.5)  # counters are written every second
         nb = recorded_neighbours(cl, docker_image, f"{stack}_data", swarm)
         assert sorted(nb) == [1, 2, 3, 4, 5]

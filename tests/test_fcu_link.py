@@ -127,7 +127,7 @@ def test_standalone_agent_flies_a_standalone_fcu(tmp_path: Path, router: str) ->
         agent = subprocess.Popen(
             [sys.executable, "-m", "mrswarm", "agent", "--fcu", f"udpout:{addr}", "--swarm", "solo", "--uav", "3",
              "--origin", f"{HOME.lat},{HOME.lon},{HOME.alt}", "--connect", router, "--listen", "tcp/127.0.0.1:0",
-             "--autostart", "--record-dir", str(rec), "--duration", "40"],
+             "--autostart", "--record-dir", str(rec), "--duration", "40", "--insecure"],  # a plain router: not about security
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         # autostart: arm, take off to the default 20 m mission altitude, go offboard and fly the mission
         assert wait_for(lambda: (rec / "uav3.json").exists()

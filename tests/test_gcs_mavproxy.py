@@ -99,7 +99,7 @@ def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp
         assert sorted(n["id"] for n in nodes if n["role"] == "uav") == [1, 2, 3]
         assert all(n["realm"] == "virtual" and n["alive"] and n["last_seen"] for n in nodes if n["role"] == "uav")
         # a discovery run: the server's registry adds each node's software version and Zenoh locators
-        assert all(n["version"].startswith("mrswarm") and "tcp/127.0.0.1:" in n["address"]
+        assert all(n["version"].startswith("mrswarm") and "tls/127.0.0.1:" in n["address"]  # secured run: TLS locators
                    for n in nodes if n["role"] == "uav"), nodes
         res = gcs(["watch", "--run", str(rdir), "--once", "--filter", "override"])
         assert res.returncode == 0, res.stderr

@@ -193,7 +193,9 @@ def test_acceptance_rules_reject_a_valid_payload_in_the_wrong_place_with_a_reaso
     assert issubclass(DecodeError, Rejected)
     assert M.accept_neighbour_pose("mrs/a/7/pose", p7, me=3).uav == 7
     assert reason(M.accept_neighbour_pose, "mrs/a/7/pose", p7, 7) == "own_id"
-    assert M.accept_batched_pose("mrs/a/feed/poses", p7).uav == 7  # the feed key names no UAV: decoding is the rule
+    # a batched pose is accepted on the pose key of the sender the batch lists for it, like a direct pose
+    assert M.accept_batched_pose("mrs/a/7/pose", p7).uav == 7
+    assert reason(M.accept_batched_pose, "mrs/a/8/pose", p7) == "key_mismatch"
 
     t = Telemetry(4, Realm.VIRTUAL, 1, time.time(), "GUIDED", True, 0.5, 12.0, 1.0, 2.0, 3.0, 1.0)
     assert M.accept_telemetry("mrs/a/4/telemetry", encode_telemetry(t)) == decode_telemetry(encode_telemetry(t))
@@ -205,12 +207,16 @@ def test_acceptance_rules_reject_a_valid_payload_in_the_wrong_place_with_a_reaso
 
     bcast = encode_swarm_message(SwarmMessage(2, 0, "chat", 1, time.time(), "hi"))
     direct = encode_swarm_message(SwarmMessage(2, 3, "chat", 1, time.time(), "hi"))
-    assert M.accept_swarm_message("mrs/a/msg/chat", bcast, 3).dst == 0
-    assert M.accept_swarm_message("mrs/a/3/msg/chat", direct, 3).dst == 3
-    assert reason(M.accept_swarm_message, "mrs/a/msg/chat", direct, 3) == "wrong_destination"  # unicast on a broadcast key
-    assert reason(M.accept_swarm_message, "mrs/a/3/msg/chat", bcast, 3) == "wrong_destination"  # broadcast on a unicast key
-    assert reason(M.accept_swarm_message, "mrs/a/3/msg/chat", direct, 4) == "wrong_destination"  # for someone else
-    assert reason(M.accept_swarm_message, "mrs/a/msg/chat", bcast, 3, 16) == "oversized"
+    # swarm messages sit under their sender's id: mrs/<swarm>/<src>/msg/<topic>, mrs/<swarm>/<src>/to/<dst>/<topic>
+    assert M.accept_swarm_message("mrs/a/2/msg/chat", bcast, 3).dst == 0
+    assert M.accept_swarm_message("mrs/a/2/to/3/chat", direct, 3).dst == 3
+    assert reason(M.accept_swarm_message, "mrs/a/2/msg/chat", direct, 3) == "wrong_destination"  # unicast on a broadcast key
+    assert reason(M.accept_swarm_message, "mrs/a/2/to/3/chat", bcast, 3) == "wrong_destination"  # broadcast on a unicast key
+    assert reason(M.accept_swarm_message, "mrs/a/2/to/3/chat", direct, 4) == "wrong_destination"  # for someone else
+    assert reason(M.accept_swarm_message, "mrs/a/5/msg/chat", bcast, 3) == "key_mismatch"  # UAV 2 speaking on UAV 5's key
+    assert reason(M.accept_swarm_message, "mrs/a/5/to/3/chat", direct, 3) == "key_mismatch"
+    assert reason(M.accept_swarm_message, "mrs/a/msg/chat", bcast, 3) == "wrong_destination"  # no sender in the key
+    assert reason(M.accept_swarm_message, "mrs/a/2/msg/chat", bcast, 3, 16) == "oversized"
 
     for_all = encode_command(Command("gcs", 1, 0, "land", {}, time.time()))
     for_5 = encode_command(Command("gcs", 2, 5, "hold", {}, time.time()))

@@ -32,13 +32,20 @@ def edge() -> Iterator[Rendezvous]:
 
 def test_batch_codec_round_trip_and_limits() -> None:
     p = encode_pose(Pose(3, Realm.VIRTUAL, 1, 1.0, time.time(), 1, 2, 3, 0, 0, 0, 0))
-    b = decode_pose_batch(encode_pose_batch(PoseBatch(7, time.time(), [p, p])))
-    assert b.seq == 7 and b.poses == [p, p]
-    from swarmnet.messages import DecodeError
+    b = decode_pose_batch(encode_pose_batch(PoseBatch(7, time.time(), [3, 4], [p, p])))
+    assert b.seq == 7 and b.poses == [p, p] and b.senders == [3, 4]
+    from swarmnet.messages import BATCH_VERSION, DecodeError
+    v = BATCH_VERSION
     with pytest.raises(DecodeError):  # a 49-byte "pose" inside a batch
-        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH), 1, 1, [bytes(49)]], use_bin_type=True))
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [3], [bytes(49)]], use_bin_type=True))
     with pytest.raises(DecodeError):
-        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH), 1, 1, ["not bytes"]], use_bin_type=True))
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [3], ["not bytes"]], use_bin_type=True))
+    with pytest.raises(DecodeError):  # a sender per pose
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [], [p]], use_bin_type=True))
+    with pytest.raises(DecodeError):
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [0], [p]], use_bin_type=True))
+    with pytest.raises(DecodeError):  # version 1 carried no senders
+        decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, 1), 1, 1, [p]], use_bin_type=True))
 
 
 def test_edge_feed_delivers_every_pose_in_batches_per_swarm(edge: Rendezvous) -> None:
@@ -78,3 +85,17 @@ def test_edge_feed_drops_invalid_and_spoofed_poses(edge: Rendezvous) -> None:
         assert wait_for(lambda: (victim.poll(), 6 in victim.neighbours)[1], 3.0)
         assert sorted(nb.uav for nb in victim.neighbours) == [6]
         assert victim.stats.rejected["malformed"] == 1  # the forged batch; the feed filtered the rest
+
+
+def test_a_batched_pose_must_name_the_sender_the_batch_lists(edge: Rendezvous) -> None:
+    """Receivers check the key rule inside batches too: a batch claiming UAV 5 sent UAV 2's pose is refused."""
+    keys = SwarmKeys("alpha")
+    p2 = encode_pose(Pose(2, Realm.VIRTUAL, 1, 0.0, time.time(), 0, 0, 0, 0, 0, 0, 0))
+    p7 = encode_pose(Pose(7, Realm.VIRTUAL, 1, 0.0, time.time(), 1, 1, 1, 0, 0, 0, 0))
+    with SwarmNode(NodeIdentity("alpha", 1), edge, pose_feed="edge") as victim, \
+            zenoh.open(to_zenoh(edge.zenoh_config())) as forger:
+        time.sleep(0.4)
+        forger.put(keys.pose_feed, encode_pose_batch(PoseBatch(1, time.time(), [5, 7], [p2, p7])))
+        assert wait_for(lambda: (victim.poll(), 7 in victim.neighbours)[1], 3.0)
+        assert sorted(nb.uav for nb in victim.neighbours) == [7]  # the honest pose of the batch is kept
+        assert victim.stats.rejected["key_mismatch"] == 1

@@ -116,7 +116,7 @@ def test_bad_input_is_counted_not_raised(nodes: list[SwarmNode], rendezvous: Ren
         attacker.put(keys.pose(5), good)  # payload claims UAV 2 on UAV 5's key: spoofing
         attacker.put(keys.pose(1), encode_pose(Pose(1, Realm.VIRTUAL, 1, 0.0, time.time(), 0, 0, 0, 0, 0, 0, 0)))  # our own id
         attacker.put(keys.swarm_cmd, b"\x00\x01")
-        attacker.put(keys.broadcast("x"), msgpack.packb([1, 2, 3]))
+        attacker.put(keys.broadcast(2, "x"), msgpack.packb([1, 2, 3]))
         time.sleep(0.3)
         inbox = victim.poll()
     r = victim.stats.rejected

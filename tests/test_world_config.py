@@ -11,8 +11,10 @@ import pytest
 
 from discovery.options import ProxyOptions
 from mrswarm.scenario import ScenarioError, load_scenario
-from mrswarm.world_setup import swarm_networks, uav_configs, world_service_config
-from swarmnet.keyspace import check_swarm, traffic_key
+from mrswarm.world_setup import uav_configs, world_service_config
+from swarmnet.keyspace import SwarmKeys, check_swarm, traffic_key
+from swarmnet.security.acl import uav_puts, uav_receives
+from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig
 from uav_stack.runtime import agent_main
 
@@ -43,28 +45,41 @@ def test_airspace_is_not_a_swarm_name() -> None:
     assert traffic_key("alpha") == "mrs/airspace/alpha/traffic"
 
 
-def test_every_uav_of_every_swarm_gets_the_world_it_needs() -> None:
+def test_every_uav_of_every_swarm_gets_the_world_it_needs(tmp_path: Path) -> None:
     scn = load_scenario(SCN / "two_swarms.yaml")
-    net = NetworkConfig(connectivity="discovery", endpoints=("tcp/127.0.0.1:7447",),
-                        discovery=ProxyOptions(server="127.0.0.1:7450", key="k" * 32))
-    nets = swarm_networks(scn, net, {"bravo": "b" * 32})
+    # what the runtime returns for each swarm: its own edge router, discovery key and credentials
+    nets = {s: NetworkConfig(connectivity="discovery", endpoints=(f"tls/127.0.0.1:{port}",),
+                             discovery=ProxyOptions(server="127.0.0.1:7450", key=k * 32), security=Credentials(keys=f"/k/{s}"))
+            for s, k, port in (("alpha", "a", 7447), ("bravo", "b", 7448))}
     cfgs = {c.agent.uav: c.agent for c in uav_configs(scn, nets, None)}
     assert sorted(cfgs) == [1, 2, 3, 11, 12, 13]
-    assert {cfgs[u].swarm for u in (1, 2, 3)} == {"alpha"} and {cfgs[u].swarm for u in (11, 12, 13)} == {"bravo"}
-    assert cfgs[1].network.discovery is not None and cfgs[1].network.discovery.key == "k" * 32
-    assert cfgs[11].network.discovery is not None and cfgs[11].network.discovery.key == "b" * 32  # its own key
-    assert all(c.traffic for c in cfgs.values())
+    for u, swarm in ((1, "alpha"), (3, "alpha"), (11, "bravo"), (13, "bravo")):
+        a = cfgs[u]
+        assert a.swarm == swarm and a.network == nets[swarm]  # its own router, key and credentials
+        assert a.traffic
     assert cfgs[12].mission.goal == (-40.0, 0.0)
-    world = world_service_config(scn, nets, None)
+    keys: dict[str, Path | None] = {"alpha": tmp_path / "ka", "bravo": tmp_path / "kb"}
+    world = world_service_config(scn, nets, keys, None)
     assert world is not None and [s.name for s in world.swarms] == ["alpha", "bravo"]
-    assert world.swarms[1].network.mode == "client"  # a client of the edge router, like the runner
+    for s in world.swarms:  # a client of the swarm's edge router, with the swarm's key directory (it speaks as edge)
+        assert s.network.mode == "client" and s.network.endpoints == nets[s.name].endpoints
+        assert s.network.security == Credentials(keys=str(keys[s.name]))
     off = load_scenario(SCN / "two_swarms.yaml", ["world.airspace.feed=false"])
-    assert not any(c.agent.traffic for c in uav_configs(off, swarm_networks(off, net, {"bravo": "b" * 32}), None))
+    assert not any(c.agent.traffic for c in uav_configs(off, nets, None))
     fire = load_scenario(SCN / "wildfire.yaml")
-    a = uav_configs(fire, {"alpha": net}, None)[0].agent
+    a = uav_configs(fire, {"alpha": nets["alpha"]}, None)[0].agent
     assert [z.name for z in a.avoidance.zones] == ["village"]
     assert [s.name for s in a.sensors] == ["fire", "tank", "alarm"] and a.actuators[0].capacity_l == 15.0
     assert a.mission.type == "wildfire" and a.mission.wildfire is not None and not a.traffic
+
+
+def test_access_control_lets_a_uav_act_and_read_its_own_readings_and_its_swarms_traffic() -> None:
+    keys = SwarmKeys("alpha")
+    assert "mrs/alpha/3/act/*" in uav_puts(keys, 3)
+    assert not any("sense" in k or "airspace" in k for k in uav_puts(keys, 3))  # only the edge puts those
+    receives = uav_receives(keys, 3)
+    assert "mrs/alpha/3/sense/*" in receives and "mrs/airspace/alpha/traffic" in receives
+    assert "mrs/alpha/*/sense/*" not in receives and "mrs/airspace/bravo/traffic" not in receives
 
 
 def test_mrswarm_world_refuses_a_scenario_without_world_naming_it() -> None:

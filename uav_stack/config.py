@@ -18,6 +18,7 @@ from msgspec import Meta, field
 from discovery.options import ProxyOptions
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.schema import Config, ConfigError, decode_json
+from swarmnet.security.credentials import Credentials
 from uav_stack.geo import GeoPoint
 
 Connectivity = Literal["rendezvous", "static", "discovery"]
@@ -45,6 +46,9 @@ class NetworkConfig(Config, frozen=True):
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     pose_feed: PoseFeed = "direct"
     discovery: ProxyOptions | None = None  # connectivity "discovery": the server and the swarm's key
+    # mutual TLS and access control (docs/security.md); the identity defaults to uav-<id>.<swarm>.
+    # None: plain TCP without access control, which only `network.security: off` (or `--insecure`) asks for
+    security: Credentials | None = None
     # the network.netem mapping (swarmnet.netem.config.NetemSpec; None: no shim). Plain data here:
     # the node validates it when it applies it, as it does a runtime change, so a UAV without
     # netem never loads the netem modules.

@@ -23,6 +23,7 @@ from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError, convert
+from swarmnet.security.identity import NodeName
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
@@ -66,23 +67,41 @@ def die_with_parent() -> None:
         pass
 
 
-def make_connectivity(net: NetworkConfig) -> Connectivity:
+def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Connectivity:
+    """The node's connectivity strategy; ``name`` is who it is, for credentials that do not say."""
+    creds = net.security.for_node(name) if net.security is not None and name is not None else net.security
     if net.connectivity == "rendezvous":
-        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen))
+        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen), credentials=creds)
     if net.connectivity == "static":
-        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen))
+        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen), credentials=creds)
     if net.connectivity == "discovery":  # beacon relay through a discovery server (discovery/proxy.py)
         from discovery.proxy import BeaconDiscovery
 
         assert net.discovery is not None  # NetworkConfig requires it with this connectivity
-        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints)
+        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints, credentials=creds)
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
 def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
-    return SwarmNode(ident, make_connectivity(cfg.network), pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
+    conn = make_connectivity(cfg.network, NodeName.uav(cfg.uav, cfg.swarm))
+    return SwarmNode(ident, conn, pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
+
+
+def open_node(cfg: AgentConfig, tap_zenoh_log: bool = False) -> SwarmNode:
+    """The agent's node, opened. A secured node in its own process (``tap_zenoh_log``) also counts
+    the TLS handshakes its listener refuses (swarmnet/security/zenoh_log.py); an insecure one says
+    at start that anyone on its network can command it."""
+    node = make_node(cfg)
+    if cfg.network.security is None:
+        log.warning("plain TCP without access control (network.security: off): anyone who reaches this node's "
+                    "network can command it and speak for any UAV (docs/security.md)")
+    elif tap_zenoh_log:
+        from swarmnet.security.zenoh_log import ZenohLogTap
+
+        ZenohLogTap(node.stats)
+    return node.open()
 
 
 def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
@@ -136,7 +155,7 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             break
 
 
-def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
+def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
     a = cfg.agent
@@ -149,7 +168,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     )
     (host, port), = fcu.open()
     link, router = open_fcu_link(a, f"udpout:{host}:{port}")
-    node = make_node(a).open()
+    node = open_node(a, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
     try:
         run_loop(agent, stop, fcu, cfg.duration)
@@ -163,9 +182,9 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag) -> int:
     return 0
 
 
-def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None) -> int:
+def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:
     link, router = open_fcu_link(cfg, cfg.fcu)
-    node = make_node(cfg).open()
+    node = open_node(cfg, tap_zenoh_log)
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
@@ -201,7 +220,7 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
         cfg = VirtualUavConfig.load(args.config)
     except (ConfigError, OSError) as exc:
         ap.error(f"{args.config}: {exc}")
-    return run_virtual_uav(cfg, stop)
+    return run_virtual_uav(cfg, stop, tap_zenoh_log=True)
 
 
 def agent_main(argv: list[str] | None = None) -> int:
@@ -222,6 +241,11 @@ def agent_main(argv: list[str] | None = None) -> int:
                     help="find the swarm through this discovery server (instead of --connect's router)")
     ap.add_argument("--discovery-key-file", default=None, help="the swarm's discovery key (mrswarm discovery keygen)")
     ap.add_argument("--advertise", action="append", default=[], help="announce this address/locator to peers (public IP)")
+    ap.add_argument("--keys", default=None, metavar="DIR",
+                    help="this UAV's credentials: its bundle from `mrswarm keys bundle uav-<id>` (CA, roster, its certificate)")
+    ap.add_argument("--identity", default=None, help="certificate to speak as (default: uav-<id>.<swarm>)")
+    ap.add_argument("--insecure", action="store_true",
+                    help="plain TCP without access control: anyone on the network can command this UAV (labs only)")
     ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
     ap.add_argument("--record-dir", default=None)
@@ -255,7 +279,24 @@ def agent_main(argv: list[str] | None = None) -> int:
             cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node
         except ConfigError as exc:
             ap.error(f"network.discovery.{exc}")
-    return run_agent(cfg, stop, args.duration)
+    check_security(cfg, args.insecure, ap)
+    return run_agent(cfg, stop, args.duration, tap_zenoh_log=True)
+
+
+def check_security(cfg: AgentConfig, insecure: bool, ap: argparse.ArgumentParser) -> None:
+    """Credentials that work now, or an explicit ``--insecure``: say what is wrong before flying."""
+    sec = cfg.network.security
+    if sec is None:
+        if not insecure:
+            ap.error("no credentials: give --keys DIR (this UAV's bundle, `mrswarm keys bundle`; docs/security.md), "
+                     "or --insecure for plain TCP without access control")
+        return
+    try:
+        creds = sec.for_node(NodeName.uav(cfg.uav, cfg.swarm))
+        creds.files()
+        creds.roster()
+    except ConfigError as exc:
+        ap.error(f"network.security.{exc}")
 
 
 def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dict[str, Any]:
@@ -266,6 +307,8 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
         ap.error("--origin must be LAT,LON,ALT")
     net: dict[str, Any] = {"endpoints": args.connect, "mode": args.mode, "pose_feed": args.pose_feed,
                            "listen": args.listen or ["tcp/0.0.0.0:0"]}
+    if args.keys:
+        net["security"] = {"keys": args.keys, "identity": args.identity or ""}
     if args.discovery:
         if not args.discovery_key_file:
             ap.error("--discovery needs --discovery-key-file")

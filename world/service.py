@@ -29,6 +29,7 @@ from typing import Any
 
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError
+from swarmnet.security.identity import NodeName
 from swarmnet.sensing import WorldSensing
 from uav_stack.behaviours.plume import ESTIMATE_TOPIC
 from uav_stack.phases import AgentPhase
@@ -68,8 +69,8 @@ class WorldService:
     def open(self) -> WorldService:
         try:
             for s in self.cfg.swarms:
-                node = SwarmNode(NodeIdentity(s.name, WORLD_NODE_ID, role="edge"), make_connectivity(s.network),
-                                 netem_control=False).open()
+                conn = make_connectivity(s.network, NodeName("edge", 0, s.name))  # the swarm's edge identity if secured
+                node = SwarmNode(NodeIdentity(s.name, WORLD_NODE_ID, role="edge"), conn, netem_control=False).open()
                 self.nodes[s.name] = node
                 self.links[s.name] = WorldSensing(node)
         except BaseException:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
 import time
 from typing import Any
@@ -18,8 +20,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("where the swarm is")
     g.add_argument("--run", metavar="RUN_DIR", help="a folder of a running `mrswarm run` (reads its network.json)")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="Zenoh endpoint of the edge/rendezvous router, e.g. tcp/10.0.0.1:7447 (repeatable)")
+                   help="Zenoh endpoint of the edge/rendezvous router, e.g. tls/10.0.0.1:7447 (repeatable)")
     g.add_argument("--swarm", help="swarm name (default: the run's)")
+    g.add_argument("--keys", metavar="DIR", help="the ground station's credentials: the swarm's key directory or a gcs "
+                                                 "bundle (default with --run: the run's); docs/security.md")
+    g.add_argument("--identity", help="certificate to speak as (default gcs-1): gcs-<id> or gcs-<id>.<swarm>")
 
 
 def _targets(p: argparse.ArgumentParser) -> None:
@@ -79,11 +84,25 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
         if verb == "kill":
             p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
 
-    p = sub.add_parser("record", help="append everything the ground station sees to FILE (JSON lines)")
+    p = sub.add_parser("record", help="record everything the swarm publishes to FILE: MCAP (--mcap, or FILE.mcap) or JSON lines")
     _common(p)
     p.add_argument("file")
+    p.add_argument("--mcap", action="store_true", help="write MCAP (docs/recording.md); the default for a FILE ending in .mcap")
+    p.add_argument("--die-with-parent", action="store_true", help="finish the file and stop when the parent process exits")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
+
+    p = sub.add_parser("foxglove", help="serve the swarm live to Foxglove (WebSocket protocol; docs/recording.md)")
+    _common(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765, Foxglove's)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+
+    p = sub.add_parser("web", help="serve the live map: every UAV, trails, phases, commands with their acks (docs/recording.md)")
+    _common(p)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8088, help="TCP port (default 8088)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
 
     p = sub.add_parser("plot", help="draw a recording: trajectories, altitude, battery, phases")
     p.add_argument("file")
@@ -128,7 +147,7 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         from mrswarm.gcs.commands import goto_args
 
         goto_args(args.xyz)
-    target = resolve_target(args.run, args.connect, args.swarm)
+    target = resolve_target(args.run, args.connect, args.swarm, args.keys, args.identity)
     if args.sub == "nodes" and (args.discovery or args.discovery_key_file):
         target = _with_registry(target, args.discovery, args.discovery_key_file)
 
@@ -145,6 +164,14 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
         if args.sub == "telemetry":
             return _telemetry(obs, args, console)
+        if args.sub == "foxglove":
+            return _foxglove(obs, args, console)
+        if args.sub == "web":
+            from mrswarm.gcs.web.server import serve_web
+
+            return serve_web(obs, host=args.host, port=args.port, duration=args.duration)
+        if args.sub == "record" and (args.mcap or args.file.endswith(".mcap")):
+            return _record_mcap(obs, args, console)
         if args.sub == "record":
             from mrswarm.gcs.record import run_record
 
@@ -154,6 +181,50 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         return _command(obs, args, ids, console)
     finally:
         obs.close()
+
+
+def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    """``record --mcap``: every message of the swarm into an MCAP file; with --run, the run's files too."""
+    from pathlib import Path
+
+    from mrswarm.recorder.recording import Stop, record_swarm
+
+    if Path(args.file).exists():
+        raise GcsError(f"{args.file} exists: a recording is never overwritten")
+    stop = Stop()
+    stop.install()
+    last = [time.monotonic()]
+
+    def report(counts: dict[str, int]) -> None:
+        if not args.quiet and time.monotonic() - last[0] >= 5.0:
+            last[0] = time.monotonic()
+            print(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())), flush=True)
+
+    parent = os.getppid() if args.die_with_parent else None  # the runner: a runner killed hard still leaves a whole file
+
+    def stopped() -> bool:
+        return stop.requested or (parent is not None and os.getppid() != parent)
+
+    counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
+                          stop=stopped, report=report)
+    console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+    return 130 if stop.signum == signal.SIGINT else EXIT_OK
+
+
+def _foxglove(obs: Any, args: argparse.Namespace, console: Any) -> int:
+    from mrswarm.gcs.foxglove import serve_foxglove
+    from mrswarm.recorder.recording import Stop
+
+    if not 0 <= args.port <= 65535:
+        raise GcsError(f"--port {args.port}: expected 0..65535")
+    stop = Stop()
+    stop.install()
+
+    def ready(port: int) -> None:
+        print(f"Foxglove: open a connection to ws://{args.host}:{port} (swarm {obs.keys.swarm}; Ctrl-C stops)", flush=True)
+
+    serve_foxglove(obs, host=args.host, port=args.port, duration=args.duration, stop=lambda: stop.requested, ready=ready)
+    return 130 if stop.signum == signal.SIGINT else EXIT_OK
 
 
 def _with_registry(target: Any, server: str | None, key_file: str | None) -> Any:

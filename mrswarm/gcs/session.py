@@ -11,6 +11,8 @@ from pathlib import Path
 from swarmnet.connectivity import Rendezvous
 from swarmnet.keyspace import check_swarm
 from swarmnet.observer import SwarmObserver
+from swarmnet.security.credentials import Credentials
+from swarmnet.security.identity import NodeName
 
 DISCOVERY_WAIT = 2.0  # s: how long liveliness may take to list every UAV
 
@@ -24,10 +26,47 @@ class Target:
     swarm: str
     endpoints: tuple[str, ...]
     discovery: tuple[str, str] | None = None  # (server HOST:PORT, swarm key): the registry, when known
+    credentials: Credentials | None = None  # None: a plain (tcp/) link, which only an insecure swarm accepts
 
 
-def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Target:
-    """``--run DIR`` (reads DIR/network.json written by ``mrswarm run``) or ``--connect EP --swarm NAME``."""
+def resolve_target(run: str | None, connect: list[str], swarm: str | None, keys: str | None = None,
+                   identity: str | None = None) -> Target:
+    """``--run DIR`` (reads DIR/network.json written by ``mrswarm run``) or ``--connect EP --swarm NAME``.
+
+    Credentials (docs/security.md): ``keys`` (a key directory, or a ground station's bundle) and
+    ``identity`` (default ``gcs-1.<swarm>``), else the run's key directory from its network.json.
+    Without any, the link is plain and reaches only a swarm run with ``network.security: off``.
+    """
+    target = _resolve(run, connect, swarm)
+    if keys is None and run:
+        keys = _run_keys(Path(run))
+    if keys is None:
+        tls = [ep for ep in target.endpoints if ep.startswith("tls/")]
+        if tls:
+            raise GcsError(f"{tls[0]} speaks TLS: give the ground station's credentials with --keys DIR "
+                           "(the swarm's key directory or a gcs bundle, `mrswarm keys bundle gcs-1`; docs/security.md)")
+        return target
+    try:
+        name = NodeName.in_swarm(identity, target.swarm) if identity else NodeName("gcs", 1, target.swarm)
+        creds = Credentials(keys=keys, identity=name.cn)
+        creds.files()
+        creds.roster()
+    except ValueError as exc:  # ConfigError too
+        raise GcsError(f"--keys {keys}: {exc}") from None
+    return Target(target.swarm, target.endpoints, target.discovery, creds)
+
+
+def _run_keys(run: Path) -> str | None:
+    """The key directory a run's network.json names (None: an insecure run, or one from before security)."""
+    try:
+        sec = json.loads((run / "network.json").read_text()).get("security") or {}
+    except (OSError, ValueError, AttributeError):
+        return None
+    keys = sec.get("keys") if isinstance(sec, dict) and sec.get("mode") == "mtls" else None
+    return str(keys) if keys else None
+
+
+def _resolve(run: str | None, connect: list[str], swarm: str | None) -> Target:
     if run:
         path = Path(run) / "network.json"
         try:
@@ -54,7 +93,7 @@ def resolve_target(run: str | None, connect: list[str], swarm: str | None) -> Ta
 
 def _checked(swarm: str | None, connect: list[str], registry: tuple[str, str] | None) -> Target:
     if not connect:
-        raise GcsError("where is the swarm? give --run RUN_DIR, or --connect tcp/HOST:PORT (the edge router) and --swarm NAME")
+        raise GcsError("where is the swarm? give --run RUN_DIR, or --connect tls/HOST:PORT (the edge router) and --swarm NAME")
     if not swarm:
         raise GcsError("--swarm NAME is required with --connect")
     try:
@@ -63,7 +102,7 @@ def _checked(swarm: str | None, connect: list[str], registry: tuple[str, str] | 
         raise GcsError(str(exc)) from None
     for ep in connect:
         if "/" not in ep:
-            raise GcsError(f"--connect {ep!r}: expected a Zenoh endpoint such as tcp/127.0.0.1:7447")
+            raise GcsError(f"--connect {ep!r}: expected a Zenoh endpoint such as tls/127.0.0.1:7447")
     return Target(swarm, tuple(connect), registry)
 
 
@@ -73,10 +112,11 @@ def open_observer(target: Target, name: str = "gcs") -> SwarmObserver:
 
     node_id = os.getpid() % 65535 + 1
     try:
-        return SwarmObserver(target.swarm, Rendezvous(target.endpoints, mode="client"), node_id=node_id, role="gcs",
-                             name=name).open()
+        return SwarmObserver(target.swarm, Rendezvous(target.endpoints, mode="client", credentials=target.credentials),
+                             node_id=node_id, role="gcs", name=name).open()
     except zenoh.ZError as exc:
-        raise GcsError(f"cannot reach the swarm's router at {', '.join(target.endpoints)} (is the run still going?): "
+        hint = "" if target.credentials else " (a secured swarm needs --keys)"
+        raise GcsError(f"cannot reach the swarm's router at {', '.join(target.endpoints)} (is the run still going?{hint}): "
                        f"{str(exc).split(' at ')[0]}") from None
 
 

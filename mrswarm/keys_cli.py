@@ -1,0 +1,160 @@
+"""``mrswarm keys``: a swarm's certificate authority, its members and their credentials (docs/security.md).
+
+    mrswarm keys init --swarm alpha                   # keys/alpha: a new CA and an empty roster
+    mrswarm keys issue --swarm alpha edge ctl gcs-1 --uavs 1-10
+    mrswarm keys bundle --swarm alpha uav-3 --out /media/usb/uav3   # what UAV 3's companion needs
+    mrswarm keys revoke --swarm alpha uav-3           # a lost or stolen UAV
+    mrswarm keys rotate --swarm alpha                 # a new CA: every old certificate stops working
+    mrswarm keys list --swarm alpha
+
+Names are ``uav-<id>``, ``gcs-<id>``, ``ctl`` (the experiment controller) and ``edge`` (the edge
+router), or full certificate names such as ``uav-3.alpha``. The key directory is ``keys/<swarm>``
+unless ``--dir`` says otherwise. Exit code 2 on any refusal, with one line saying why.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import sys
+from pathlib import Path
+
+from swarmnet.security.identity import NodeName
+from swarmnet.security.pki import CA_DAYS, NODE_DAYS, KeyDir, KeysError
+from swarmnet.security.roster import CA_CERT_FILE
+
+
+def _dir(a: argparse.Namespace) -> Path:
+    if a.dir:
+        return Path(a.dir)
+    if a.swarm:
+        return Path("keys") / a.swarm
+    raise KeysError("which swarm? give --swarm NAME (key directory keys/NAME) or --dir DIR")
+
+
+def _names(kd: KeyDir, a: argparse.Namespace) -> list[NodeName]:
+    swarm = kd.roster.swarm
+    names = [NodeName.in_swarm(n, swarm) for n in a.names]
+    for part in (a.uavs or "").split(","):
+        if not part.strip():
+            continue
+        lo, _, hi = part.partition("-")
+        try:
+            first, last = int(lo), int(hi or lo)
+        except ValueError:
+            raise KeysError(f"--uavs {a.uavs!r}: use ids and ranges like 1-10,12") from None
+        if not 1 <= first <= last <= 65535:
+            raise KeysError(f"--uavs {a.uavs!r}: ids are 1..65535, ranges ascending")
+        names += [NodeName.uav(u, swarm) for u in range(first, last + 1)]
+    if not names:
+        raise KeysError("name at least one identity (uav-3, gcs-1, ctl, edge) or --uavs")
+    return names
+
+
+def _date(t: float) -> str:
+    return dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _init(a: argparse.Namespace) -> int:
+    if not a.swarm:
+        raise KeysError("init needs --swarm NAME")
+    kd = KeyDir.init(_dir(a), a.swarm, days=a.days or CA_DAYS)
+    print(f"{kd.path}: CA of swarm {a.swarm!r} (keep {kd.path / 'ca.key'} off the UAVs); "
+          f"next: mrswarm keys issue --dir {kd.path} edge ctl gcs-1 --uavs 1-10")
+    return 0
+
+
+def _issue(a: argparse.Namespace) -> int:
+    kd = KeyDir(_dir(a))
+    for name in _names(kd, a):
+        e = kd.issue(name, days=a.days or NODE_DAYS, extra_names=a.name, renew=a.renew)
+        print(f"{name.cn}: {kd.cert_path(name)} (serial {e.serial[:16]}..., valid until {_date(e.not_after)})")
+    return 0
+
+
+def _revoke(a: argparse.Namespace) -> int:
+    kd = KeyDir(_dir(a))
+    for name in _names(kd, a):
+        kd.revoke(name)
+        print(f"{name.cn}: revoked. Give every node the new {kd.path / 'roster.json'} and restart it: its access "
+              "control then grants this certificate nothing. Zenoh cannot refuse the handshake itself (no revocation "
+              "lists); `mrswarm keys rotate` makes every old certificate fail the handshake.")
+    return 0
+
+
+def _rotate(a: argparse.Namespace) -> int:
+    kd = KeyDir(_dir(a))
+    names = kd.rotate(node_days=a.days or NODE_DAYS)
+    print(f"{kd.path}: new CA; re-issued {', '.join(n.short for n in names) or 'nobody'}. Hand every node its new "
+          "bundle (mrswarm keys bundle): nodes on the old CA can no longer connect.")
+    return 0
+
+
+def _bundle(a: argparse.Namespace) -> int:
+    kd = KeyDir(_dir(a))
+    names = _names(kd, a)
+    if len(names) != 1:
+        raise KeysError("bundle one identity at a time")
+    out = kd.bundle(names[0], a.out)
+    print(f"{out}: {CA_CERT_FILE}, roster.json, {names[0].cn}.pem, {names[0].cn}.key (0600): copy it to the node, "
+          f"then e.g. `mrswarm agent --keys {out} ...`")
+    return 0
+
+
+def _list(a: argparse.Namespace) -> int:
+    from swarmnet.security.pki import fingerprint
+
+    kd = KeyDir(_dir(a))
+    r = kd.roster
+    ca = kd.path / CA_CERT_FILE
+    fp = fingerprint(ca.read_bytes()) if ca.exists() else "-"
+    if a.json:
+        print(json.dumps({"swarm": r.swarm, "dir": str(kd.path), "ca_fingerprint": fp,
+                          "nodes": {cn: {"serial": e.serial, "not_after": e.not_after} for cn, e in sorted(r.nodes.items())},
+                          "revoked": {cn: [{"serial": x.serial, "at": x.at} for x in v] for cn, v in sorted(r.revoked.items())}},
+                         indent=2))
+        return 0
+    print(f"swarm {r.swarm} in {kd.path}, CA sha256 {fp[:32]}...")
+    for cn, e in sorted(r.nodes.items(), key=lambda kv: NodeName.parse(kv[0])):
+        print(f"  {cn:<24} valid until {_date(e.not_after)}   serial {e.serial[:16]}...")
+    for cn, revs in sorted(r.revoked.items()):
+        print(f"  {cn:<24} REVOKED {_date(revs[-1].at)}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    doc = __doc__.splitlines()
+    ap = argparse.ArgumentParser(prog="mrswarm keys", description=doc[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n".join(doc[2:9]))
+    sub = ap.add_subparsers(dest="what", required=True, metavar="COMMAND")
+
+    def command(name: str, help: str, func: object, names: bool = False) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help)
+        p.add_argument("--swarm", help="the swarm (key directory keys/SWARM)")
+        p.add_argument("--dir", help="the key directory (default keys/SWARM)")
+        if names:
+            p.add_argument("names", nargs="*", metavar="NAME", help="uav-3, gcs-1, ctl, edge (or uav-3.alpha)")
+            p.add_argument("--uavs", help="UAV ids and ranges, e.g. 1-10,12")
+        p.set_defaults(func=func)
+        return p
+
+    p = command("init", "a new key directory: the swarm's CA and an empty roster", _init)
+    p.add_argument("--days", type=int, default=None, help=f"CA validity (default {CA_DAYS})")
+    p = command("issue", "a key and certificate per identity, added to the roster", _issue, names=True)
+    p.add_argument("--days", type=int, default=None, help=f"validity (default {NODE_DAYS}; expiry closes the node's links)")
+    p.add_argument("--name", action="append", default=[], metavar="HOST_OR_IP", help="extra subject name (repeatable)")
+    p.add_argument("--renew", action="store_true", help="replace the certificate of an identity already issued")
+    command("revoke", "take identities out of the swarm (a lost or stolen node)", _revoke, names=True)
+    p = command("rotate", "a new CA and a new certificate for every member: all older certificates stop working", _rotate)
+    p.add_argument("--days", type=int, default=None, help=f"validity of the re-issued certificates (default {NODE_DAYS})")
+    p = command("bundle", "copy what one node needs (CA, roster, its key pair) into a directory", _bundle, names=True)
+    p.add_argument("--out", required=True, help="directory to write (made 0700)")
+    p = command("list", "the roster: members, expiry, revocations", _list)
+    p.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    try:
+        return int(a.func(a))
+    except (KeysError, ValueError, OSError) as exc:  # ValueError: a bad name or swarm
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
