@@ -82,10 +82,15 @@ def test_access_control_lets_a_uav_act_and_read_its_own_readings_and_its_swarms_
     assert "mrs/alpha/*/sense/*" not in receives and "mrs/airspace/bravo/traffic" not in receives
 
 
-def test_mrswarm_world_refuses_a_scenario_without_world_naming_it() -> None:
-    res = subprocess.run([sys.executable, "-m", "mrswarm", "world", str(SCN / "coverage.yaml"), "--connect", "tcp/127.0.0.1:9"],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+def test_mrswarm_world_refuses_a_scenario_without_world_or_without_credentials() -> None:
+    def world(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "mrswarm", "world", *args], capture_output=True, text=True, timeout=60,
+                              cwd=ROOT)
+
+    res = world(str(SCN / "coverage.yaml"), "--connect", "tcp/127.0.0.1:9", "--insecure")
     assert res.returncode == 2 and "coverage.yaml: no world section" in res.stderr
+    res = world(str(SCN / "two_swarms.yaml"), "--connect", "tls/127.0.0.1:9", "--keys", "/nonexistent/alpha")
+    assert res.returncode == 2 and "no --keys for swarm bravo" in res.stderr
 
 
 def test_agent_zones_flag_rejects_a_file_without_zones(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -93,6 +98,6 @@ def test_agent_zones_flag_rejects_a_file_without_zones(tmp_path: Path, capsys: p
     bad.write_text("name: nothing here\n")
     with pytest.raises(SystemExit) as ex:
         agent_main(["--fcu", "udpin:127.0.0.1:0", "--swarm", "alpha", "--uav", "3", "--origin", "46.6,14.2,446",
-                    "--zones", str(bad)])
+                    "--insecure", "--zones", str(bad)])
     assert ex.value.code == 2
-    assert "--zones" in capsys.readouterr().err
+    assert f"--zones {bad}: expected a list of zones, or a scenario with world.zones" in capsys.readouterr().err
