@@ -10,7 +10,6 @@ the caller simply asks again.
 from __future__ import annotations
 
 import os
-import select
 import socket
 import time
 from typing import Any
@@ -18,6 +17,7 @@ from typing import Any
 from discovery.protocol import (
     MAX_DATAGRAM,
     MsgType,
+    PartAssembler,
     ProtocolError,
     RegisteredNode,
     ReplayGuard,
@@ -27,6 +27,8 @@ from discovery.protocol import (
     unseal,
 )
 from discovery.proxy import parse_server, resolve
+
+RECV_BUFFER = 4 << 20  # bytes
 
 
 class QueryTimeout(TimeoutError):
@@ -41,17 +43,22 @@ def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1
     fam = socket.AF_INET6 if ":" in addr[0] else socket.AF_INET
     guard = ReplayGuard()
     with socket.socket(fam, socket.SOCK_DGRAM) as s:
+        # a large swarm's answer is hundreds of datagrams sent back to back: room for all of
+        # them (the kernel caps this at net.core.rmem_max)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER)
         for _ in range(max(1, attempts)):
             qid = int.from_bytes(os.urandom(4), "big")
             s.sendto(seal(MsgType.QUERY, swarm, k, [qid]), addr)
-            parts: dict[int, list[RegisteredNode]] = {}
+            parts = PartAssembler()
             stats: dict[str, Any] = {}
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline:
-                ready, _, _ = select.select([s], [], [], max(0.0, deadline - time.monotonic()))
-                if not ready:
+                # a socket timeout, not select(): select() fails on descriptors above 1023 (a busy process)
+                s.settimeout(max(1e-3, deadline - time.monotonic()))
+                try:
+                    data, src = s.recvfrom(MAX_DATAGRAM + 1)
+                except TimeoutError:
                     break
-                data, src = s.recvfrom(MAX_DATAGRAM + 1)
                 if src[:2] != addr:
                     continue
                 try:
@@ -64,10 +71,10 @@ def query_registry(server: str, swarm: str, key: str | bytes, timeout: float = 1
                     continue
                 if rqid != qid:
                     continue
-                parts[part] = rows
                 if st is not None:
                     stats = st
-                if len(parts) == n:
-                    return [r for i in range(n) for r in parts[i]], stats
+                whole = parts.add(rqid, part, n, rows)
+                if whole is not None:
+                    return whole, stats
     raise QueryTimeout(f"no answer from the discovery server at {server} for swarm {swarm!r} "
                        f"(down, unreachable, or a different key)")

@@ -89,6 +89,8 @@ MAX_SOFTWARE_LEN = 48
 LOCATOR_RE = re.compile(r"^[a-z0-9]{2,8}/[\x21-\x7e]{3,}$")
 
 _TS = struct.Struct(">Q")
+_MASK64 = (1 << 64) - 1
+MAX_ITEMS = 256  # items per array a receiver unpacks (unseal's max_array_len)
 
 
 class MsgType(IntEnum):
@@ -172,13 +174,25 @@ class NodeEntry:
         return cls(role, node, realm, software, zid, whatami, tuple(locators))
 
 
+def entry_hash(e: NodeEntry) -> int:
+    """One entry's 64-bit share of a :func:`view_digest`."""
+    return int.from_bytes(_sha256(msgpack.packb(e.to_wire(), use_bin_type=True)).digest()[:8], "big")
+
+
+def digest_of(total: int) -> bytes:
+    """The 8-byte view digest of a sum of :func:`entry_hash` values."""
+    return (total & _MASK64).to_bytes(8, "big")
+
+
 def view_digest(entries: Any) -> bytes:
     """8-byte digest of a set of entries (order-independent): lets the server answer a
-    beacon with a tiny ACK when the proxy already holds exactly the current member list."""
-    h = _sha256()
-    for e in sorted(entries, key=lambda e: e.key):
-        h.update(msgpack.packb(e.to_wire()))
-    return h.digest()[:8]
+    beacon with a tiny ACK when the proxy already holds exactly the current member list.
+
+    It is the sum of the entries' hashes modulo 2**64, so the server keeps one running sum
+    per swarm and gets any member's view of the others (sum minus the member's own hash) in
+    constant time, whatever the swarm's size. It only decides between an ACK and a full
+    snapshot inside an authenticated message; it protects nothing by itself."""
+    return digest_of(sum(entry_hash(e) for e in entries))
 
 
 # ---- envelope --------------------------------------------------------------------------------------
@@ -242,7 +256,7 @@ def unseal(data: bytes, key_for: Callable[[str], bytes | None]) -> Envelope:
     nonce = bytes(data[p + 8:p + 8 + NONCE_LEN])
     try:
         body = msgpack.unpackb(data[p + 8 + NONCE_LEN:-MAC_LEN], raw=False, use_list=True, strict_map_key=True,
-                               max_str_len=MAX_DATAGRAM, max_bin_len=64, max_array_len=256, max_map_len=64)
+                               max_str_len=MAX_DATAGRAM, max_bin_len=64, max_array_len=MAX_ITEMS, max_map_len=64)
     except Exception as exc:  # msgpack raises many types on bad input; all mean "malformed"
         raise ProtocolError("malformed", f"body: {type(exc).__name__}") from None
     return Envelope(mtype, swarm, ts, nonce, body)
@@ -388,15 +402,54 @@ def parse_registry(body: Any, swarm: str) -> tuple[int, int, int, list[Registere
     return qid, part, parts, out, stats
 
 
-def chunk_entries(items: list[Any], budget: int = MAX_DATAGRAM - 120) -> list[list[Any]]:
-    """Split wire-form items into groups whose msgpack encoding fits one datagram."""
+BODY_BUDGET = MAX_DATAGRAM - 120  # bytes of items per datagram: the envelope and array headers take the rest
+
+
+def packed_size(obj: Any) -> int:
+    return len(msgpack.packb(obj, use_bin_type=True))
+
+
+def chunk_entries(items: list[Any], budget: int = BODY_BUDGET, max_items: int = MAX_ITEMS) -> list[list[Any]]:
+    """Split wire-form items into groups whose msgpack encoding fits one datagram (and that a
+    receiver unpacks: at most ``max_items`` per group). Always at least one group."""
     groups: list[list[Any]] = [[]]
     size = 0
     for it in items:
-        n = len(msgpack.packb(it, use_bin_type=True))
-        if groups[-1] and size + n > budget:
+        n = packed_size(it)
+        if groups[-1] and (size + n > budget or len(groups[-1]) >= max_items):
             groups.append([])
             size = 0
         groups[-1].append(it)
         size += n
     return groups
+
+
+class PartAssembler:
+    """Collects the parts of multi-datagram answers (snapshots, registry answers) by message id.
+
+    A part that disagrees with the ones already held about how many parts there are starts
+    the message over (counted in ``inconsistent``); it never raises. Only the newest message
+    id is held, so memory is bounded by one message (at most 1024 parts).
+    """
+
+    def __init__(self) -> None:
+        self.msg_id: int | None = None
+        self.parts = 0
+        self.got: dict[int, list[Any]] = {}
+        self.inconsistent = 0
+
+    def add(self, msg_id: int, part: int, parts: int, items: list[Any] | tuple[Any, ...]) -> list[Any] | None:
+        """Store one part; the whole message's items, in part order, once every part is in."""
+        if not 0 <= part < parts:
+            self.inconsistent += 1
+            return None
+        if msg_id != self.msg_id or parts != self.parts:
+            if msg_id == self.msg_id:
+                self.inconsistent += 1
+            self.msg_id, self.parts, self.got = msg_id, parts, {}
+        self.got[part] = list(items)
+        if len(self.got) < parts:
+            return None
+        out = [it for i in range(parts) for it in self.got[i]]
+        self.msg_id, self.parts, self.got = None, 0, {}
+        return out

@@ -47,6 +47,7 @@ from discovery.protocol import (
     Beacon,
     MsgType,
     NodeEntry,
+    PartAssembler,
     ProtocolError,
     ReplayGuard,
     beacon_body,
@@ -231,7 +232,7 @@ class DiscoveryProxy:
         self.guard = ReplayGuard(window)
         self.stats: Counter[str] = Counter()
         self.peers: dict[str, dict[tuple[str, int], NodeEntry]] = {s: {} for s in memberships}
-        self._snaps: dict[str, tuple[int, int, dict[int, tuple[NodeEntry, ...]]]] = {}
+        self._snaps: dict[str, PartAssembler] = {s: PartAssembler() for s in memberships}
         # zid -> (when we may hand its Hello to Zenoh again, the current retry delay)
         self._retry: dict[bytes, tuple[float, float]] = {}
         self.entry: NodeEntry | None = None
@@ -486,15 +487,14 @@ class DiscoveryProxy:
             self.stats["pushes"] += 1
             self._update(swarm, fresh, replace=False, now=now)
             return
-        snap, parts, got = self._snaps.get(swarm, (0, 0, {}))
-        if snap != p.snap:
-            snap, parts, got = p.snap, p.parts, {}
-        got[p.part] = tuple(fresh)
-        self._snaps[swarm] = (snap, parts, got)
-        if len(got) == parts:
-            del self._snaps[swarm]
+        snaps = self._snaps[swarm]
+        before = snaps.inconsistent
+        whole = snaps.add(p.snap, p.part, p.parts, fresh)
+        if snaps.inconsistent != before:  # parts that disagree on the snapshot's size: it starts over
+            self.stats["drop_inconsistent_snapshot"] += 1
+        if whole is not None:
             self.stats["snapshots"] += 1
-            self._update(swarm, [e for i in range(parts) for e in got[i]], replace=True, now=now)
+            self._update(swarm, whole, replace=True, now=now)
 
     def _update(self, swarm: str, entries: list[NodeEntry], replace: bool, now: float) -> None:
         with self._lock:

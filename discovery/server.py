@@ -12,6 +12,13 @@ Bad input never crashes it: every datagram is size-checked, rate-limited per sou
 address, authenticated (HMAC-SHA256 with the swarm's key) and replay-checked before its
 body is decoded, and every drop is counted under a reason (``stats``).
 
+Under a flood from spoofed source addresses the work per datagram stays bounded and
+constant (:class:`SourceLimiter`): sources that never authenticated share a bounded table
+whose oldest entry is dropped in O(1), and they can never evict, or drain, the rate-limit
+state of sources that did. A beacon costs O(1) whatever the swarm's size (a running view
+digest per swarm, members kept in the order they were last heard), so legitimate members
+keep being heard and never expire because of junk.
+
 Run: ``mrswarm discovery serve --listen 0.0.0.0:7450 --keys keys.txt``
 """
 
@@ -27,16 +34,19 @@ import socket
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from discovery.protocol import (
+    BODY_BUDGET,
     DEFAULT_PERIOD,
     DEFAULT_PORT,
     DEFAULT_TTL,
     DEFAULT_WINDOW,
     MAX_DATAGRAM,
+    MAX_ITEMS,
     Envelope,
     MsgType,
     NodeEntry,
@@ -46,18 +56,22 @@ from discovery.protocol import (
     ReplayGuard,
     check_key,
     chunk_entries,
+    digest_of,
+    entry_hash,
+    packed_size,
     parse_beacon,
     parse_bye,
     parse_query,
     peers_body,
     seal,
     unseal,
-    view_digest,
 )
 
 log = logging.getLogger(__name__)
 
 Addr = tuple[str, int]
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: a receive-queue drop counter with each datagram
+_CMSG_SPACE = socket.CMSG_SPACE(4)
 
 
 @dataclass
@@ -67,6 +81,56 @@ class Member:
     first_seen: float
     last_seen: float
     last_ts: float  # sender timestamp of the newest accepted beacon (older ones are replays)
+    h: int = 0  # entry_hash(entry): this member's share of the swarm's view digest
+
+    def __post_init__(self) -> None:
+        self.h = entry_hash(self.entry)
+
+
+class Swarm:
+    """One swarm's members, ordered by when they were last heard (oldest first), and the
+    running sum of their entry hashes (the view digest of all of them)."""
+
+    __slots__ = ("members", "total")
+
+    def __init__(self) -> None:
+        self.members: dict[tuple[str, int], Member] = {}
+        self.total = 0
+
+    def heard(self, m: Member) -> None:
+        """Move ``m`` to the end (the most recently heard); O(1)."""
+        k = m.entry.key
+        self.members.pop(k, None)
+        self.members[k] = m
+
+    def add(self, m: Member) -> None:
+        self.members[m.entry.key] = m
+        self.total += m.h
+
+    def update(self, m: Member, e: NodeEntry) -> None:
+        self.total -= m.h
+        m.entry = e
+        m.h = entry_hash(e)
+        self.total += m.h
+
+    def pop(self, k: tuple[str, int]) -> Member | None:
+        m = self.members.pop(k, None)
+        if m is not None:
+            self.total -= m.h
+        return m
+
+    def view_of(self, m: Member) -> bytes:
+        """The digest of every member but ``m``: what ``m`` should hold."""
+        return digest_of(self.total - m.h)
+
+    def silent_since(self, cutoff: float) -> list[tuple[str, int]]:
+        """Members last heard before ``cutoff``: a prefix of the order, so the scan stops at the first live one."""
+        out = []
+        for k, m in self.members.items():
+            if m.last_seen >= cutoff:
+                break
+            out.append(k)
+        return out
 
 
 class TokenBucket:
@@ -86,6 +150,55 @@ class TokenBucket:
         return False
 
 
+class SourceLimiter:
+    """Per-source-address token buckets whose upkeep is O(1) per datagram, whatever the flood.
+
+    Sources that have sent an authenticated datagram (``trusted``) and all the others
+    (``strangers``) live in two bounded LRU tables. A stranger's bucket is charged before the
+    datagram is authenticated (junk from one address costs little); a trusted source's bucket
+    only for authenticated datagrams, so spoofing a member's address can neither drain its
+    budget nor push its bucket out: a flood of spoofed sources only churns the strangers'
+    table, one O(1) eviction per new address.
+    """
+
+    def __init__(self, rate: float, burst: float, max_strangers: int = 4096, max_trusted: int = 16384):
+        self.rate, self.burst = rate, burst
+        self.max_strangers, self.max_trusted = max_strangers, max_trusted
+        self.strangers: OrderedDict[str, TokenBucket] = OrderedDict()
+        self.trusted: OrderedDict[str, TokenBucket] = OrderedDict()
+        self.evicted = 0  # stranger buckets dropped to make room
+
+    def is_trusted(self, ip: str) -> bool:
+        return ip in self.trusted
+
+    def admit_unauthenticated(self, ip: str, now: float) -> bool:
+        """Before authentication: may a datagram from this (untrusted) source be looked at?"""
+        b = self.strangers.get(ip)
+        if b is None:
+            if len(self.strangers) >= self.max_strangers:
+                self.strangers.popitem(last=False)
+                self.evicted += 1
+            b = self.strangers[ip] = TokenBucket(self.rate, self.burst, now)
+        else:
+            self.strangers.move_to_end(ip)
+        return b.take(now)
+
+    def admit_authenticated(self, ip: str, now: float) -> bool:
+        """After authentication: charge the source's trusted bucket (made on its first authenticated datagram)."""
+        b = self.trusted.get(ip)
+        if b is None:
+            b = self.strangers.pop(ip, None) or TokenBucket(self.rate, self.burst, now)
+            if len(self.trusted) >= self.max_trusted:
+                self.trusted.popitem(last=False)
+            self.trusted[ip] = b
+            return True  # already charged as a stranger
+        self.trusted.move_to_end(ip)
+        return b.take(now)
+
+    def __len__(self) -> int:
+        return len(self.strangers) + len(self.trusted)
+
+
 @dataclass
 class ServerConfig:
     keys: dict[str, bytes]  # swarm -> HMAC key
@@ -94,6 +207,10 @@ class ServerConfig:
     rate: float = 100.0  # datagrams/s per source IP (a host running many nodes shares one budget)
     burst: float = 200.0
     sweep_period: float = 0.1
+    # while the kernel is dropping datagrams (the receive queue overflowed, e.g. under a
+    # flood), a silent member may only have lost its beacons there: it is forgotten only
+    # after overload_grace x ttl of silence
+    overload_grace: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.keys:
@@ -109,13 +226,15 @@ class DiscoveryServer:
 
     config: ServerConfig
     sock: socket.socket | None = None
-    members: dict[str, dict[tuple[str, int], Member]] = field(default_factory=dict)
+    swarms: dict[str, Swarm] = field(default_factory=dict)
     stats: Counter[str] = field(default_factory=Counter)
     started: float = field(default_factory=time.time)
 
     def __post_init__(self) -> None:
         self.guard = ReplayGuard(self.config.window)
-        self.buckets: dict[str, TokenBucket] = {}
+        self.limiter = SourceLimiter(self.config.rate, self.config.burst)
+        self.kernel_drops = 0  # datagrams the kernel dropped on our full receive queue, so far
+        self.overloaded_at = -float("inf")  # when that count last grew
         self._snap = int.from_bytes(os.urandom(4), "big") | 1
 
     # ---- socket plumbing ---------------------------------------------------------------------------
@@ -123,6 +242,10 @@ class DiscoveryServer:
         fam = socket.AF_INET6 if ":" in host else socket.AF_INET
         s = socket.socket(fam, socket.SOCK_DGRAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        try:  # the kernel then reports how many datagrams it dropped on a full receive queue
+            s.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        except OSError:  # not Linux: expiry cannot tell overload from silence
+            pass
         s.bind((host, port))
         s.setblocking(False)
         self.sock = s
@@ -169,33 +292,52 @@ class DiscoveryServer:
 
     def drain(self, max_datagrams: int = 4096) -> None:
         assert self.sock is not None
+        recvmsg = self.sock.recvmsg
         for _ in range(max_datagrams):
             try:
-                data, addr = self.sock.recvfrom(MAX_DATAGRAM + 1)
+                data, anc, _flags, addr = recvmsg(MAX_DATAGRAM + 1, _CMSG_SPACE)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:
                 self.stats["rx_error"] += 1
                 log.debug("recv failed: %s", exc)
                 return
-            self.handle(data, addr[:2], time.time())
+            now = time.time()
+            if anc:
+                self._note_overflow(anc, now)
+            self.handle(data, addr[:2], now)
+
+    def _note_overflow(self, anc: list[tuple[int, int, bytes]], now: float) -> None:
+        for level, kind, value in anc:
+            if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                dropped = int.from_bytes(value[:4], sys.byteorder)
+                if dropped > self.kernel_drops:
+                    self.stats["drop_rx_queue_full"] += dropped - self.kernel_drops
+                    self.kernel_drops = dropped
+                    self.overloaded_at = now
 
     # ---- protocol ------------------------------------------------------------------------------------
+    @property
+    def members(self) -> dict[str, dict[tuple[str, int], Member]]:
+        """Each swarm's members by (role, node)."""
+        return {name: sw.members for name, sw in self.swarms.items()}
+
     def handle(self, data: bytes, addr: Addr, now: float) -> None:
         """Process one datagram. Never raises on bad input: drops it and counts why."""
         st = self.stats
         st["rx"] += 1
-        b = self.buckets.get(addr[0])
-        if b is None:
-            if len(self.buckets) > 10_000:  # many spoofed sources: forget idle buckets
-                self.buckets = {k: v for k, v in self.buckets.items() if now - v.t < 10.0}
-            b = self.buckets[addr[0]] = TokenBucket(self.config.rate, self.config.burst, now)
-        if not b.take(now):
+        ip = addr[0]
+        limiter = self.limiter
+        trusted = limiter.is_trusted(ip)
+        if not trusted and not limiter.admit_unauthenticated(ip, now):
             st["drop_rate_limited"] += 1
             return
         try:
             env = unseal(data, self.config.keys.get)
             self.guard.check(env, now)
+            if not limiter.admit_authenticated(ip, now):  # a stranger is promoted, already charged
+                st["drop_rate_limited"] += 1
+                return
             if env.type == MsgType.BEACON:
                 self._on_beacon(env, addr, now)
             elif env.type == MsgType.BYE:
@@ -214,13 +356,16 @@ class DiscoveryServer:
     def _on_beacon(self, env: Envelope, addr: Addr, now: float) -> None:
         b = parse_beacon(env.body)
         e = b.entry
-        swarm = self.members.setdefault(env.swarm, {})
-        m = swarm.get(e.key)
+        swarm = self.swarms.get(env.swarm)
+        if swarm is None:
+            swarm = self.swarms[env.swarm] = Swarm()
+        m = swarm.members.get(e.key)
         if m is not None and env.ts <= m.last_ts:
             raise ProtocolError("replayed", "older than the last beacon of this node")
         changed = m is None or m.entry != e
         if m is None:
-            swarm[e.key] = m = Member(e, addr, now, now, env.ts)
+            m = Member(e, addr, now, now, env.ts)
+            swarm.add(m)
             self.stats["registered"] += 1
             log.info("%s: %s %d joined from %s:%d (zid %s, %s)", env.swarm, e.role, e.node, addr[0], addr[1], e.zid_hex,
                      ", ".join(e.locators))
@@ -228,21 +373,23 @@ class DiscoveryServer:
             if m.entry.zid != e.zid:
                 self.stats["restarted"] += 1
                 m.first_seen = now
-            m.entry, m.addr, m.last_seen, m.last_ts = e, addr, now, env.ts
+            if changed:
+                swarm.update(m, e)
+            m.addr, m.last_seen, m.last_ts = addr, now, env.ts
+            swarm.heard(m)
         self.stats["beacons"] += 1
         key = self.config.keys[env.swarm]
         if changed:  # tell every other member at once: they dial the newcomer without waiting
             push = seal(MsgType.PEERS, env.swarm, key, peers_body(Peers(0, 0, 1, (e,))))
-            for other in swarm.values():
+            for other in swarm.members.values():
                 if other is not m:
                     self._send(push, other.addr)
                     self.stats["pushes"] += 1
-        others = [o.entry for o in swarm.values() if o is not m]
-        if b.view == view_digest(others):
+        if b.view == swarm.view_of(m):
             self._send(seal(MsgType.ACK, env.swarm, key, [b.view]), addr)
             self.stats["acks"] += 1
         else:
-            self._send_snapshot(env.swarm, key, others, addr)
+            self._send_snapshot(env.swarm, key, [o.entry for o in swarm.members.values() if o is not m], addr)
 
     def _send_snapshot(self, swarm: str, key: bytes, entries: list[NodeEntry], addr: Addr) -> None:
         self._snap = (self._snap + 1) & 0xFFFFFFFF or 1
@@ -253,19 +400,24 @@ class DiscoveryServer:
         self.stats["snapshots"] += 1
 
     def _remove(self, swarm: str, keys: list[tuple[str, int]], reason: str) -> None:
-        members = self.members.get(swarm, {})
-        gone = [k for k in keys if members.pop(k, None) is not None]
+        sw = self.swarms.get(swarm)
+        if sw is None:
+            return
+        gone = [k for k in keys if sw.pop(k) is not None]
         if not gone:
             return
         self.stats[reason] += len(gone)
         log.info("%s: %s %s", swarm, reason, ", ".join(f"{r} {n}" for r, n in gone))
-        data = seal(MsgType.GONE, swarm, self.config.keys[swarm], [list(k) for k in gone])
-        for m in members.values():
-            self._send(data, m.addr)
+        key = self.config.keys[swarm]
+        for g in chunk_entries([list(k) for k in gone]):  # many at once (a mass expiry) span datagrams
+            data = seal(MsgType.GONE, swarm, key, g)
+            for m in sw.members.values():
+                self._send(data, m.addr)
 
     def _on_bye(self, env: Envelope, addr: Addr) -> None:
         k = parse_bye(env.body)
-        m = self.members.get(env.swarm, {}).get(k)
+        sw = self.swarms.get(env.swarm)
+        m = sw.members.get(k) if sw is not None else None
         if m is not None and m.addr == addr:  # only the node itself can say goodbye
             self._remove(env.swarm, [k], "left")
         else:
@@ -273,31 +425,52 @@ class DiscoveryServer:
 
     def _on_query(self, env: Envelope, addr: Addr, now: float) -> None:
         qid = parse_query(env.body)
+        sw = self.swarms.get(env.swarm)
         rows = [[m.entry.to_wire(), m.first_seen, m.last_seen, f"{m.addr[0]}:{m.addr[1]}"]
-                for m in self.members.get(env.swarm, {}).values()]
+                for m in (sw.members.values() if sw is not None else ())]
+        self.stats["queries"] += 1
+        stats = self.counters(now)
         groups = chunk_entries(rows)
+        # the counters ride in the last datagram, or in one of their own if they do not fit there
+        if sum(packed_size(r) for r in groups[-1]) + packed_size(stats) > BODY_BUDGET or len(groups[-1]) >= MAX_ITEMS:
+            groups.append([])
         key = self.config.keys[env.swarm]
-        stats: dict[str, float] = {k: v for k, v in self.stats.items()}
-        stats["uptime"] = round(now - self.started, 3)
         for i, g in enumerate(groups):
             last = i == len(groups) - 1
             self._send(seal(MsgType.REGISTRY, env.swarm, key, [qid, i, len(groups), g, stats if last else None]), addr)
-        self.stats["queries"] += 1
+
+    def counters(self, now: float) -> dict[str, Any]:
+        """The counters a registry answer carries: at most MAX_ITEMS of them, and within one datagram."""
+        stats: dict[str, Any] = {"uptime": round(now - self.started, 3), "sources": len(self.limiter),
+                                 "sources_evicted": self.limiter.evicted}
+        for k, v in sorted(self.stats.items()):
+            if len(stats) >= 64 or packed_size(stats) > BODY_BUDGET // 2:  # the reasons are a fixed set; belt and braces
+                break
+            stats[k] = v
+        return stats
 
     def sweep(self, now: float) -> None:
-        """Forget members not heard within the TTL (and tell the others)."""
+        """Forget members not heard within the TTL (and tell the others).
+
+        If the kernel dropped datagrams within the last TTL, silence proves nothing (the
+        beacons may be among the drops): only members silent for ``overload_grace`` TTLs go."""
         ttl = self.config.ttl
-        for swarm, members in self.members.items():
-            dead = [k for k, m in members.items() if now - m.last_seen > ttl]
+        cutoff = now - ttl
+        if now - self.overloaded_at <= ttl:
+            cutoff = now - ttl * self.config.overload_grace
+            self.stats["expiry_deferred"] += any(sw.silent_since(now - ttl) for sw in self.swarms.values())
+        for name, sw in self.swarms.items():
+            dead = sw.silent_since(cutoff)
             if dead:
-                self._remove(swarm, dead, "expired")
+                self._remove(name, dead, "expired")
 
     def summary(self) -> dict[str, int]:
-        return {s: len(m) for s, m in self.members.items()}
+        return {s: len(sw.members) for s, sw in self.swarms.items()}
 
     def registry(self, swarm: str) -> list[RegisteredNode]:
+        sw = self.swarms.get(swarm)
         return [RegisteredNode(swarm, m.entry, m.first_seen, m.last_seen, f"{m.addr[0]}:{m.addr[1]}")
-                for m in self.members.get(swarm, {}).values()]
+                for m in (sw.members.values() if sw is not None else ())]
 
 
 # ---- keys ----------------------------------------------------------------------------------------------

@@ -33,6 +33,7 @@ from uav_stack.config import (
     Firefighting,
     Flavour,
     GcsConfig,
+    MavlinkSigning,
     MissionConfig,
     MissionType,
     NetworkConfig,
@@ -239,6 +240,12 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
+    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
+    signing: MavlinkSigning | None = None
+
+    def __post_init__(self) -> None:
+        if self.signing is not None and not self.mavlink:
+            raise ConfigError("signing", "signs the MAVLink routers' links: set gcs.mavlink: true too")
 
 
 class Scenario(Config, kw_only=True, frozen=True):
@@ -405,7 +412,8 @@ class Scenario(Config, kw_only=True, frozen=True):
                 avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon,
                                           zones=w.zones if w is not None else ()),
                 network=network,
-                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt),
+                gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
+                              signing=self.gcs.signing),
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
             )

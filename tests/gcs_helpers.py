@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from uav_stack.config import AgentConfig, GcsConfig, MissionConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.config import AgentConfig, GcsConfig, MavlinkSigning, MissionConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.geo import GeoPoint
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -19,12 +19,14 @@ HOME = GeoPoint(47.397742, 8.545594, 488.0)
 
 def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoints: tuple[str, ...] = (),
                       flavour: str = "px4", autostart: bool = False, swarm: str = "gcs",
-                      area: tuple[float, float, float, float] = (-40.0, 40.0, -40.0, 40.0)) -> subprocess.Popen[bytes]:
-    """One virtual UAV process (virtual FCU + agent, as the runtimes launch it) whose router sends to ``endpoints``."""
+                      area: tuple[float, float, float, float] = (-40.0, 40.0, -40.0, 40.0),
+                      signing: MavlinkSigning | None = None) -> subprocess.Popen[bytes]:
+    """One virtual UAV process (virtual FCU + agent, as the runtimes launch it) whose router sends to ``endpoints``
+    (signing its links with ``signing``)."""
     agent = AgentConfig(
         swarm=swarm, uav=uav, origin=HOME, fcu="", altitude=8.0, autostart=autostart, record_dir=str(tmp),
         mission=MissionConfig(area=area), network=NetworkConfig(endpoints=(router_endpoint,), mode="client"),
-        gcs=GcsConfig(mavlink_endpoints=endpoints),
+        gcs=GcsConfig(mavlink_endpoints=endpoints, signing=signing),
     )
     cfg = VirtualUavConfig(agent=agent, home=HOME, flavour=flavour)
     path = tmp / f"uav{uav}.config.json"

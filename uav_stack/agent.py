@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 import random
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -99,6 +100,8 @@ class Agent(OverridesMixin):
         self.node = node
         self.link = link
         self.router = router
+        # more sections for the stats file: name -> what to write (the virtual FCU's counters, in a virtual UAV)
+        self.stats_sources: dict[str, Callable[[], Any]] = {}
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
@@ -463,6 +466,7 @@ class Agent(OverridesMixin):
             "netem": self.node.netem_stats(),
             "payload": self.payload.stats() if self.payload is not None else None,
             "mission": {"status": getattr(self.mission, "status", None)},
+            **{name: source() for name, source in self.stats_sources.items()},
             "written_at": now,
         }
 

@@ -179,10 +179,30 @@ class AvoidanceConfig(Config, frozen=True):
     zone_margin: Annotated[float, Meta(ge=0.0, le=100.0, description="clearance kept from a zone, m")] = 3.0
 
 
+class MavlinkSigning(Config, frozen=True):
+    """MAVLink 2 signing on the router's ground-station links (docs/security.md)."""
+
+    # a passphrase file; the key is its SHA-256, as MAVProxy's `signing key <passphrase>` derives it
+    key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")]
+    require: bool = True  # refuse (and count) unsigned frames from ground stations; False: accept them, counted
+
+    def read_key(self) -> bytes:
+        """The 32-byte secret; :class:`~swarmnet.schema.ConfigError` on ``key_file`` if the file is unusable."""
+        from uav_stack.mavlink_signing import SigningKeyError, read_key_file
+
+        try:
+            return read_key_file(self.key_file)
+        except SigningKeyError as exc:
+            raise ConfigError("key_file", str(exc)) from None
+
+
 class GcsConfig(Config, frozen=True):
     """Ground-station access: the agent's MAVLink router and the limits of override commands."""
 
     mavlink_endpoints: tuple[str, ...] = ()  # udpout:HOST:PORT / udpin:HOST:PORT; empty = no router
+    # local address of the router's udpout sockets; None: the address that routes to each ground station
+    bind: str | None = None
+    signing: MavlinkSigning | None = None  # sign the ground-station links (None: unsigned, open to local processes)
     sysid: Annotated[int, Meta(ge=0, le=250)] = 0  # MAVLink sysid of this UAV's FCU; 0 = uav_stack.sysid.allocate_sysid(uav)
     geofence: Rect | None = None  # goto limits x_min, x_max, y_min, y_max (ENU m); None = mission area
     min_alt: float = 2.0  # goto altitude limits above the swarm origin, m
@@ -194,6 +214,8 @@ class AgentConfig(Config, frozen=True):
     uav: UavId
     origin: GeoPoint  # the swarm's ENU origin
     fcu: str  # pymavlink connection string
+    # local address of a udpout FCU link's socket; None: the address that routes to the FCU (127.0.0.1 for a local one)
+    fcu_bind: str | None = None
     realm: Literal["virtual", "physical"] = "virtual"
     altitude: float = 20.0  # mission altitude above the swarm origin, m
     speed: Annotated[float, Meta(gt=0.0, description="cruise speed, m/s")] = 5.0

@@ -1,11 +1,19 @@
 """The agent's MAVLink link to its flight controller, whatever it is.
 
 The agent reaches its FCU only through a pymavlink connection string, so one agent flies a
-real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:0.0.0.0:14540``)
+real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:127.0.0.1:14540``)
 or our virtual FCU (``udpout:127.0.0.1:<port>``). Everything here is non-blocking: the
 agent's loop calls :meth:`FcuLink.poll` and :meth:`FcuLink.service`; commands return a
 :class:`CommandHandle` that resolves when the COMMAND_ACK arrives (retried like MAVSDK:
 0.5 s timeout, 3 retries).
+
+The link is locked to its FCU. A UDP link binds to one address (:mod:`uav_stack.fcu_udp`)
+and drops datagrams from any other sender than the FCU (``udpout``: the address it sends to;
+``udpin``: the sender of the first autopilot heartbeat). The first autopilot heartbeat also
+pins the FCU's system and component id: from then on only that (sysid, compid) moves the
+agent's view of its vehicle (mode, position, acks), so a forged heartbeat cannot make the
+agent yield and a forged position cannot move its swarm pose. Everything ignored is counted
+in :attr:`FcuLink.counts` (``foreign_source``, ``foreign_id``, ``before_heartbeat``).
 """
 
 from __future__ import annotations
@@ -19,8 +27,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, profile_for
+from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
 from uav_stack.mav import mavlink, mavutil
 from uav_stack.rtf import RtfMeter
+from uav_stack.udp import Addr
 
 log = logging.getLogger(__name__)
 
@@ -141,8 +151,10 @@ class FcuLink:
         target_system: int | None = None,
         clock: Callable[[], float] = time.time,
         on_message: Callable[[Any], None] | None = None,
+        bind: str | None = None,
     ):
         self.url = url
+        self.bind = bind  # local address of a UDP link (None: the one that routes to the FCU)
         self.source_system = source_system
         self.source_component = source_component
         self.target_system = target_system  # None: learn from the first autopilot heartbeat
@@ -151,12 +163,20 @@ class FcuLink:
         self.state = FcuState()
         self.rtf = RtfMeter()  # the FCU's time_boot_ms against our wall clock
         self.pending: dict[int, CommandHandle] = {}
-        self.counts: dict[str, int] = {"rx": 0, "tx_setpoints": 0, "commands": 0, "bad": 0}
+        self.counts: dict[str, int] = {"rx": 0, "tx_setpoints": 0, "commands": 0, "bad": 0,
+                                       "foreign_source": 0, "foreign_id": 0, "before_heartbeat": 0}
         self.conn: Any = None
+        self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
+        self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
         self._next_heartbeat = 0.0
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
+        udp = parse_udp_url(self.url)
+        if udp is not None:
+            self.udp = FcuUdpSocket(*udp, bind=self.bind).open()
+            self.conn = _UdpConnection(self.udp, self.source_system, self.source_component)
+            return self
         device, baud = parse_fcu_url(self.url)
         self.conn = mavutil.mavlink_connection(
             device, baud=baud, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
@@ -169,6 +189,11 @@ class FcuLink:
                 self.conn.close()
             finally:
                 self.conn = None
+
+    @property
+    def local_address(self) -> Addr | None:
+        """Where a UDP link sends from (the virtual FCU's owner address); None for other links."""
+        return self.udp.local_address if self.udp is not None else None
 
     @property
     def connected(self) -> bool:
@@ -188,17 +213,24 @@ class FcuLink:
         the agent keeps its own state, so that is skipped.
         """
         n = 0
-        conn = self.conn
-        parse = conn.mav.parse_buffer
+        conn, udp = self.conn, self.udp
+        parse = conn.parse_datagram if udp is not None else conn.mav.parse_buffer
         while n < max_messages:
+            src: Addr | None = None
             try:
-                data = conn.recv(4096)
+                if udp is not None:
+                    data, src = udp.recv_from(4096)
+                else:
+                    data = conn.recv(4096)
             except (OSError, ValueError) as exc:  # a dead serial port
                 self.counts["bad"] += 1
                 log.debug("fcu link: %s", exc)
                 break
             if not data:
                 break
+            if udp is not None and src != udp.fcu and udp.fcu is not None:
+                self.counts["foreign_source"] += 1  # another local process (or host) posing as the FCU
+                continue
             try:
                 msgs = parse(data) or ()
             except Exception as exc:  # pymavlink raises on some corrupt frames; count, never crash
@@ -207,28 +239,39 @@ class FcuLink:
                 continue
             for msg in msgs:
                 n += 1
-                self._handle(msg)
+                self._handle(msg, src)
         return n
 
-    def _handle(self, msg: Any) -> None:
+    def _pins(self, msg: Any) -> bool:
+        """Is ``msg`` the first heartbeat of an autopilot (ours, if ``target_system`` is set)?"""
+        return (msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1
+                and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID and msg.get_srcSystem() != 0
+                and (self.target_system is None or msg.get_srcSystem() == self.target_system))
+
+    def _handle(self, msg: Any, src: Addr | None = None) -> None:
         mtype = msg.get_type()
         if mtype == "BAD_DATA":
             self.counts["bad"] += 1
             return
         self.counts["rx"] += 1
-        if self.on_message is not None:  # e.g. the MAVLink router: every frame, before any filtering
+        ids = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.fcu_ids is None:
+            if not self._pins(msg):
+                self.counts["before_heartbeat"] += 1
+                return
+            self.fcu_ids = ids
+            if self.udp is not None and self.udp.fcu is None:  # udpin: the FCU is whoever sent its first heartbeat
+                self.udp.fcu = src
+            log.info("FCU link pinned to sysid %d compid %d%s", ids[0], ids[1], f" at {src[0]}:{src[1]}" if src else "")
+        if self.on_message is not None:  # e.g. the MAVLink router: every frame of the FCU's link
             self.on_message(msg)
-        st = self.state
-        src = msg.get_srcSystem()
-        if self.target_system is not None and src != self.target_system and mtype != "HEARTBEAT":
+        if ids != self.fcu_ids:  # another component on the link (a camera, a forwarded GCS), or a forgery
+            self.counts["foreign_id"] += 1
             return
+        st = self.state
         now = self.clock()
         if mtype == "HEARTBEAT":
-            if msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
-                return  # a GCS or companion on the same link
-            if self.target_system is not None and src != self.target_system:
-                return
-            st.sysid = src
+            st.sysid = ids[0]
             if msg.autopilot != st.autopilot:
                 st.autopilot = msg.autopilot
                 st.profile = profile_for(msg.autopilot)
@@ -346,3 +389,27 @@ class FcuLink:
             0, 0, 0, vn, ve, vd, 0, 0, 0, 0, 0,
         )
         self.counts["tx_setpoints"] += 1
+
+
+class _UdpConnection:
+    """What :class:`FcuLink` needs of a pymavlink connection, over :class:`FcuUdpSocket`."""
+
+    def __init__(self, sock: FcuUdpSocket, source_system: int, source_component: int):
+        self.sock = sock
+        self.mav = mavlink.MAVLink(sock, srcSystem=source_system, srcComponent=source_component)
+        self.mav.robust_parsing = True
+
+    def parse_datagram(self, data: bytes) -> list[Any]:
+        """The frames of one datagram: a datagram holds whole frames, so nothing carries over."""
+        p = self.mav
+        p.buf = bytearray()
+        p.buf_index = 0
+        p.expected_length = mavlink.HEADER_LEN_V1 + 2
+        p.have_prefix_error = False
+        return p.parse_buffer(data) or []
+
+    def write(self, data: bytes) -> None:
+        self.sock.write(data)
+
+    def close(self) -> None:
+        self.sock.close()

@@ -20,6 +20,18 @@ Routing rules (mavlink.io's routing guide, as mavlink-router implements them):
   only to channels where the target system (and component, unless 0) has been seen;
 * messages addressed to the agent itself (its sysid and companion compid 191) stay here.
 
+Locked down (docs/security.md):
+
+* every socket is bound to one address: a ``udpin`` endpoint to the host of its spec, a
+  ``udpout`` endpoint to the local address that routes to its ground station (or ``bind``),
+  never to all interfaces unless a spec says ``0.0.0.0``;
+* a ``udpout`` endpoint takes datagrams only from its ground station's address; a ``udpin``
+  endpoint answers a sender only once it has sent a valid (and, with signing, signed) frame;
+* with :class:`SigningPolicy`, frames to the ground stations are signed (MAVLink 2 signing)
+  and, when ``require`` is set, unsigned frames from them are refused and counted;
+* SETUP_SIGNING from a ground station never reaches the FCU: keys are set from files, not
+  over the air.
+
 The allocation of MAVLink system ids for more than 250 UAVs is :func:`uav_stack.sysid.allocate_sysid`.
 """
 
@@ -33,7 +45,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uav_stack.mav import mavlink
-from uav_stack.udp import drain
+from uav_stack.mavlink_signing import Signer, VerifyingParser
+from uav_stack.udp import drain, source_address_for
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +66,15 @@ TAKEOVER_COMMANDS = frozenset({
 })
 TAKEOVER_MESSAGES = frozenset({"SET_MODE", "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT",
                                "SET_ATTITUDE_TARGET", "MANUAL_CONTROL"})
+
+
+@dataclass(frozen=True)
+class SigningPolicy:
+    """MAVLink 2 signing on every ground-station endpoint: ``key`` (32 bytes, see
+    :func:`uav_stack.mavlink_signing.read_key_file`); ``require``: refuse unsigned frames."""
+
+    key: bytes
+    require: bool = True
 
 
 def parse_endpoint(spec: str) -> tuple[str, str, int]:
@@ -85,6 +107,14 @@ class RouterStats:
     dropped_unknown_target: int = 0
     dropped_for_us: int = 0  # addressed to the agent's own id
     spoofed_own_id: int = 0  # a GCS frame claiming the agent's or the FCU's id
+    foreign_source: int = 0  # datagrams to a udpout endpoint from another address than its ground station's
+    peers_evicted: int = 0  # udpin: a ground station forgotten to make room for another
+    setup_signing_dropped: int = 0  # SETUP_SIGNING from a ground station (keys come from files)
+    signed: int = 0  # frames with a good signature (signing on)
+    bad_signature: int = 0  # wrong signature, or a replayed timestamp: refused
+    unsigned_refused: int = 0  # unsigned frames refused (signing required)
+    unsigned_accepted: int = 0  # unsigned frames let through (signing on, not required)
+    unsignable: int = 0  # frames that could not be signed for a signed link (outside our dialect): not sent
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -115,16 +145,22 @@ class Channel:
 
 
 class UdpEndpoint(Channel):
-    def __init__(self, spec: str, clock: Callable[[], float]):
+    """One ground-station endpoint: its socket, the ground stations it answers, its decoder
+    (verifying signatures if signing is on) and its signer."""
+
+    def __init__(self, spec: str, clock: Callable[[], float], *, bind: str | None = None,
+                 signing: SigningPolicy | None = None, link_id: int = 0):
         super().__init__(spec)
         self.spec = spec
         self.mode, self.host, self.port = parse_endpoint(spec)
         self.clock = clock
+        self.bind = bind
         self.sock: socket.socket | None = None
         self.dest: tuple[str, int] | None = None
         self.peers: dict[tuple[str, int], float] = {}
-        self.parser = mavlink.MAVLink(None)
+        self.parser: Any = VerifyingParser(signing.key, signing.require) if signing else mavlink.MAVLink(None)
         self.parser.robust_parsing = True
+        self.signer = Signer(signing.key, link_id) if signing else None
         self._out: list[bytes] = []
         self._out_len = 0
         self.rx_datagrams = 0
@@ -133,11 +169,14 @@ class UdpEndpoint(Channel):
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if self.mode == "udpin":
-                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                # no SO_REUSEADDR: no other process can bind this port beside us and read our ground stations' traffic
                 s.bind((self.host, self.port))
+                if self.host in ("0.0.0.0", ""):
+                    log.warning("MAVLink endpoint %s listens on every interface; anyone who reaches it can command "
+                                "the UAV unless signing is required (docs/security.md)", self.spec)
             else:
                 self.dest = (socket.gethostbyname(self.host), self.port)
-                s.bind(("0.0.0.0" if self.dest[0] != "127.0.0.1" else "127.0.0.1", 0))
+                s.bind((self.bind or source_address_for(self.dest[0]), 0))
             s.setblocking(False)
         except OSError:
             s.close()
@@ -154,16 +193,25 @@ class UdpEndpoint(Channel):
             self.sock.close()
             self.sock = None
 
-    def recv(self, max_datagrams: int = 64) -> list[bytes]:
-        out: list[bytes] = []
+    def recv(self, stats: RouterStats, max_datagrams: int = 64) -> list[tuple[bytes, tuple[str, int]]]:
+        """Pending datagrams; a udpout endpoint keeps only those from its ground station."""
+        out = []
         for data, a in drain(self.sock, max_datagrams):
-            if self.mode == "udpin":
-                if a not in self.peers and len(self.peers) >= MAX_PEERS:
-                    del self.peers[min(self.peers, key=self.peers.__getitem__)]
-                self.peers[a] = self.clock()
+            if self.mode == "udpout" and a != self.dest:
+                stats.foreign_source += 1
+                continue
             self.rx_datagrams += 1
-            out.append(data)
+            out.append((data, a))
         return out
+
+    def note_peer(self, a: tuple[str, int], stats: RouterStats) -> None:
+        """udpin: answer ``a`` from now on (it sent a frame we accepted); the least recently heard goes."""
+        if self.mode != "udpin":
+            return
+        if a not in self.peers and len(self.peers) >= MAX_PEERS:
+            del self.peers[min(self.peers, key=self.peers.__getitem__)]
+            stats.peers_evicted += 1
+        self.peers[a] = self.clock()
 
     def targets(self) -> list[tuple[str, int]]:
         if self.mode == "udpout":
@@ -174,11 +222,20 @@ class UdpEndpoint(Channel):
             del self.peers[a]
         return list(self.peers)
 
-    def queue(self, buf: bytes, stats: RouterStats) -> None:
+    def queue(self, msg: Any, stats: RouterStats) -> bool:
+        """Queue ``msg``'s frame (signed, on a signed link); False if it cannot be sent here."""
+        if self.signer is not None:
+            buf = self.signer.sign(msg)
+            if buf is None:
+                stats.unsignable += 1
+                return False
+        else:
+            buf = msg.get_msgbuf()
         if self._out_len + len(buf) > MAX_DATAGRAM:
             self.flush(stats)
         self._out.append(buf)
         self._out_len += len(buf)
+        return True
 
     def flush(self, stats: RouterStats) -> None:
         if not self._out:
@@ -205,8 +262,10 @@ class MavlinkRouter:
     """
 
     def __init__(self, endpoints: list[str] | tuple[str, ...], write_fcu: Callable[[bytes], None], *,
-                 own: tuple[int, int] = (1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER), clock: Callable[[], float] = time.time):
-        self.endpoints = [UdpEndpoint(e, clock) for e in endpoints]
+                 own: tuple[int, int] = (1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER), clock: Callable[[], float] = time.time,
+                 bind: str | None = None, signing: SigningPolicy | None = None):
+        self.endpoints = [UdpEndpoint(e, clock, bind=bind, signing=signing, link_id=i) for i, e in enumerate(endpoints)]
+        self.signing = signing
         self.write_fcu = write_fcu
         self.own = own
         self.clock = clock
@@ -244,13 +303,12 @@ class MavlinkRouter:
         if tsys == self.own[0] and tcomp == self.own[1]:
             self.stats.dropped_for_us += 1
             return
-        buf = msg.get_msgbuf()
         stats = self.stats
         for ep in self.endpoints:
             verdict = ep.accepts(src, tsys, tcomp)
             if verdict == 0:
-                ep.queue(buf, stats)
-                stats.to_gcs += 1
+                if ep.queue(msg, stats):
+                    stats.to_gcs += 1
             elif verdict == 1:
                 stats.dropped_loop += 1
             else:
@@ -261,11 +319,20 @@ class MavlinkRouter:
         """Read every endpoint (bounded, non-blocking) and route what arrived; returns messages routed."""
         n = 0
         for ep in self.endpoints:
-            for data in ep.recv():
-                n += self._route_datagram(ep, data)
+            for data, addr in ep.recv(self.stats):
+                n += self._route_datagram(ep, data, addr)
+        if self.signing is not None:
+            self._sum_signing()
         return n
 
-    def _route_datagram(self, ep: UdpEndpoint, data: bytes) -> int:
+    def _sum_signing(self) -> None:
+        st = self.stats
+        st.signed = sum(ep.parser.signed for ep in self.endpoints)
+        st.bad_signature = sum(ep.parser.bad_signature for ep in self.endpoints)
+        st.unsigned_refused = sum(ep.parser.unsigned_refused for ep in self.endpoints)
+        st.unsigned_accepted = sum(ep.parser.unsigned_accepted for ep in self.endpoints)
+
+    def _route_datagram(self, ep: UdpEndpoint, data: bytes, addr: tuple[str, int]) -> int:
         p = ep.parser
         try:
             msgs = p.parse_buffer(data) or []
@@ -281,12 +348,14 @@ class MavlinkRouter:
         bad = False
         for m in msgs:
             if isinstance(m, mavlink.MAVLink_bad_data):
-                bad = True
+                bad = bad or m.reason != "Invalid signature"  # refused by signing: counted there
                 continue
             self._route_from_gcs(ep, m)
             n += 1
         if bad or (not msgs and data):
             self.stats.bad_datagrams += 1
+        if n:
+            ep.note_peer(addr, self.stats)
         return n
 
     def _route_from_gcs(self, ep: UdpEndpoint, m: Any) -> None:
@@ -294,6 +363,9 @@ class MavlinkRouter:
         src = (m.get_srcSystem(), m.get_srcComponent())
         if src == self.own or src in self.fcu.seen:
             stats.spoofed_own_id += 1  # an echo of the FCU's own stream, or a GCS using our ids
+            return
+        if m.get_type() == "SETUP_SIGNING":  # a key over the air would let whoever sends first lock the others out
+            stats.setup_signing_dropped += 1
             return
         ep.learn(src)
         tsys = getattr(m, "target_system", 0)
@@ -316,8 +388,7 @@ class MavlinkRouter:
         for other in self.endpoints:
             if other is ep:
                 continue
-            if other.accepts(src, tsys, tcomp) == 0:
-                other.queue(buf, stats)
+            if other.accepts(src, tsys, tcomp) == 0 and other.queue(m, stats):
                 stats.gcs_to_gcs += 1
 
     def _note_takeover(self, m: Any) -> None:

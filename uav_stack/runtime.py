@@ -104,15 +104,19 @@ def open_node(cfg: AgentConfig, tap_zenoh_log: bool = False) -> SwarmNode:
     return node.open()
 
 
-def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | None]:
-    """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router."""
+def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
+    """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
+    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known."""
     sysid = cfg.mavlink_sysid
-    link = FcuLink(url, source_system=sysid)
+    link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
     router = None
     if cfg.gcs.mavlink_endpoints:
-        from uav_stack.mavlink_router import MavlinkRouter
+        from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
 
-        router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component)).open()
+        sg = cfg.gcs.signing
+        signing = SigningPolicy(sg.read_key(), sg.require) if sg is not None else None
+        router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
+                               bind=cfg.gcs.bind, signing=signing).open()
         link.on_message = router.from_fcu
     try:
         link.open()
@@ -121,6 +125,15 @@ def open_fcu_link(cfg: AgentConfig, url: str) -> tuple[FcuLink, MavlinkRouter | 
             router.close()
         raise
     return link, router
+
+
+def check_signing_key(cfg: AgentConfig, ap: argparse.ArgumentParser) -> None:
+    """A MAVLink signing key file that cannot be used: a usage error naming the field, before anything starts."""
+    if cfg.gcs.signing is not None:
+        try:
+            cfg.gcs.signing.read_key()
+        except ConfigError as exc:
+            ap.error(f"gcs.signing.{exc}")
 
 
 def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
@@ -167,9 +180,14 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
         )
     )
     (host, port), = fcu.open()
-    link, router = open_fcu_link(a, f"udpout:{host}:{port}")
+    link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    # the agent is its FCU's only client (ground stations come through its router): nobody
+    # else's datagrams reach the FCU, nor churn the agent out of its peers
+    assert link.local_address is not None
+    fcu.vehicles[0].link.set_owner(link.local_address, owner_only=True)
     node = open_node(a, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
+    agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
     try:
         run_loop(agent, stop, fcu, cfg.duration)
     finally:
@@ -220,6 +238,7 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
         cfg = VirtualUavConfig.load(args.config)
     except (ConfigError, OSError) as exc:
         ap.error(f"{args.config}: {exc}")
+    check_signing_key(cfg.agent, ap)
     return run_virtual_uav(cfg, stop, tap_zenoh_log=True)
 
 
@@ -227,7 +246,9 @@ def agent_main(argv: list[str] | None = None) -> int:
     """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
     ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
     ap.add_argument("--fcu", required=True,
-                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:0.0.0.0:14540, tcp:...")
+                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:127.0.0.1:14540, tcp:...")
+    ap.add_argument("--fcu-bind", default=None, metavar="ADDR",
+                    help="local address of a udpout FCU link (default: the one that routes to the FCU)")
     ap.add_argument("--swarm", required=True)
     ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
     ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
@@ -252,6 +273,13 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
                     help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
                          " repeatable")
+    ap.add_argument("--mavlink-bind", default=None, metavar="ADDR",
+                    help="local address of the udpout ground-station endpoints (default: the one that routes to each)")
+    ap.add_argument("--mavlink-key-file", default=None, metavar="FILE",
+                    help="sign the ground-station links with this passphrase file and refuse unsigned frames "
+                         "(MAVProxy: signing key <passphrase>)")
+    ap.add_argument("--mavlink-allow-unsigned", action="store_true",
+                    help="with --mavlink-key-file: still accept unsigned frames (counted)")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--zones", default=None, metavar="FILE",
                     help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
@@ -280,6 +308,7 @@ def agent_main(argv: list[str] | None = None) -> int:
         except ConfigError as exc:
             ap.error(f"network.discovery.{exc}")
     check_security(cfg, args.insecure, ap)
+    check_signing_key(cfg, ap)
     return run_agent(cfg, stop, args.duration, tap_zenoh_log=True)
 
 
@@ -314,9 +343,14 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
             ap.error("--discovery needs --discovery-key-file")
         net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
                                                          "advertise": args.advertise})
+    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind}
+    if args.mavlink_key_file:
+        gcs["signing"] = {"key_file": args.mavlink_key_file, "require": not args.mavlink_allow_unsigned}
+    elif args.mavlink_allow_unsigned:
+        ap.error("--mavlink-allow-unsigned needs --mavlink-key-file")
     out = {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
-           "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir, "network": net,
-           "gcs": {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid}}
+           "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
+           "network": net, "gcs": gcs}
     if args.zones:
         out["avoidance"] = {"zones": read_zones(args.zones, ap)}
     return out

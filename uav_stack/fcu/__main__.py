@@ -3,11 +3,16 @@
     python -m uav_stack.fcu --sysid 1 --listen 127.0.0.1:14580 [--remote 127.0.0.1:14540]
         --home LAT,LON,ALT [--flavour px4|ardupilot] [--rtf 1.0] [--duration S]
         [--count N] [--param NAME=VALUE ...] [--rate MESSAGE=HZ ...] [--physics-hz 50]
+        [--owner HOST:PORT [--owner-only]]
 
 With ``--count N`` it hosts N vehicles in one process: sysids sysid..sysid+N-1, listen
 port and remote ports +i (PX4 SITL's multi-vehicle convention), homes 5 m apart eastwards.
 It prints one line per vehicle, ``LISTEN <sysid> <host>:<port>``, once the sockets are
 bound (useful with port 0), and exits 0 on --duration, SIGINT or SIGTERM.
+
+Each vehicle's owner (its companion) keeps its place among the vehicle's UDP peers whatever
+other ports send: ``--owner`` names it (port +i with --count), else the first peer heard is
+the owner; ``--owner-only`` ignores everyone else (docs/security.md).
 """
 
 from __future__ import annotations
@@ -68,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--yaw", type=float, default=0.0, help="initial heading, rad")
     p.add_argument("--param", type=_param, action="append", default=[], help="NAME=VALUE override")
     p.add_argument("--rate", type=_param, action="append", default=[], help="MESSAGE=HZ stream rate (0 = off)")
+    p.add_argument("--owner", type=_hostport, default=None, help="the companion's HOST:PORT (default: the first peer heard)")
+    p.add_argument("--owner-only", action="store_true", help="ignore datagrams from anyone but the owner")
     p.add_argument("--log-level", default="WARNING")
     return p
 
@@ -75,6 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(a: argparse.Namespace) -> FcuConfig:
     if a.count < 1 or a.sysid + a.count - 1 > 255:
         raise ValueError("--count must be >= 1 and sysids must stay <= 255")
+    if a.owner_only and a.owner is None:
+        raise ValueError("--owner-only needs --owner HOST:PORT (else the first peer heard would be the only one answered)")
     frame = LocalFrame(a.home)
     vehicles = []
     for i in range(a.count):
@@ -89,6 +98,8 @@ def config_from_args(a: argparse.Namespace) -> FcuConfig:
                 remotes=tuple((h, rp + i) for h, rp in a.remote),
                 yaw=a.yaw,
                 params=dict(a.param),
+                owner=(a.owner[0], a.owner[1] + i) if a.owner else None,
+                owner_only=a.owner_only,
             )
         )
     rates = dict(DEFAULT_STREAM_RATES)

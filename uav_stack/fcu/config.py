@@ -39,6 +39,8 @@ class VehicleConfig:
     remotes: tuple[tuple[str, int], ...] = ()  # static peers to stream to (PX4 SITL style)
     yaw: float = 0.0  # initial heading, rad
     params: dict[str, float] = field(default_factory=dict)  # parameter overrides by name
+    owner: tuple[str, int] | None = None  # the companion's address: never churned out; None: the first peer heard
+    owner_only: bool = False  # answer the owner only (a virtual UAV: ground stations use the agent's router)
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.sysid) <= 255:

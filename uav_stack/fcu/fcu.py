@@ -78,6 +78,8 @@ class VirtualFcu:
                 tuple(vc.remotes),
                 config.max_peers,
                 config.peer_timeout_s,
+                owner=tuple(vc.owner) if vc.owner is not None else None,  # type: ignore[arg-type]
+                owner_only=vc.owner_only,
                 stats=self.stats,
                 coalesce=config.coalesce_datagrams,
                 dirty=self._dirty,
@@ -152,6 +154,9 @@ class VirtualFcu:
         st = self.stats
         st.datagrams_in += 1
         st.bytes_in += len(data)
+        if not v.link.admits(addr):
+            st.foreign_datagrams += 1
+            return
         msgs, clean = v.parser.parse(data)
         if not clean:
             st.bad_datagrams += 1

@@ -3,6 +3,13 @@
 Like a PX4 SITL / mavlink-router UDP server endpoint, the vehicle streams to every peer
 that has sent it a datagram (at most ``max_peers``; the least recently heard one is
 replaced, and peers silent for ``peer_timeout_s`` are forgotten) plus static ``remotes``.
+
+One peer is the vehicle's **owner**, its companion (the agent): the one configured, or else
+the first peer heard. The owner is never replaced nor forgotten, so datagrams from other
+ports cannot churn it out of the table (they only replace each other, counted in
+``peers_evicted``). With ``owner_only`` (a virtual UAV, whose agent is its only client: ground
+stations go through the agent's router) datagrams from anyone else are dropped before they
+are parsed, counted in ``foreign_datagrams``.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ class UdpLink:
     remotes: tuple[Addr, ...] = ()
     max_peers: int = 8
     peer_timeout_s: float = 30.0
+    owner: Addr | None = None  # never evicted nor expired; None: the first peer heard becomes the owner
+    owner_only: bool = False  # drop datagrams from anyone but the owner
     peers: dict[Addr, float] = field(default_factory=dict)  # addr -> wall time last heard
     sock: socket.socket | None = None
     stats: FcuStats | None = None  # datagrams_out / send_errors are counted here
@@ -39,8 +48,7 @@ class UdpLink:
 
     def open(self) -> Addr:
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:  # no SO_REUSEADDR: no other process can bind this port beside us and take the owner's traffic
             s.bind(self.listen)
             s.setblocking(False)
         except OSError:
@@ -60,23 +68,38 @@ class UdpLink:
             self.sock.close()
             self.sock = None
 
+    def set_owner(self, addr: Addr, owner_only: bool | None = None) -> None:
+        """Make ``addr`` the owner (e.g. the agent's socket, known once it is bound)."""
+        self.owner = (str(addr[0]), int(addr[1]))
+        if owner_only is not None:
+            self.owner_only = owner_only
+
+    def admits(self, addr: Addr) -> bool:
+        """May a datagram from ``addr`` be looked at? (Everyone's, unless ``owner_only``.)"""
+        return not self.owner_only or self.owner is None or addr == self.owner
+
     def recv(self, max_datagrams: int = 256) -> list[tuple[bytes, Addr]]:
         """Every pending datagram (bounded), without blocking."""
         return drain(self.sock, max_datagrams)
 
     def note_peer(self, addr: Addr, wall: float) -> bool:
-        """Remember a peer we heard from; True if it is new."""
+        """Remember a peer we heard from (a valid MAVLink datagram); True if it is new."""
+        if self.owner is None:
+            self.owner = addr
         known = addr in self.peers
         self.peers[addr] = wall
         if not known:
             if len(self.peers) > self.max_peers:
-                oldest = min(self.peers, key=self.peers.__getitem__)
-                del self.peers[oldest]
+                oldest = min((a for a in self.peers if a != self.owner), key=self.peers.__getitem__, default=None)
+                if oldest is not None:
+                    del self.peers[oldest]
+                    if self.stats is not None:
+                        self.stats.peers_evicted += 1
             self._rebuild()
         return not known
 
     def expire_peers(self, wall: float) -> None:
-        stale = [a for a, t in self.peers.items() if wall - t > self.peer_timeout_s]
+        stale = [a for a, t in self.peers.items() if wall - t > self.peer_timeout_s and a != self.owner]
         if stale:
             for a in stale:
                 del self.peers[a]

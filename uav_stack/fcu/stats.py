@@ -16,6 +16,8 @@ class FcuStats:
     datagrams_out: int = 0
     send_errors: int = 0
     not_for_us: int = 0  # addressed to another system/component
+    foreign_datagrams: int = 0  # from another address than the owner's, on an owner-only link (dropped)
+    peers_evicted: int = 0  # learned peers replaced by newer ones (never the owner)
     commands: Counter[str] = field(default_factory=Counter)  # by MAV_RESULT name
     commands_by_id: Counter[int] = field(default_factory=Counter)
     handler_errors: int = 0
@@ -34,6 +36,8 @@ class FcuStats:
             "datagrams_out": self.datagrams_out,
             "send_errors": self.send_errors,
             "not_for_us": self.not_for_us,
+            "foreign_datagrams": self.foreign_datagrams,
+            "peers_evicted": self.peers_evicted,
             "commands": dict(self.commands),
             "commands_by_id": dict(self.commands_by_id),
             "handler_errors": self.handler_errors,
