@@ -295,6 +295,19 @@ class DockerRuntime:
                     self._exited[by_id[c.id]] = int(c.attrs["State"]["ExitCode"])
         return dict(self._exited)
 
+    def signal(self, name: str, sig: int) -> bool:
+        """Send ``sig`` to one container's main process; False if it is not running."""
+        box = self.boxes.get(name)
+        if box is None or not self._running(box):
+            return False
+        box.container.kill(signal=int(sig))
+        return True
+
+    def restart(self, name: str, grace: float = 3.0) -> None:
+        """Restart one container (its command and network as first started)."""
+        self.boxes[name].container.restart(timeout=max(1, int(grace)))
+        self._exited.pop(name, None)
+
     def pids(self) -> dict[str, int]:
         """Host PIDs of each container's main process (psutil can measure them like processes)."""
         out = {}

@@ -2,13 +2,17 @@
 
 Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
 with its own Zenoh session and a real MAVLink/UDP link between the two. The runtime also
-starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Children get their own
-process group and ``PR_SET_PDEATHSIG``, and :meth:`ProcessRuntime.stop` escalates from
-SIGTERM to SIGKILL, so nothing outlives the run.
+starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Every child (UAVs,
+edge router, discovery server) gets its own process group and ``PR_SET_PDEATHSIG`` (SIGTERM) before it execs, so
+it dies with the runner even when the runner is killed with SIGKILL, and :meth:`ProcessRuntime.stop` escalates
+from SIGTERM to SIGKILL, so nothing outlives the run. :meth:`ProcessRuntime.signal` and
+:meth:`ProcessRuntime.restart` let a supervisor or a fault schedule act on one child.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import logging
 import os
 import signal
@@ -16,8 +20,10 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from msgspec.structs import replace
 
@@ -27,6 +33,28 @@ from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
+
+_PR_SET_PDEATHSIG = 1
+try:  # resolved once in the parent: the child between fork and exec only calls it
+    _prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+except (OSError, AttributeError):
+    _prctl = None
+
+
+def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies.
+
+    Runs in the child between fork and exec, so no start-up race: if the parent is already gone
+    by then, the child exits at once instead of running as an orphan.
+    """
+
+    def set_pdeathsig() -> None:
+        if _prctl is not None:
+            _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return set_pdeathsig
 
 
 def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str]]:
@@ -51,6 +79,13 @@ def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str
     return [python, "-S"], env
 
 
+def _death_signal(name: str) -> int:
+    """What a child gets when the runner dies: a UAV SIGTERM (it writes its last records, then exits,
+    with a watchdog of its own), the edge services SIGKILL (nothing to save; a Zenoh router's
+    shutdown can wait on its peers)."""
+    return signal.SIGTERM if name.startswith("uav") else signal.SIGKILL
+
+
 def wait_file(path: Path, timeout: float, proc: subprocess.Popen[bytes] | None = None) -> None:
     """Wait until ``path`` exists (a service's sign of life; bounded)."""
     deadline = time.monotonic() + timeout
@@ -67,6 +102,8 @@ class Child:
     name: str
     proc: subprocess.Popen[bytes]
     log_path: Path
+    argv: list[str]
+    starts: int = 1
 
 
 class ProcessRuntime:
@@ -143,8 +180,8 @@ class ProcessRuntime:
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(service.ttl), "--rate", "5000",  # every node shares 127.0.0.1
-                                  "--die-with-parent"])
+                                  "--ttl", str(service.ttl), "--rate", "5000"])  # every node shares 127.0.0.1
+        # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         deadline = time.monotonic() + 20.0
         while True:
             proc = self.children["discovery"].proc
@@ -194,10 +231,35 @@ class ProcessRuntime:
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"
-        with open(log_path, "ab") as out:  # the child keeps its own descriptor
-            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    start_new_session=True, env=self._env)
-        self.children[name] = Child(name, proc, log_path)
+        with contextlib.ExitStack() as stack:  # the child keeps its own descriptor
+            try:
+                out: Any = stack.enter_context(open(log_path, "ab"))
+            except OSError as exc:  # a full or read-only disk must not stop a flight process from starting
+                log.warning("%s: cannot open %s (%s); its output is discarded", name, log_path, exc.strerror)
+                out = subprocess.DEVNULL
+            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                    env=self._env, preexec_fn=die_with_parent_preexec(os.getpid(), _death_signal(name)))
+        old = self.children.get(name)
+        self.children[name] = Child(name, proc, log_path, argv, old.starts + 1 if old else 1)
+
+    # ---- acting on one child (supervisor, fault schedule) --------------------------------------
+    def signal(self, name: str, sig: int) -> bool:
+        """Send ``sig`` to one child's process group; False if it is not running."""
+        c = self.children.get(name)
+        if c is None or c.proc.poll() is not None:
+            return False
+        try:
+            os.killpg(c.proc.pid, sig)
+        except ProcessLookupError:
+            return False
+        return True
+
+    def restart(self, name: str, grace: float = 3.0) -> None:
+        """Start ``name`` again with its first command line (stopping it first if it still runs)."""
+        c = self.children[name]
+        if c.proc.poll() is None:
+            self._terminate(c, grace)
+        self._spawn(name, c.argv)
 
     def exited(self) -> dict[str, int]:
         """Children that have exited, with their return codes."""
@@ -222,13 +284,36 @@ class ProcessRuntime:
         deadline = time.monotonic() + grace
         for n in order:
             c = self.children[n]
+            if c.proc.poll() is None:
+                try:
+                    os.killpg(c.proc.pid, signal.SIGCONT)  # a stopped child cannot act on SIGTERM
+                except ProcessLookupError:
+                    pass
             try:
                 c.proc.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 log.warning("%s did not exit on SIGTERM; killing it", n)
-                try:
-                    os.killpg(c.proc.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-                c.proc.wait(5)
+                self._kill(c)
         return {n: c.proc.returncode for n, c in self.children.items()}
+
+    def _terminate(self, c: Child, grace: float) -> None:
+        for sig in (signal.SIGTERM, signal.SIGCONT):
+            try:
+                os.killpg(c.proc.pid, sig)
+            except ProcessLookupError:
+                return
+        try:
+            c.proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            self._kill(c)
+
+    @staticmethod
+    def _kill(c: Child) -> None:
+        try:
+            os.killpg(c.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        try:
+            c.proc.wait(5)
+        except subprocess.TimeoutExpired:
+            log.error("%s (pid %d) does not die on SIGKILL", c.name, c.proc.pid)

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
+from mrswarm.incidents import find_incidents
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
 from mrswarm.summary import (
@@ -43,6 +45,7 @@ from uav_stack.phases import WORKING
 GRID_HZ = 10.0  # resampling rate of the trajectories
 AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
 GOAL_RADIUS = 2.0  # m (horizontal): a goto UAV this close to its goal has reached it
+CELL_CHUNK = 2_000_000  # cells x points per coverage step held in memory at once (~32 MB of float64 pairs)
 
 
 @dataclass
@@ -55,6 +58,8 @@ class Track:
     xyz: np.ndarray  # (n, 3) east, north, up, m
     phase: list[str]  # the agent's phase (uav_stack.phases.AgentPhase values)
     rtf: np.ndarray
+    vz: np.ndarray | None = None  # vertical speed, up, m/s
+    armed: np.ndarray | None = None  # 1 armed, 0 not
 
 
 @dataclass
@@ -67,6 +72,7 @@ class SeparationSteps:
     min_at: float | None  # wall
     collisions: int
     collision_pairs: list[CollisionPair]
+    onsets: list[tuple[float, int, int]]  # (wall time, uav, uav) of every collision onset
 
 
 @dataclass
@@ -107,15 +113,18 @@ def load_tracks(run_dir: Path) -> dict[int, Track]:
         with open(path, newline="") as f:
             for r in csv.DictReader(f):
                 try:
-                    rows.append((float(r["t_wall"]), float(r["t_sim"]), float(r["x"]), float(r["y"]), float(r["z"]), r["phase"],
-                                 float(r["rtf"])))
+                    row = (float(r["t_wall"]), float(r["t_sim"]), float(r["x"]), float(r["y"]), float(r["z"]), r["phase"],
+                           float(r["rtf"]), float(r.get("vz") or 0.0), int(r.get("armed") or 1))
                 except (KeyError, ValueError, TypeError):
-                    continue  # a line cut by a crash
+                    continue  # a line cut by a crash or a full disk
+                if all(math.isfinite(v) for v in row[:5]):
+                    rows.append(row)
         if not rows:
             continue
         rows.sort(key=lambda r: r[0])
         a = np.array([r[:5] for r in rows], dtype=float)
-        tracks[uav] = Track(uav, a[:, 0], a[:, 1], a[:, 2:5], [r[5] for r in rows], np.array([r[6] for r in rows]))
+        tracks[uav] = Track(uav, a[:, 0], a[:, 1], a[:, 2:5], [r[5] for r in rows], np.array([r[6] for r in rows]),
+                            vz=np.array([r[7] for r in rows]), armed=np.array([r[8] for r in rows]))
     return tracks
 
 
@@ -159,6 +168,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
     best: tuple[float, int | None, int | None, float | None] = (math.inf, None, None, None)
     collisions = 0
     pairs_below: list[CollisionPair] = []
+    onset_times: list[tuple[float, int, int]] = []
     for i in range(n):
         for j in range(i + 1, n):
             d = np.linalg.norm(pos[i] - pos[j], axis=1)
@@ -169,7 +179,9 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
             if d[k] < best[0]:
                 best = (float(d[k]), ids[i], ids[j], float(grid[k]))
             below = d < collision_distance
-            onsets = int(np.count_nonzero(below[1:] & ~below[:-1]) + (1 if below.size and below[0] else 0))
+            starts = np.nonzero(below & ~np.concatenate(([False], below[:-1])))[0]
+            onsets = len(starts)
+            onset_times += [(float(grid[k]), ids[i], ids[j]) for k in starts]
             if onsets:
                 collisions += onsets
                 pairs_below.append(CollisionPair(pair=[ids[i], ids[j]], onsets=onsets, min=float(d[k])))
@@ -180,6 +192,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
         min_at=best[3],
         collisions=collisions,
         collision_pairs=pairs_below,
+        onsets=sorted(onset_times),
     )
 
 
@@ -203,9 +216,12 @@ def coverage(grid: np.ndarray, pos: np.ndarray, active: np.ndarray, area: tuple[
         pts = pos[:, k, :2][active[:, k]]
         if len(pts) == 0:
             continue
-        d2 = ((cells[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-        hit = (d2 <= r2) & (first == np.inf)
-        first[hit] = grid[k]
+        step = max(1, CELL_CHUNK // len(pts))  # bounded memory, whatever the number of cells
+        for c0 in range(0, len(cells), step):
+            part = cells[c0:c0 + step]
+            d2 = ((part[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+            sl = first[c0:c0 + step]
+            sl[(d2 <= r2) & (sl == np.inf)] = grid[k]
     frac = np.searchsorted(np.sort(first), grid, side="right") / len(cells)
     first_visit = np.where(np.isinf(first), np.nan, first).reshape(cy.shape)
     return frac, first_visit, (xs, ys)
@@ -336,7 +352,15 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         interrupted=info.interrupted,
         processes=dict(info.exit_codes),
         aborted=info.aborted,
+        stop_signals=list(info.stop_signals),
     )
+    t_ref = info.mission_start or info.started
+    summary.lost_uavs = lost_uavs(info, t_ref)
+    summary.services = service_outages(info, t_ref)
+    summary.failsafes = failsafe_events(stats, t_ref)
+    errors = record_errors(stats, info)
+    if errors is not None:
+        summary.records = errors
     if info.security is not None:
         summary.security = security_report(run_dir, info.security, stats)
     if not tracks:
@@ -381,6 +405,16 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         summary.goals = goals_report(scenario, tracks)
         if len(ids) == 2:
             summary.encounter = encounter_report(scenario, grid, pos, ids, sep.per_step)
+    for u, tr in sorted(tracks.items()):
+        if tr.vz is not None and tr.armed is not None:
+            summary.incidents += find_incidents(u, tr.t, tr.xyz[:, 2], tr.vz, tr.armed, t0)
+    if info.faults:
+        working = working_mask(tracks, grid, pos, ids)
+        area = m.area.as_tuple() if m.area is not None else None
+        summary.faults = fault_table(
+            info, t0, t_end, run_dir, sep.onsets, {u: (grid, working[k]) for k, u in enumerate(ids)},
+            [u.id for u in scenario.uav_list()], fl.speed * 2.0 * m.sensor_radius,
+            (area[1] - area[0]) * (area[3] - area[2]) if area is not None and m.type == "coverage" else None)
     summary.rtf = rtf_report(tracks, t0, t_end)
     network = network_report(stats)
     ne = netem_report(stats)

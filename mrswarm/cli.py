@@ -9,34 +9,88 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
+
+# exit codes of `mrswarm run` (docs/reliability.md)
+EXIT_OK = 0  # the run completed: no collision, no incident
+EXIT_FAILED = 1  # the runner gave up (aborted), or nothing was recorded
+EXIT_USAGE = 2  # bad input: the scenario, an override, --out, or a fleet too large for this machine
+EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell or hit the ground)
+# 128 + N: stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from rich.console import Console
+    try:
+        from mrswarm.signals import StopSignals
 
-    from mrswarm.experiment import Experiment
-    from mrswarm.scenario import ScenarioError, load_scenario
-    from mrswarm.summary_table import print_summary
+        signals = StopSignals().install()  # from the start: a Ctrl-C is never a traceback
+    except KeyboardInterrupt:  # came before the handler
+        return 130
+    from rich.console import Console
 
     console = Console()
     try:
+        return _run_with(args, console, signals)
+    finally:
+        signals.restore()
+        if signals.hangup:  # the terminal is gone: what is still buffered for it would fail at exit
+            _detach_from_terminal()
+
+
+def _detach_from_terminal() -> None:
+    import os
+
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+    except OSError:
+        pass
+
+
+def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
+    from mrswarm.resources import check_resources
+    from mrswarm.scenario import ScenarioError, load_scenario
+    from mrswarm.summary_table import print_summary
+
+    try:
         scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
     except ScenarioError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False)
-        return 2
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        return EXIT_USAGE
+    problem = check_resources(scn)
+    if problem and not args.force:
+        console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False, soft_wrap=True)
+        return EXIT_USAGE
+    if problem:
+        console.print(f"[yellow]warning:[/] {problem} (--force)", highlight=False, soft_wrap=True)
+    if signals.requested:
+        return signals.exit_code
+    from mrswarm.experiment import Experiment  # heavy (zenoh, numpy): only once the input is known to be good
+
     try:
         exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level,
-                         record=not args.no_record)
+                         record=not args.no_record, signals=signals)
     except RuntimeError as exc:  # a runtime that cannot start (no docker engine, no image, ...)
-        console.print(f"[red]error:[/] {exc}", highlight=False)
-        return 2
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        return EXIT_USAGE
+    except OSError as exc:  # --out read-only, a file, full...
+        console.print(f"[red]error:[/] --out {args.out}: cannot create the results folder there: "
+                      f"{exc.strerror or exc}" + (f" ({exc.filename})" if exc.filename else ""), highlight=False, soft_wrap=True)
+        return EXIT_USAGE
     summary = exp.run()
-    print_summary(console, summary)
-    if summary.interrupted:
-        return 130
+    try:
+        print_summary(console, summary)
+    except OSError:  # the terminal is gone (SIGHUP): summary.json holds it
+        pass
+    if signals.requested:  # stopped (or hurried) by a signal: 128 + its number
+        return signals.exit_code
     if summary.aborted or summary.error:
-        return 1
-    return 0
+        return EXIT_FAILED
+    if summary.safety_events:
+        return EXIT_SAFETY
+    return EXIT_OK
 
 
 def _results(args: argparse.Namespace) -> int:
@@ -56,8 +110,11 @@ def _results(args: argparse.Namespace) -> int:
             raise ResultsError("--out is for a recording (run.mcap); a run folder's results go into the folder")
         summary = rebuild_results(path)
     except ResultsError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False)
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return 2
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted[/]: summary.json was not rebuilt")
+        return 130
     print_summary(console, summary)
     return 1 if summary.error else 0
 
@@ -76,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-level", default="INFO", help="log level of the UAV processes (their logs go to <run>/logs)")
     p.add_argument("--runtime", choices=["process", "docker"], default=None,
                    help="one OS process or one Docker container per virtual UAV (default: the scenario's, else process)")
+    p.add_argument("--force", action="store_true", help="run even if the fleet looks too large for this machine")
     p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 

@@ -8,7 +8,14 @@ beside it: the way in for the runner and for ground stations (``mrswarm gcs watc
 reports ``ready`` -> command ``takeoff`` -> wait until all ``hover`` -> command ``start`` (the
 mission clock starts here, for every UAV at once) -> fly for ``duration`` seconds or until all
 are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.py).
-Ctrl-C (or SIGTERM) at any point still stops every process and summarises what was recorded.
+Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
+recorded; a second one stops faster (mrswarm/signals.py).
+
+A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
+services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
+on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
+mission (mrswarm/faults.py). The runner's own files are written atomically; one that cannot be
+written (a full disk) is reported, never the end of the run.
 
 Concerns elsewhere: the live estimates and the mission clock in mrswarm/live.py, the live panel
 in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
@@ -17,23 +24,24 @@ in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
 from __future__ import annotations
 
 import json
-import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import yaml
 from rich.console import Console
 
 from mrswarm.display import Display
+from mrswarm.faults import Chaos, Swarm, plan
 from mrswarm.live import LiveMetrics, RunProgress, RunStage
-from mrswarm.recorder.run_recorder import RunRecorder
+from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import Scenario
-from mrswarm.summary import RunInfo, RunSummary
+from mrswarm.signals import FAST_GRACE_S, GRACE_S, Interrupted, StopSignals
+from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
+from mrswarm.supervisor import Supervisor, uav_of
 from mrswarm.world_setup import (
     open_observer,
     other_swarm_credentials,
@@ -45,6 +53,7 @@ from mrswarm.world_setup import (
 )
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
+from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, AgentPhase
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
@@ -53,6 +62,7 @@ TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slo
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 COMMAND_TIMEOUT = 6.0  # s to collect every acknowledgement of a command (re-sent once halfway)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
+REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
 
 
 class RunAborted(RuntimeError):
@@ -68,7 +78,7 @@ class Experiment:
 
     def __init__(self, scenario: Scenario, out_root: Path = Path("results"), console: Console | None = None,
                  live: bool = True, log_level: str = "INFO", probe: Callable[[Experiment, float], None] | None = None,
-                 record: bool = True):
+                 record: bool = True, signals: StopSignals | None = None):
         self.scn = scenario
         self.console = console or Console()
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -89,6 +99,12 @@ class Experiment:
         self.probe = probe
         self.record = record  # the flight recorder: every message into <run>/run.mcap (docs/recording.md)
         self.recorder: RunRecorder | None = None
+        self.signals = signals or StopSignals()
+        self.supervisor: Supervisor | None = None
+        self.chaos: Chaos | None = None
+        self.ids: list[int] = []
+        self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
+        self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -111,26 +127,81 @@ class Experiment:
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
-        (self.run_dir / "scenario.yaml").write_text(yaml.safe_dump(to_builtins(self.scn), sort_keys=False))
-        old = signal.signal(signal.SIGTERM, _raise_interrupt)
+        own_signals = not self.signals.installed
+        if own_signals:
+            self.signals.install()
         try:
-            self._fly()
-        except KeyboardInterrupt:
-            self.run_info.interrupted = True
-            self.console.print("[yellow]interrupted: stopping every UAV process[/]")
-        except RunAborted as exc:
-            self.run_info.aborted = str(exc)
-            self.console.print(f"[red]run aborted:[/] {exc}")
+            self._save("scenario.yaml", yaml.safe_dump(to_builtins(self.scn), sort_keys=False).encode())
+            self._save_info()
+            try:
+                self._fly()
+            except Interrupted:
+                self.run_info.interrupted = True
+                self._say(f"[yellow]{self.signals.names[0]}: stopping every UAV process[/]")
+            except RunAborted as exc:
+                self.run_info.aborted = str(exc)
+                self._say(f"[red]run aborted:[/] {exc}")
+            except OSError as exc:  # the results folder cannot take a UAV's configuration (a full or read-only disk)
+                self.run_info.aborted = f"cannot start: {exc.filename or ''}: {exc.strerror or exc}"
+                self._say(f"[red]run aborted:[/] {self.run_info.aborted}")
+            finally:
+                self._stop_all()
+            if self.signals.hangup:
+                self.console.quiet = True  # the terminal is gone
+            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast)
         finally:
-            if self.observer is not None:
+            if own_signals:
+                self.signals.restore()
+
+    def _stop_all(self) -> None:
+        """Stop every child (faster after a second signal) and write run.json; never raises on a dead observer."""
+        if self.observer is not None:
+            try:
                 self.observer.close()
-            self.run_info.exit_codes = dict(self.runtime.stop())
-            self.run_info.stopped = time.time()
+            except Exception as exc:  # noqa: BLE001 - stopping must go on
+                self.run_info.write_errors.append(f"observer close: {exc}")
+        self.run_info.exit_codes = dict(self.runtime.stop(FAST_GRACE_S if self.signals.fast else GRACE_S))
+        self.run_info.stopped = time.time()
+        self.run_info.stop_signals = self.signals.names
+        self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
+        self._save_info()
+        # the flight recorder after run.json, which it keeps; faster after a second signal
+        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
+            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+
+    # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
+    def _save(self, name: str, data: bytes) -> bool:
+        try:
+            write_atomic(self.run_dir / name, data)
+            return True
+        except OSError as exc:
+            msg = f"{name}: {exc.strerror or exc}"
+            if msg not in self.run_info.write_errors:
+                self.run_info.write_errors.append(msg)
+                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / name} ({exc.strerror or exc}); the run goes on")
+            return False
+
+    def _save_info(self) -> None:
+        if self.supervisor is not None:
+            self.run_info.events = list(self.supervisor.events)
+        if self.chaos is not None:
+            self.run_info.faults = list(self.chaos.records)
+            self.chaos.changed = False
+        try:
             self.run_info.write(self.run_dir / "run.json")
-            if self.recorder is not None and self.recorder.stop() not in (0, 130):  # after run.json, which it keeps
-                self.console.print(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
-            signal.signal(signal.SIGTERM, old)
-        return summarise_run(self.run_dir, self.scn)
+        except OSError as exc:
+            msg = f"run.json: {exc.strerror or exc}"
+            if msg not in self.run_info.write_errors:
+                self.run_info.write_errors.append(msg)
+                self._say(f"[yellow]warning:[/] cannot write {self.run_dir / 'run.json'} ({exc.strerror or exc}); "
+                          "the run goes on")
+
+    def _say(self, text: str) -> None:
+        """Print, unless the terminal is gone (after SIGHUP a write to it fails)."""
+        try:
+            self.console.print(text, highlight=False)
+        except OSError:
+            self.console.quiet = True
 
     def _fly(self) -> None:
         scn = self.scn
@@ -148,11 +219,11 @@ class Experiment:
             key_file.write_text(f"{scn.swarm} {net.discovery.key}\n")
             key_file.chmod(0o600)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
-        (self.run_dir / "network.json").write_text(json.dumps(network_info))
+        self._save("network.json", json.dumps(network_info).encode())
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
-                self.console.print(f"flight recording: {self.recorder.path}", highlight=False)
+                self._say(f"flight recording: {self.recorder.path}")
             except RuntimeError as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
@@ -160,13 +231,18 @@ class Experiment:
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))
         configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
-        ids = [c.agent.uav for c in configs]
+        self.ids = ids = [c.agent.uav for c in configs]
         for c in configs:
+            self.signals.check()
             self.runtime.start_uav(c)
         self.run_info.pids = self.runtime.pids()
+        self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+                                     last_pose=self._last_pose)
+        self.supervisor.adopt()
+        self._save_info()
         kind = "containers" if self.runtime.name == "docker" else "processes"
-        self.console.print(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
-        self.console.print(f"ground station: mrswarm gcs watch --run {self.run_dir}", highlight=False)
+        self._say(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
+        self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
@@ -185,16 +261,40 @@ class Experiment:
             self._command("start", ids)
             start = time.time()
             self.run_info.mission_start = self.progress.mission_start = start
+            if scn.faults:
+                self.chaos = Chaos(plan(scn.faults, scn.seed), self._swarm(net))
+            self._save_info()
             end = start + scn.duration
             while time.time() < end:
                 self._tick()
+                if self.chaos is not None:
+                    self.chaos.tick(time.time() - start)
+                    if self.chaos.changed:
+                        self._save_info()
                 if self.probe is not None:
                     self.probe(self, time.time() - start)
-                if all(self._phase_of(u) in FINISHED for u in ids):
+                active = self._active_ids()
+                if active and not self.rejoin and all(self._phase_of(u) in FINISHED for u in active) \
+                        and (self.chaos is None or not self.chaos.pending):
                     self.run_info.all_done_at = time.time() - start
                     break
             self.progress.stage = RunStage.STOPPING
             self.display.refresh(self.observer)
+
+    def _swarm(self, net: NetworkConfig) -> Swarm:
+        """What the fault schedule acts on."""
+        d = net.discovery
+        return Swarm(runtime=self.runtime, supervisor=self.supervisor, observer=self.observer,
+                     base_netem=to_builtins(self.scn.network.netem) if self.scn.network.netem is not None else None,
+                     discovery=(d.server, self.scn.swarm, d.read_key()) if d is not None else None, ids=list(self.ids))
+
+    def _active_ids(self) -> list[int]:
+        """UAVs flying with the swarm now: not lost, not rejoining."""
+        return [u for u in self.ids if u not in self.lost and u not in self.rejoin]
+
+    def _last_pose(self, uav: int) -> list[float] | None:
+        v = self.observer.uavs.get(uav) if self.observer is not None else None
+        return [round(v.pose.x, 2), round(v.pose.y, 2), round(v.pose.z, 2)] if v is not None and v.pose is not None else None
 
     def _phase_of(self, uav: int) -> AgentPhase | None:
         """The phase ``uav`` last reported (None: nothing yet, or a name this version does not know)."""
@@ -208,49 +308,101 @@ class Experiment:
             return None
 
     def _command(self, verb: str, ids: list[int], timeout: float = COMMAND_TIMEOUT) -> None:
-        """Send ``verb`` to ``ids`` and collect every ack; re-send once to the silent ones."""
+        """Send ``verb`` to the flying ones of ``ids`` and collect every ack; re-send once to the silent ones."""
         assert self.observer is not None
+        ids = [u for u in ids if u in self._active_ids()]
         acks: dict[int, Any] = {}
         pending = self.observer.command(verb, ids)
         for attempt in (1, 2):
             deadline = time.time() + timeout / 2
             while time.time() < deadline and not pending.complete:
+                self.signals.check()
                 time.sleep(0.05)
                 self.observer.poll()
+                self._supervise()
             acks.update(pending.acks)
-            missing = sorted(set(ids) - set(acks))
+            missing = sorted(set(self._active_ids()) & set(ids) - set(acks))
             if not missing or attempt == 2:
                 break
             pending = self.observer.command(verb, missing)  # commands are idempotent
         failed = {u: a.message for u, a in acks.items() if not a.ok}
         if failed:
             raise RunAborted(f"'{verb}' refused by {failed}")
-        missing = sorted(set(ids) - set(acks))
+        missing = sorted(set(self._active_ids()) & set(ids) - set(acks))
         if missing:
             raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {missing}")
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float) -> None:
-        """Poll until every UAV in ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""
+        """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""
         deadline = time.time() + timeout
         while time.time() < deadline:
             self._tick()
-            if all(self._phase_of(u) in phases for u in ids):
+            active = [u for u in ids if u in self._active_ids()]
+            if active and all(self._phase_of(u) in phases for u in active):
                 return
         behind = {u: str(self._phase_of(u) or "?") for u in ids if self._phase_of(u) not in phases}
         raise RunAborted(f"timed out after {timeout:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
 
     def _tick(self) -> None:
-        """One poll of the swarm: live metrics, a dead process check, the display, then TICK s of sleep."""
+        """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""
         assert self.observer is not None
+        self.signals.check()
+        if self.signals.hangup:
+            self.console.quiet = True
         fresh = self.observer.poll()
         self.metrics.add_poses(self.observer, fresh)
         self.metrics.update_separation(self.observer)
-        dead = self.runtime.exited()
-        if dead:
-            raise RunAborted(f"processes exited early: {dead} (see {self.run_dir / 'logs'})")
-        self.display.refresh(self.observer)
+        self._supervise()
+        self._rejoin_tick()
+        try:
+            self.display.refresh(self.observer)
+        except OSError:  # the terminal is gone
+            self.console.quiet = True
         time.sleep(TICK)
 
+    def _supervise(self) -> None:
+        """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
+        assert self.supervisor is not None
+        events = self.supervisor.check()
+        for ev in events:
+            self._on_event(ev)
+        if events:
+            self._save_info()
+        if self.ids and not self._active_ids() and not self.rejoin and not any(
+                self.supervisor.restarting(f"uav{u}") for u in self.lost):
+            raise RunAborted(f"every UAV process has exited (see {self.run_dir / 'logs'})")
 
-def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
-    raise KeyboardInterrupt
+    def _on_event(self, ev: ProcessEvent) -> None:
+        uav = uav_of(ev.name)
+        if ev.event == "exited":
+            why = ev.signal or f"exit code {ev.exit_code}"
+            where = f" at {ev.last_pose}" if ev.last_pose else ""
+            self._say(f"[yellow]{ev.name} exited ({why}){where}[/]" + (f"; {ev.detail}" if ev.detail else ""))
+            if uav is not None:
+                self.lost.add(uav)
+                self.rejoin.pop(uav, None)
+        elif ev.event == "restarted":
+            self._say(f"[green]{ev.name} started again[/] ({ev.detail})")
+            if uav is not None:
+                self.lost.discard(uav)
+                self.rejoin[uav] = (ev.t, 0.0)
+        else:
+            self._say(f"[yellow]{ev.name}: {ev.event}[/] {ev.detail}")
+
+    def _rejoin_tick(self) -> None:
+        """A restarted UAV reports ready: send it start (takeoff before the mission), until it flies."""
+        assert self.observer is not None
+        now = time.time()
+        for uav, (since, next_send) in list(self.rejoin.items()):
+            v = self.observer.uavs.get(uav)
+            if v is None or v.state is None or v.state_recv <= since:
+                continue  # nothing from the new process yet
+            phase = v.state.phase
+            started = self.run_info.mission_start is not None
+            if phase == AgentPhase.READY and now >= next_send:
+                self.observer.command("start" if started else "takeoff", [uav])
+                self.rejoin[uav] = (since, now + REJOIN_EVERY_S)
+            elif phase not in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD):
+                del self.rejoin[uav]  # flying with the swarm again
+                if phase == AgentPhase.HOVER and started:
+                    self.observer.command("start", [uav])

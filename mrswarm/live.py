@@ -14,6 +14,7 @@ from enum import Enum
 
 import numpy as np
 
+from mrswarm.analysis import CELL_CHUNK
 from mrswarm.scenario import Scenario
 from swarmnet.messages import Pose
 from swarmnet.observer import SwarmObserver
@@ -76,8 +77,10 @@ class LiveMetrics:
         pts = [(p.x, p.y) for p in fresh if (v := obs.uavs.get(p.uav)) and v.state and v.state.phase in WORKING]
         if pts:
             a = np.array(pts)
-            d2 = ((self.cells[:, None, :] - a[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-            self.covered |= d2 <= r2
+            step = max(1, CELL_CHUNK // len(a))  # bounded memory, however many cells (mrswarm/analysis.py)
+            for c0 in range(0, len(self.cells), step):
+                d2 = ((self.cells[c0:c0 + step, None, :] - a[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+                self.covered[c0:c0 + step] |= d2 <= r2
 
     def update_separation(self, obs: SwarmObserver) -> None:
         """Minimum 3-D distance between the latest poses of UAVs higher than 1 m."""

@@ -7,6 +7,7 @@ same files later from what the run folder holds (the scenario the run flew is sa
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from mrswarm.analysis import analyse_run
@@ -19,18 +20,22 @@ class ResultsError(Exception):
     """A folder that cannot be analysed (not a run folder, or its records are unreadable)."""
 
 
-def summarise_run(run_dir: Path, scenario: Scenario) -> RunSummary:
+def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = lambda: False) -> RunSummary:
     """Analyse ``run_dir``, draw its figures and write its ``summary.json`` (once, atomically).
 
     A figure that fails to draw is reported in the summary (``plot_error``) rather than losing
-    the numbers.
+    the numbers; once ``stop()`` says so (a second Ctrl-C), the figures not drawn yet are
+    skipped. A summary.json that cannot be written (a full disk) is reported in the returned
+    summary (``write_error``), which the caller still prints.
     """
     try:
         info = RunInfo.load(run_dir / "run.json", scenario.name)
     except ValueError as exc:
         raise ResultsError(str(exc)) from None
     summary, data = analyse_run(run_dir, scenario, info)
-    if data is not None:
+    if data is not None and stop():
+        summary.plot_error = "skipped: the run was asked to stop fast (mrswarm results draws it later)"
+    elif data is not None:
         path = run_dir / f"{scenario.name}.png"
         try:
             if scenario.world is not None:  # the world and the trajectories (docs/world.md)
@@ -45,12 +50,18 @@ def summarise_run(run_dir: Path, scenario: Scenario) -> RunSummary:
         net = summary.network
         if data.pose_age is not None and net and net.pose_age_over_time:
             path = run_dir / "pose_age.png"
-            try:
-                plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [])
-                net.pose_age_over_time.plot = str(path)
-            except Exception as exc:  # a plotting failure must not lose the numbers
-                net.pose_age_over_time.plot_error = repr(exc)
-    summary.write(run_dir / "summary.json")
+            if stop():
+                net.pose_age_over_time.plot_error = "skipped: the run was asked to stop fast"
+            else:
+                try:
+                    plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [])
+                    net.pose_age_over_time.plot = str(path)
+                except Exception as exc:  # a plotting failure must not lose the numbers
+                    net.pose_age_over_time.plot_error = repr(exc)
+    try:
+        summary.write(run_dir / "summary.json")
+    except OSError as exc:
+        summary.write_error = f"{run_dir / 'summary.json'}: {exc.strerror or exc}"
     return summary
 
 

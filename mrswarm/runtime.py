@@ -59,6 +59,14 @@ class Runtime(Protocol):
         """Stop everything (SIGTERM, then SIGKILL after ``grace`` s); the return codes by name."""
         ...
 
+    def signal(self, name: str, sig: int) -> bool:
+        """Send a real signal to one child (``uav3``, ``router``, ``discovery``); False if it is not running."""
+        ...
+
+    def restart(self, name: str, grace: float = 3.0) -> None:
+        """Start one child again as it was first started (stopping it first if it still runs)."""
+        ...
+
 
 def make_runtime(scn: Scenario, run_dir: Path, log_level: str = "INFO") -> Runtime:
     """The runtime the scenario asks for (``runtime: process | docker``)."""

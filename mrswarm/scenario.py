@@ -14,6 +14,8 @@ layer's settings it is that type: ``network.netem`` is :class:`~swarmnet.netem.c
 from __future__ import annotations
 
 import math
+import os
+import stat
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -23,6 +25,7 @@ from msgspec.structs import force_setattr, replace
 
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
+from mrswarm.faults import FaultSpec, check_against
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
 from swarmnet.schema import Config, ConfigError, convert, to_builtins
@@ -43,11 +46,19 @@ from uav_stack.config import (
     VirtualUavConfig,
     ZenohMode,
 )
+from uav_stack.failsafe import FailsafeConfig
 from uav_stack.geo import GeoPoint, LocalFrame
 from world.config import WorldConfig
 
+MAX_OFFSET_M = 50_000.0  # every position of a scenario lies within this of the origin (east and north)
+MAX_SCENARIO_BYTES = 1024 * 1024  # a scenario file larger than this is refused unread
+MAX_COVERAGE_CELLS = 1_000_000  # analysis and live coverage grids (memory: mrswarm/analysis.py)
+RESOLVE_TIMEOUT_S = 5.0
+
 Rtf = Annotated[float, Meta(gt=0.0, le=1.0, description="target real-time factor of the virtual FCU")]
 Port = Annotated[int, Meta(ge=1, le=65535)]
+Coord = Annotated[float, Meta(ge=-MAX_OFFSET_M, le=MAX_OFFSET_M, description="m from the origin")]
+Heading = Annotated[float, Meta(ge=-360.0, le=360.0, description="degrees from north")]
 
 
 class ScenarioError(ValueError):
@@ -66,10 +77,10 @@ class Origin(Config, frozen=True):
 class Area(Config, frozen=True):
     """A rectangle in the swarm's ENU frame, metres from the origin."""
 
-    x_min: float
-    x_max: float
-    y_min: float
-    y_max: float
+    x_min: Coord
+    x_max: Coord
+    y_min: Coord
+    y_max: Coord
 
     def __post_init__(self) -> None:
         if not (self.x_min < self.x_max and self.y_min < self.y_max):
@@ -96,6 +107,13 @@ class Mission(Config, frozen=True):
             raise ConfigError("area", f"a {self.type} mission needs an area")
         if self.type == "wildfire" and self.wildfire is None:
             raise ConfigError("wildfire", "a wildfire mission needs its section (hub, fire_hint)")
+        if self.area is not None:
+            a, cell = self.area, max(self.sensor_radius / 2.0, 0.5)  # the analysis' cell (mrswarm/analysis.py)
+            cells = math.ceil((a.x_max - a.x_min) / cell) * math.ceil((a.y_max - a.y_min) / cell)
+            if cells > MAX_COVERAGE_CELLS:
+                km2 = (a.x_max - a.x_min) * (a.y_max - a.y_min) / 1e6
+                raise ConfigError("sensor_radius", f"{self.sensor_radius:g} m over {km2:.3g} km^2 gives {cells:,} "
+                                  f"coverage cells; at most {MAX_COVERAGE_CELLS:,} (raise it or shrink mission.area)")
 
     def sensors_needed(self) -> list[tuple[str, str]]:
         """(sensor name, the field naming it) of every sensor this mission reads."""
@@ -181,7 +199,7 @@ class Network(Config, frozen=True):
 class Spawn(Config, frozen=True):
     pattern: Literal["line", "grid"] = "grid"
     spacing: Annotated[float, Meta(gt=0.0, le=500.0, description="m")] = 8.0
-    center: tuple[float, float] = (0.0, 0.0)  # x, y (ENU m)
+    center: tuple[Coord, Coord] = (0.0, 0.0)  # x, y (ENU m)
 
 
 class Fleet(Config, frozen=True):
@@ -190,14 +208,15 @@ class Fleet(Config, frozen=True):
     spawn: Spawn = field(default_factory=Spawn)
     rtf: Rtf = 1.0
     flavour: Flavour = "px4"
+    restart: Literal["no", "on-failure"] = "no"  # on-failure: a crashed UAV process is started again and rejoins
 
 
 class Uav(Config, frozen=True):
     id: UavId
-    start: tuple[float, float]  # x, y (ENU m)
-    goal: tuple[float, float] | None = None  # goto missions
+    start: tuple[Coord, Coord]  # x, y (ENU m)
+    goal: tuple[Coord, Coord] | None = None  # goto missions
     rtf: Rtf = 1.0
-    heading: float = 0.0  # initial heading, degrees from north
+    heading: Heading = 0.0  # initial heading, degrees from north
     flavour: Flavour = "px4"  # px4, or ardupilot for MAVProxy users (docs/gcs.md)
 
 
@@ -263,6 +282,8 @@ class Scenario(Config, kw_only=True, frozen=True):
     gcs: Gcs = field(default_factory=Gcs)
     runtime: Literal["process", "docker"] = "process"
     docker: ContainerSettings = field(default_factory=ContainerSettings)
+    failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)  # companion failsafes (docs/reliability.md)
+    faults: tuple[FaultSpec, ...] = ()  # chaos: faults injected during the mission (docs/reliability.md)
     world: WorldConfig | None = None  # the world service: plume, fire, targets, zones, sensors (docs/world.md)
     other_swarms: tuple[OtherSwarm, ...] = ()  # more swarms in the same airspace
 
@@ -287,6 +308,12 @@ class Scenario(Config, kw_only=True, frozen=True):
         self._check_other_swarms()
         self._check_world()
         self._check_spawn_spacing(self.all_uavs())
+        for u in self.all_uavs():
+            if max(abs(u.start[0]), abs(u.start[1])) > MAX_OFFSET_M:
+                raise ConfigError("fleet.spawn" if self.fleet is not None else "uavs",
+                                  f"UAV {u.id} spawns at {u.start}, farther than {MAX_OFFSET_M:g} m from the origin")
+        if self.faults:
+            check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.connectivity or "discovery")
         g = self.gcs
         if g.mavlink:
             from uav_stack.sysid import allocate_sysid
@@ -414,6 +441,7 @@ class Scenario(Config, kw_only=True, frozen=True):
                 network=network,
                 gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
                               signing=self.gcs.signing),
+                failsafe=self.failsafe,
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
             )
@@ -470,17 +498,63 @@ def parse_override(text: str) -> tuple[str, Any]:
 def parse_scenario(data: Any, where: str = "scenario") -> Scenario:
     """Validate a scenario mapping; :class:`ScenarioError` reads ``<where>: <field>: <what is wrong>``."""
     try:
-        return convert(data, Scenario)
+        scn = convert(data, Scenario)
     except ConfigError as exc:
         raise ScenarioError(f"{where}: {exc}") from None
+    if scn.gcs.mavlink:
+        problem = resolve_problem(scn.gcs.host)
+        if problem:
+            raise ScenarioError(f"{where}: gcs.host: {problem}")
+    return scn
+
+
+def resolve_problem(host: str, timeout: float = RESOLVE_TIMEOUT_S) -> str:
+    """"" if ``host`` resolves to an address, else why not (bounded: a dead resolver cannot hang validation)."""
+    import concurrent.futures
+    import socket
+
+    pool = concurrent.futures.ThreadPoolExecutor(1)
+    try:
+        pool.submit(socket.getaddrinfo, host, None).result(timeout)
+    except concurrent.futures.TimeoutError:
+        return f"{host!r} did not resolve within {timeout:g} s"
+    except (OSError, UnicodeError) as exc:
+        return f"cannot resolve {host!r}: {getattr(exc, 'strerror', None) or exc}"
+    finally:
+        pool.shutdown(wait=False)
+    return ""
+
+
+def read_scenario_text(path: Path) -> str:
+    """The file's text, if it is a regular UTF-8 file of at most :data:`MAX_SCENARIO_BYTES` (never blocks on a FIFO
+    or reads a device without end)."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode) else \
+            "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file"
+        raise ScenarioError(f"{path}: not a regular file ({kind}); a scenario is a YAML file")
+    if st.st_size > MAX_SCENARIO_BYTES:
+        raise ScenarioError(f"{path}: {st.st_size:,} bytes; a scenario is at most {MAX_SCENARIO_BYTES:,} bytes")
+    try:
+        with open(path, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise ScenarioError(f"{path}: more than {MAX_SCENARIO_BYTES:,} bytes; a scenario is at most that")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}); "
+                            "a scenario is a YAML file") from None
 
 
 def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scenario:
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    text = read_scenario_text(path)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -27,6 +27,34 @@ from mrswarm.world_summary import WorldSummary
 # ---- run.json ---------------------------------------------------------------------------------
 
 
+class ProcessEvent(Struct):
+    """Something that happened to one of the run's processes (mrswarm/supervisor.py)."""
+
+    t: float  # wall
+    name: str  # uav3, router, discovery
+    event: str  # exited, restarted, restart_failed
+    exit_code: int | None = None  # of an exited process: negative = killed by that signal
+    signal: str | None = None  # SIGKILL, SIGSEGV, ... when a signal ended it
+    last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
+    detail: str = ""
+
+
+class FaultRecord(Struct):
+    """One fault of the scenario's ``faults:`` schedule, as injected and as the runner saw the swarm react."""
+
+    index: int  # position in the scenario's faults list
+    kind: str
+    at_s: float  # planned, s after the mission start
+    targets: list[int] = []  # UAV ids (empty for the discovery server and the edge router)
+    args: dict[str, Any] = {}
+    injected: float | None = None  # wall; None: never injected (the run ended first)
+    ends: float | None = None  # wall time the fault ends by itself (its duration); None: instantaneous
+    ok: bool = False  # injected as planned (signal sent, fault acknowledged, netem change applied)
+    detail: str = ""
+    detected: float | None = None  # wall: the symptom the runner watches for appeared
+    recovered: float | None = None  # wall: the swarm is back to normal
+
+
 class RunInfo(Struct):
     """What the runner did, written when it stops (``run.json``); the analysis reads it back."""
 
@@ -39,6 +67,10 @@ class RunInfo(Struct):
     all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
     exit_codes: dict[str, int | None] = {}
     stopped: float | None = None  # wall
+    stop_signals: list[str] = []  # SIGINT, SIGTERM, SIGHUP received by the runner, in order
+    events: list[ProcessEvent] = []  # processes that exited during the run, and restarts
+    faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
+    write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
 
     @classmethod
@@ -221,6 +253,70 @@ class Network(Struct):
     pose_age_over_time_error: str | UnsetType = UNSET
 
 
+class LostUav(Struct):
+    """A UAV process that exited before the end of the run (an event, not the end of the run)."""
+
+    uav: int
+    t_s: float  # s after the mission start
+    exit_code: int | None
+    signal: str | None  # what ended it, if a signal did
+    last_pose: list[float] | None  # x, y, z, m, as last received by the runner
+    restarted_s: float | None = None  # s after the mission start the process was started again (fleet.restart)
+    injected: bool = False  # the fault schedule caused it
+
+
+class ServiceOutage(Struct):
+    """The discovery server or the edge router down during the run, and its restart."""
+
+    name: str
+    down_s: float  # s after the mission start
+    exit_code: int | None
+    restarted_s: float | None  # None: never came back
+
+
+class FaultReport(Struct):
+    """One row of the per-fault table (docs/reliability.md says how each column is measured per kind)."""
+
+    kind: str
+    at_s: float  # injected, s after the mission start
+    targets: list[int]
+    ok: bool  # injected as planned
+    detection_s: float | None  # from injection to the symptom the swarm (or runner) reacts to; None: not seen
+    recovery_s: float | None  # from injection to back to normal; None: did not recover in the run
+    collisions: int  # collision onsets between injection and recovery (or the end of the run)
+    coverage_lost: float | None  # share of the area the affected UAVs would have swept while out of the mission
+    detail: str = ""
+
+
+class FailsafeEvent(Struct):
+    """A companion failsafe of one UAV (uav_stack/failsafe.py): triggered, its action, cleared."""
+
+    uav: int
+    t_s: float  # s after the mission start
+    failsafe: str  # swarm_link, fcu_link, position, battery
+    event: str  # triggered, land, rtl, resumed, cleared, warning
+    detail: str
+
+
+class Incident(Struct):
+    """A UAV that fell or hit the ground (mrswarm/incidents.py): counted beside collisions."""
+
+    uav: int
+    kind: str  # ground_impact, uncontrolled_descent, motors_stopped_in_air
+    t_s: float  # s after the mission start
+    z_m: float  # height above the origin when it began
+    vz_ms: float  # vertical speed (up positive), m/s
+    detail: str
+
+
+class RecordErrors(Struct):
+    """Recording errors the UAVs counted (a full or read-only disk): the flight went on, these records did not."""
+
+    uavs: list[int]  # UAVs with at least one failed write
+    errors: dict[str, int]  # errno name -> failed writes, summed
+    rows_dropped: int  # trajectory or pose-age rows given up (beyond the in-memory backlog)
+    files_not_written: int  # counter-file replacements that failed
+    runner: list[str]  # runner files that could not be written
 class Security(Struct):
     """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
 
@@ -251,6 +347,20 @@ class RunSummary(Struct):
     plot: str | UnsetType = UNSET  # <scenario>.png
     plot_error: str | UnsetType = UNSET
     aborted: str | None = None
+    stop_signals: list[str] = []  # signals that stopped the runner
+    incidents: list[Incident] = []
+    lost_uavs: list[LostUav] = []
+    services: list[ServiceOutage] = []
+    faults: list[FaultReport] = []
+    failsafes: list[FailsafeEvent] = []
+    records: RecordErrors | UnsetType = UNSET  # only when some recording failed
+    write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
+
+    @property
+    def safety_events(self) -> int:
+        """Collisions plus incidents: any makes ``mrswarm run`` exit with 3."""
+        sep = self.separation
+        return (sep.collisions if sep else 0) + len(self.incidents)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object as plain Python values (what ``json.load`` of summary.json gives)."""
@@ -274,7 +384,12 @@ def _numpy_scalar(o: Any) -> Any:
 
 def write_json_atomic(path: Path, record: Struct) -> None:
     """Write ``record`` as indented JSON to ``path``: temporary file, fsync, rename, fsync the folder."""
-    data = msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n"
+    write_atomic(path, msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n")
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Replace ``path`` with ``data``: temporary file, fsync, rename, fsync the folder. Raises OSError;
+    never leaves the temporary file behind."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as f:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from rich import box
 from rich.console import Console
 from rich.table import Table
 
+from mrswarm.gcs.session import format_ids
 from mrswarm.summary import RunSummary
 from mrswarm.world_summary import WorldSummary
 
@@ -34,6 +36,27 @@ def summary_table(s: RunSummary) -> Table:
         for cls, c in (net.netem.classes if net.netem else {}).items():  # docs/netem.md
             t.add_row(f"netem {cls}", f"{c.links} links: delay mean {_fmt(c.delay_ms.mean)} ms, p99 "
                                       f"{_fmt(c.delay_ms.p99)} ms, lost {100 * c.loss:.2f} %, reordered {c.reordered}")
+    if s.incidents:
+        t.add_row("incidents", "; ".join(f"UAV {i.uav} {i.kind.replace('_', ' ')} at {i.t_s:.1f} s" for i in s.incidents[:6])
+                  + (f" (+{len(s.incidents) - 6} more)" if len(s.incidents) > 6 else ""))
+    if s.lost_uavs:
+        t.add_row("lost UAVs", "; ".join(
+            f"UAV {lu.uav} at {lu.t_s:.1f} s ({lu.signal or f'exit {lu.exit_code}'})"
+            + (f", back at {lu.restarted_s:.1f} s" if lu.restarted_s is not None else "") for lu in s.lost_uavs))
+    if s.services:
+        t.add_row("service outages", "; ".join(
+            f"{o.name} down at {o.down_s:.1f} s"
+            + (f", back at {o.restarted_s:.1f} s" if o.restarted_s is not None else ", not back")
+            for o in s.services))
+    if s.failsafes:
+        kinds: dict[str, int] = {}
+        for fe in s.failsafes:
+            if fe.event == "triggered":
+                kinds[fe.failsafe] = kinds.get(fe.failsafe, 0) + 1
+        t.add_row("failsafes", ", ".join(f"{k} x{n}" for k, n in sorted(kinds.items())) or "-")
+    if rec := s.records:
+        t.add_row("records", f"writes failed on UAVs {rec.uavs} ({', '.join(f'{k} x{v}' for k, v in rec.errors.items())}), "
+                             f"{rec.rows_dropped} rows lost" + (f"; runner: {', '.join(rec.runner)}" if rec.runner else ""))
     if sec := s.security:
         if sec.mode == "off":
             t.add_row("security", "[yellow]off: plain TCP, no access control[/]")
@@ -46,8 +69,12 @@ def summary_table(s: RunSummary) -> Table:
         for row in world_rows(w):
             t.add_row(*row)
     t.add_row("results", f"{s.run_dir}/summary.json" + (f", {s.plot}" if s.plot else ""))
+    if s.write_error:
+        t.add_row("not written", s.write_error)
     if s.plot_error:
         t.add_row("plot failed", s.plot_error)
+    if s.stop_signals:
+        t.add_row("stopped by", ", ".join(s.stop_signals))
     if s.aborted:
         t.add_row("aborted", s.aborted)
     return t
@@ -78,8 +105,23 @@ def world_rows(w: WorldSummary) -> list[tuple[str, str]]:
     return rows
 
 
+def fault_table(s: RunSummary) -> Table:
+    """The per-fault table: what was injected when, how soon the swarm noticed, how soon it was back."""
+    t = Table(title=f"faults: {s.scenario} (detected, recovered: s after the fault)", box=box.MINIMAL_HEAVY_HEAD,
+              title_justify="left", padding=(0, 1), pad_edge=False, show_edge=False, collapse_padding=True)
+    for col in ("at s", "fault", "UAVs", "detected", "recovered", "collisions", "coverage lost"):
+        t.add_column(col, justify="left" if col in ("fault", "UAVs") else "right", no_wrap=True)
+    for f in s.faults:
+        t.add_row(_fmt(f.at_s), f.kind + ("" if f.ok else " (failed)"), format_ids(f.targets) if f.targets else "-",
+                  _fmt(f.detection_s), _fmt(f.recovery_s), str(f.collisions),
+                  "-" if f.coverage_lost is None else f"{100 * f.coverage_lost:.1f} %")
+    return t
+
+
 def print_summary(console: Console, s: RunSummary) -> None:
     console.print(summary_table(s))
+    if s.faults:
+        console.print(fault_table(s))
 
 
 def _fmt(v: float | int | None) -> str:

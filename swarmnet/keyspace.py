@@ -76,7 +76,7 @@ class SwarmKeys:
         """Requests of one UAV's virtual actuator (spray), to the world service."""
         return f"{self.prefix}/{uav}/act/{actuator}"
     def fault(self, uav: int | str) -> str:
-        """Fault injection into a virtual UAV (the experiment controller only)."""
+        """Fault injection into a virtual UAV (the experiment controller only; docs/reliability.md)."""
         return f"{self.prefix}/{uav}/fault"
 
     # swarm-wide

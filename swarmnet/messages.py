@@ -53,9 +53,10 @@ class Kind(IntEnum):
     COMMAND = 5
     COMMAND_ACK = 6
     POSE_BATCH = 7
-    READING = 8
-    ACTUATION = 9
-    TRAFFIC = 10
+    FAULT = 8
+    READING = 9
+    ACTUATION = 10
+    TRAFFIC = 11
 
 
 class Realm(IntEnum):
@@ -111,6 +112,8 @@ TOPIC_RE = re.compile(r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
 NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
 MAX_TOPIC_LEN = 64
 MAX_TEXT_LEN = 200
+MAX_FAULT_BYTES = 256
+MAX_FAULT_ARGS = 8
 
 
 def check_uav_id(uav: Any, field_name: str = "uav") -> int:
@@ -223,6 +226,24 @@ class PoseBatch:
 
 
 @dataclass(frozen=True, slots=True)
+class FaultInjection:
+    """A fault the experiment controller injects into one virtual UAV (docs/reliability.md).
+
+    The virtual UAV process applies it to its virtual FCU or to the link between the FCU and
+    the agent, and acknowledges it on its ack key (``cmd_id = fault_id``); a physical UAV's
+    agent refuses it. ``args`` holds finite numbers only, named with their unit
+    (``duration_s``, ``dx_m``, ``dy_m``, ``sigma_m``, ``level``).
+    """
+
+    sender: str
+    fault_id: int
+    target: int  # the UAV; never 0 (a fault is injected into one UAV at a time)
+    kind: str  # fcu_link_loss, gps_jump, gps_noise, battery_drop
+    args: dict[str, float] = field(default_factory=dict)
+    t_wall: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
 class Reading:
     """One virtual sensor reading for one UAV, computed at the edge from its shared pose (docs/world.md).
 
@@ -279,7 +300,8 @@ class Traffic:
     reports: tuple[TrafficReport, ...]
 
 
-Message = Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch | Reading | Actuation | Traffic
+Message = (Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch | FaultInjection | Reading | Actuation
+           | Traffic)
 
 
 # --- helpers -------------------------------------------------------------------------------
@@ -543,6 +565,45 @@ def decode_ack(data: bytes) -> CommandAck:
     )
 
 
+# --- fault injection -------------------------------------------------------------------------
+_FAULT_TAG = tag(Kind.FAULT)
+
+
+def encode_fault(f: FaultInjection) -> bytes:
+    if not NAME_RE.match(f.sender) or not NAME_RE.match(f.kind):
+        raise ValueError(f"fault sender {f.sender!r} and kind {f.kind!r} must be 1-32 characters of [A-Za-z0-9_-]")
+    check_uav_id(f.target, "target")
+    if len(f.args) > MAX_FAULT_ARGS:
+        raise ValueError(f"a fault takes at most {MAX_FAULT_ARGS} arguments, got {len(f.args)}")
+    for k, v in f.args.items():
+        if not NAME_RE.match(k) or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"fault argument {k}={v!r}: names of [A-Za-z0-9_-], finite numbers")
+    data = msgpack.packb([_FAULT_TAG, f.sender, f.fault_id & 0xFFFFFFFF, f.target, f.kind, dict(f.args), _us(f.t_wall)])
+    if len(data) > MAX_FAULT_BYTES:
+        raise ValueError(f"fault {f.kind!r} is {len(data)} bytes, over {MAX_FAULT_BYTES}")
+    return data
+
+
+def decode_fault(data: bytes) -> FaultInjection:
+    o = _unpack(data, MAX_FAULT_BYTES)
+    _expect(o, Kind.FAULT, 7)
+    args = o[5]
+    if type(args) is not dict or len(args) > MAX_FAULT_ARGS:
+        raise DecodeError("bad_field", f"args must be a map of at most {MAX_FAULT_ARGS} numbers")
+    for k, v in args.items():
+        _str(k, 32, "argument name", NAME_RE)
+        if type(v) not in (int, float) or not math.isfinite(v):
+            raise DecodeError("bad_field", f"argument {k}={v!r} is not a finite number")
+    return FaultInjection(
+        sender=_str(o[1], 32, "sender", NAME_RE),
+        fault_id=_int(o[2], 0, _UINT32, "fault_id"),
+        target=check_uav_id(o[3], "target"),
+        kind=_str(o[4], 32, "kind", NAME_RE),
+        args={k: float(v) for k, v in args.items()},
+        t_wall=_int(o[6], 0, _UINT64, "t_wall") / 1e6,
+    )
+
+
 # --- pose batches (edge feed) ---------------------------------------------------------------
 _BATCH_TAG = tag(Kind.POSE_BATCH, BATCH_VERSION)
 
@@ -785,6 +846,15 @@ def accept_swarm_message(key: str, data: bytes, me: int, max_bytes: int = DEFAUL
     msg = decode_swarm_message(data, max_bytes)
     check_route(key, msg.src, msg.dst, me)
     return msg
+
+
+def accept_fault(key: str, data: bytes, me: int) -> FaultInjection:
+    """A fault on ``mrs/<swarm>/<me>/fault``: it decodes, names the key's UAV and targets ``me``
+    (never the whole swarm). Whether this UAV may take it (a virtual one) the agent decides."""
+    f = decode_fault(data)
+    check_key_names_uav(key, f.target)
+    check_command_target(f.target, me)
+    return f
 
 
 def accept_command(key: str, data: bytes, me: int) -> Command:

@@ -33,12 +33,14 @@ from swarmnet.messages import (
     AgentState,
     Command,
     CommandAck,
+    FaultInjection,
     Pose,
     Realm,
     SwarmMessage,
     Telemetry,
     accept_batched_pose,
     accept_command,
+    accept_fault,
     accept_neighbour_pose,
     accept_pose,
     accept_pose_batch,
@@ -66,6 +68,7 @@ ROLES = ("uav", "gcs", "edge", "observer")
 # Where an accepted item goes; also the ``kind`` the netem shim keeps with an item it holds.
 POSE, MESSAGE, COMMAND = 0, 1, 2
 _BATCH = 3  # an edge-feed batch: unpacked into POSE items before the shim
+FAULT = 4  # an injected fault (docs/reliability.md); never impaired by the shim
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,7 @@ class Inbox:
 
     messages: list[SwarmMessage] = field(default_factory=list)
     commands: list[Command] = field(default_factory=list)
+    faults: list[FaultInjection] = field(default_factory=list)  # injected by the experiment controller
     joined: list[str] = field(default_factory=list)  # liveliness keys that appeared
     left: list[str] = field(default_factory=list)  # ... and disappeared
 
@@ -189,6 +193,7 @@ class SwarmNode:
                 command_rule = partial(accept_command, me=me)
                 streams.append((COMMAND, s.declare_subscriber(k.cmd(me), ring(64)), command_rule))
                 streams.append((COMMAND, s.declare_subscriber(k.swarm_cmd, ring(64)), command_rule))
+                streams.append((FAULT, s.declare_subscriber(k.fault(me), ring(16)), partial(accept_fault, me=me)))
             self._alive_ring = s.liveliness().declare_subscriber(k.all_alive, ring(256), history=True)
             if self.netem_control:
                 self._netem_ring = s.declare_subscriber(k.netem_set, ring(16))
@@ -237,6 +242,12 @@ class SwarmNode:
     def zid(self) -> str:
         assert self.session is not None
         return str(self.session.info.zid())
+
+    def routers(self) -> list[str]:
+        """ZIDs of the routers this session has a link to (the edge router; empty while it is down)."""
+        if self.session is None:
+            return []
+        return [str(z) for z in self.session.info.routers_zid()]
 
     def peers(self) -> list[str]:
         """ZIDs of the peers this session has a direct link to."""
@@ -386,6 +397,8 @@ class SwarmNode:
             if item.src == self.identity.uav and self.identity.role == "uav":
                 return None  # a UAV's message to itself crossed no link
             return shim.link(item.src)
+        if kind == FAULT:
+            return None
         return None if shim.config.exempt_commands else shim.link(f"gcs:{item.sender}")
 
     def _deliver(self, kind: int, item: Any, now: float, inbox: Inbox) -> None:
@@ -398,6 +411,9 @@ class SwarmNode:
         elif kind == MESSAGE:
             stats.received["broadcast" if item.dst == 0 else "unicast"] += 1
             inbox.messages.append(item)
+        elif kind == FAULT:
+            stats.received["fault"] += 1
+            inbox.faults.append(item)
         else:
             stats.received["cmd"] += 1
             inbox.commands.append(item)

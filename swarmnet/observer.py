@@ -23,12 +23,14 @@ from swarmnet.messages import (
     AgentState,
     Command,
     CommandAck,
+    FaultInjection,
     Pose,
     Telemetry,
     accept_ack,
     accept_state,
     accept_telemetry,
     encode_command,
+    encode_fault,
 )
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.receive import Accept, receive
@@ -187,4 +189,16 @@ class SwarmObserver:
                 s.put(self.keys.cmd(t), encode_command(one))
         p = self.pending[cmd_id] = PendingCommand(cmd, tset)
         self.stats.sent["cmd"] += 1
+        return p
+
+    def inject(self, uav: int, kind: str, args: dict[str, float] | None = None) -> PendingCommand:
+        """Inject a fault into one virtual UAV (``mrs/<swarm>/<uav>/fault``); its ack resolves the pending entry."""
+        s = self.node.session
+        assert s is not None
+        fault_id = next(self._ids) & 0xFFFFFFFF
+        f = FaultInjection(self.name, fault_id, uav, kind, dict(args or {}), self.clock())
+        s.put(self.keys.fault(uav), encode_fault(f))
+        cmd = Command(self.name, fault_id, uav, "fault", {"kind": kind, **f.args}, f.t_wall)
+        p = self.pending[fault_id] = PendingCommand(cmd, {uav})
+        self.stats.sent["fault"] += 1
         return p

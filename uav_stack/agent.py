@@ -21,19 +21,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from swarmnet.messages import Command, Realm, SwarmMessage
+from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
 from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
 from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
+from uav_stack.failsafe import Failsafes
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import PoseAgeLog
-from uav_stack.recorder import TrajectoryRecorder, write_json_atomic
+from uav_stack.recorder import RecordHealth, TrajectoryRecorder, write_json_atomic
 from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
@@ -140,11 +141,19 @@ class Agent(OverridesMixin):
         self._deferred: list[_DeferredAck] = []
         self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
         self._mode_at_phase = ""
+        self.failsafes = Failsafes(cfg.failsafe)  # uav_stack/failsafe.py
+        # set by a virtual UAV process: applies injected faults to its virtual FCU (uav_stack/sim_faults.py);
+        # None on a real UAV, whose agent refuses them
+        self.fault_handler: Callable[[FaultInjection, float], tuple[bool, str]] | None = None
+        # set by a virtual UAV process: its FCU's ground truth (x, y, z, vx, vy, vz in the swarm frame, armed),
+        # recorded instead of the reported position, which an injected fault may falsify
+        self.truth: Callable[[], tuple[float, float, float, float, float, float, bool]] | None = None
+        self.records = RecordHealth()  # recording errors degrade, never stop the flight
         self.recorder: TrajectoryRecorder | None = None
         self.age_log: PoseAgeLog | None = None
         if cfg.record_dir:
-            self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv")
-            self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node)
+            self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv", health=self.records)
+            self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node, health=self.records)
 
     # ---- helpers ------------------------------------------------------------------------
     def _set_phase(self, phase: AgentPhase, detail: str = "") -> None:
@@ -193,12 +202,16 @@ class Agent(OverridesMixin):
             self._hand_over(inbox.messages, now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
+        for fault in inbox.faults:
+            self._on_fault(fault, now)
         if self._deferred:
             self._settle_acks(now)
         st = link.state
         # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), so its
         # age at the neighbours is transport time, not the phase between two timers.
-        if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period):
+        # no pose while the FCU link is lost: neighbours must see it go stale, not trust an old one
+        if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period) \
+                and not self.failsafes.fcu_link_lost:
             self._published_position_at = st.position_at
             o = self.own
             node.publish_pose(
@@ -207,6 +220,7 @@ class Agent(OverridesMixin):
             )
         if now >= self._next_control:
             self._next_control = max(self._next_control + 1.0 / self.cfg.control_rate_hz, now)
+            self.failsafes.step(self, now)
             self._control(now, have_pos)
             if have_pos:
                 self._record(now)
@@ -220,7 +234,7 @@ class Agent(OverridesMixin):
             )
         if now >= self._next_state:
             self._next_state = now + 1.0
-            node.publish_state(self.phase, self.behaviour_name, self.override, self.detail)
+            node.publish_state(self.phase, self.behaviour_name, self.failsafes.label or self.override, self.detail)
         if now >= self._next_stats:
             self._next_stats = now + 1.0
             self.write_stats(now)
@@ -244,6 +258,22 @@ class Agent(OverridesMixin):
                     self.node.stats.reject("bad_mission_message", m.topic, f"from UAV {m.src}")
 
     # ---- commands -------------------------------------------------------------------------
+    def _on_fault(self, fault: FaultInjection, now: float) -> None:
+        """An injected fault: applied by the virtual UAV process's handler, refused by a real UAV."""
+        self.counters["faults"] = self.counters.get("faults", 0) + 1
+        if self.fault_handler is None or self.realm is Realm.PHYSICAL:
+            ok, msg = False, "fault injection refused: a physical UAV takes no injected faults"
+        else:
+            try:
+                ok, msg = self.fault_handler(fault, now)
+            except Exception as exc:  # noqa: BLE001 - a bad fault must never stop the agent
+                log.exception("UAV %d: fault %s failed", self.cfg.uav, fault.kind)
+                ok, msg = False, f"fault {fault.kind} failed: {type(exc).__name__}: {exc}"
+        if not ok:
+            self.counters["rejected_faults"] = self.counters.get("rejected_faults", 0) + 1
+        log.warning("UAV %d: injected fault %s %s: %s", self.cfg.uav, fault.kind, "applied" if ok else "refused", msg)
+        self.node.ack(fault.fault_id, ok, msg)
+
     def _on_command(self, cmd: Command, now: float) -> None:
         self.counters["commands"] += 1
         verb = cmd.verb
@@ -439,8 +469,9 @@ class Agent(OverridesMixin):
             return
         st, o = self.link.state, self.own
         rtf = self.link.rtf.value
-        self.recorder.write(now, (now, st.position_boot_s, o.x, o.y, o.z, o.vx, o.vy, o.vz, o.yaw, self.phase, st.mode,
-                                  int(st.armed), -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
+        x, y, z, vx, vy, vz, armed = self.truth() if self.truth is not None else (o.x, o.y, o.z, o.vx, o.vy, o.vz, st.armed)
+        self.recorder.write(now, (now, st.position_boot_s, x, y, z, vx, vy, vz, o.yaw, self.phase, st.mode, int(armed),
+                                  -1.0 if math.isnan(rtf) else rtf))  # -1: not measured yet
 
     # ---- reporting ------------------------------------------------------------------------
     def stats(self, now: float) -> dict[str, Any]:
@@ -464,6 +495,8 @@ class Agent(OverridesMixin):
                 for n in self.node.neighbours
             },
             "netem": self.node.netem_stats(),
+            "failsafes": self.failsafes.as_dict(),
+            "records": self.records.as_dict(),
             "payload": self.payload.stats() if self.payload is not None else None,
             "mission": {"status": getattr(self.mission, "status", None)},
             **{name: source() for name, source in self.stats_sources.items()},
@@ -472,7 +505,7 @@ class Agent(OverridesMixin):
 
     def write_stats(self, now: float) -> None:
         if self.cfg.record_dir:
-            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now))
+            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", self.stats(now), self.records, now)
         if self.recorder is not None:
             self.recorder.flush(now)
         if self.age_log is not None:
@@ -481,6 +514,6 @@ class Agent(OverridesMixin):
     def close(self, now: float) -> None:
         self.write_stats(now)
         if self.recorder is not None:
-            self.recorder.close()
+            self.recorder.close(now)
         if self.age_log is not None:
             self.age_log.close()

@@ -19,6 +19,7 @@ from discovery.options import ProxyOptions
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.schema import Config, ConfigError, decode_json
 from swarmnet.security.credentials import Credentials
+from uav_stack.failsafe import FailsafeConfig
 from uav_stack.geo import GeoPoint
 
 Connectivity = Literal["rendezvous", "static", "discovery"]
@@ -230,6 +231,7 @@ class AgentConfig(Config, frozen=True):
     avoidance: AvoidanceConfig = field(default_factory=AvoidanceConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     gcs: GcsConfig = field(default_factory=GcsConfig)
+    failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)  # companion failsafes (uav_stack/failsafe.py)
     sensors: tuple[SensorSpec, ...] = ()  # the payload's sensors (virtual ones are fed by the world service)
     actuators: tuple[ActuatorSpec, ...] = ()
     traffic: bool = False  # take the airspace feed: other swarms' UAVs as traffic to avoid

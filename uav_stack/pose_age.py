@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TextIO
 
 from swarmnet.node import SwarmNode
 from swarmnet.stats import LogHistogram
+from uav_stack.recorder import AppendLog, RecordHealth
 
 COLUMNS = ("t_wall", "poses", "age_p50_ms", "age_p99_ms", "age_mean_ms", "aoi_mean_ms", "aoi_max_ms", "neighbours")
 
@@ -41,13 +41,9 @@ def _percentile(counts: list[int], n: int, q: float) -> float:
 
 
 class PoseAgeLog:
-    def __init__(self, path: str | Path, node: SwarmNode):
+    def __init__(self, path: str | Path, node: SwarmNode, health: RecordHealth | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.exists()
-        self._f: TextIO = open(self.path, "a", buffering=8192)  # noqa: SIM115 (open until close())
-        if new:
-            self._f.write(",".join(COLUMNS) + "\n")
+        self._log = AppendLog(self.path, ",".join(COLUMNS) + "\n", health)  # errors degrade, never raise
         self.node = node
         h = node.stats.pose_age
         self._counts = list(h.counts)
@@ -66,9 +62,8 @@ class PoseAgeLog:
         ages = [n_.age(now) for n_ in self.node.neighbours]
         aoi_mean = sum(ages) / len(ages) if ages else math.nan
         aoi_max = max(ages) if ages else math.nan
-        self._f.write(f"{now:.3f},{n},{ms(p50)},{ms(p99)},{ms(mean)},{ms(aoi_mean)},{ms(aoi_max)},{len(ages)}\n")
-        self._f.flush()
+        self._log.add(f"{now:.3f},{n},{ms(p50)},{ms(p99)},{ms(mean)},{ms(aoi_mean)},{ms(aoi_max)},{len(ages)}\n")
+        self._log.flush(now)
 
     def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
+        self._log.close()

@@ -1,48 +1,178 @@
-"""Run data written so that a crash loses at most a second.
+"""Run data written so that a crash loses at most a second, and a full disk stops nothing but the records.
 
 Each UAV writes its own trajectory (CSV, appended and flushed every second) and its
 counters (JSON, replaced atomically every second) into the run's results folder; the
 runner merges them afterwards.
+
+A recording error never stops a flight process. ``ENOSPC`` (disk full), ``EDQUOT``,
+``EROFS`` (read-only), ``EIO`` and every other ``OSError`` are counted in a shared
+:class:`RecordHealth` and logged as a warning (the first one, then at most once a minute);
+an append-only file keeps at most :data:`MAX_BACKLOG_BYTES` of unwritten rows in memory and
+writes them once the disk takes them again (completing a line a partial write cut), dropping
+the oldest (counted) beyond that.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import logging
 import os
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
+
+log = logging.getLogger(__name__)
 
 TRAJECTORY_COLUMNS = ("t_wall", "t_sim", "x", "y", "z", "vx", "vy", "vz", "yaw", "phase", "mode", "armed", "rtf")
+MAX_BACKLOG_BYTES = 256 * 1024  # per file: ~4 min of a trajectory at 10 Hz
+WARN_EVERY_S = 60.0
+
+
+class RecordHealth:
+    """Recording errors of one process: counters for its stats file and rate-limited warnings."""
+
+    def __init__(self) -> None:
+        self.errors: dict[str, int] = {}  # errno name (ENOSPC, EROFS, EIO, ...) -> failed writes
+        self.rows_dropped = 0  # rows given up for good (backlog full)
+        self.bytes_dropped = 0
+        self.files_not_written = 0  # whole-file replacements (counters JSON) that failed
+        self.last_error = ""
+        self._warned_at = -1e18
+
+    def failed(self, path: Path, exc: OSError, now: float) -> None:
+        name = errno.errorcode.get(exc.errno or 0, type(exc).__name__)
+        self.errors[name] = self.errors.get(name, 0) + 1
+        self.last_error = f"{path.name}: {name}: {exc.strerror or exc}"
+        if now - self._warned_at >= WARN_EVERY_S:
+            self._warned_at = now
+            log.warning("recording degraded (%s); flight continues, counted in the stats file as 'records'", self.last_error)
+
+    @property
+    def degraded(self) -> bool:
+        return bool(self.errors)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"errors": dict(self.errors), "rows_dropped": self.rows_dropped, "bytes_dropped": self.bytes_dropped,
+                "files_not_written": self.files_not_written, "last_error": self.last_error}
+
+
+class AppendLog:
+    """An append-only text file written from a bounded in-memory backlog, whole lines in the end.
+
+    A partial write (the disk filled up inside a line) keeps the rest of that line first in the
+    backlog, so the next write completes it: nothing is lost while the backlog has room. When the
+    backlog overflows, the oldest lines are dropped (counted); if that cuts the line the file ends
+    in, a newline closes it first, so a reader skips just that line.
+    """
+
+    def __init__(self, path: str | Path, header: str, health: RecordHealth | None = None):
+        self.path = Path(path)
+        self.header = header.encode()
+        self.health = health or RecordHealth()
+        self._fd: int | None = None
+        self._buf = bytearray()
+        self._mid_line = False  # the file ends inside a line whose rest starts _buf
+        self._need_newline = False  # ... whose rest was dropped: close it before writing on
+
+    def add(self, line: str) -> None:
+        """Queue one line (with its newline); :meth:`flush` writes it."""
+        self._buf += line.encode()
+        while len(self._buf) > MAX_BACKLOG_BYTES:
+            nl = self._buf.find(b"\n")
+            if nl < 0:
+                break
+            self.health.rows_dropped += 1
+            self.health.bytes_dropped += nl + 1
+            del self._buf[:nl + 1]
+            if self._mid_line:
+                self._mid_line, self._need_newline = False, True
+
+    def _open(self) -> int:
+        if self._fd is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+            try:
+                if os.fstat(fd).st_size == 0:
+                    self._buf[0:0] = self.header
+            except OSError:
+                os.close(fd)
+                raise
+            self._fd = fd
+        return self._fd
+
+    def flush(self, now: float = 0.0) -> None:
+        """Write what is queued; on an error keep it (bounded) for the next flush."""
+        if not self._buf and not self._need_newline:
+            return
+        try:
+            fd = self._open()
+            if self._need_newline:
+                os.write(fd, b"\n")
+                self._need_newline = False
+            while self._buf:
+                n = os.write(fd, self._buf)
+                if n <= 0:
+                    break
+                self._mid_line = self._buf[n - 1] != ord("\n")
+                del self._buf[:n]
+        except OSError as exc:
+            self.health.failed(self.path, exc, now)
+
+    def close(self, now: float = 0.0) -> None:
+        self.flush(now)
+        if self._fd is not None:
+            try:
+                os.close(self._fd)
+            except OSError:
+                pass
+            self._fd = None
 
 
 class TrajectoryRecorder:
-    def __init__(self, path: str | Path, flush_every: float = 1.0):
+    """``uav<N>.csv``: one row per control tick, written out every ``flush_every`` seconds."""
+
+    def __init__(self, path: str | Path, flush_every: float = 1.0, health: RecordHealth | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.exists()
-        self._f: TextIO = open(self.path, "a", buffering=64 * 1024)  # noqa: SIM115 (open until close())
-        if new:
-            self._f.write(",".join(TRAJECTORY_COLUMNS) + "\n")
+        self.log = AppendLog(self.path, ",".join(TRAJECTORY_COLUMNS) + "\n", health)
         self.flush_every = flush_every
         self._last_flush = 0.0
 
+    @property
+    def health(self) -> RecordHealth:
+        return self.log.health
+
     def write(self, now: float, row: tuple[Any, ...]) -> None:
-        self._f.write(",".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + "\n")
+        self.log.add(",".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + "\n")
         if now - self._last_flush >= self.flush_every:
             self.flush(now)
 
     def flush(self, now: float = 0.0) -> None:
-        self._f.flush()
+        self.log.flush(now)
         self._last_flush = now
 
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.flush()
-            self._f.close()
+    def close(self, now: float = 0.0) -> None:
+        self.log.close(now)
 
 
-def write_json_atomic(path: str | Path, data: dict[str, Any]) -> None:
+def write_json_atomic(path: str | Path, data: dict[str, Any], health: RecordHealth | None = None, now: float = 0.0) -> bool:
+    """Replace ``path`` with ``data`` as JSON (temporary file, rename); False, counted, if it could not be written.
+
+    No fsync here: it runs every second in every UAV process, and a reader already never sees
+    half a file (the rename is atomic); a power cut may lose the last second, like the CSV.
+    """
     path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data))
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        with open(tmp, "w") as f:
+            f.write(json.dumps(data))
+        os.replace(tmp, path)
+        return True
+    except OSError as exc:
+        if health is not None:
+            health.files_not_written += 1
+            health.failed(path, exc, now)
+        try:
+            tmp.unlink(missing_ok=True)  # never leave a half-written temporary file
+        except OSError:
+            pass
+        return False

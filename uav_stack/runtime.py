@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 
 TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
 _PR_SET_PDEATHSIG = 1
+SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
 
 class StopFlag:
@@ -54,6 +55,9 @@ class StopFlag:
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.stopped = True
+        # the records are written first thing on the way out; should closing the sessions then
+        # hang, SIGALRM's default action ends the process (no orphan when the runner is gone)
+        signal.alarm(SHUTDOWN_WATCHDOG_S)
 
 
 def die_with_parent() -> None:
@@ -188,8 +192,9 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     node = open_node(a, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
     agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
+    faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
     try:
-        run_loop(agent, stop, fcu, cfg.duration)
+        run_loop(agent, stop, faults, cfg.duration)
     finally:
         agent.close(time.time())
         node.close()
@@ -198,6 +203,28 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
             router.close()
         fcu.close()
     return 0
+
+
+def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
+    """Let the experiment controller inject faults into this virtual UAV (uav_stack/sim_faults.py), and
+    record the FCU's ground truth, which a falsified position estimate does not change. Returns the FCU
+    wrapped for :func:`run_loop`."""
+    from uav_stack.sim_faults import SimFaults
+
+    faults = SimFaults(fcu, seed)
+    agent.fault_handler = faults.apply
+    v, dyn = fcu.vehicles[0], fcu.dyn
+    o = v.frame.origin  # the FCU's local NED origin (its first home)
+    hx, hy, hz = agent.frame.to_enu(o.lat, o.lon, o.alt)
+
+    def truth() -> tuple[float, float, float, float, float, float, bool]:
+        (n, e, d), (vn, ve, vd) = dyn.pos[v.i].tolist(), dyn.vel[v.i].tolist()
+        k = agent.link.rtf.value
+        k = k if 0.0 < k < 1.0 else 1.0  # wall-clock velocities, as the agent publishes them
+        return hx + e, hy + n, hz - d, ve * k, vn * k, -vd * k, v.armed
+
+    agent.truth = truth
+    return faults
 
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:

@@ -207,9 +207,11 @@ class WatchView:
             phases[r.phase] = phases.get(r.phase, 0) + 1
         stale = sum(1 for r in rows if r.seen > STALE_S)
         overrides = sum(1 for r in rows if r.override)
+        failsafes = sum(1 for r in rows if r.override.startswith("failsafe:"))  # companion failsafes (docs/reliability.md)
         alive = len(obs.alive_uavs())
         head = Text.assemble(
-            (f"swarm {self.swarm}", "bold"), f"  {total} UAVs seen, {alive} alive, {stale} stale, {overrides} overridden  ",
+            (f"swarm {self.swarm}", "bold"), f"  {total} UAVs seen, {alive} alive, {stale} stale, {overrides} overridden",
+            (f", {failsafes} in failsafe" if failsafes else "", "bold magenta"), "  ",
             ("phases: ", "dim"), ", ".join(f"{k} {v}" for k, v in sorted(phases.items())) or "-",
         )
         cols = fit_columns(width)
@@ -223,6 +225,8 @@ class WatchView:
                 style = "red"
             elif r.seen > STALE_S:
                 style = "dim"
+            elif r.override.startswith("failsafe:"):
+                style = "magenta"
             elif r.override:
                 style = "yellow"
             cells = {

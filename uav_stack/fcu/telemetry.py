@@ -75,7 +75,7 @@ def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -
 
 
 def global_position_int(v: Vehicle) -> mavlink.MAVLink_message:
-    lat, lon, alt = v.geodetic()
+    lat, lon, alt = v.reported_geodetic()
     d = v.ctx.dyn
     vn, ve, vd = d.vel[v.i].tolist()
     m = _reuse(v, "GLOBAL_POSITION_INT", lambda: v.mav.global_position_int_encode(0, 0, 0, 0, 0, 0, 0, 0, 0))
@@ -93,7 +93,9 @@ def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message:
     d = v.ctx.dyn
     m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
-    m.x, m.y, m.z = d.pos[v.i].tolist()
+    x, y, z = d.pos[v.i].tolist()
+    ex, ey, ez = v.position_error
+    m.x, m.y, m.z = x + ex, y + ey, z + ez
     m.vx, m.vy, m.vz = d.vel[v.i].tolist()
     return m
 
@@ -192,7 +194,7 @@ def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
-    lat, lon, alt = v.geodetic()
+    lat, lon, alt = v.reported_geodetic()
     vn, ve, _ = v.ctx.dyn.vel[v.i].tolist()
     gs = math.hypot(vn, ve)
     cog = _cdeg_heading(math.atan2(ve, vn)) if gs > 0.1 else 65535

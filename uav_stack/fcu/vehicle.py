@@ -108,6 +108,9 @@ class Vehicle:
         self.in_command = False  # a COMMAND_LONG/INT is being handled (its ACK not yet sent)
         self.hb_after_ack = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
+        # error of the position estimate the FCU reports (north, east, down, m); zero unless a fault
+        # is injected (uav_stack/sim_faults.py: a GPS glitch). Guidance and physics use the truth.
+        self.position_error: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.msg_cache: dict[str, mavlink.MAVLink_message] = {}  # reused instances of high-rate messages
         d = ctx.dyn
         d.yaw[i] = cfg.yaw
@@ -154,6 +157,14 @@ class Vehicle:
             n, e, dn = self.ctx.dyn.pos[self.i].tolist()
             self._geo_cache = (step, self.frame.to_geodetic(e, n, -dn))
         return self._geo_cache[1]
+
+    def reported_geodetic(self) -> tuple[float, float, float]:
+        """The position the FCU reports: :meth:`geodetic` plus :attr:`position_error`."""
+        dn, de, dd = self.position_error
+        if dn == 0.0 and de == 0.0 and dd == 0.0:
+            return self.geodetic()
+        n, e, d = self.ctx.dyn.pos[self.i].tolist()
+        return self.frame.to_geodetic(e + de, n + dn, -(d + dd))
 
     def ned_of(self, lat: float, lon: float, alt: float) -> np.ndarray:
         e, n, u = self.frame.to_enu(lat, lon, alt)

@@ -1,0 +1,159 @@
+"""Watching the run's processes: a process that exits is an event of the experiment, not its end.
+
+Every tick the runner asks the :class:`Supervisor` what exited. Each exit becomes a
+:class:`~mrswarm.summary.ProcessEvent` (time, exit code or signal, a UAV's last pose), and:
+
+* the **discovery server** and the **edge router** are started again with exponential backoff
+  (0.5 s, doubling up to 10 s; the delay starts again from 0.5 s once a service has stayed up
+  30 s). Their state comes back by itself: every node re-announces itself to the discovery
+  server each beacon period, and every Zenoh node dials its configured edge router again.
+* a **UAV** that exits is *lost*: the runner goes on without it (its neighbours expire it
+  within the liveliness lease and re-split the coverage). With ``fleet.restart: on-failure``,
+  a UAV that exited with a non-zero code or a signal is started again (same backoff, at most
+  :data:`MAX_UAV_RESTARTS` times); it comes back on the ground at its spawn point and the runner
+  sends it ``start`` so it rejoins the mission.
+
+A planned restart (the fault schedule's ``restart_*``) goes through :meth:`Supervisor.restart_now`,
+so it is recorded once and not mistaken for a crash.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from mrswarm.runtime import Runtime
+from mrswarm.summary import ProcessEvent
+
+log = logging.getLogger(__name__)
+
+SERVICES = ("discovery", "router")
+BACKOFF_FIRST_S = 0.5
+BACKOFF_MAX_S = 10.0
+STABLE_AFTER_S = 30.0  # up this long: the next failure starts the backoff from the beginning again
+MAX_UAV_RESTARTS = 3
+
+
+def is_service(name: str) -> bool:
+    """Restarted whenever it exits: the discovery server and every swarm's edge router (``router-<swarm>``
+    for the other swarms of an airspace, docs/world.md). Not the world service: a restarted world
+    would start its experiment again (the fire lit anew), so its exit stays an event."""
+    return name in SERVICES or name.startswith("router-")
+
+
+def uav_of(name: str) -> int | None:
+    """The UAV id of a process name (``uav7`` -> 7), None for a service."""
+    return int(name[3:]) if name.startswith("uav") and name[3:].isdigit() else None
+
+
+def signal_name(code: int | None) -> str | None:
+    """``SIGKILL`` for an exit code of -9 (Popen's convention for "killed by a signal")."""
+    if code is None or code >= 0:
+        return None
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        return f"signal {-code}"
+
+
+@dataclass
+class _Watch:
+    pid: int
+    started: float  # wall
+    backoff: float = BACKOFF_FIRST_S
+    restarts: int = 0
+    due: float | None = None  # wall time of a scheduled restart
+
+
+class Supervisor:
+    """Turns process exits into events, and restarts what should come back."""
+
+    def __init__(self, runtime: Runtime, restart_uavs: bool = False, clock: Callable[[], float] = time.time,
+                 last_pose: Callable[[int], list[float] | None] = lambda uav: None):
+        self.runtime = runtime
+        self.restart_uavs = restart_uavs
+        self.clock = clock
+        self.last_pose = last_pose
+        self.events: list[ProcessEvent] = []
+        self.down: dict[str, float] = {}  # name -> wall time it was seen exited, until it is back
+        self._watch: dict[str, _Watch] = {}
+        self._new: list[ProcessEvent] = []  # recorded by restart_now, returned by the next check
+
+    def adopt(self) -> None:
+        """Start watching every process the runtime has started (after the launch)."""
+        now = self.clock()
+        for name, pid in self.runtime.pids().items():
+            if name not in self._watch:
+                self._watch[name] = _Watch(pid, now)
+
+    def check(self) -> list[ProcessEvent]:
+        """New events since the last call: exits seen now, restarts done now."""
+        now = self.clock()
+        new, self._new = self._new, []
+        exited = self.runtime.exited()
+        if exited:
+            pids = self.runtime.pids()
+            for name, code in exited.items():
+                w = self._watch.get(name)
+                if w is None or pids.get(name) != w.pid or name in self.down:
+                    continue  # not ours, an exit already handled, or already restarted (a new pid)
+                new.append(ev := self._exited(name, code, now, w))
+                self.events.append(ev)
+        for name, w in self._watch.items():
+            if w.due is not None and now >= w.due:
+                w.due = None
+                restarted = self._restart(name, now, w)
+                if restarted is not None:
+                    new.append(restarted)
+                    self.events.append(restarted)
+        return new
+
+    def _exited(self, name: str, code: int | None, now: float, w: _Watch) -> ProcessEvent:
+        self.down[name] = now
+        uav = uav_of(name)
+        ev = ProcessEvent(t=now, name=name, event="exited", exit_code=code, signal=signal_name(code),
+                          last_pose=self.last_pose(uav) if uav is not None else None)
+        if now - w.started >= STABLE_AFTER_S:
+            w.backoff = BACKOFF_FIRST_S
+        failed = code is None or code != 0
+        if is_service(name) or (uav is not None and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
+            w.due = now + w.backoff
+            ev.detail = f"restart in {w.backoff:g} s"
+            w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
+        log.info("%s exited (%s)%s", name, ev.signal or f"code {code}", f"; {ev.detail}" if ev.detail else "")
+        return ev
+
+    def _restart(self, name: str, now: float, w: _Watch) -> ProcessEvent | None:
+        try:
+            self.runtime.restart(name)
+        except Exception as exc:  # noqa: BLE001 - a failed restart is retried, never the end of the run
+            w.due = now + w.backoff
+            w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
+            log.info("restarting %s failed: %s", name, exc)
+            return ProcessEvent(t=now, name=name, event="restart_failed", detail=f"{type(exc).__name__}: {exc}"[:200])
+        w.pid = self.runtime.pids()[name]
+        w.started = self.clock()
+        w.restarts += 1
+        self.down.pop(name, None)
+        return ProcessEvent(t=w.started, name=name, event="restarted", detail=f"restart {w.restarts}")
+
+    def restart_now(self, name: str) -> ProcessEvent | None:
+        """A planned restart (stop, start again), recorded as one event."""
+        w = self._watch.get(name)
+        if w is None:
+            return None
+        w.due = None
+        ev = self._restart(name, self.clock(), w)
+        if ev is not None:
+            ev.detail = "planned restart" if ev.event == "restarted" else ev.detail
+            self.events.append(ev)
+            self._new.append(ev)
+        return ev
+
+    def restarting(self, name: str) -> bool:
+        """Down, with a restart scheduled."""
+        w = self._watch.get(name)
+        return name in self.down and w is not None and w.due is not None

@@ -1,0 +1,77 @@
+"""Chaos end to end: one run of four UAVs through eight kinds of fault (tests/scenarios/mini_chaos.yaml).
+
+Real signals kill and stop processes (a UAV, the edge router, the discovery server), the virtual
+UAVs take injected FCU faults, and the netem shim partitions the swarm. The run must go on and
+complete without a collision, restart what it should, and report every fault with its
+detection and recovery; nothing of the run may outlive it, and the killed UAV may lose at most a
+second of its records.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from tests.run_helpers import ROOT, BackgroundRun, wait_no_survivors
+
+pytestmark = pytest.mark.e2e
+
+SCENARIO = ROOT / "tests" / "scenarios" / "mini_chaos.yaml"
+
+
+def test_a_chaos_run_goes_on_recovers_and_reports_every_fault(tmp_path: Path) -> None:
+    run = BackgroundRun(SCENARIO, tmp_path / "out")
+    try:
+        code = run.wait(240)
+        out = run.output
+        assert code == 0, out[-4000:]
+        assert not wait_no_survivors(run.tag, 5.0), "processes outlived the run"
+        run_dir = run.run_dir()
+        assert run_dir is not None
+        s = json.loads((run_dir / "summary.json").read_text())
+        info = json.loads((run_dir / "run.json").read_text())
+    finally:
+        run.cleanup()
+
+    assert s["separation"]["collisions"] == 0 and not s["incidents"] and s["aborted"] is None
+    assert s["uavs_recorded"] == 4 and s["coverage"]["final"] > 0.5
+
+    # the killed UAV is an event: recorded with its signal and last pose, started again, back in its mission
+    (lost,) = s["lost_uavs"]
+    assert lost["uav"] == 4 and lost["signal"] == "SIGKILL" and lost["injected"] and len(lost["last_pose"]) == 3
+    assert lost["restarted_s"] is not None and lost["restarted_s"] - lost["t_s"] < 3.0  # backoff 0.5 s
+    # the edge services were restarted with backoff
+    assert {(o["name"], o["restarted_s"] is not None) for o in s["services"]} == {("router", True), ("discovery", True)}
+
+    faults = {f["kind"]: f for f in s["faults"]}
+    assert set(faults) == {"gps_jump", "kill_router", "fcu_link_loss", "stop_uav", "kill_discovery", "kill_uav", "partition",
+                           "battery_drop"}
+    assert all(f["ok"] for f in faults.values()), faults
+    assert all(f["detection_s"] is not None for f in faults.values()), faults
+    assert all(f["recovery_s"] is not None for k, f in faults.items() if k != "battery_drop"), faults  # that one lands
+    assert all(f["collisions"] == 0 for f in faults.values())
+    assert faults["fcu_link_loss"]["detection_s"] <= 4.5  # the heartbeat timeout, 3 s after the last heartbeat
+    assert faults["fcu_link_loss"]["recovery_s"] >= 5.0  # not before the link came back (5 s cut)
+    assert faults["stop_uav"]["detection_s"] <= 2.5  # its pose goes stale after 1 s
+    assert faults["kill_uav"]["detection_s"] <= 1.5  # its liveliness token goes with the process (the runner ticks at 10 Hz)
+    assert faults["kill_router"]["recovery_s"] <= 10.0 and faults["kill_discovery"]["recovery_s"] <= 10.0
+    assert faults["gps_jump"]["detection_s"] <= 1.5  # a 7 m jump in one position update, then the state at once
+
+    # failsafes: visible in the summary, with their actions
+    fs = {(e["uav"], e["failsafe"], e["event"]) for e in s["failsafes"]}
+    assert {(2, "fcu_link", "triggered"), (2, "fcu_link", "resumed"), (1, "position", "triggered"), (3, "battery", "land")} <= fs
+    # the run's record of the faults, as injected
+    kinds = [f["kind"] for f in sorted(info["faults"], key=lambda f: f["index"])]
+    assert kinds[:3] == ["gps_jump", "kill_router", "fcu_link_loss"]
+
+    # the killed UAV lost at most a second of its trajectory
+    killed_at = next(f["injected"] for f in info["faults"] if f["kind"] == "kill_uav")
+    with open(run_dir / "uav4.csv", newline="") as f:
+        before = [float(r["t_wall"]) for r in csv.DictReader(f) if r.get("t_wall") and float(r["t_wall"]) < killed_at + 0.5]
+    assert killed_at - max(before) <= 1.0, killed_at - max(before)
+
+    # the printed per-fault table
+    assert "faults: mini_chaos" in out and "kill_discovery" in out and "detected" in out

@@ -1,0 +1,137 @@
+"""Process supervision with real processes and real signals (mrswarm/supervisor.py, deploy/process_runtime.py).
+
+Children are small Python sleepers started the way the process runtime starts every child. The
+tests kill them with SIGKILL and check the events, the backoff, the restart policy, and that a
+child dies with its runner even when the runner is killed with SIGKILL.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+
+from deploy.process_runtime import ProcessRuntime
+from mrswarm.signals import StopSignals
+from mrswarm.supervisor import BACKOFF_FIRST_S, Supervisor
+from tests.conftest import wait_for
+
+SLEEPER = [sys.executable, "-c", "import time; time.sleep(120)"]
+
+
+def gone(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
+
+
+def events_until(sup: Supervisor, pred, timeout: float) -> list:  # noqa: ANN001
+    seen: list = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        seen += sup.check()
+        if pred(seen):
+            break
+        time.sleep(0.05)
+    return seen
+
+
+def test_a_killed_service_comes_back_with_backoff_and_a_lost_uav_is_an_event(tmp_path: Path) -> None:
+    rt = ProcessRuntime(tmp_path)
+    for name in ("router", "uav3"):
+        rt._spawn(name, SLEEPER)
+    sup = Supervisor(rt, restart_uavs=False, last_pose=lambda uav: [1.0, 2.0, 3.0])
+    sup.adopt()
+    try:
+        first = rt.pids()["router"]
+        t_kill = time.time()
+        assert rt.signal("router", signal.SIGKILL)
+        evs = events_until(sup, lambda e: any(x.event == "restarted" for x in e), 5.0)
+        exited, restarted = evs[0], evs[-1]
+        assert (exited.name, exited.event, exited.signal, exited.exit_code) == ("router", "exited", "SIGKILL", -9)
+        assert restarted.event == "restarted" and rt.pids()["router"] != first and not gone(rt.pids()["router"])
+        assert BACKOFF_FIRST_S - 0.05 <= restarted.t - t_kill <= BACKOFF_FIRST_S + 1.0
+        # a second crash soon after waits twice as long
+        t_kill = time.time()
+        rt.signal("router", signal.SIGKILL)
+        evs = events_until(sup, lambda e: any(x.event == "restarted" for x in e), 5.0)
+        assert 2 * BACKOFF_FIRST_S - 0.05 <= evs[-1].t - t_kill <= 2 * BACKOFF_FIRST_S + 1.0
+        # a UAV that dies is lost (no restart policy): one event, with its last pose
+        rt.signal("uav3", signal.SIGKILL)
+        evs = events_until(sup, lambda e: bool(e), 5.0)
+        time.sleep(1.0)
+        evs += sup.check()
+        assert [(e.name, e.event, e.last_pose) for e in evs] == [("uav3", "exited", [1.0, 2.0, 3.0])]
+        assert "uav3" in sup.down and not sup.restarting("uav3")
+    finally:
+        rt.stop(grace=2.0)
+
+
+def test_on_failure_restarts_a_crashed_uav_and_a_planned_restart_is_one_event(tmp_path: Path) -> None:
+    rt = ProcessRuntime(tmp_path)
+    rt._spawn("uav1", SLEEPER)
+    rt._spawn("uav2", [sys.executable, "-c", "raise SystemExit(0)"])  # ends by itself, cleanly
+    sup = Supervisor(rt, restart_uavs=True)
+    sup.adopt()
+    try:
+        rt.signal("uav1", signal.SIGKILL)
+        # (uav2's interpreter may still be starting on a loaded machine: wait for both)
+        evs = events_until(sup, lambda e: any(x.event == "restarted" for x in e) and any(x.name == "uav2" for x in e), 15.0)
+        assert [(e.name, e.event) for e in evs if e.name == "uav1"] == [("uav1", "exited"), ("uav1", "restarted")]
+        assert [(e.name, e.event) for e in evs if e.name == "uav2"] == [("uav2", "exited")]  # exit 0: not a failure
+        time.sleep(1.0)
+        assert not [e for e in sup.check() if e.name == "uav2"]
+        pid = rt.pids()["uav1"]
+        ev = sup.restart_now("uav1")
+        assert ev is not None and ev.event == "restarted" and ev.detail == "planned restart"
+        assert gone(pid) and not gone(rt.pids()["uav1"])
+        assert [e.event for e in sup.check()] == ["restarted"]  # reported once, not as a crash
+    finally:
+        rt.stop(grace=2.0)
+
+
+RUNNER = """
+import sys, time
+from pathlib import Path
+from deploy.process_runtime import ProcessRuntime
+rt = ProcessRuntime(Path(sys.argv[1]))
+rt._spawn("router", {sleeper!r})
+rt._spawn("uav1", {sleeper!r})
+print(rt.pids()["router"], rt.pids()["uav1"], flush=True)
+time.sleep(120)
+"""
+
+
+def test_children_die_with_their_runner_even_on_sigkill(tmp_path: Path) -> None:
+    code = RUNNER.format(sleeper=SLEEPER)
+    runner = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True,
+                              env=dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1])))
+    try:
+        assert runner.stdout is not None
+        pids = [int(p) for p in runner.stdout.readline().split()]
+        assert len(pids) == 2 and not any(gone(p) for p in pids)
+        runner.kill()
+        runner.wait(5)
+        assert wait_for(lambda: all(gone(p) for p in pids), 5.0, 0.05), "a child outlived its runner"
+    finally:
+        if runner.poll() is None:
+            runner.kill()
+
+
+def test_stop_signals_count_and_never_raise_in_the_handler() -> None:
+    s = StopSignals().install()
+    try:
+        assert s.installed and not s.requested
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert wait_for(lambda: s.requested, 2.0) and not s.fast and s.exit_code == 143
+        os.kill(os.getpid(), signal.SIGINT)
+        assert wait_for(lambda: s.fast, 2.0) and s.names == ["SIGTERM", "SIGINT"]
+    finally:
+        s.restore()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
