@@ -8,6 +8,7 @@ for another UAV is refused; a spray request puts out the fire under the UAV and 
 from __future__ import annotations
 
 import json
+import statistics
 import threading
 import time
 
@@ -28,6 +29,7 @@ from world.service import WorldService
 
 RATE_HZ = 5.0
 LATENCY_S = 0.2
+US = 2e-6  # the wire carries times in microseconds
 ORIGIN = GeoPoint(46.6167, 14.2650, 446.0)
 
 
@@ -83,15 +85,21 @@ def test_each_uav_gets_its_own_readings_at_the_rate_after_the_latency(router: st
             assert {r.uav for _, r in rs} == {uav}  # its own readings only
             assert {r.value for _, r in rs} == {value}
             assert {r.sensor for _, r in rs} == {"pollutant"}
-            # the rate: one every 1 / RATE_HZ s (4 s measured; the first and last may fall either side)
+            # the rate: the instants the readings describe lie 1 / RATE_HZ s apart (none lost, none doubled)
             window = [r for t, r in rs if first <= t <= first + 4.0]
             assert RATE_HZ * 4 - 2 <= len(window) <= RATE_HZ * 4 + 2, len(window)
+            t_meas = [r.t_meas for _, r in rs]
+            assert (len(t_meas) - 1) / (t_meas[-1] - t_meas[0]) == pytest.approx(RATE_HZ, rel=0.05)
             seqs = [r.seq for _, r in rs]
-            assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
-            # the latency: released LATENCY_S after the instant it describes, delivered within a tick and the network
-            for t_recv, r in rs:
-                assert r.t_sent - r.t_meas == pytest.approx(LATENCY_S, abs=0.02)
-                assert LATENCY_S <= t_recv - r.t_meas <= LATENCY_S + 0.1
+            assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+            # the latency: never released before LATENCY_S after the instant it describes; typically
+            # within one service tick (10 ms) of it, and delivered within the network's time after that
+            held = sorted(r.t_sent - r.t_meas for _, r in rs)
+            delay = sorted(t_recv - r.t_meas for t_recv, r in rs)
+            assert held[0] >= LATENCY_S - US and delay[0] >= LATENCY_S - US
+            assert statistics.median(held) == pytest.approx(LATENCY_S, abs=0.02)
+            assert statistics.median(delay) <= LATENCY_S + 0.1
+            assert delay[-1] <= LATENCY_S + 1.0  # bounded even on a loaded machine
         assert u1.stats.rejected == {} and u2.stats.rejected == {}
         assert svc.sensors.computed["pollutant"] >= 2 * RATE_HZ * 4
 
