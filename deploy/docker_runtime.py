@@ -49,6 +49,7 @@ from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryService
 from swarmnet.schema import to_builtins
+from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
@@ -147,12 +148,15 @@ class DockerRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
         ``keys``: the swarm's key directory; each container is handed its own bundle of it.
+        ``extra_keys`` (more swarms in one airspace) is for the process runtime only.
         """
+        if extra_keys:
+            raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
         self.swarm = swarm if swarm != "*" else self.swarm
         self.keys = keys
         service = discovery or DiscoveryService()
@@ -196,6 +200,25 @@ class DockerRuntime:
         net = plan.uav_network(addresses)
         self._write_manifest()
         return net
+
+    # ---- more swarms, the world service (docs/world.md) -----------------------------------------
+    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
+        raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
+
+    def start_world(self, config: Path) -> None:
+        """The world service in its own container on the run's network: the run folder mounted (its
+        configuration in, its records out) and, in a secured run, the edge's credentials as its own."""
+        from world.config import WorldServiceConfig
+
+        cfg = WorldServiceConfig.load(config)
+        if self.keys is not None:  # the container sees its own bundle at KEYS_IN_CONTAINER, not the host's directory
+            swarms = tuple(replace(s, network=replace(s.network, security=Credentials(keys=KEYS_IN_CONTAINER)))
+                           for s in cfg.swarms)
+            config = config.with_name("world.container.json")
+            config.write_text(replace(cfg, swarms=swarms).to_json())
+        self._run("world", "world", ["python3", "-m", "world", "--config", str(config.resolve()), "--log-level", self.log_level],
+                  uav=None, cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=True,
+                  identity=NodeName("edge", 0, cfg.swarms[0].name))
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:

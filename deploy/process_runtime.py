@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from msgspec.structs import replace
+
 from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions
 from swarmnet.security.credentials import Credentials
@@ -120,18 +122,19 @@ class ProcessRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
         ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
         router (pose feed, and the way in for ground stations).
         ``keys``: the swarm's key directory: every link mutual TLS under the roster's access
-        control (docs/security.md); None: plain TCP.
+        control (docs/security.md); None: plain TCP. ``extra_keys``: more swarms the discovery
+        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`).
         """
         self.keys = keys
         if connectivity == "discovery":
-            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService())
+            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
         endpoint = self._start_router(pose_feed, swarm)
         return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=(f"{self._scheme}/127.0.0.1:0",),
                              pose_feed=pose_feed, security=self._credentials())
@@ -140,37 +143,40 @@ class ProcessRuntime:
     def _scheme(self) -> str:
         return "tls" if self.keys is not None else "tcp"
 
-    def _credentials(self) -> Credentials | None:
+    def _credentials(self, keys: Path | None = None) -> Credentials | None:
         """What every UAV process is given (each speaks as its own uav-<id>.<swarm>)."""
-        return Credentials(keys=str(self.keys)) if self.keys is not None else None
+        keys = keys or self.keys
+        return Credentials(keys=str(keys)) if keys is not None else None
 
-    def _start_router(self, pose_feed: str, swarm: str) -> str:
+    def _start_router(self, pose_feed: str, swarm: str, name: str = "router", keys: Path | None = None) -> str:
+        keys = keys or self.keys
         port = free_port()
-        endpoint = f"{self._scheme}/127.0.0.1:{port}"
+        endpoint = f"{'tls' if keys is not None else 'tcp'}/127.0.0.1:{port}"
         argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
-        stats = self.run_dir / "logs" / "router.stats.json"
-        if self.keys is not None:  # as edge.<swarm>; counts what it refuses in logs/router.stats.json
-            argv += ["--keys", str(self.keys), "--stats", str(stats)]
+        stats = self.run_dir / "logs" / f"{name}.stats.json"
+        if keys is not None:  # as edge.<swarm>; counts what it refuses in logs/<name>.stats.json
+            argv += ["--keys", str(keys), "--stats", str(stats)]
         else:
             argv += ["--insecure"]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
-        self._spawn("router", argv)
-        router = self.children["router"]
-        if self.keys is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters
+        self._spawn(name, argv)
+        router = self.children[name]
+        if keys is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters
             wait_file(stats, timeout=20.0, proc=router.proc)
         else:
             wait_tcp("127.0.0.1", port, timeout=20.0, alive=lambda: router.proc.poll() is None,
                      what=f"the router (log: {router.log_path})")
         return endpoint
 
-    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService) -> NetworkConfig:
+    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService,
+                         extra_keys: dict[str, str]) -> NetworkConfig:
         from discovery.client import QueryTimeout, query_registry
         from discovery.protocol import new_key
 
         key = service.key or new_key()  # a fresh key per run unless the scenario sets one
         keys = self.run_dir / "config" / "discovery.keys"
-        keys.write_text(f"{swarm} {key}\n")
+        keys.write_text("".join(f"{s} {k}\n" for s, k in {swarm: key, **extra_keys}.items()))
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
@@ -197,6 +203,22 @@ class ProcessRuntime:
         return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=(f"{self._scheme}/127.0.0.1:0",),
                              pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period),
                              security=self._credentials())
+
+    # ---- more swarms, the world service (docs/world.md) -----------------------------------------
+    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
+        """Another swarm in the same airspace: its own edge router (``router-<swarm>``, under its own
+        key directory ``keys``) and, with discovery, the run's discovery server with its own key
+        (given to :meth:`start_network` in ``extra_keys``). Returns how its UAVs reach it."""
+        endpoint = self._start_router(net.pose_feed, swarm, name=f"router-{swarm}", keys=keys)
+        scheme = "tls" if keys is not None else "tcp"
+        d = net.discovery
+        return replace(net, endpoints=(endpoint,), listen=(f"{scheme}/127.0.0.1:0",), security=self._credentials(keys),
+                       discovery=replace(d, key=discovery_key, key_file=None) if d is not None and discovery_key else d)
+
+    def start_world(self, config: Path) -> None:
+        """The world service beside the edge routers; it joins each swarm as its router's client."""
+        self._spawn("world", [*self._py, "-m", "world", "--config", str(config), "--log-level", self.log_level,
+                              "--die-with-parent"])
 
     # ---- UAVs ------------------------------------------------------------------------------
     def start_uav(self, cfg: VirtualUavConfig) -> None:
@@ -247,8 +269,10 @@ class ProcessRuntime:
         return {n: c.proc.pid for n, c in self.children.items()}
 
     def stop(self, grace: float = 5.0) -> dict[str, int]:
-        """SIGTERM every UAV, then the router and discovery server; SIGKILL whatever is left after ``grace``."""
-        helpers = [n for n in ("router", "discovery") if n in self.children]
+        """SIGTERM every UAV, then the world service, the routers and the discovery server; SIGKILL whatever is
+        left after ``grace``."""
+        helpers = [n for n in self.children if n == "world" or n.startswith("router")] + \
+            [n for n in ("discovery",) if n in self.children]
         order = [n for n in self.children if n not in helpers] + helpers
         for n in order:
             c = self.children[n]

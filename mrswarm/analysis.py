@@ -41,6 +41,7 @@ from mrswarm.summary import (
     Separation,
     Takeoff,
 )
+from mrswarm.world_report import WorldData, world_report
 from swarmnet.stats import LogHistogram
 from uav_stack.phases import WORKING
 
@@ -102,6 +103,7 @@ class RunData:
     coverage: CoverageMap | None
     pose_age: PoseAgeSeries | None
     links: list[LinkAge]  # transport age per link, for transport_links.csv
+    world: WorldData | None = None  # scenarios with a world section (mrswarm/world_report.py)
 
 
 def load_tracks(run_dir: Path) -> dict[int, Track]:
@@ -248,7 +250,7 @@ def working_mask(tracks: dict[int, Track], grid: np.ndarray, pos: np.ndarray, id
 
 def goals_report(scenario: Scenario, tracks: dict[int, Track]) -> dict[str, Goal]:
     out = {}
-    for u in scenario.uav_list():
+    for u in scenario.all_uavs():
         tr = tracks.get(u.id)
         if tr is None or u.goal is None:
             out[str(u.id)] = Goal(reached=False, final_distance_m=None)
@@ -268,7 +270,7 @@ def encounter_report(scenario: Scenario, grid: np.ndarray, pos: np.ndarray, ids:
         return None
     a, b = pos[0, k, :2], pos[1, k, :2]
     mid = (a + b) / 2
-    starts = {u.id: np.array(u.start) for u in scenario.uav_list()}
+    starts = {u.id: np.array(u.start) for u in scenario.all_uavs()}
     return Encounter(
         time_wall=float(grid[k]),
         separation_m=float(per_step[k]),
@@ -387,7 +389,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     summary = RunSummary(
         scenario=scenario.name,
         run_dir=str(run_dir),
-        uavs_planned=len(scenario.uav_list()),
+        uavs_planned=len(scenario.all_uavs()),
         uavs_recorded=len(tracks),
         interrupted=info.interrupted,
         processes=dict(info.exit_codes),
@@ -476,6 +478,9 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
             network.pose_age_over_time, age_series = age
     summary.network = network
     summary.duration_s = float(t_end - t0)
+    world_data = None
+    if scenario.world is not None:
+        summary.world, world_data = world_report(run_dir, scenario, pos, ids, t0, t_end, stats)
     data = RunData(tracks=tracks, grid=grid, pos=pos, ids=ids, min_separation=sep.per_step, t0=t0, t_end=t_end,
-                   coverage=cov_map, pose_age=age_series, links=links)
+                   coverage=cov_map, pose_age=age_series, links=links, world=world_data)
     return summary, data

@@ -161,6 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("netlab", help="routed network-namespace lab without multicast (up/down/list; root)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("discovery.netlab", "main", a.rest))
 
+    p = sub.add_parser("world", help="the world service of a scenario, at the edge: virtual sensors, hazards, airspace "
+                                     "(docs/world.md)", add_help=False)
+    p.set_defaults(func=lambda a: _delegate("mrswarm.world_cli", "main", a.rest))
+
     p = sub.add_parser("gcs", help="ground station: watch, telemetry, overrides, record (docs/gcs.md)", add_help=False)
     p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
     p = sub.add_parser("export", help="a recording (run.mcap) as a run folder of CSVs or as JSON Lines (docs/recording.md)",
@@ -175,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=lambda a: _delegate("mrswarm.keys_cli", "main", a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay", "keys"):
+    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay", "keys",
+                        "world"):
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")

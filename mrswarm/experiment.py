@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from msgspec.structs import replace
 from rich.console import Console
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
@@ -44,13 +43,19 @@ from mrswarm.scenario import Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, Interrupted, StopSignals
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import Supervisor, uav_of
+from mrswarm.world_setup import (
+    open_observer,
+    other_swarm_credentials,
+    other_swarm_keys,
+    swarm_networks,
+    uav_configs,
+    world_service_config,
+    write_world_config,
+)
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
-from swarmnet.security.credentials import Credentials
-from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
-from uav_stack.runtime import make_connectivity
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
@@ -85,6 +90,7 @@ class Experiment:
         self.run_dir.mkdir(parents=True)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
         self.keys = self._credentials()
+        self.swarm_keys = {scenario.swarm: self.keys, **other_swarm_credentials(scenario, self.run_dir, self.keys is not None)}
         self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
         self.metrics = LiveMetrics(scenario)
@@ -199,9 +205,10 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
+        discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
                                          connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
-                                         keys=self.keys)
+                                         keys=self.keys, extra_keys=discovery_keys)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
@@ -219,7 +226,11 @@ class Experiment:
                 self._say(f"flight recording: {self.recorder.path}")
             except RuntimeError as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
-        configs = scn.virtual_uav_configs(net, record_dir=str(self.run_dir))
+        nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
+        world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
+        if world is not None:  # before the UAVs, so that it tracks them from their first pose
+            self.runtime.start_world(write_world_config(world, self.run_dir))
+        configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
         self.ids = ids = [c.agent.uav for c in configs]
         for c in configs:
             self.signals.check()
@@ -236,12 +247,10 @@ class Experiment:
             self._say(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
                       "(system id = UAV id up to 240, docs/gcs.md)")
         # the runner joins as a client of the edge router if there is one (rendezvous, or
-        # discovery with the router beside it), else as a discovery peer (role "observer")
-        # (with the run's key directory as seen from here: a container's credentials sit elsewhere)
-        own = Credentials(keys=str(self.keys)) if self.keys is not None else None
-        obs_net = (NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=own)
-                   if net.endpoints else replace(net, security=own))
-        self.observer = SwarmObserver(scn.swarm, make_connectivity(obs_net, NodeName("ctl", 0, scn.swarm)), name="runner").open()
+        # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
+        # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
+        # one observer per swarm when several share the airspace
+        self.observer = open_observer(scn, nets, self.swarm_keys)
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
         with self.display:

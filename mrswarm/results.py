@@ -43,7 +43,12 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
     elif data is not None:
         path = run_dir / f"{scenario.name}.png"
         try:
-            plot_run(path, scenario, data)
+            if scenario.world is not None:  # the world and the trajectories (docs/world.md)
+                from mrswarm.world_plots import plot_world
+
+                plot_world(path, scenario, data)
+            else:
+                plot_run(path, scenario, data)
             summary.plot = str(path)
         except Exception as exc:  # a plotting failure must not lose the numbers
             summary.plot_error = repr(exc)

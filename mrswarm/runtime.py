@@ -25,11 +25,22 @@ class Runtime(Protocol):
 
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
         """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
 
         ``keys``: the swarm's key directory (mutual TLS and access control on every link,
-        docs/security.md); None: plain TCP."""
+        docs/security.md); None: plain TCP. ``extra_keys``: the discovery keys of more swarms
+        sharing the airspace (swarm -> key; docs/world.md).
+        """
+        ...
+
+    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
+        """Another swarm in the same airspace: its own edge router (under its own key directory,
+        ``keys``), the discovery server of ``net`` with its own discovery key; how its UAVs reach it."""
+        ...
+
+    def start_world(self, config: Path) -> None:
+        """Start the world service (``python -m world``) with this configuration file (docs/world.md)."""
         ...
 
     def start_uav(self, cfg: VirtualUavConfig) -> None:

@@ -24,7 +24,7 @@ from msgspec import Meta, field
 from msgspec.structs import force_setattr, replace
 
 from deploy.settings import ContainerSettings
-from discovery.options import DiscoveryService
+from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
@@ -33,12 +33,14 @@ from uav_stack.config import (
     AgentConfig,
     AvoidanceConfig,
     CoverageStrategy,
+    Firefighting,
     Flavour,
     GcsConfig,
     MavlinkSigning,
     MissionConfig,
     MissionType,
     NetworkConfig,
+    PlumeSeeking,
     PoseFeed,
     UavId,
     VirtualUavConfig,
@@ -46,6 +48,7 @@ from uav_stack.config import (
 )
 from uav_stack.failsafe import FailsafeConfig
 from uav_stack.geo import GeoPoint, LocalFrame
+from world.config import WorldConfig
 
 MAX_OFFSET_M = 50_000.0  # every position of a scenario lies within this of the origin (east and north)
 MAX_SCENARIO_BYTES = 1024 * 1024  # a scenario file larger than this is refused unread
@@ -96,10 +99,14 @@ class Mission(Config, frozen=True):
     sensor_radius: Annotated[float, Meta(gt=0.0, le=200.0, description="footprint radius used for coverage, m")] = 10.0
     overlap: Annotated[float, Meta(ge=0.0, lt=0.9, description="lawnmower lane overlap")] = 0.2
     land_when_done: bool = False
+    plume: PlumeSeeking | None = None  # plume missions (docs/world.md)
+    wildfire: Firefighting | None = None  # wildfire missions (docs/world.md)
 
     def __post_init__(self) -> None:
-        if self.type == "coverage" and self.area is None:
-            raise ConfigError("area", "a coverage mission needs an area")
+        if self.type in ("coverage", "plume") and self.area is None:
+            raise ConfigError("area", f"a {self.type} mission needs an area")
+        if self.type == "wildfire" and self.wildfire is None:
+            raise ConfigError("wildfire", "a wildfire mission needs its section (hub, fire_hint)")
         if self.area is not None:
             a, cell = self.area, max(self.sensor_radius / 2.0, 0.5)  # the analysis' cell (mrswarm/analysis.py)
             cells = math.ceil((a.x_max - a.x_min) / cell) * math.ceil((a.y_max - a.y_min) / cell)
@@ -107,6 +114,18 @@ class Mission(Config, frozen=True):
                 km2 = (a.x_max - a.x_min) * (a.y_max - a.y_min) / 1e6
                 raise ConfigError("sensor_radius", f"{self.sensor_radius:g} m over {km2:.3g} km^2 gives {cells:,} "
                                   f"coverage cells; at most {MAX_COVERAGE_CELLS:,} (raise it or shrink mission.area)")
+
+    def sensors_needed(self) -> list[tuple[str, str]]:
+        """(sensor name, the field naming it) of every sensor this mission reads."""
+        if self.type == "plume":
+            p = self.plume or PlumeSeeking()
+            return [(p.sensor, "mission.plume.sensor")] + ([(p.wind_sensor, "mission.plume.wind_sensor")]
+                                                           if p.strategy == "seek" else [])
+        if self.type == "wildfire" and self.wildfire is not None:
+            w = self.wildfire
+            return [(w.camera, "mission.wildfire.camera"), (w.tank, "mission.wildfire.tank"),
+                    (w.alarm, "mission.wildfire.alarm")]
+        return []
 
     @property
     def lane_spacing(self) -> float:
@@ -201,6 +220,36 @@ class Uav(Config, frozen=True):
     flavour: Flavour = "px4"  # px4, or ardupilot for MAVProxy users (docs/gcs.md)
 
 
+def uav_list(fleet: Fleet | None, uavs: tuple[Uav, ...] | None) -> list[Uav]:
+    """A swarm's UAVs: the explicit list, or the fleet's spawn points."""
+    if uavs is not None:
+        return list(uavs)
+    assert fleet is not None
+    points = spawn_points(fleet.count, fleet.spawn)
+    return [Uav(id=fleet.first_id + i, start=p, rtf=fleet.rtf, flavour=fleet.flavour) for i, p in enumerate(points)]
+
+
+class OtherSwarm(Config, frozen=True):
+    """Another swarm sharing the airspace (docs/world.md, "Shared airspace"): its own name and
+    discovery key, its own UAVs and (by default the scenario's) mission. The runner starts and
+    commands it beside the scenario's swarm, each through its own session; the two never see
+    each other's data, only the airspace feed of the world service tells each where the other
+    swarm's UAVs are."""
+
+    swarm: Annotated[str, Meta(pattern=SWARM_RE.pattern)]
+    fleet: Fleet | None = None
+    uavs: tuple[Uav, ...] | None = None
+    mission: Mission | None = None
+    key: Key | None = None  # its discovery key; None: a fresh one per run
+
+    def __post_init__(self) -> None:
+        if (self.fleet is None) == (self.uavs is None):
+            raise ConfigError("", "give either 'fleet' or 'uavs', not both")
+
+    def uav_list(self) -> list[Uav]:
+        return uav_list(self.fleet, self.uavs)
+
+
 class Gcs(Config, frozen=True):
     """Ground-station access (docs/gcs.md): each agent's MAVLink router and the override limits."""
 
@@ -238,6 +287,8 @@ class Scenario(Config, kw_only=True, frozen=True):
     docker: ContainerSettings = field(default_factory=ContainerSettings)
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)  # companion failsafes (docs/reliability.md)
     faults: tuple[FaultSpec, ...] = ()  # chaos: faults injected during the mission (docs/reliability.md)
+    world: WorldConfig | None = None  # the world service: plume, fire, targets, zones, sensors (docs/world.md)
+    other_swarms: tuple[OtherSwarm, ...] = ()  # more swarms in the same airspace
 
     def __post_init__(self) -> None:
         if self.uavs is not None:
@@ -257,8 +308,10 @@ class Scenario(Config, kw_only=True, frozen=True):
         top = max(u.id for u in uavs)
         if top > 65535:
             raise ConfigError("fleet.first_id", "UAV ids must stay <= 65535")
-        self._check_spawn_spacing(uavs)
-        for u in uavs:
+        self._check_other_swarms()
+        self._check_world()
+        self._check_spawn_spacing(self.all_uavs())
+        for u in self.all_uavs():
             if max(abs(u.start[0]), abs(u.start[1])) > MAX_OFFSET_M:
                 raise ConfigError("fleet.spawn" if self.fleet is not None else "uavs",
                                   f"UAV {u.id} spawns at {u.start}, farther than {MAX_OFFSET_M:g} m from the origin")
@@ -275,6 +328,37 @@ class Scenario(Config, kw_only=True, frozen=True):
             if g.port is None and g.listen_base is None:
                 raise ConfigError("gcs.mavlink", "needs gcs.port or gcs.listen_base")
 
+    def _check_other_swarms(self) -> None:
+        names = [self.swarm] + [o.swarm for o in self.other_swarms]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ConfigError("other_swarms", f"swarm {dup[0]!r} listed twice")
+        ids = [u.id for u in self.all_uavs()]
+        dup_ids = sorted({i for i in ids if ids.count(i) > 1})
+        if dup_ids:  # every UAV is a process named by its id, and writes uav<id>.csv in the run folder
+            raise ConfigError("other_swarms", f"UAV ids must differ across swarms; {dup_ids} appear twice")
+        for i, o in enumerate(self.other_swarms):
+            m = o.mission or self.mission
+            if m.type == "goto" and any(u.goal is None for u in o.uav_list()):
+                raise ConfigError(f"other_swarms.{i}", "a goto mission needs a goal for every UAV")
+
+    def _check_world(self) -> None:
+        missions = [("mission", self.mission)] + [(f"other_swarms.{i}.mission", o.mission) for i, o in
+                                                   enumerate(self.other_swarms) if o.mission is not None]
+        w = self.world
+        sensors = {s.name for s in w.sensors} if w is not None else set()
+        for where, m in missions:
+            needed = m.sensors_needed()
+            if needed and w is None:
+                raise ConfigError("world", f"a {m.type} mission ({where}) needs a world section with its sensors")
+            for name, field_name in needed:
+                if name not in sensors:
+                    raise ConfigError(f"{where}.{field_name.split('.', 1)[1]}",
+                                      f"no sensor {name!r} in world.sensors (there: {', '.join(sorted(sensors)) or 'none'})")
+            if m.type == "wildfire" and m.wildfire is not None and w is not None \
+                    and m.wildfire.spray not in {a.name for a in w.actuators}:
+                raise ConfigError(f"{where}.wildfire.spray", f"no actuator {m.wildfire.spray!r} in world.actuators")
+
     def _check_spawn_spacing(self, uavs: list[Uav]) -> None:
         pts = [u.start for u in uavs]
         for i in range(len(pts)):
@@ -286,12 +370,18 @@ class Scenario(Config, kw_only=True, frozen=True):
                                       f"({self.flight.safety_distance} m)")
 
     def uav_list(self) -> list[Uav]:
-        if self.uavs is not None:
-            return list(self.uavs)
-        f = self.fleet
-        assert f is not None
-        points = spawn_points(f.count, f.spawn)
-        return [Uav(id=f.first_id + i, start=p, rtf=f.rtf, flavour=f.flavour) for i, p in enumerate(points)]
+        """The UAVs of the scenario's swarm (``all_uavs``: those of the other swarms too)."""
+        return uav_list(self.fleet, self.uavs)
+
+    def all_uavs(self) -> list[Uav]:
+        return self.uav_list() + [u for o in self.other_swarms for u in o.uav_list()]
+
+    def swarm_of(self) -> dict[int, str]:
+        """The swarm of every UAV id."""
+        out = {u.id: self.swarm for u in self.uav_list()}
+        for o in self.other_swarms:
+            out.update({u.id: o.swarm for u in o.uav_list()})
+        return out
 
     def geofence(self) -> tuple[float, float, float, float]:
         """Where a ground station may send a UAV (goto): gcs.geofence, else the mission area, else
@@ -300,7 +390,7 @@ class Scenario(Config, kw_only=True, frozen=True):
             return self.gcs.geofence.as_tuple()
         if self.mission.area is not None:
             return self.mission.area.as_tuple()
-        pts = [u.start for u in self.uav_list()] + [u.goal for u in self.uav_list() if u.goal is not None]
+        pts = [u.start for u in self.all_uavs()] + [u.goal for u in self.all_uavs() if u.goal is not None]
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
         return (min(xs) - 50.0, max(xs) + 50.0, min(ys) - 50.0, max(ys) + 50.0)
 
@@ -319,17 +409,22 @@ class Scenario(Config, kw_only=True, frozen=True):
         return tuple(out)
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
-    def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None) -> list[VirtualUavConfig]:
-        """One UAV process's configuration per UAV, on the network the runtime started."""
+    def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None,
+                            other: OtherSwarm | None = None) -> list[VirtualUavConfig]:
+        """One UAV process's configuration per UAV of the scenario's swarm (or of ``other``), on the
+        network the runtime started."""
         origin = self.origin.point()
         frame = LocalFrame(origin)
-        fl, m = self.flight, self.mission
+        fl = self.flight
+        m = self.mission if other is None or other.mission is None else other.mission
+        swarm, uavs = (self.swarm, self.uav_list()) if other is None else (other.swarm, other.uav_list())
+        w = self.world
         if self.network.netem is not None:  # the per-link seeds default to the scenario's seed
             netem = to_builtins(self.network.netem)
             netem.setdefault("seed", self.seed)
             network = replace(network, netem=netem)
         out = []
-        for u in self.uav_list():
+        for u in uavs:
             lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)
             mission = MissionConfig(
                 type=m.type,
@@ -338,15 +433,20 @@ class Scenario(Config, kw_only=True, frozen=True):
                 lane_spacing=m.lane_spacing,
                 goal=u.goal,
                 land_when_done=m.land_when_done,
+                plume=m.plume,
+                wildfire=m.wildfire,
             )
             agent = AgentConfig(
-                swarm=self.swarm, uav=u.id, origin=origin, fcu="", realm="virtual", altitude=fl.altitude, speed=fl.speed,
+                swarm=swarm, uav=u.id, origin=origin, fcu="", realm="virtual", altitude=fl.altitude, speed=fl.speed,
                 seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
-                avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon),
+                avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon,
+                                          zones=w.zones if w is not None else ()),
                 network=network,
                 gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
                               signing=self.gcs.signing),
                 failsafe=self.failsafe,
+                sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
+                traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
             )
             out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
                                         heading=math.radians(u.heading), flavour=u.flavour))

@@ -22,6 +22,8 @@ import msgspec
 import numpy as np
 from msgspec import UNSET, Struct, UnsetType
 
+from mrswarm.world_summary import WorldSummary
+
 # ---- run.json ---------------------------------------------------------------------------------
 
 
@@ -383,6 +385,7 @@ class RunSummary(Struct):
     rtf: Rtf | UnsetType = UNSET
     takeoff: Takeoff | UnsetType = UNSET
     network: Network | UnsetType = UNSET
+    world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed

@@ -8,6 +8,7 @@ from rich.table import Table
 
 from mrswarm.gcs.session import format_ids
 from mrswarm.summary import RunSummary
+from mrswarm.world_summary import WorldSummary
 
 
 def summary_table(s: RunSummary) -> Table:
@@ -72,6 +73,9 @@ def summary_table(s: RunSummary) -> Table:
                        for k in {*sec.refused_by_uavs, *sec.refused_by_router}}
             t.add_row("security", "mutual TLS, access control; refused: "
                       + (", ".join(f"{k} {v}" for k, v in sorted(refused.items())) if any(refused.values()) else "nothing"))
+    if w := s.world:
+        for row in world_rows(w):
+            t.add_row(*row)
     t.add_row("results", f"{s.run_dir}/summary.json" + (f", {s.plot}" if s.plot else ""))
     if s.write_error:
         t.add_row("not written", s.write_error)
@@ -82,6 +86,31 @@ def summary_table(s: RunSummary) -> Table:
     if s.aborted:
         t.add_row("aborted", s.aborted)
     return t
+
+
+def world_rows(w: WorldSummary) -> list[tuple[str, str]]:
+    """The world section's lines (docs/world.md)."""
+    rows = []
+    if p := w.plume:
+        rows.append(("source estimate", f"error {_fmt(p.error_final_m)} m at the end (best UAV {_fmt(p.error_best_final_m)} m), "
+                                        f"under 5 m from {_fmt(p.below_5m_at_s)} s; {p.uavs_estimating} UAVs estimating"))
+    if f := w.fire:
+        out = (f"out at {f.extinguished_at_s:.0f} s" if f.extinguished_at_s is not None
+               else f"{f.cells_burning_at_end} cells still burning")
+        rows.append(("fire", f"burnt {f.burnt_area_m2:.0f} m^2, {f.cells_extinguished} cells put out with "
+                             f"{f.sprayed_l:.0f} l; {out}"))
+    if z := w.zones:
+        rows.append(("no-fly zones", f"{z.entries} entries into {z.zones} zones, closest {_fmt(z.min_clearance_m)} m"))
+    if a := w.airspace:
+        rows.append(("between swarms", f"closest {_fmt(a.min_separation_m)} m, {a.conflicts} conflicts, "
+                                       f"{a.collisions} collisions, {a.cross_swarm_samples} cross-swarm samples "
+                                       f"(feed {'on' if a.feed else 'off'})"))
+    for name, d in w.sensors.items():
+        rows.append((f"sensor {name}", f"{d.received} readings, {_fmt(d.rate_hz_median)} Hz, delay p50 {_fmt(d.delay_ms_p50)} ms "
+                                       f"(latency {1000 * d.latency_s:.0f} ms)"))
+    if w.service is not None:
+        rows.append(("world service", f"CPU {_fmt(w.service.cpu_percent)} % of one core, {w.service.uavs_tracked} UAVs tracked"))
+    return rows
 
 
 def fault_table(s: RunSummary) -> Table:

@@ -37,6 +37,13 @@ STABLE_AFTER_S = 30.0  # up this long: the next failure starts the backoff from 
 MAX_UAV_RESTARTS = 3
 
 
+def is_service(name: str) -> bool:
+    """Restarted whenever it exits: the discovery server and every swarm's edge router (``router-<swarm>``
+    for the other swarms of an airspace, docs/world.md). Not the world service: a restarted world
+    would start its experiment again (the fire lit anew), so its exit stays an event."""
+    return name in SERVICES or name.startswith("router-")
+
+
 def uav_of(name: str) -> int | None:
     """The UAV id of a process name (``uav7`` -> 7), None for a service."""
     return int(name[3:]) if name.startswith("uav") and name[3:].isdigit() else None
@@ -112,7 +119,7 @@ class Supervisor:
         if now - w.started >= STABLE_AFTER_S:
             w.backoff = BACKOFF_FIRST_S
         failed = code is None or code != 0
-        if name in SERVICES or (uav is not None and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
+        if is_service(name) or (uav is not None and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
             w.due = now + w.backoff
             ev.detail = f"restart in {w.backoff:g} s"
             w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)

@@ -8,6 +8,10 @@ UAV ids are decimal integers (1..65535); the words ``alive``, ``msg``, ``cmd``, 
 are reserved segment names and can never be mistaken for a UAV id. Everything a UAV publishes
 sits under its own id (``mrs/<swarm>/<uav>/...``, its swarm messages too), so access control
 can bind each key to the certificate of the UAV it names (swarmnet/security/acl.py).
+
+One key tree lies outside every swarm: ``mrs/airspace/<swarm>/traffic``, the traffic feed the
+edge publishes into each swarm (the other swarms' UAVs as position and velocity only), so
+``airspace`` is not a valid swarm name.
 """
 
 from __future__ import annotations
@@ -16,13 +20,20 @@ import re
 from dataclasses import dataclass
 
 ROOT = "mrs"
-SWARM_RE = re.compile(r"^[A-Za-z0-9_\-]{1,32}$")
+SWARM_RE = re.compile(r"^(?!airspace$)[A-Za-z0-9_\-]{1,32}$")  # "airspace" heads the cross-swarm traffic keys
+AIRSPACE = "airspace"
 
 
 def check_swarm(swarm: str) -> str:
     if not isinstance(swarm, str) or not SWARM_RE.match(swarm):
-        raise ValueError(f"swarm name {swarm!r} must be 1-32 characters of [A-Za-z0-9_-]")
+        raise ValueError(f"swarm name {swarm!r} must be 1-32 characters of [A-Za-z0-9_-], and not {AIRSPACE!r}")
     return swarm
+
+
+def traffic_key(swarm: str) -> str:
+    """The airspace feed for ``swarm``: every UAV of the *other* swarms sharing the airspace, as
+    traffic (position and velocity only), published by the edge (world/airspace.py)."""
+    return f"{ROOT}/{AIRSPACE}/{check_swarm(swarm)}/traffic"
 
 
 @dataclass(frozen=True)
@@ -57,6 +68,13 @@ class SwarmKeys:
     def alive(self, role: str, node: int | str) -> str:
         return f"{self.prefix}/alive/{role}/{node}"
 
+    def sense(self, uav: int | str, sensor: str) -> str:
+        """Readings of one virtual sensor of one UAV, computed and published by the world service."""
+        return f"{self.prefix}/{uav}/sense/{sensor}"
+
+    def act(self, uav: int | str, actuator: str) -> str:
+        """Requests of one UAV's virtual actuator (spray), to the world service."""
+        return f"{self.prefix}/{uav}/act/{actuator}"
     def fault(self, uav: int | str) -> str:
         """Fault injection into a virtual UAV (the experiment controller only; docs/reliability.md)."""
         return f"{self.prefix}/{uav}/fault"
@@ -111,6 +129,20 @@ class SwarmKeys:
     def all_unicast(self, uav: int | str) -> str:
         """Every unicast message to ``uav``, from any sender."""
         return f"{self.prefix}/*/to/{uav}/**"
+
+    def all_senses(self, uav: int | str) -> str:
+        """Every virtual sensor reading for ``uav`` (what that UAV subscribes to, and nobody else)."""
+        return f"{self.prefix}/{uav}/sense/*"
+
+    @property
+    def all_acts(self) -> str:
+        """Every actuator request of the swarm (what the world service subscribes to)."""
+        return f"{self.prefix}/*/act/*"
+
+    @property
+    def traffic(self) -> str:
+        """This swarm's airspace feed (see :func:`traffic_key`)."""
+        return traffic_key(self.swarm)
 
 
 def uav_from_key(key: str) -> int | None:

@@ -55,6 +55,9 @@ class Kind(IntEnum):
     COMMAND_ACK = 6
     POSE_BATCH = 7
     FAULT = 8
+    READING = 9
+    ACTUATION = 10
+    TRAFFIC = 11
 
 
 class Realm(IntEnum):
@@ -92,6 +95,13 @@ MAX_COMMAND_BYTES = 1024
 DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024
 MAX_BATCH_POSES = 4096
 MAX_BATCH_BYTES = 16 + MAX_BATCH_POSES * (MAX_POSE_BYTES + 2) + 16
+MAX_READING_POINTS = 64  # detections in one reading (burning cells, targets)
+MAX_READING_BYTES = 1536  # header (~80 B) + at most 64 points of <= 20 B
+MAX_ACTUATION_BYTES = 128
+MAX_TRAFFIC_REPORTS = 1024
+MAX_TRAFFIC_BYTES = 32 + MAX_TRAFFIC_REPORTS * 48
+READING_LIMIT = 1e12  # |value| and |point value| of a reading, in the sensor's unit
+AMOUNT_LIMIT = 1e6  # an actuation's amount, in the actuator's unit (litres for a spray)
 _INT16 = 32767
 _INT32 = 2**31 - 1
 _UINT32 = 2**32 - 1
@@ -238,7 +248,65 @@ class FaultInjection:
     t_wall: float = 0.0
 
 
-Message = Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch | FaultInjection
+@dataclass(frozen=True, slots=True)
+class Reading:
+    """One virtual sensor reading for one UAV, computed at the edge from its shared pose (docs/world.md).
+
+    ``value`` is the scalar (a concentration, a tank level, a count; 0/1 for a binary sensor);
+    ``points`` are detections ``(x, y, v)`` in the swarm's ENU frame, metres (burning cells
+    with their heat, targets with their id). ``t_meas`` is the instant the reading describes
+    and ``t_sent`` when the edge released it: the difference is the sensor's latency.
+    """
+
+    uav: int
+    sensor: str
+    seq: int
+    t_meas: float  # wall, s
+    t_sent: float  # wall, s
+    value: float
+    points: tuple[tuple[float, float, float], ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Actuation:
+    """A UAV's request to its virtual actuator (``amount`` in the actuator's unit: litres for a spray).
+
+    It carries no position: the world applies it where it tracks the UAV (its last shared pose),
+    so a UAV cannot act where it is not.
+    """
+
+    uav: int
+    actuator: str
+    seq: int
+    t_wall: float
+    amount: float
+
+
+@dataclass(frozen=True, slots=True)
+class TrafficReport:
+    """Another swarm's UAV as traffic, like Remote ID: an opaque track id, where, how fast; nothing else."""
+
+    track: int  # stable for the run, says nothing about the swarm or the UAV id
+    t_wall: float  # when the position was sampled, s
+    lat: float  # degrees
+    lon: float  # degrees
+    alt: float  # metres AMSL
+    ve: float  # m/s east
+    vn: float  # m/s north
+    vu: float  # m/s up
+
+
+@dataclass(frozen=True, slots=True)
+class Traffic:
+    """The airspace feed for one swarm: every UAV of the other swarms, in one message."""
+
+    seq: int
+    t_wall: float
+    reports: tuple[TrafficReport, ...]
+
+
+Message = (Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch | FaultInjection | Reading | Actuation
+           | Traffic)
 
 
 # --- helpers -------------------------------------------------------------------------------
@@ -617,6 +685,114 @@ def decode_pose_batch(data: bytes) -> PoseBatch:
                      poses=poses)
 
 
+# --- virtual sensors and actuators (world service) -----------------------------------------
+_READING_TAG = tag(Kind.READING)
+_ACTUATION_TAG = tag(Kind.ACTUATION)
+_TRAFFIC_TAG = tag(Kind.TRAFFIC)
+
+
+def _finite(v: Any, limit: float, name: str) -> float:
+    if type(v) not in (int, float) or not -limit <= v <= limit:  # NaN fails the comparison too
+        raise DecodeError("bad_field", f"{name}={v!r:.40} is not a finite number within +-{limit:g}")
+    return float(v)
+
+
+def encode_reading(r: Reading) -> bytes:
+    if not NAME_RE.match(r.sensor):
+        raise ValueError(f"invalid sensor name {r.sensor!r}: 1-32 characters of [A-Za-z0-9_-]")
+    if len(r.points) > MAX_READING_POINTS:
+        raise ValueError(f"{len(r.points)} points in one reading, over {MAX_READING_POINTS}")
+    if not -READING_LIMIT <= r.value <= READING_LIMIT:
+        raise ValueError(f"reading value {r.value} is not finite within +-{READING_LIMIT:g}")
+    try:
+        points = [[_q(x, 100.0, _INT32, "x"), _q(y, 100.0, _INT32, "y"), float(v)] for x, y, v in r.points]
+    except (ValueError, OverflowError) as exc:
+        raise ValueError(f"cannot encode a reading of {r.sensor}: {exc}") from None
+    if any(not -READING_LIMIT <= p[2] <= READING_LIMIT for p in points):
+        raise ValueError("a point value is not finite")
+    return msgpack.packb([_READING_TAG, r.uav, r.sensor, r.seq & 0xFFFFFFFF, _us(r.t_meas), _us(r.t_sent), float(r.value),
+                          points])
+
+
+def decode_reading(data: bytes) -> Reading:
+    o = _unpack(data, MAX_READING_BYTES)
+    _expect(o, Kind.READING, 8)
+    pts = o[7]
+    if type(pts) is not list or len(pts) > MAX_READING_POINTS:
+        raise DecodeError("bad_field", f"points must be a list of at most {MAX_READING_POINTS}")
+    points = []
+    for p in pts:
+        if type(p) is not list or len(p) != 3:
+            raise DecodeError("bad_field", "a point is [x_cm, y_cm, value]")
+        points.append((_int(p[0], -_INT32, _INT32, "point x") / 100.0, _int(p[1], -_INT32, _INT32, "point y") / 100.0,
+                       _finite(p[2], READING_LIMIT, "point value")))
+    return Reading(
+        uav=check_uav_id(o[1]),
+        sensor=_str(o[2], 32, "sensor", NAME_RE),
+        seq=_int(o[3], 0, _UINT32, "seq"),
+        t_meas=_int(o[4], 0, _UINT64, "t_meas") / 1e6,
+        t_sent=_int(o[5], 0, _UINT64, "t_sent") / 1e6,
+        value=_finite(o[6], READING_LIMIT, "value"),
+        points=tuple(points),
+    )
+
+
+def encode_actuation(a: Actuation) -> bytes:
+    if not NAME_RE.match(a.actuator):
+        raise ValueError(f"invalid actuator name {a.actuator!r}: 1-32 characters of [A-Za-z0-9_-]")
+    if not 0.0 <= a.amount <= AMOUNT_LIMIT:
+        raise ValueError(f"actuation amount {a.amount} outside 0..{AMOUNT_LIMIT:g}")
+    return msgpack.packb([_ACTUATION_TAG, a.uav, a.actuator, a.seq & 0xFFFFFFFF, _us(a.t_wall), float(a.amount)])
+
+
+def decode_actuation(data: bytes) -> Actuation:
+    o = _unpack(data, MAX_ACTUATION_BYTES)
+    _expect(o, Kind.ACTUATION, 6)
+    return Actuation(
+        uav=check_uav_id(o[1]),
+        actuator=_str(o[2], 32, "actuator", NAME_RE),
+        seq=_int(o[3], 0, _UINT32, "seq"),
+        t_wall=_int(o[4], 0, _UINT64, "t_wall") / 1e6,
+        amount=_num(o[5], 0.0, AMOUNT_LIMIT, "amount"),
+    )
+
+
+def encode_traffic(t: Traffic) -> bytes:
+    """Positions as 1e-7 degrees and cm (about 1 cm), velocities in cm/s, like the pose."""
+    if len(t.reports) > MAX_TRAFFIC_REPORTS:
+        raise ValueError(f"{len(t.reports)} traffic reports in one message, over {MAX_TRAFFIC_REPORTS}")
+    try:
+        reports = [[r.track & 0xFFFFFFFF, _us(r.t_wall), _q(r.lat, 1e7, 900_000_000, "lat"), _q(r.lon, 1e7, 1_800_000_000, "lon"),
+                    _q(r.alt, 100.0, _INT32, "alt"), _q(r.ve, 100.0, _INT16, "ve"), _q(r.vn, 100.0, _INT16, "vn"),
+                    _q(r.vu, 100.0, _INT16, "vu")] for r in t.reports]
+    except (ValueError, OverflowError) as exc:
+        raise ValueError(f"cannot encode traffic: {exc}") from None
+    return msgpack.packb([_TRAFFIC_TAG, t.seq & 0xFFFFFFFF, _us(t.t_wall), reports])
+
+
+_TRAFFIC_FIELDS = (("track", 0, _UINT32), ("t_wall", 0, _UINT64), ("lat", -900_000_000, 900_000_000),
+                   ("lon", -1_800_000_000, 1_800_000_000), ("alt", -_INT32, _INT32), ("ve", -_INT16, _INT16),
+                   ("vn", -_INT16, _INT16), ("vu", -_INT16, _INT16))
+
+
+def decode_traffic(data: bytes) -> Traffic:
+    o = _unpack(data, MAX_TRAFFIC_BYTES)
+    _expect(o, Kind.TRAFFIC, 4)
+    raw = o[3]
+    if type(raw) is not list or len(raw) > MAX_TRAFFIC_REPORTS:
+        raise DecodeError("bad_field", f"reports must be a list of at most {MAX_TRAFFIC_REPORTS}")
+    reports = []
+    for r in raw:
+        if type(r) is not list or len(r) != 8:
+            raise DecodeError("bad_field", "a traffic report has 8 fields")
+        for (name, lo, hi), v in zip(_TRAFFIC_FIELDS, r, strict=True):
+            if type(v) is not int or not lo <= v <= hi:
+                raise DecodeError("bad_field", f"traffic {name}={v!r} outside {lo}..{hi}")
+        reports.append(TrafficReport(r[0], r[1] / 1e6, r[2] / 1e7, r[3] / 1e7, r[4] / 100.0, r[5] / 100.0, r[6] / 100.0,
+                                     r[7] / 100.0))
+    return Traffic(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, reports=tuple(reports))
+
+
 # --- acceptance rules -------------------------------------------------------------------------
 # A rule raises Rejected(reason) for a sample that decodes but is out of place. An accept_*
 # function is decode + the rules of one stream; bound to its node's id, each has the shape
@@ -657,6 +833,13 @@ def check_command_target(target: int, me: int) -> None:
     """A command is for this UAV or (``target`` 0) the whole swarm (``wrong_destination``)."""
     if target != 0 and target != me:
         raise Rejected("wrong_destination", f"command for UAV {target}")
+
+
+def check_key_names(key: str, name: str) -> None:
+    """A sensor or actuator key (``mrs/<swarm>/<uav>/sense/<sensor>``, ``.../act/<actuator>``) ends
+    with the name its payload carries (``key_mismatch``)."""
+    if key.rsplit("/", 1)[-1] != name:
+        raise Rejected("key_mismatch", f"payload names {name!r}")
 
 
 def accept_pose(key: str, data: bytes) -> Pose:
@@ -730,3 +913,28 @@ def accept_command(key: str, data: bytes, me: int) -> Command:
     cmd = decode_command(data)
     check_command_target(cmd.target, me)
     return cmd
+
+
+def accept_reading(key: str, data: bytes, me: int) -> Reading:
+    """A reading on ``mrs/<swarm>/<me>/sense/<sensor>``: it decodes, names the key's UAV and
+    sensor, and that UAV is ``me`` (a reading for another UAV is never taken, ``wrong_destination``)."""
+    r = decode_reading(data)
+    check_key_names_uav(key, r.uav)
+    check_key_names(key, r.sensor)
+    if r.uav != me:
+        raise Rejected("wrong_destination", f"reading for UAV {r.uav}")
+    return r
+
+
+def accept_actuation(key: str, data: bytes) -> Actuation:
+    """An actuator request on ``mrs/<swarm>/<uav>/act/<actuator>``: it decodes and names the key's
+    UAV and actuator (a UAV cannot act for another)."""
+    a = decode_actuation(data)
+    check_key_names_uav(key, a.uav)
+    check_key_names(key, a.actuator)
+    return a
+
+
+def accept_traffic(key: str, data: bytes) -> Traffic:
+    """The airspace feed on ``mrs/airspace/<swarm>/traffic``: it decodes (every report in range)."""
+    return decode_traffic(data)

@@ -23,11 +23,12 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from swarmnet.messages import Command, FaultInjection, Realm
+from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
-from uav_stack.behaviours.base import Behaviour, NeighbourView, Rect, SelfState
+from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
+from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
 from uav_stack.fcu_link import CommandHandle, FcuLink
@@ -36,6 +37,7 @@ from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _Defe
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import AgeWindow, PoseAgeLog
 from uav_stack.recorder import RecordHealth, TrajectoryRecorder, write_json_atomic
+from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
     from uav_stack.mavlink_router import MavlinkRouter
@@ -62,9 +64,17 @@ class Own:
     yaw: float = 0.0  # ENU
 
 
-def make_mission(cfg: AgentConfig) -> Behaviour | None:
-    """The mission behaviour the configuration asks for; None for an idle UAV (it hovers)."""
+def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) -> Behaviour | None:
+    """The mission behaviour the configuration asks for; None for an idle UAV (it hovers).
+
+    Plume and wildfire missions read the ``payload``'s sensors (docs/world.md) and stay out of
+    the ``zones`` (their targets there are skipped).
+    """
     m = cfg.mission
+    if m.type in ("plume", "wildfire"):
+        from uav_stack.behaviours.sensing_missions import make_sensing_mission
+
+        return make_sensing_mission(cfg, payload or Payload(), zones, random.Random(cfg.seed * 1_000_003 + cfg.uav))
     if m.type == "coverage":
         area = Rect(*m.area)
         if m.strategy == "random":
@@ -104,11 +114,13 @@ class Agent(OverridesMixin):
         self.phase = AgentPhase.INIT
         self.override = ""
         self.detail = ""
-        self.mission = make_mission(cfg)
+        self.payload = make_payload(cfg, node, self.frame)
         a = cfg.avoidance
+        self.zones = zone_field(a.zones, a.zone_margin)
+        self.mission = make_mission(cfg, self.payload, self.zones)
         self.avoidance = (
             CollisionAvoidance(a.safety_distance, max_speed=cfg.speed * 1.2, time_horizon=a.time_horizon,
-                               stale_after=a.stale_after)
+                               stale_after=a.stale_after, zones=self.zones)
             if a.enabled
             else None
         )
@@ -194,6 +206,8 @@ class Agent(OverridesMixin):
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None
         have_pos = self._update_own()
+        if self.payload is not None:
+            self.payload.poll(now)  # sensor readings that arrived: the behaviour reads the latest
         st = link.state
         # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
         # anything else, so that its stamp (when the position was read) is its publication time.
@@ -235,12 +249,14 @@ class Agent(OverridesMixin):
             router.flush()
 
     def react(self, now: float) -> None:
-        """Take in what arrived (poses into the neighbour table) and handle the commands and
-        injected faults at once.
+        """Take in what arrived (poses into the neighbour table, swarm messages to a cooperative
+        mission) and handle the commands and injected faults at once.
 
         Called by :meth:`step`, and by the loop between ticks when the node's waker says a
         command (or fault) arrived, so a command is acknowledged within a millisecond of its arrival."""
         inbox = self.node.poll(now)
+        if inbox.messages and isinstance(self.mission, Cooperative):
+            self._hand_over(inbox.messages, now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
         for fault in inbox.faults:
@@ -250,6 +266,17 @@ class Agent(OverridesMixin):
     def behaviour_name(self) -> str:
         m = self.cfg.mission
         return f"{m.type}/{m.strategy}" if m.type == "coverage" else m.type
+
+    def _hand_over(self, messages: list[SwarmMessage], now: float) -> None:
+        """Swarm messages on a cooperative mission's topics go to it; a bad one is counted, never fatal."""
+        mission = self.mission
+        assert isinstance(mission, Cooperative)
+        for m in messages:
+            if m.topic in mission.topics and m.src != self.cfg.uav:
+                try:
+                    mission.receive(m.src, m.topic, m.body, now)
+                except Exception:  # noqa: BLE001 - bad input never stops the agent
+                    self.node.stats.reject("bad_mission_message", m.topic, f"from UAV {m.src}")
 
     # ---- commands -------------------------------------------------------------------------
     def _on_fault(self, fault: FaultInjection, now: float) -> None:
@@ -423,6 +450,8 @@ class Agent(OverridesMixin):
         elif self.mission is not None and self.phase in WORKING:
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
+            if isinstance(self.mission, Cooperative):
+                self._share(self.mission)
             if self.mission.done:
                 if self.cfg.mission.land_when_done:
                     self._land()
@@ -443,12 +472,25 @@ class Agent(OverridesMixin):
                 for n in self.node.take_neighbours(t_use)
                 if ((p := n.pose).x - o.x) ** 2 + (p.y - o.y) ** 2 <= r2
             ]
-            res = self.avoidance.adjust(me, (vx, vy), neigh)
+            if self.payload is not None and self.payload.traffic is not None:
+                neigh += traffic_views(self.payload, o.x, o.y, o.z, now, r2, self.cfg.avoidance.safety_distance)
+            res = self.avoidance.adjust(me, (vx, vy), neigh, altitude=o.z)
             if res.active:
                 self.counters["avoidance_active"] += 1
             self.closest_seen = min(self.closest_seen, res.closest)
             vx, vy = res.velocity
         self._send_velocity(vx, vy)
+
+    def _share(self, mission: Cooperative) -> None:
+        """Broadcast what a cooperative mission wants the swarm to know; refresh the state detail."""
+        for topic, body in mission.outbox():
+            try:
+                self.node.send(topic, body)
+            except ValueError as exc:  # an oversized or malformed message of the mission: say so, fly on
+                log.warning("UAV %d: cannot send %s: %s", self.cfg.uav, topic, exc)
+        if self.phase == AgentPhase.MISSION and self.detail != mission.status:
+            self.detail = mission.status
+            self._next_state = 0.0
 
     def _record(self, now: float) -> None:
         if self.recorder is None:
@@ -484,6 +526,8 @@ class Agent(OverridesMixin):
             "netem": self.node.netem_stats(),
             "failsafes": self.failsafes.as_dict(),
             "records": self.records.as_dict(),
+            "payload": self.payload.stats() if self.payload is not None else None,
+            "mission": {"status": getattr(self.mission, "status", None)},
             **{name: source() for name, source in self.stats_sources.items()},
             "written_at": now,
         }

@@ -8,6 +8,7 @@ process loads no YAML and no netem modules unless its swarm uses netem.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -24,12 +25,17 @@ from uav_stack.geo import GeoPoint
 Connectivity = Literal["rendezvous", "static", "discovery"]
 ZenohMode = Literal["peer", "client"]
 PoseFeed = Literal["direct", "edge"]  # direct: a message per neighbour pose; edge: batches from the edge router
-MissionType = Literal["coverage", "goto", "idle"]
+MissionType = Literal["coverage", "goto", "idle", "plume", "wildfire"]
 CoverageStrategy = Literal["lawnmower", "random"]
 Flavour = Literal["px4", "ardupilot"]  # the autopilot a virtual FCU emulates
 UavId = Annotated[int, Meta(ge=1, le=65535, description="UAV id")]
 Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (ENU m)
 Hz = Annotated[float, Meta(gt=0.0, le=1000.0, description="Hz")]
+Name = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$", description="1-32 characters of [A-Za-z0-9_-]")]
+Point = tuple[float, float]  # x, y (ENU m)
+SensorType = Literal["pollutant", "wind", "fire", "tank", "alarm", "target"]
+ActuatorType = Literal["spray"]
+ZoneKind = Literal["no_fly", "obstacle"]
 
 
 class NetworkConfig(Config, frozen=True):
@@ -57,6 +63,102 @@ class NetworkConfig(Config, frozen=True):
                 raise ConfigError("mode", "discovery connects peers directly; client mode needs connectivity 'rendezvous'")
 
 
+class SensorSpec(Config, frozen=True):
+    """One sensor of every UAV's payload (docs/world.md): a virtual one computed at the edge from
+    the UAV's shared pose, or a real one whose driver gives readings of the same shape.
+
+    Types: ``pollutant`` (concentration at the UAV; 0/1 with the cone model), ``wind`` (the
+    direction the air carries the plume to, degrees counter-clockwise from east), ``fire`` (the
+    camera footprint's radius in m as the value, every burning cell in it as a point
+    ``(x, y, heat)``), ``tank`` (litres left in the UAV's virtual tank), ``alarm`` (burning cells
+    anywhere: the detection system), ``target`` (moving targets in range and field of view as
+    points ``(x, y, id)``).
+    """
+
+    name: Name
+    type: SensorType
+    rate_hz: Hz = 10.0
+    latency_s: Annotated[float, Meta(ge=0.0, le=10.0, description="measurement to delivery, s")] = 0.0
+    noise: Annotated[float, Meta(ge=0.0, description="std of Gaussian noise: on the value, or on a point's position (m)")] = 0.0
+    range_m: Annotated[float, Meta(gt=0.0, le=10000.0, description="how far it sees, m")] = 30.0
+    fov_deg: Annotated[float, Meta(gt=0.0, le=360.0, description="field of view, degrees (fire: downward cone)")] = 360.0
+    threshold: float | None = None  # binary output: 1.0 at or above this value, else 0.0
+
+
+class ActuatorSpec(Config, frozen=True):
+    """One virtual actuator of every UAV (docs/world.md); the world keeps its state (the tank)."""
+
+    name: Name
+    type: ActuatorType = "spray"
+    capacity_l: Annotated[float, Meta(gt=0.0, le=1e5, description="tank capacity, litres")] = 20.0
+    rate_l_s: Annotated[float, Meta(gt=0.0, le=1e3, description="most it releases, litres per second")] = 2.0
+    radius_m: Annotated[float, Meta(gt=0.0, le=500.0, description="radius of the sprayed disc under the UAV, m")] = 6.0
+    refill_at: Point | None = None  # the hub: the tank refills within refill_radius_m of it
+    refill_radius_m: Annotated[float, Meta(gt=0.0, le=1000.0, description="m")] = 8.0
+    refill_rate_l_s: Annotated[float, Meta(ge=0.0, le=1e3, description="litres per second at the hub")] = 4.0
+
+
+class Zone(Config, frozen=True):
+    """A no-fly zone or an obstacle: a polygon (ENU m) between two heights above the origin.
+
+    Collision avoidance keeps every UAV out of it (``uav_stack.behaviours.zones``), physical
+    UAVs included: it is part of each agent's configuration, on board before takeoff.
+    """
+
+    polygon: tuple[Point, ...]
+    name: str = ""
+    kind: ZoneKind = "no_fly"
+    floor: Annotated[float, Meta(ge=-500.0, le=10000.0, description="m above the origin")] = -500.0
+    ceiling: Annotated[float, Meta(ge=-500.0, le=10000.0, description="m above the origin")] = 10000.0
+
+    def __post_init__(self) -> None:
+        if len(self.polygon) < 3:
+            raise ConfigError("polygon", f"needs at least 3 vertices, got {len(self.polygon)}")
+        if not all(math.isfinite(v) for p in self.polygon for v in p):
+            raise ConfigError("polygon", "vertices must be finite")
+        area2 = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(self.polygon, self.polygon[1:] + self.polygon[:1], strict=True))
+        if abs(area2) < 1e-6:
+            raise ConfigError("polygon", "has no area")
+        if self.floor >= self.ceiling:
+            raise ConfigError("ceiling", f"must be above the floor ({self.floor:g} m), got {self.ceiling:g}")
+
+
+class PlumeSeeking(Config, frozen=True):
+    """A ``plume`` mission (docs/world.md): search the area, find the pollutant, locate its source.
+
+    ``seek``: fly random legs; in the plume, surge against the wind; having lost it, cast
+    across the wind, then search again. ``stop``: the Reina et al. e-puck experiment on UAVs:
+    random legs, and a UAV that senses the pollutant stops with probability
+    ``stop_probability`` per control step, moving on once it no longer senses it. Both share
+    where they sensed the pollutant and estimate the source from every detection heard.
+    """
+
+    strategy: Literal["seek", "stop"] = "seek"
+    sensor: Name = "pollutant"
+    wind_sensor: Name = "wind"
+    threshold: Annotated[float, Meta(ge=0.0, description="in the plume at or above this reading")] = 0.5
+    stop_probability: Annotated[float, Meta(ge=0.0, le=1.0, description="per control step (stop)")] = 0.3
+    cast_s: Annotated[float, Meta(gt=0.0, le=120.0, description="casting time before searching again, s")] = 10.0
+    memory_s: Annotated[float, Meta(gt=0.0, le=3600.0, description="detections older than this are forgotten, s")] = 30.0
+
+
+class Firefighting(Config, frozen=True):
+    """A ``wildfire`` mission (docs/world.md): the firefighting state machine of Lentzas' thesis
+    (Idle at the hub, On Duty, Fire Fighting, Returning), with the burning cells each UAV sees
+    shared with the swarm."""
+
+    hub: Point
+    fire_hint: Point  # where the detection system reports the fire
+    hub_radius: Annotated[float, Meta(gt=0.0, le=1000.0, description="m")] = 8.0
+    camera: Name = "fire"
+    tank: Name = "tank"
+    alarm: Name = "alarm"
+    spray: Name = "spray"
+    spray_rate_l_s: Annotated[float, Meta(gt=0.0, le=1e3, description="litres per second while fighting")] = 2.0
+    arrive_m: Annotated[float, Meta(gt=0.0, le=100.0, description="over a cell when this close, m")] = 2.5
+    search_radius: Annotated[float, Meta(gt=0.0, le=5000.0, description="search around the hint, m")] = 25.0
+
+
 class MissionConfig(Config, frozen=True):
     type: MissionType = "coverage"
     strategy: CoverageStrategy = "lawnmower"  # coverage only
@@ -65,6 +167,8 @@ class MissionConfig(Config, frozen=True):
     goal: tuple[float, float] | None = None  # goto: x, y (ENU m)
     goal_tolerance: Annotated[float, Meta(gt=0.0, description="m")] = 1.5
     land_when_done: bool = False
+    plume: PlumeSeeking | None = None  # plume missions (area: where to search)
+    wildfire: Firefighting | None = None  # wildfire missions
 
 
 class AvoidanceConfig(Config, frozen=True):
@@ -72,6 +176,8 @@ class AvoidanceConfig(Config, frozen=True):
     safety_distance: Annotated[float, Meta(gt=0.0, description="m between UAV centres that avoidance keeps")] = 5.0
     time_horizon: Annotated[float, Meta(gt=0.0, description="s")] = 4.0
     stale_after: Annotated[float, Meta(gt=0.0, description="neighbours older than this are ignored, s")] = 1.0
+    zones: tuple[Zone, ...] = ()  # no-fly zones and obstacles the UAV never enters
+    zone_margin: Annotated[float, Meta(ge=0.0, le=100.0, description="clearance kept from a zone, m")] = 3.0
 
 
 class MavlinkSigning(Config, frozen=True):
@@ -126,6 +232,34 @@ class AgentConfig(Config, frozen=True):
     network: NetworkConfig = field(default_factory=NetworkConfig)
     gcs: GcsConfig = field(default_factory=GcsConfig)
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)  # companion failsafes (uav_stack/failsafe.py)
+    sensors: tuple[SensorSpec, ...] = ()  # the payload's sensors (virtual ones are fed by the world service)
+    actuators: tuple[ActuatorSpec, ...] = ()
+    traffic: bool = False  # take the airspace feed: other swarms' UAVs as traffic to avoid
+
+    def __post_init__(self) -> None:
+        m = self.mission
+        names = {s.name for s in self.sensors}
+        if len(names) != len(self.sensors):
+            raise ConfigError("sensors", "two sensors with one name")
+        needs: list[tuple[str, str]] = []
+        if m.type == "plume":
+            p = m.plume or PlumeSeeking()
+            needs = [(p.sensor, "mission.plume.sensor")] + ([(p.wind_sensor, "mission.plume.wind_sensor")]
+                                                            if p.strategy == "seek" else [])
+        elif m.type == "wildfire":
+            w = m.wildfire
+            if w is None:
+                raise ConfigError("mission.wildfire", "a wildfire mission needs its section (hub, fire_hint)")
+            needs = [(w.camera, "mission.wildfire.camera"), (w.tank, "mission.wildfire.tank"),
+                     (w.alarm, "mission.wildfire.alarm")]
+            if w.spray not in {a.name for a in self.actuators}:
+                raise ConfigError("mission.wildfire.spray", f"no actuator named {w.spray!r}")
+        for name, where in needs:
+            if name not in names:
+                raise ConfigError(where, f"no sensor named {name!r} (sensors: {', '.join(sorted(names)) or 'none'})")
+
+    def actuator(self, name: str) -> ActuatorSpec:
+        return next(a for a in self.actuators if a.name == name)
 
     @property
     def mavlink_sysid(self) -> int:

@@ -16,6 +16,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
@@ -331,6 +332,9 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mavlink-allow-unsigned", action="store_true",
                     help="with --mavlink-key-file: still accept unsigned frames (counted)")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
+    ap.add_argument("--zones", default=None, metavar="FILE",
+                    help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
+                         "YAML or JSON (docs/world.md)")
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
@@ -395,6 +399,24 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
         gcs["signing"] = {"key_file": args.mavlink_key_file, "require": not args.mavlink_allow_unsigned}
     elif args.mavlink_allow_unsigned:
         ap.error("--mavlink-allow-unsigned needs --mavlink-key-file")
-    return {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
-            "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
-            "network": net, "gcs": gcs}
+    out = {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
+           "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
+           "network": net, "gcs": gcs}
+    if args.zones:
+        out["avoidance"] = {"zones": read_zones(args.zones, ap)}
+    return out
+
+
+def read_zones(path: str, ap: argparse.ArgumentParser) -> Any:
+    """The zones of ``--zones``: a scenario's ``world.zones`` or a bare list, in YAML or JSON."""
+    import yaml  # once, at the start of the agent; YAML is a superset of JSON
+
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        ap.error(f"--zones {path}: {exc}")
+    if isinstance(data, dict):
+        data = (data.get("world") or {}).get("zones")
+    if not isinstance(data, list):
+        ap.error(f"--zones {path}: expected a list of zones, or a scenario with world.zones")
+    return data

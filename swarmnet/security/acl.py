@@ -12,13 +12,19 @@ list (revoked, or never issued) gets nothing through.
  subject    may put (ingress)                                       receives (egress)
 =========  ======================================================  ===========================================
  uav-N      its pose, telemetry, state, acks, its swarm messages,   every pose, the pose feed, its own and the
-            its liveliness token ``alive/uav/N``                    swarm's commands, netem, its faults, the
-                                                                    swarm's broadcasts and its unicasts
+            its liveliness token ``alive/uav/N``, its actuator      swarm's commands, netem, its faults, the
+            requests ``N/act/*``                                    swarm's broadcasts and its unicasts, its
+                                                                    sensor readings ``N/sense/*``, the airspace
+                                                                    feed ``mrs/airspace/<swarm>/traffic``
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
  ctl        commands, ``netem/set``, ``<uav>/fault``,               everything of the swarm
             ``alive/observer/*``
- edge       everything of the swarm (it forwards what others put)   everything of the swarm
+ edge       everything of the swarm (it forwards what others put),  everything of the swarm
+            the airspace feed (the world service speaks as edge)
 =========  ======================================================  ===========================================
+
+"Everything of the swarm" is ``mrs/<swarm>/**`` and the swarm's airspace feed, which lies
+outside that tree (docs/world.md): only the edge puts it, only the swarm's members receive it.
 
 Declarations (subscribers, liveliness subscribers and queries) are allowed both ways for every
 member: Zenoh routes data only towards declared interest, so they must cross every link.
@@ -48,19 +54,19 @@ def _rule(rule_id: str, messages: tuple[str, ...], flows: tuple[str, ...], key_e
 def uav_puts(keys: SwarmKeys, uav: int) -> list[str]:
     """What UAV ``uav`` may publish: only under its own id."""
     return [keys.pose(uav), keys.telemetry(uav), keys.state(uav), keys.ack(uav), keys.broadcast(uav, "**"),
-            keys.unicast(uav, "*", "**"), keys.alive("uav", uav)]
+            keys.unicast(uav, "*", "**"), keys.alive("uav", uav), keys.act(uav, "*")]
 
 
 def uav_receives(keys: SwarmKeys, uav: int) -> list[str]:
     """What is sent to UAV ``uav``: what its node subscribes to, nothing else (not others' commands)."""
     return [keys.all_poses, keys.pose_feed, keys.swarm_cmd, keys.cmd(uav), keys.netem_set, keys.fault(uav),
-            keys.all_broadcast, keys.all_unicast(uav), keys.all_alive]
+            keys.all_broadcast, keys.all_unicast(uav), keys.all_alive, keys.all_senses(uav), keys.traffic]
 
 
 def access_control(roster: Roster) -> dict[str, Any]:
     """The ``access_control`` section of a Zenoh configuration for the roster's swarm."""
     keys = SwarmKeys(roster.swarm)
-    everything = [f"{keys.prefix}/**"]
+    everything = [f"{keys.prefix}/**", keys.traffic]  # the swarm's tree, and the airspace feed into it (docs/world.md)
     rules = [_rule("declare", DECLARATIONS, BOTH, everything),
              _rule("observe", ("put", "liveliness_token"), ("egress",), everything),
              _rule("forward", EVERY_MESSAGE, BOTH, everything)]

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 from uav_stack.behaviours.base import NeighbourView, SelfState, Vec2, clip_norm, is_finite
 from uav_stack.behaviours.lp import HalfPlane, solve
+from uav_stack.behaviours.zones import ZoneField
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +70,7 @@ class CollisionAvoidance:
         time_step: float = 0.1,
         bias_angle: float = 0.5 * math.pi,
         response_time: float = 0.4,
+        zones: ZoneField | None = None,
     ) -> None:
         """
         safety_distance: minimum centre-to-centre distance between two UAVs (body + position
@@ -90,6 +92,8 @@ class CollisionAvoidance:
             velocity, that velocity is turned clockwise by up to this angle (in proportion to how
             much progress is lost) and ORCA solved again.  Breaks the symmetric deadlock of ORCA's
             cut-off disk; 0 disables it.
+        zones: no-fly zones and obstacles (:mod:`uav_stack.behaviours.zones`): hard constraints,
+            never relaxed for a neighbour, and the way around a zone that blocks the path.
         """
         for name, val in (
             ("safety_distance", safety_distance),
@@ -125,6 +129,7 @@ class CollisionAvoidance:
         self.time_step = float(time_step)
         self.bias_angle = float(bias_angle)
         self.response_time = float(response_time)
+        self.zones = zones
 
     # -- the age term ------------------------------------------------------------------------
     def inflation(self, age: float, rel_speed: float) -> float:
@@ -188,13 +193,22 @@ class CollisionAvoidance:
         return HalfPlane((v_a[0] + share * ux, v_a[1] + share * uy), (nx, ny))
 
     # -- the public call ---------------------------------------------------------------------
-    def adjust(self, me: SelfState, preferred: Vec2, neighbours: Sequence[NeighbourView]) -> AvoidanceResult:
-        """Safe velocity closest to ``preferred``; never faster than ``max_speed``."""
+    def adjust(self, me: SelfState, preferred: Vec2, neighbours: Sequence[NeighbourView],
+               altitude: float = math.nan) -> AvoidanceResult:
+        """Safe velocity closest to ``preferred``; never faster than ``max_speed``.
+
+        ``altitude`` (m above the origin) decides which zones apply; NaN: all of them.
+        """
         pref = preferred if is_finite(preferred) else (0.0, 0.0)
-        pref = clip_norm(pref, self.max_speed)
+        pref = clipped = clip_norm(pref, self.max_speed)
         if not is_finite(me.pos):
             # we do not know where we are: hovering is the only defensible answer
             return AvoidanceResult((0.0, 0.0), True, math.inf, 0.0)
+        hard: list[HalfPlane] = []
+        if self.zones:
+            zone_planes = self.zones.planes(me.pos, altitude)
+            hard = [h for _, h in zone_planes]
+            pref = self.zones.steer(pref, zone_planes)
         v_a = me.vel if is_finite(me.vel) else (0.0, 0.0)
         px, py = me.pos
 
@@ -227,17 +241,17 @@ class CollisionAvoidance:
             oncoming = min(max(closing / (0.2 * self.max_speed), 0.0), 1.0)
             cons.append(_Constraint(d, plane, oncoming))
 
-        if not cons:
-            return AvoidanceResult(pref, False, closest, closest_infl)
+        if not cons and not hard:
+            return AvoidanceResult(pref, pref != clipped, closest, closest_infl)
         if len(cons) > self.max_neighbours:
             cons.sort(key=lambda c: c.dist)
             del cons[self.max_neighbours :]
         else:
             cons.sort(key=lambda c: c.dist)
-        planes = [c.plane for c in cons]
-        v, feasible = solve(planes, self.max_speed, pref)
+        planes = hard + [c.plane for c in cons]
+        v, feasible = solve(planes, self.max_speed, pref, hard=len(hard))
         sp = math.hypot(pref[0], pref[1])
-        if self.bias_angle > 0.0 and sp > 1e-9:
+        if self.bias_angle > 0.0 and sp > 1e-9 and cons:
             # keep-right: the more progress is blocked by traffic coming our way, the more the
             # wish turns clockwise (a parked neighbour is just waited for, not circled)
             blocked = 1.0 - (v[0] * pref[0] + v[1] * pref[1]) / (sp * sp)
@@ -246,7 +260,7 @@ class CollisionAvoidance:
                 phi = self.bias_angle * min(blocked, 1.0) * oncoming
                 c, s = math.cos(phi), math.sin(phi)
                 biased = (c * pref[0] + s * pref[1], -s * pref[0] + c * pref[1])
-                v, feasible = solve(planes, self.max_speed, biased)
+                v, feasible = solve(planes, self.max_speed, biased, hard=len(hard))
         v = clip_norm(v, self.max_speed)
-        active = math.hypot(v[0] - pref[0], v[1] - pref[1]) > 1e-6
+        active = math.hypot(v[0] - clipped[0], v[1] - clipped[1]) > 1e-6
         return AvoidanceResult(v, active, closest, closest_infl, feasible, len(cons))

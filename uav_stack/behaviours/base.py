@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 Vec2 = tuple[float, float]
 
@@ -116,3 +116,24 @@ class Behaviour(Protocol):
 
     @property
     def done(self) -> bool: ...
+
+
+@runtime_checkable
+class Cooperative(Protocol):
+    """A mission behaviour that talks to its swarm (plume detections, fire cells), still without I/O:
+    the agent hands it the swarm messages on its ``topics`` and broadcasts what it leaves in its outbox."""
+
+    topics: tuple[str, ...]
+
+    def receive(self, src: int, topic: str, body: Any, now: float) -> None:
+        """A swarm message from UAV ``src`` on one of ``topics`` (``body`` is untrusted input)."""
+        ...
+
+    def outbox(self) -> list[tuple[str, Any]]:
+        """The ``(topic, body)`` messages to broadcast now (the list is handed over and emptied)."""
+        ...
+
+    @property
+    def status(self) -> str:
+        """A short word for the agent's state detail (``surge``, ``fire fighting``, ...)."""
+        ...

@@ -102,16 +102,18 @@ def solve_2d(
     return len(planes), v
 
 
-def _least_violation(planes: Sequence[HalfPlane], start: int, radius: float, v: Vec2) -> Vec2:
-    """Minimise the largest violation over ``planes`` within the disk (3-D LP by projection)."""
+def _least_violation(planes: Sequence[HalfPlane], start: int, radius: float, v: Vec2, hard: int = 0) -> Vec2:
+    """Minimise the largest violation over ``planes[hard:]`` within the disk and ``planes[:hard]``
+    (3-D LP by projection; the hard planes enter every projected LP as they are, as RVO2 does
+    with obstacles)."""
     level = 0.0
-    for i in range(start, len(planes)):
+    for i in range(max(start, hard), len(planes)):
         hi = planes[i]
         if hi.violation(v) <= level + EPS:
             continue
         ni, pi = hi.normal, hi.point
-        proj: list[HalfPlane] = []
-        for j in range(i):
+        proj: list[HalfPlane] = list(planes[:hard])
+        for j in range(hard, i):
             nj, pj = planes[j].normal, planes[j].point
             # points where plane j is violated no more than plane i:
             #   nj.(pj - v) <= ni.(pi - v)   <=>   (nj - ni) . v >= nj.pj - ni.pi
@@ -129,12 +131,15 @@ def _least_violation(planes: Sequence[HalfPlane], start: int, radius: float, v: 
     return v
 
 
-def solve(planes: Sequence[HalfPlane], radius: float, target: Vec2) -> tuple[Vec2, bool]:
+def solve(planes: Sequence[HalfPlane], radius: float, target: Vec2, hard: int = 0) -> tuple[Vec2, bool]:
     """Closest velocity to ``target`` meeting every half-plane within the speed disk.
 
-    Returns ``(v, feasible)``; if infeasible, ``v`` minimises the largest violation instead.
+    Returns ``(v, feasible)``; if infeasible, ``v`` minimises the largest violation instead,
+    never relaxing the first ``hard`` planes (static obstacles) unless they alone leave no room.
     """
     k, v = solve_2d(planes, radius, target)
     if k == len(planes):
         return v, True
-    return _least_violation(planes, k, radius, v), False
+    if k < hard:  # the hard planes alone have no common point (a corner): least violation of all
+        return _least_violation(planes, k, radius, v), False
+    return _least_violation(planes, k, radius, v, hard), False

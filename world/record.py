@@ -1,0 +1,106 @@
+"""What the world service writes into a run folder (read back by ``mrswarm.world_report``).
+
+Flushed every second, so an interrupted run keeps what happened:
+
+- ``world.json``: the service's counters (readings per sensor type, actuations, traffic), its
+  CPU time, experiment time 0 (``t0``, wall s) and when it last wrote;
+- ``world_fire.csv``: once a second, the cells burning, burnt out, extinguished and ever
+  ignited, the burnt area and the litres sprayed;
+- ``world_fire.npz``: the grid (fuel, final state, ignition and out times per cell), at the end
+  and every 10 s;
+- ``world_plume.csv``: once a second, the source and the wind direction;
+- ``world_estimates.csv``: every source estimate a UAV broadcast (``plume/estimate``);
+- ``world_actuations.csv``: every actuator request: who, where the world placed it, litres
+  asked and released, cells extinguished.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from world.model import World
+
+SAMPLE_S = 1.0
+GRID_EVERY_S = 10.0
+
+
+class WorldRecorder:
+    def __init__(self, run_dir: Path, world: World):
+        self.dir = run_dir
+        self.world = world
+        self._files: list[IO[str]] = []
+        self.fire = self._csv("world_fire.csv", ["t_s", "burning", "burnt", "extinguished", "ignited", "burnt_area_m2",
+                                                 "sprayed_l"]) if world.fire is not None else None
+        self.plume = self._csv("world_plume.csv", ["t_s", "source_x", "source_y", "wind_deg"]) \
+            if world.plume is not None else None
+        self.estimates = self._csv("world_estimates.csv", ["t_wall", "swarm", "uav", "x", "y"])
+        self.actuations = self._csv("world_actuations.csv", ["t_wall", "swarm", "uav", "actuator", "x", "y", "asked_l",
+                                                             "released_l", "extinguished"])
+        self._next = 0.0
+        self._next_grid = 0.0
+
+    def _csv(self, name: str, header: list[str]) -> Any:
+        f = open(self.dir / name, "w", newline="")  # noqa: SIM115 - open until close()
+        self._files.append(f)
+        w = csv.writer(f)
+        w.writerow(header)
+        return w
+
+    def estimate(self, t_wall: float, swarm: str, uav: int, x: float, y: float) -> None:
+        self.estimates.writerow([f"{t_wall:.3f}", swarm, uav, f"{x:.2f}", f"{y:.2f}"])
+
+    def actuation(self, t_wall: float, swarm: str, uav: int, actuator: str, x: float, y: float, asked: float,
+                  released: float, extinguished: int) -> None:
+        self.actuations.writerow([f"{t_wall:.3f}", swarm, uav, actuator, f"{x:.2f}", f"{y:.2f}", f"{asked:.4f}",
+                                  f"{released:.4f}", extinguished])
+
+    def sample(self, now: float, stats: dict[str, Any]) -> None:
+        """Once a second: a row per model, the counters, flushed; the fire grid every 10 s."""
+        if now < self._next:
+            return
+        self._next = now + SAMPLE_S
+        w = self.world
+        if w.started:
+            t = w.time(now)
+            if self.fire is not None and w.fire is not None:
+                c = w.fire.counts()
+                self.fire.writerow([f"{t:.2f}", c["burning"], c["burnt"], c["extinguished"], c["ignited"],
+                                    f"{w.fire.burnt_area_m2:.1f}", f"{w.fire.sprayed_l:.3f}"])
+            if self.plume is not None and w.plume is not None:
+                sx, sy = w.plume.source
+                self.plume.writerow([f"{t:.2f}", sx, sy, f"{w.wind.direction_at(t):.2f}"])
+        for f in self._files:
+            f.flush()
+        self.write_stats(stats)
+        if w.fire is not None and now >= self._next_grid:
+            self._next_grid = now + GRID_EVERY_S
+            self.write_grid()
+
+    def write_stats(self, stats: dict[str, Any]) -> None:
+        path = self.dir / "world.json"
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(json.dumps(stats, indent=1))
+        os.replace(tmp, path)
+
+    def write_grid(self) -> None:
+        fire = self.world.fire
+        if fire is None:
+            return
+        path = self.dir / "world_fire.npz"
+        tmp = path.with_name(".world_fire.tmp.npz")
+        np.savez_compressed(tmp, xs=fire.xs, ys=fire.ys, fuel=fire.fuel, state=fire.state, t_ignited=fire.t_ignited,
+                            t_over=fire.t_over, t=np.array(fire.t), cell_m=np.array(fire.cfg.cell_m))
+        os.replace(tmp, path)
+
+    def close(self, stats: dict[str, Any]) -> None:
+        self.write_stats(stats)
+        self.write_grid()
+        for f in self._files:
+            f.close()
+        self._files.clear()
