@@ -71,6 +71,8 @@ def probes_run(endpoint: str, ids: list[int], near: bool, seconds: float, out: A
     finally:
         for nd in nodes:
             nd.close()
+    out.close()
+    os._exit(0)  # no interpreter teardown under Zenoh's threads (it can abort with "exception not rethrown")
 
 
 def run_cell(n: int, interest: bool, args: argparse.Namespace) -> dict[str, Any]:
