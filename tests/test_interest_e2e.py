@@ -18,12 +18,12 @@ from mrswarm.experiment import Experiment
 from mrswarm.scenario import parse_scenario
 
 N = 50
-RADIUS = 30.0
-SIDE = 170.0  # m: 49 others on 170 x 170 m put ~4.9 within 30 m of a UAV (fewer at the field's edges)
+RADIUS = 50.0  # about the avoidance's reach: 5 m safety + 2 x 6 m/s over its 4 s horizon (docs/scale.md)
+SIDE = 280.0  # m: 49 others on 280 x 280 m put ~4.9 within 50 m of a UAV (fewer at the field's edges)
 
 
 def scenario() -> object:
-    spacing = SIDE / math.ceil(math.sqrt(N))  # spread from the start: ~4 within the radius on the ground too
+    spacing = SIDE / math.ceil(math.sqrt(N))  # spread from the start: 35 m apart, at most 8 within the radius on the ground
     return parse_scenario({
         "name": "interest50",
         "swarm": "interest",
