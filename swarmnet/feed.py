@@ -151,10 +151,13 @@ class PoseFeed:
         keys = SwarmKeys(swarm)
         if far:
             self._put(swarm, keys.pose_feed, far, [poses[s] for s in far], now)
+        near_poses = 0
         for uav, senders in near.items():
             self._put(swarm, keys.near_feed(uav), senders, [poses[s] for s in senders], now, uav)
-            self.stats.sent["near_pose"] += len(senders)
-        return len(far) + sum(len(v) for v in near.values())
+            near_poses += len(senders)
+        with self._lock:
+            self.stats.sent["near_pose"] += near_poses
+        return len(far) + near_poses
 
     def _put(self, swarm: str, key: str, senders: list[int], payloads: list[bytes], now: float, to: int = 0) -> None:
         """One batch on ``key`` (``to``: the UAV of a near feed key, 0: the swarm's shared feed)."""

@@ -51,8 +51,8 @@ class Interest(Config, frozen=True):
 
     def argv(self) -> list[str]:
         """The edge router's command-line options for this interest (discovery/rendezvous.py)."""
-        return ["--interest-radius-m", f"{self.radius_m:g}", "--interest-margin-m", f"{self.margin_m:g}",
-                "--interest-far-hz", f"{self.far_rate_hz:g}"]
+        return ["--interest-radius-m", repr(self.radius_m), "--interest-margin-m", repr(self.margin_m),
+                "--interest-far-hz", repr(self.far_rate_hz)]
 
 
 class NearFilter:
