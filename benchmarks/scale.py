@@ -208,7 +208,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 5, figsize=(22, 4.2))
+    fig, ax = plt.subplots(1, 6, figsize=(26, 4.2))
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for i, cfg in enumerate(configs):
         rs = sorted((r for r in rows if r["config"] == cfg), key=lambda r: r["n"])
@@ -223,6 +223,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax[3].plot(ns, [r.get("use_age_p50_ms") for r in rs], "s:", color=c, alpha=0.8, label=f"{cfg} at use p50")
         ax[4].plot(ns, [r.get("all_airborne_s") for r in rs], "o-", color=c, label=f"{cfg} all airborne")
         ax[4].plot(ns, [r.get("takeoff_acked_s") for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} all acknowledged")
+        ax[5].plot(ns, [r.get("poses_rx_per_uav_s") for r in rs], "o-", color=c, label=cfg)
     ax[0].axhline(1.5, color="r", ls=":", label="budget 1.5 %")
     ax[0].set_title("CPU per UAV process, median (% of one core)")
     ax[1].axhline(60.0, color="r", ls=":", label="budget 60 MB RSS")
@@ -233,6 +234,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax[3].set_yscale("log")
     ax[3].set_title("pose ages at the receivers (ms)")
     ax[4].set_title("takeoff: s after the command")
+    ax[5].set_yscale("log")
+    ax[5].set_title("poses received per UAV a second (median)")
     for a in ax:
         a.set_xlabel("virtual UAVs (N)")
         a.legend(fontsize=7)
