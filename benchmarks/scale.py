@@ -18,6 +18,12 @@ mission starts, then measures every process over ``--window`` seconds:
 flies every network configuration of ``--configs`` at every N (interleaved, so that all
 configurations share the machine's load of the moment) and writes ``scale.json``,
 ``scale.csv`` and ``scale.png`` (medians per N and configuration, side by side).
+
+Spatial interest (docs/scale.md) on against off: the ``*-interest`` configurations are the edge
+feed with ``network.interest`` (``--interest-radius-m``, ``--interest-far-hz``); each row also
+gives the poses each UAV received a second and the mean number of others within the radius::
+
+    python benchmarks/scale.py --sizes 10 25 50 100 --configs client-edge client-edge-interest --tag scale_interest
 The machine is noisy: numbers are medians over the UAV processes of one run per cell.
 """
 
@@ -49,19 +55,25 @@ CONFIGS: dict[str, tuple[str, str, str]] = {
     "discovery-edge": ("discovery", "peer", "edge"),      # beacon relay, poses batched by the edge router
     "client-edge": ("rendezvous", "client", "edge"),      # every UAV a client of the edge router, batched poses
     "rendezvous-direct": ("rendezvous", "peer", "direct"),
+    "discovery-edge-interest": ("discovery", "peer", "edge"),  # as discovery-edge, with spatial interest
+    "client-edge-interest": ("rendezvous", "client", "edge"),  # as client-edge, with spatial interest
 }
+INTEREST = {"radius_m": 60.0, "margin_m": 5.0, "far_rate_hz": 0.5}  # 60 m: ~4.5 others within it at 2500 m^2 per UAV
 
 
-def scenario_for(n: int, duration: float, config: str) -> Scenario:
+def scenario_for(n: int, duration: float, config: str, interest: dict[str, float] | None = None) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
+    network: dict[str, Any] = {"connectivity": connectivity, "mode": mode, "pose_feed": feed}
+    if config.endswith("-interest"):
+        network["interest"] = interest or INTEREST
     return parse_scenario({
         "name": f"scale{n}",
         "swarm": f"bench{n}",
         "seed": 1,
         "duration": duration,
         "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
-        "network": {"connectivity": connectivity, "mode": mode, "pose_feed": feed},
+        "network": network,
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "random",
                     "area": {"x_min": -side / 2, "x_max": side / 2, "y_min": -side / 2, "y_max": side / 2}, "sensor_radius": 10},
@@ -111,7 +123,9 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
              adapt: Callable[[Scenario], Scenario] | None = None) -> dict[str, Any]:
     """One run of N UAVs in ``config``; ``adapt`` changes the scenario first (benchmarks/security.py)."""
     sampler = Sampler(args.warmup, args.window)
-    scn = scenario_for(n, args.warmup + args.window + 2.0, config)
+    interest = {**INTEREST, "radius_m": getattr(args, "interest_radius_m", INTEREST["radius_m"]),
+                "far_rate_hz": getattr(args, "interest_far_hz", INTEREST["far_rate_hz"])}
+    scn = scenario_for(n, args.warmup + args.window + 2.0, config, interest)
     if adapt is not None:
         scn = adapt(scn)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
@@ -154,11 +168,38 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
         "discovery_cpu_pct": round(sampler.result.get("discovery", {}).get("cpu_pct", math.nan), 2),
         "runner_cpu_pct": round(sampler.result.get("runner", {}).get("cpu_pct", math.nan), 2),
         "collisions": summary.get("separation", {}).get("collisions"),
+        **pose_traffic(Path(summary["run_dir"]), n, interest["radius_m"]),
         "wall_s": round(time.time() - t0, 1),
         "run_dir": summary.get("run_dir"),
     }
     console.print(row)
     return row
+
+
+def pose_traffic(run: Path, n: int, radius: float) -> dict[str, Any]:
+    """Poses each UAV received a second (median over UAVs: all it received, over the seconds since
+    its takeoff command, so slightly high), the ratio of the full feed ((N - 1) times every pose
+    sent) to what arrived, and the mean number of others within ``radius`` (sampled once a second)."""
+    import numpy as np
+
+    from mrswarm.analysis import load_stats, load_tracks, resample
+
+    stats = load_stats(run)
+    rates = [s["net"]["received"].get("pose", 0) / max(1e-3, s["written_at"] - s["started_at"])
+             for s in stats.values() if s.get("started_at") and s.get("written_at")]
+    sent = sum(s["net"]["sent"].get("pose", 0) for s in stats.values())
+    got = sum(s["net"]["received"].get("pose", 0) for s in stats.values())
+    within = math.nan
+    tracks = load_tracks(run)
+    if len(tracks) > 1:
+        _g, pos, _ids = resample(tracks, max(t.t[0] for t in tracks.values()), min(t.t[-1] for t in tracks.values()))
+        xy = pos[:, ::10, :2]
+        if xy.shape[1]:
+            d = np.linalg.norm(xy[:, None] - xy[None, :], axis=-1)
+            within = float(np.nanmean((d <= radius).sum(axis=1) - 1))
+    return {"poses_rx_per_uav_s": round(statistics.median(rates), 1) if rates else None,
+            "full_feed_ratio": round((n - 1) * sent / got, 2) if got else None,
+            "within_radius_mean": round(within, 2)}
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
@@ -167,7 +208,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 5, figsize=(22, 4.2))
+    fig, ax = plt.subplots(1, 6, figsize=(26, 4.2))
     configs = list(dict.fromkeys(r["config"] for r in rows))
     for i, cfg in enumerate(configs):
         rs = sorted((r for r in rows if r["config"] == cfg), key=lambda r: r["n"])
@@ -182,6 +223,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax[3].plot(ns, [r.get("use_age_p50_ms") for r in rs], "s:", color=c, alpha=0.8, label=f"{cfg} at use p50")
         ax[4].plot(ns, [r.get("all_airborne_s") for r in rs], "o-", color=c, label=f"{cfg} all airborne")
         ax[4].plot(ns, [r.get("takeoff_acked_s") for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} all acknowledged")
+        ax[5].plot(ns, [r.get("poses_rx_per_uav_s") for r in rs], "o-", color=c, label=cfg)
     ax[0].axhline(1.5, color="r", ls=":", label="budget 1.5 %")
     ax[0].set_title("CPU per UAV process, median (% of one core)")
     ax[1].axhline(60.0, color="r", ls=":", label="budget 60 MB RSS")
@@ -192,6 +234,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax[3].set_yscale("log")
     ax[3].set_title("pose ages at the receivers (ms)")
     ax[4].set_title("takeoff: s after the command")
+    ax[5].set_yscale("log")
+    ax[5].set_title("poses received per UAV a second (median)")
     for a in ax:
         a.set_xlabel("virtual UAVs (N)")
         a.legend(fontsize=7)
@@ -209,16 +253,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=["discovery-direct", "discovery-edge", "client-edge"],
                     help="network configurations (connectivity-feed), all flown at every N")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    ap.add_argument("--tag", default="scale", help="output file names: <tag>.json/.csv/.png")
+    ap.add_argument("--interest-radius-m", type=float, default=INTEREST["radius_m"],
+                    help="spatial interest radius of the *-interest configurations, m")
+    ap.add_argument("--interest-far-hz", type=float, default=INTEREST["far_rate_hz"],
+                    help="far rate of the *-interest configurations, Hz")
     ap.add_argument("--replot", action="store_true", help="only redraw scale.png from the scale.json in --out")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.replot:
-        plot(json.loads((out / "scale.json").read_text())["rows"], out / "scale.png")
+        plot(json.loads((out / f"{args.tag}.json").read_text())["rows"], out / f"{args.tag}.png")
         return 0
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
     rows = [run_size(n, cfg, args, console) for n in args.sizes for cfg in args.configs]
-    tag = "scale"
+    tag = args.tag
     (out / f"{tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
     with open(out / f"{tag}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -48,6 +48,7 @@ from deploy.services import KEYS_IN_CONTAINER, NetworkPlan, network_plan
 from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryService
+from swarmnet.interest import Interest
 from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
@@ -148,7 +149,8 @@ class DockerRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
+                      interest: Interest | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
@@ -157,6 +159,8 @@ class DockerRuntime:
         """
         if extra_keys:
             raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
+        if interest is not None:
+            raise DeployError("network.interest (spatial interest) runs with the process runtime for now (docs/scale.md)")
         self.swarm = swarm if swarm != "*" else self.swarm
         self.keys = keys
         service = discovery or DiscoveryService()

@@ -29,6 +29,7 @@ from msgspec.structs import replace
 
 from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions
+from swarmnet.interest import Interest
 from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
@@ -115,6 +116,7 @@ class ProcessRuntime:
         self.log_level = log_level
         self.children: dict[str, Child] = {}
         self.keys: Path | None = None
+        self.interest: Interest | None = None
         self._py, self._env = child_python(python)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
@@ -122,7 +124,8 @@ class ProcessRuntime:
     # ---- connectivity ---------------------------------------------------------------------
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
+                      interest: Interest | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
@@ -133,11 +136,13 @@ class ProcessRuntime:
         server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`).
         """
         self.keys = keys
+        self.interest = interest  # spatial interest of every edge router's pose feed (docs/scale.md)
         if connectivity == "discovery":
-            return self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
+            net = self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
+            return replace(net, interest=interest)
         endpoint = self._start_router(pose_feed, swarm)
         return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=(f"{self._scheme}/127.0.0.1:0",),
-                             pose_feed=pose_feed, security=self._credentials())
+                             pose_feed=pose_feed, security=self._credentials(), interest=interest)
 
     @property
     def _scheme(self) -> str:
@@ -160,6 +165,8 @@ class ProcessRuntime:
             argv += ["--insecure"]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
+            if self.interest is not None:
+                argv += self.interest.argv()
         self._spawn(name, argv)
         router = self.children[name]
         if keys is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters

@@ -35,7 +35,8 @@ import zenoh
 
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
-from swarmnet.schema import ConfigError
+from swarmnet.interest import Interest
+from swarmnet.schema import ConfigError, convert
 from swarmnet.security.credentials import Credentials
 from swarmnet.stats import NodeStats
 
@@ -74,7 +75,8 @@ def write_stats(path: Path, stats: NodeStats, feed: PoseFeed | None) -> None:
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
           feed_swarms: list[str] | None = None, feed_window: float = DEFAULT_WINDOW,
-          credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None) -> None:
+          credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None,
+          interest: Interest | None = None) -> None:
     """Run the router until ``stop`` is set (or ``duration`` s); ``stats`` receives its refusals."""
     stats = stats if stats is not None else NodeStats()
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials))))
@@ -84,7 +86,9 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
         shown = [e.replace("tcp/", "tls/", 1) if credentials else e for e in listen]
         print(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
               + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
-              + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else ""),
+              + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else "")
+              + (f", interest radius {interest.radius_m:g} m (+{interest.margin_m:g}), far {interest.far_rate_hz:g} Hz"
+                 if feed_swarms and interest else ""),
               flush=True)
         if credentials is not None:
             from swarmnet.security.acl import member_names
@@ -92,7 +96,7 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
 
             links = LinkWatch(session, member_names(credentials.roster()), stats)
         # the feed runs in threads of its own (swarmnet/feed.py); this loop only watches
-        feed = PoseFeed(session, feed_swarms, feed_window).start() if feed_swarms else None
+        feed = PoseFeed(session, feed_swarms, feed_window, interest=interest).start() if feed_swarms else None
         end = time.monotonic() + duration if duration is not None else float("inf")
         next_stats = 0.0
         while not stop.is_set() and time.monotonic() < end:
@@ -121,6 +125,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="run the edge pose feed for this swarm ('*' for all; repeatable)")
     ap.add_argument("--feed-window-ms", type=float, default=DEFAULT_WINDOW * 1000.0,
                     help="a pose waits at most this long for others to share its batch (0: forward at once)")
+    ap.add_argument("--interest-radius-m", type=float, default=None, metavar="M",
+                    help="spatial interest (docs/scale.md): each UAV gets full-rate poses only from UAVs this close")
+    ap.add_argument("--interest-margin-m", type=float, default=5.0, metavar="M",
+                    help="with --interest-radius-m: a neighbour stays at full rate until this much farther")
+    ap.add_argument("--interest-far-hz", type=float, default=1.0, metavar="HZ",
+                    help="with --interest-radius-m: every UAV's pose to the whole swarm at this rate (0: never)")
     ap.add_argument("--keys", default=None, metavar="DIR",
                     help="the swarm's key directory (mrswarm keys init), or the router's bundle: mutual TLS and access control")
     ap.add_argument("--identity", default=None, help="certificate to speak as (default: edge.<swarm of --keys>)")
@@ -133,6 +143,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give the swarm's keys (--keys DIR, see `mrswarm keys`), or --insecure for plain TCP")
     if not 0.0 <= args.feed_window_ms <= 1000.0:
         ap.error("--feed-window-ms must be in 0..1000")
+    interest = None
+    if args.interest_radius_m is not None:
+        try:
+            interest = convert({"radius_m": args.interest_radius_m, "margin_m": args.interest_margin_m,
+                                "far_rate_hz": args.interest_far_hz}, Interest)
+        except ConfigError as exc:
+            ap.error(f"--interest: {exc}")
+        if not args.feed:
+            ap.error("--interest-radius-m filters the pose feed: give --feed SWARM too")
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
@@ -151,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         print("WARNING: plain TCP without access control: anyone who reaches this router can command the swarm "
               "(docs/security.md)", file=sys.stderr, flush=True)
     serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_window_ms / 1000.0, credentials,
-          stats, Path(args.stats) if args.stats else None)
+          stats, Path(args.stats) if args.stats else None, interest)
     return 0
 
 

@@ -38,6 +38,8 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
     elif len(scn.uav_list()) < uavs:
         raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {uavs}")
     net = scn.network
+    if net.interest is not None:  # the deployed edge router runs no near feeds yet (docs/scale.md)
+        raise DeployError("network.interest (spatial interest) runs with the process runtime for now")
     service = net.discovery
     if net.connectivity == "discovery" and not service.key:
         from discovery.protocol import new_key

@@ -208,7 +208,7 @@ class Experiment:
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
                                          connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
-                                         keys=self.keys, extra_keys=discovery_keys)
+                                         keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 from discovery.options import DiscoveryService
+from swarmnet.interest import Interest
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 if TYPE_CHECKING:
@@ -25,12 +26,14 @@ class Runtime(Protocol):
 
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None) -> NetworkConfig:
+                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
+                      interest: Interest | None = None) -> NetworkConfig:
         """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
 
         ``keys``: the swarm's key directory (mutual TLS and access control on every link,
         docs/security.md); None: plain TCP. ``extra_keys``: the discovery keys of more swarms
-        sharing the airspace (swarm -> key; docs/world.md).
+        sharing the airspace (swarm -> key; docs/world.md). ``interest``: spatial interest of
+        the edge pose feed (docs/scale.md; only with ``pose_feed`` edge).
         """
         ...
 

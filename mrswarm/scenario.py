@@ -26,6 +26,7 @@ from msgspec.structs import force_setattr, replace
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against
+from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
 from swarmnet.schema import Config, ConfigError, convert, to_builtins
@@ -175,6 +176,7 @@ class Network(Config, frozen=True):
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
     mode: ZenohMode = "peer"
     pose_feed: PoseFeed = "direct"
+    interest: Interest | None = None  # spatial interest (docs/scale.md); needs pose_feed: edge
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
     security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
@@ -186,6 +188,8 @@ class Network(Config, frozen=True):
             force_setattr(self, "security", Security())
         if self.connectivity is None:  # client mode means "through the edge router": the rendezvous topology
             force_setattr(self, "connectivity", "rendezvous" if self.mode == "client" else "discovery")
+        if self.interest is not None and self.pose_feed != "edge":
+            raise ConfigError("interest", "the edge pose feed does the filtering: set pose_feed: edge")
         if self.mode == "client" and self.connectivity != "rendezvous":
             raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
 

@@ -26,6 +26,11 @@ wake-ups per batch, none while the swarm is silent.
 Each pose in a batch is still the UAV's own payload (at most 48 bytes) with its own timestamps,
 listed with the UAV id of the key it arrived on, so receivers validate it again (it must name
 that UAV) and measure its transport age exactly as for a direct pose.
+
+**Spatial interest** (``interest``, :mod:`swarmnet.interest`): each pose goes at full rate only to
+the UAVs within the interest radius of its sender, each on its own key
+``mrs/<swarm>/feed/near/<uav>``, and to the whole swarm on the shared key once every
+``1 / far_rate_hz`` s. A UAV's download then grows with the UAVs around it, not with N.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from typing import Any
 
 import zenoh
 
+from swarmnet.interest import Interest, NearFilter
 from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
 from swarmnet.messages import PoseBatch, Rejected, accept_pose, encode_pose_batch
 from swarmnet.receive import DRAIN_BUDGET
@@ -52,19 +58,22 @@ class PoseFeed:
     """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session.
 
     ``window``: seconds from the first pose of a batch to its departure (0: forward at once).
+    ``interest``: spatial interest (None: every pose to every UAV).
     :meth:`start` runs one worker thread per swarm subscription; :meth:`close` ends them.
     """
 
     def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), window: float = DEFAULT_WINDOW,
-                 clock: Callable[[], float] = time.time):
+                 clock: Callable[[], float] = time.time, interest: Interest | None = None):
         if not 0.0 <= window <= MAX_WINDOW:
             raise ValueError(f"window must be in 0..{MAX_WINDOW} s, got {window}")
         self.session = session
         self.window = window
         self.clock = clock
+        self.interest = interest
+        self._filters: dict[str, NearFilter] = {}  # per swarm; each touched by the one worker of its subscription
+        self._pubs: dict[tuple[str, int], Any] = {}
         self.stats = NodeStats()
         self.batches: Counter[str] = Counter()
-        self._pubs: dict[str, Any] = {}
         self._seq = itertools.count()
         self._lock = threading.Lock()  # publishers and counters, shared by the workers
         self._subscribers = [session.declare_subscriber(f"{ROOT}/{sw}/*/pose", zenoh.handlers.RingChannel(8192))
@@ -113,26 +122,53 @@ class PoseFeed:
         assert swarm is not None  # the subscription only matches mrs/<swarm>/...
         self.stats.received["pose"] += 1
         latest.setdefault(swarm, {})[pose.uav] = payload
+        if self.interest is not None:
+            near = self._filters.get(swarm)
+            if near is None:
+                near = self._filters[swarm] = NearFilter(self.interest)
+            near.seen(pose.uav, pose.x, pose.y, self.clock())
 
     def _flush(self, latest: dict[str, dict[int, bytes]]) -> int:
-        """Publish one batch per swarm with the poses taken since the last one; return how many left."""
+        """Publish the poses taken since the last flush (one batch per swarm, or with interest the
+        batches :meth:`_flush_near` makes); return how many poses left."""
         now = self.clock()
         sent = 0
         for swarm, poses in latest.items():
             if not poses:
                 continue
-            with self._lock:
-                pub = self._pubs.get(swarm)
-                if pub is None:
-                    pub = self._pubs[swarm] = self.session.declare_publisher(
-                        SwarmKeys(swarm).pose_feed, congestion_control=zenoh.CongestionControl.DROP,
-                        priority=zenoh.Priority.DATA_HIGH, express=True)
-                self.batches[swarm] += 1
-                self.stats.sent["pose_batch"] += 1
-            pub.put(encode_pose_batch(PoseBatch(next(self._seq), now, list(poses), list(poses.values()))))
-            sent += len(poses)
+            if self.interest is not None:
+                sent += self._flush_near(swarm, poses, now)
+            else:
+                self._put(swarm, SwarmKeys(swarm).pose_feed, list(poses), list(poses.values()), now)
+                sent += len(poses)
             poses.clear()
         return sent
+
+    def _flush_near(self, swarm: str, poses: dict[int, bytes], now: float) -> int:
+        """Spatial interest: the senders due on the shared feed in one batch there, and to each
+        UAV near the others a batch of those on its own key; return how many poses left."""
+        far, near = self._filters[swarm].split(list(poses), now)
+        keys = SwarmKeys(swarm)
+        if far:
+            self._put(swarm, keys.pose_feed, far, [poses[s] for s in far], now)
+        near_poses = 0
+        for uav, senders in near.items():
+            self._put(swarm, keys.near_feed(uav), senders, [poses[s] for s in senders], now, uav)
+            near_poses += len(senders)
+        with self._lock:
+            self.stats.sent["near_pose"] += near_poses
+        return len(far) + near_poses
+
+    def _put(self, swarm: str, key: str, senders: list[int], payloads: list[bytes], now: float, to: int = 0) -> None:
+        """One batch on ``key`` (``to``: the UAV of a near feed key, 0: the swarm's shared feed)."""
+        with self._lock:
+            pub = self._pubs.get((swarm, to))
+            if pub is None:
+                pub = self._pubs[(swarm, to)] = self.session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True)
+            self.batches[swarm] += 1
+            self.stats.sent["pose_batch"] += 1
+        pub.put(encode_pose_batch(PoseBatch(next(self._seq) & 0xFFFFFFFF, now, senders, payloads)))
 
     def run(self, keep_going: Callable[[], bool], check_every: float = 0.2) -> None:
         """Start the workers, return once ``keep_going()`` (checked every ``check_every`` s) is False."""

@@ -85,6 +85,10 @@ class SwarmKeys:
         """Batches of every UAV's latest pose, published by the edge (see swarmnet/feed.py)."""
         return f"{self.prefix}/feed/poses"
 
+    def near_feed(self, uav: int | str) -> str:
+        """Batches of the poses within UAV ``uav``'s interest radius, for it only (swarmnet/interest.py)."""
+        return f"{self.prefix}/feed/near/{uav}"
+
     @property
     def netem_set(self) -> str:
         """Runtime changes of the netem shim's configuration (see swarmnet/netem/control.py)."""

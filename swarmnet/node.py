@@ -130,12 +130,16 @@ class SwarmNode:
         netem: dict[str, Any] | None = None,
         netem_control: bool = True,
         arrival_stamps: bool = True,
+        near_feed: bool = False,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
         if pose_feed not in ("direct", "edge"):
             raise ValueError(f"pose_feed must be 'direct' or 'edge', not {pose_feed!r}")
+        if near_feed and (pose_feed != "edge" or identity.role != "uav"):
+            raise ValueError("near_feed (spatial interest) needs pose_feed 'edge' and a UAV node")
         self.pose_feed = pose_feed
+        self.near_feed = near_feed  # spatial interest: also the edge's batches for this UAV only (swarmnet/interest.py)
         self.identity = identity
         self.connectivity = connectivity
         self.keys = SwarmKeys(identity.swarm)
@@ -202,6 +206,8 @@ class SwarmNode:
             # poses first: the hot path
             if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
                 streams.append((_BATCH, inlet(k.pose_feed, 256, "thread"), accept_pose_batch))
+                if self.near_feed:
+                    streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), accept_pose_batch))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
                 streams.append((POSE, inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE),

@@ -16,6 +16,7 @@ import msgspec
 from msgspec import Meta, field
 
 from discovery.options import ProxyOptions
+from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.schema import Config, ConfigError, decode_json
 from swarmnet.security.credentials import Credentials
@@ -46,6 +47,8 @@ class NetworkConfig(Config, frozen=True):
     mode: ZenohMode = "peer"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     pose_feed: PoseFeed = "direct"
+    # spatial interest (docs/scale.md): full-rate poses only from UAVs within a radius; needs pose_feed edge
+    interest: Interest | None = None
     discovery: ProxyOptions | None = None  # connectivity "discovery": the server and the swarm's key
     # mutual TLS and access control (docs/security.md); the identity defaults to uav-<id>.<swarm>.
     # None: plain TCP without access control, which only `network.security: off` (or `--insecure`) asks for
@@ -56,6 +59,8 @@ class NetworkConfig(Config, frozen=True):
     netem: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
+        if self.interest is not None and self.pose_feed != "edge":
+            raise ConfigError("interest", "the edge pose feed does the filtering: set pose_feed: edge")
         if self.connectivity == "discovery":
             if self.discovery is None:
                 raise ConfigError("discovery", "required with connectivity 'discovery' (the server and the swarm's key)")

@@ -92,7 +92,7 @@ def make_node(cfg: AgentConfig) -> SwarmNode:
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
     conn = make_connectivity(cfg.network, NodeName.uav(cfg.uav, cfg.swarm))
     return SwarmNode(ident, conn, pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
-                     pose_feed=cfg.network.pose_feed, netem=cfg.network.netem)
+                     pose_feed=cfg.network.pose_feed, netem=cfg.network.netem, near_feed=cfg.network.interest is not None)
 
 
 def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:

@@ -11,11 +11,12 @@ list (revoked, or never issued) gets nothing through.
 =========  ======================================================  ===========================================
  subject    may put (ingress)                                       receives (egress)
 =========  ======================================================  ===========================================
- uav-N      its pose, telemetry, state, acks, its swarm messages,   every pose, the pose feed, its own and the
-            its liveliness token ``alive/uav/N``, its actuator      swarm's commands, netem, its faults, the
-            requests ``N/act/*``                                    swarm's broadcasts and its unicasts, its
-                                                                    sensor readings ``N/sense/*``, the airspace
-                                                                    feed ``mrs/airspace/<swarm>/traffic``
+ uav-N      its pose, telemetry, state, acks, its swarm messages,   every pose, the pose feed and its near feed
+            its liveliness token ``alive/uav/N``, its actuator      ``feed/near/N``, its own and the swarm's
+            requests ``N/act/*``                                    commands, netem, its faults, the swarm's
+                                                                    broadcasts and its unicasts, its sensor
+                                                                    readings ``N/sense/*``, the airspace feed
+                                                                    ``mrs/airspace/<swarm>/traffic``
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
  ctl        commands, ``netem/set``, ``<uav>/fault``,               everything of the swarm
             ``alive/observer/*``
@@ -59,7 +60,7 @@ def uav_puts(keys: SwarmKeys, uav: int) -> list[str]:
 
 def uav_receives(keys: SwarmKeys, uav: int) -> list[str]:
     """What is sent to UAV ``uav``: what its node subscribes to, nothing else (not others' commands)."""
-    return [keys.all_poses, keys.pose_feed, keys.swarm_cmd, keys.cmd(uav), keys.netem_set, keys.fault(uav),
+    return [keys.all_poses, keys.pose_feed, keys.near_feed(uav), keys.swarm_cmd, keys.cmd(uav), keys.netem_set, keys.fault(uav),
             keys.all_broadcast, keys.all_unicast(uav), keys.all_alive, keys.all_senses(uav), keys.traffic]
 
 
