@@ -1,0 +1,132 @@
+"""Two (or more) commits side by side: the scale benchmark at one N, alternating between the commits.
+
+Why: "behaviour unchanged, no regression beyond noise" is a claim about two versions of the code,
+and on a noisy 2-core machine only an interleaved comparison in one run says anything: each round
+flies every commit once, in turn, so a load spike hits both sides alike. Each commit is checked out
+into a throw-away git worktree and its own ``benchmarks/scale.py`` runs there (with ``PYTHONPATH``
+pointing at that tree, also for the UAV processes it spawns), so an old commit is measured exactly
+as it was.
+
+Writes ``<tag>.json`` (every run's row as that commit's scale.py reported it), ``<tag>.csv`` and
+``<tag>.png`` (CPU per UAV, RTF and pose age per commit and round) into ``--out``.
+
+    python benchmarks/commits.py 51f2dd7 03c8027 --n 25 --rounds 2 --tag house_n25
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+RUN_TIMEOUT_S = 900.0  # one scale.py run at one N and one configuration (N = 50: about 3 minutes)
+FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min", "pose_age_p50_ms",
+          "pose_age_p99_ms", "pose_loss", "collisions")
+
+
+def checkout(commit: str, where: Path) -> Path:
+    """A detached worktree of ``commit`` under ``where`` (removed by :func:`remove`)."""
+    tree = where / commit
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
+                   capture_output=True)
+    return tree
+
+
+def remove(tree: Path) -> None:
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], capture_output=True)
+
+
+def run_scale(tree: Path, n: int, config: str, out: Path, extra: list[str]) -> dict[str, Any]:
+    """One run of ``tree``'s own scale.py; its one row."""
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    cmd = [sys.executable, str(tree / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs", config,
+           "--out", str(out), *extra]
+    subprocess.run(cmd, cwd=tree, env=env, check=True, timeout=RUN_TIMEOUT_S)
+    rows: list[dict[str, Any]] = json.loads((out / "scale.json").read_text())["rows"]
+    return rows[0]
+
+
+def summarise(rows: list[dict[str, Any]], commits: list[str]) -> dict[str, dict[str, float | None]]:
+    """Per commit, the median over its rounds of each field (None when a commit did not report it)."""
+    out: dict[str, dict[str, float | None]] = {}
+    for c in commits:
+        mine = [r for r in rows if r["commit"] == c]
+        out[c] = {}
+        for f in FIELDS:
+            vals = [r[f] for r in mine if r.get(f) is not None]
+            out[c][f] = round(statistics.median(vals), 4) if vals else None
+    return out
+
+
+def plot(rows: list[dict[str, Any]], commits: list[str], path: Path, title: str) -> None:
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    for ax, (field, label) in zip(axes, (("cpu_pct_median", "CPU per UAV, % of a core (median)"),
+                                         ("rtf_min", "RTF (slowest UAV)"),
+                                         ("pose_age_p50_ms", "pose age p50, ms")), strict=True):
+        for i, c in enumerate(commits):
+            ys = [r.get(field) for r in rows if r["commit"] == c]
+            xs = [i + 0.08 * k for k in range(len(ys))]
+            ax.scatter(xs, [y if y is not None else float("nan") for y in ys], label=c)
+        ax.set_xticks(range(len(commits)), commits)
+        ax.set_title(label, fontsize=9)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("commits", nargs="+", help="commits (or branches) to compare, in this order")
+    ap.add_argument("--n", type=int, default=25, help="virtual UAVs")
+    ap.add_argument("--config", default="discovery-direct", help="scale.py network configuration")
+    ap.add_argument("--rounds", type=int, default=2, help="each round flies every commit once, in turn")
+    ap.add_argument("--scale-args", default="", help="more arguments for every scale.py run (one string)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    ap.add_argument("--tag", default="commits")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="mrswarm-commits-") as tmp:
+        where = Path(tmp)
+        trees = {c: checkout(c, where) for c in args.commits}
+        try:
+            for rnd in range(args.rounds):
+                for c, tree in trees.items():
+                    res = where / f"res-{c}-{rnd}"
+                    row = run_scale(tree, args.n, args.config, res, args.scale_args.split())
+                    rows.append({"commit": c, "round": rnd, **{f: row.get(f) for f in FIELDS}})
+                    print(f"round {rnd} {c}: " + ", ".join(f"{f}={row.get(f)}" for f in FIELDS), flush=True)
+        finally:
+            for tree in trees.values():
+                remove(tree)
+    summary = summarise(rows, args.commits)
+    (out / f"{args.tag}.json").write_text(json.dumps({"args": vars(args), "cores": os.cpu_count(), "rows": rows,
+                                                      "median": summary, "loadavg_end": os.getloadavg()}, indent=2))
+    with open(out / f"{args.tag}.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    plot(rows, args.commits, out / f"{args.tag}.png", f"N = {args.n}, {args.config}, {args.rounds} rounds, interleaved")
+    for c, s in summary.items():
+        print(c, s)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
