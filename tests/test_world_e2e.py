@@ -25,10 +25,11 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.e2e
 
 
-def run(scenario: str, out: Path, *sets: str, timeout: float = 300) -> tuple[Path, dict[str, Any]]:
+def run(scenario: str, out: Path, *sets: str, timeout: float = 300, exit_code: int = 0) -> tuple[Path, dict[str, Any]]:
+    """Run ``scenario``; ``exit_code`` is the one the run must end with (3: it completed with collisions)."""
     args = [str(ROOT / "scenarios" / scenario)] + [a for s in sets for a in ("--set", s)]
     res = run_cli(args, out, timeout=timeout)
-    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert res.returncode == exit_code, res.stdout[-3000:] + res.stderr[-3000:]
     run_dir = only_run_dir(out)
     run_info = json.loads((run_dir / "run.json").read_text())
     assert run_info["exit_codes"]["world"] == 0  # the world service stopped cleanly (and wrote its records)
@@ -77,7 +78,8 @@ def test_two_swarms_share_the_airspace_apart_and_the_feed_prevents_conflicts(tmp
         assert stats["net"]["rejected"] == {}
     assert (run_dir / "two_swarms.png").stat().st_size > 20_000
 
-    _, off = run("two_swarms.yaml", tmp_path / "no_feed", "world.airspace.feed=false")
+    # without the feed the head-on pairs collide, and the run says so by its exit code (3)
+    _, off = run("two_swarms.yaml", tmp_path / "no_feed", "world.airspace.feed=false", exit_code=3)
     a = off["world"]["airspace"]
     assert a["feed"] is False and a["traffic_messages"] == 0
     assert a["conflicts"] >= 3  # every head-on pair loses separation
