@@ -74,6 +74,7 @@ ROLES = ("uav", "gcs", "edge", "observer")
 POSE, MESSAGE, COMMAND = 0, 1, 2
 _BATCH = 3  # an edge-feed batch: unpacked into POSE items before the shim
 FAULT = 4  # an injected fault (docs/reliability.md); never impaired by the shim
+INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed (its channel is then closed)
 
 
 @dataclass(frozen=True)
@@ -249,6 +250,7 @@ class SwarmNode:
             self.connectivity.detach()
         finally:
             s, self.session = self.session, None
+            threaded = [inlet for _, inlet, _ in self._streams if inlet.how == "thread"]
             if self._links is not None:
                 self._links.close()
                 self._links = None
@@ -260,6 +262,9 @@ class SwarmNode:
             except zenoh.ZError as exc:  # closing twice or a dead runtime must not raise on shutdown
                 log.debug("zenoh close: %s", exc)
             self._subscribers.clear()
+            for inlet in threaded:  # their channels are closed now: let the threads leave Zenoh before exit
+                if not inlet.join(INLET_JOIN_S):
+                    log.warning("a receive thread did not end within %.1f s of the session's close", INLET_JOIN_S)
             self.waker.close()
 
     def __enter__(self) -> SwarmNode:

@@ -180,6 +180,19 @@ class Inlet:
                                             daemon=True)
             self._thread.start()
 
+    def join(self, timeout: float) -> bool:
+        """Wait at most ``timeout`` s for the inlet's thread to end, once its subscription or
+        session is closed; True when it has (or there is none).
+
+        Why: a thread still blocked in Zenoh when the interpreter exits is stopped inside Rust
+        frames, which cannot be unwound: the process aborts ("FATAL: exception not rethrown",
+        exit -6) after an otherwise clean run."""
+        t = self._thread
+        if t is None:
+            return True
+        t.join(timeout)
+        return not t.is_alive()
+
     def _receive(self, channel: Any) -> None:
         append, stamp, notify = self._q.append, self.clock, (self.waker.notify if self.waker is not None else None)
         recv, try_recv = channel.recv, channel.try_recv

@@ -104,10 +104,17 @@ def foxglove_poses(port: int, seconds: float) -> tuple[str | None, dict[str, dic
     return asyncio.run(run())
 
 
+def page_waits_for(page: Any, expression: str, timeout_s: float) -> None:
+    """Poll a JS expression with ``page.evaluate`` until it is true (bounded). Not Playwright's
+    ``wait_for_function``: its polling evaluates strings with ``eval``, which the page's
+    Content-Security-Policy (rightly) forbids, so it fails whenever the first check is false."""
+    assert wait_for(lambda: bool(page.evaluate(expression)), timeout_s, 0.1), f"never true: {expression}"
+
+
 def web_map_check(page: Any, obs: SwarmObserver, shot: Path) -> dict[str, Any]:
     """The page (loaded before take-off): every UAV where the swarm says, a click holds one, its ack shown."""
     out: dict[str, Any] = {}
-    page.wait_for_function("Object.keys(window.mrswarm.uavs).length >= 10", timeout=20_000)
+    page_waits_for(page, "Object.keys(window.mrswarm.uavs).length >= 10", 20.0)
     page.evaluate("window.mrswarm.fit()")  # the view was fitted to the UAVs on the ground
     page.wait_for_timeout(1500)  # a few pushes: trails
     # the JS state and the table, read together (the page redraws both on every push)
@@ -124,7 +131,7 @@ def web_map_check(page: Any, obs: SwarmObserver, shot: Path) -> dict[str, Any]:
     page.click("button[data-verb=hold]")
     page.wait_for_selector("#commands li[data-uav='3'][data-verb='hold'][data-status='ok']", timeout=15_000)
     out["ack"] = page.inner_text("#commands li[data-uav='3'][data-verb='hold']")
-    page.wait_for_function("window.mrswarm.uavs[3] && window.mrswarm.uavs[3].phase === 'hold'", timeout=10_000)
+    page_waits_for(page, "!!window.mrswarm.uavs[3] && window.mrswarm.uavs[3].phase === 'hold'", 10.0)
     page.wait_for_timeout(500)
     page.screenshot(path=str(shot))
     page.click("button[data-verb=resume]")
