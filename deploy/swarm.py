@@ -203,16 +203,19 @@ def seal_node(cl: Any, swarm: str, image: str) -> str:
 
     from deploy import multicast
 
-    net = ensure_network(cl, swarm)
+    manager = bool(cl.info().get("Swarm", {}).get("ControlAvailable"))
+    # a worker cannot create (or even list) a swarm network before a container of it runs there:
+    # its sentinel attaches by name (the network is attachable) and brings it here
+    net_name = ensure_network(cl, swarm).name if manager else stack_name(swarm)
     name = f"{stack_name(swarm)}-sentinel-{socket.gethostname()}"[:63]
     found = cl.containers.list(all=True, filters={"name": f"^{name}$"})
     box = found[0] if found else cl.containers.run(
-        image, ["python3", "-c", SENTINEL], name=name, detach=True, network=net.name, read_only=True,
+        image, ["python3", "-c", SENTINEL], name=name, detach=True, network=net_name, read_only=True,
         labels={L_RUN: stack_name(swarm), L_SWARM: swarm, L_ROLE: "sentinel"}, restart_policy={"Name": "unless-stopped"},
         cap_drop=["ALL"], nano_cpus=int(0.05e9), mem_limit="32m")
     if box.status != "running":
         box.start()
-    net.reload()
+    net = cl.networks.get(net_name)
     deadline = time.monotonic() + 20
     while not multicast.seal_overlay(net.id, net.name):
         if time.monotonic() > deadline:
