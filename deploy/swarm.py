@@ -311,6 +311,15 @@ def down(swarm: str, wait: float = 90.0, volumes: bool = False) -> dict[str, int
     name = stack_name(swarm)
     label = f"{L_RUN}={name}"
     ns = f"com.docker.stack.namespace={name}"
+    if not cl.info().get("Swarm", {}).get("ControlAvailable"):  # a worker: only its sentinel is its own
+        gone = 0
+        for c in cl.containers.list(all=True, sparse=True, filters={"label": label}):
+            c.remove(force=True)
+            gone += 1
+        vols = cl.volumes.list(filters={"label": ns}) if volumes else []
+        for v in vols:
+            v.remove(force=True)
+        return {"sentinels_removed": gone, "volumes_removed": len(vols)}
     res = subprocess.run([_docker_cli(), "stack", "rm", name], capture_output=True, text=True, timeout=120)
     if res.returncode != 0 and "Nothing found in stack" not in res.stderr:
         raise DeployError(f"docker stack rm failed: {res.stderr.strip()}")
