@@ -404,7 +404,7 @@ def leftovers(root: Path = DEFAULT_ROOT, prefix: str = DEFAULT_PREFIX) -> dict[s
             cmd = p.read_bytes().replace(b"\0", b" ").decode(errors="replace")
         except OSError:
             continue
-        if str(root.resolve()) in cmd:
+        if str(root.resolve()) in cmd and p.parent.name != str(os.getpid()):  # not this `down` itself
             procs.append(f"{p.parent.name}: {cmd[:80]}")
     return {
         "namespaces": sorted(n for n in netns_names() if n.startswith(prefix)),

@@ -81,7 +81,7 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
         assert seal.returncode == 0, seal.stderr[-3000:]
 
         def on(node: int, *argv: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-            return deploy_cli("cluster", "exec", str(node), *where, "--", *argv, timeout=timeout)
+            return deploy_cli("cluster", "exec", *where, str(node), "--", *argv, timeout=timeout)
 
         swarm_up = on(1, sys.executable, "-m", "mrswarm", "deploy", "swarm", "up", "--uavs", str(UAVS), "--swarm", swarm,
                       "--max-per-node", "3", "--image", docker_image, "--out", str(tmp_path / "stack"), *SMALL_FIELD)
@@ -97,7 +97,7 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
         # the ground station on the manager: it reaches the router's published port on the node's address
         gcs = ["--connect", f"tls/{cl.manager.address}:7447", "--swarm", swarm, "--keys", str(keys)]
         watch_out = tmp_path / "watch.json"
-        watcher = subprocess.Popen([sys.executable, "-m", "mrswarm", "deploy", "cluster", "exec", "1", *where, "--",
+        watcher = subprocess.Popen([sys.executable, "-m", "mrswarm", "deploy", "cluster", "exec", *where, "1", "--",
                                     sys.executable, "-m", "tests.cluster_watch", *gcs[:6], "--uavs", str(UAVS),
                                     "--out", str(watch_out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         try:
