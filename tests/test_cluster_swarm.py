@@ -145,3 +145,20 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
     left = cluster.leftovers(root, prefix)
     assert not any(left.values()), left
     assert host_rules() == rules_before == []
+
+
+def test_a_failed_cluster_up_removes_what_it_made() -> None:
+    """`up` fails after the namespaces, engines and swarm exist (the image to load is not there): it must
+    say why and leave nothing behind, as `down` would."""
+    tag = secrets.token_hex(2)
+    root, prefix = Path(f"/var/tmp/mrsc-test-{tag}"), f"mt{tag}"
+    atexit.register(cluster.down, root, prefix)
+    res = deploy_cli("cluster", "up", "--nodes", "2", "--image", f"mrswarm-missing:{tag}", "--root", str(root),
+                     "--prefix", prefix, timeout=180)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert "docker save" in res.stderr and f"mrswarm-missing:{tag}" in res.stderr, res.stderr
+    assert "swarm formed" in res.stderr  # it got that far before failing
+    left = cluster.leftovers(root, prefix)
+    assert not any(left.values()), left
+    again = deploy_cli("cluster", "down", "--root", str(root), "--prefix", prefix)  # idempotent
+    assert again.returncode == 0 and json.loads(again.stdout)["namespaces"] == [], again.stdout + again.stderr
