@@ -185,9 +185,9 @@ def _ping(node: Node) -> bool:
 def up(nodes: int = 3, root: Path = DEFAULT_ROOT, prefix: str = DEFAULT_PREFIX, images: Sequence[str] = (),
        log: Any = print, timeout: float = 60.0) -> Cluster:
     """Bring up ``nodes`` edge servers as one swarm; on any failure, remove what was made and raise."""
-    _check_host()
     if not 1 <= nodes <= MAX_NODES:
         raise ClusterError(f"--nodes must be in 1..{MAX_NODES}, got {nodes}")
+    _check_host()
     if (root / STATE).exists() or f"{prefix}hub" in netns_names():
         raise ClusterError(f"a cluster already runs at {root} (prefix {prefix}): `mrswarm deploy cluster down` first")
     cl = Cluster(str(root.resolve()), prefix, [Node(i, f"{prefix}n{i}", f"{SUBNET}.1{i}", str(root.resolve() / f"n{i}"))
