@@ -94,6 +94,14 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
         assert sorted(node_of) == list(range(1, UAVS + 1))
         assert Counter(node_of.values()) == {n.name: 3 for n in cl.nodes}, node_of
 
+        # every node drops multicast on the overlay (its sentinel keeps the overlay's namespace sealed)
+        net_id = manager.networks.get(stack).id
+        for n in cl.nodes:
+            ns = f'"$MRSWARM_DOCKER_EXEC_ROOT/netns/1-{net_id[:10]}"'
+            rules = on(n.index, "sh", "-c", f"nsenter --net={ns} iptables -S FORWARD")
+            assert rules.returncode == 0, (n.name, rules.stderr)
+            assert f"mrswarm-seal:{stack}" in rules.stdout and "224.0.0.0/4" in rules.stdout, (n.name, rules.stdout)
+
         # the ground station on the manager: it reaches the router's published port on the node's address
         gcs = ["--connect", f"tls/{cl.manager.address}:7447", "--swarm", swarm, "--keys", str(keys)]
         watch_out = tmp_path / "watch.json"
