@@ -248,6 +248,8 @@ def parser(swarm_up: Callable[[argparse.Namespace], int] | None = None) -> argpa
     q.add_argument("--image", default=None)
     q.add_argument("--port", type=int, default=7447, help="router port published on the manager")
     q.add_argument("--max-per-node", type=int, default=0, help="at most this many UAV replicas per edge server")
+    q.add_argument("--edge-per-node", action="store_true", help="an edge router on every edge server, linked to the "
+                   "manager's; each UAV uses its own server's (docs/deploy.md)")
     q.add_argument("--autostart", action="store_true", help="take off and fly without waiting for commands")
     q.add_argument("--log-level", default="INFO")
     q.add_argument("--out", default=None, help="where stack.yml and fleet.json go (default build/swarm/<stack>)")

@@ -39,7 +39,7 @@ import yaml
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, DeployError, client
 from deploy.multicast import IPV6_OFF
-from deploy.services import ROUTER_PORT, NetworkPlan
+from deploy.services import ROUTER_PORT, NetworkPlan, edge_service
 from deploy.settings import ContainerSettings
 from swarmnet.schema import to_builtins
 from swarmnet.security.identity import NodeName
@@ -57,6 +57,10 @@ class StackOptions:
     port: int = ROUTER_PORT  # router port published on the manager (the GCS / runner connects there)
     max_per_node: int = 0  # 0: no limit; else at most this many UAV replicas on one edge server
     log_level: str = "INFO"
+    # one edge router per server (host names, the manager's first): the manager's is `router`, the
+    # others `router-<host>`, linked to it; each UAV uses its own server's. Empty: one router.
+    edges: tuple[str, ...] = ()
+
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,14 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
                 "labels": {**common_labels, L_ROLE: svc.name},
             },
         }
+        if svc.name == "router" and opts.edges:
+            services[svc.name]["deploy"]["placement"] = {"constraints": [f"node.hostname == {opts.edges[0]}"]}
+            for host in opts.edges[1:]:  # an edge per other server, linked to the manager's (docs/deploy.md)
+                edge = json.loads(json.dumps(services[svc.name]))
+                edge["command"] = [*svc.argv, "--connect", f"{'tls' if fleet.keys is not None else 'tcp'}/router:{svc.port}"]
+                del edge["ports"]  # only the manager's router is published
+                edge["deploy"]["placement"] = {"constraints": [f"node.hostname == {host}"]}
+                services[edge_service(host, opts.edges)] = edge
     uav_deploy: dict[str, Any] = {
         "replicas": len(fleet.uavs),
         "endpoint_mode": "dnsrr",
@@ -142,7 +154,8 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         "image": opts.image,
         "command": ["python3", "-m", "deploy.swarm_uav", "--fleet", FLEET_PATH, "--log-level", opts.log_level],
         "hostname": "uav{{.Task.Slot}}",
-        "environment": {"MRSWARM_SLOT": "{{.Task.Slot}}"},
+        "environment": {"MRSWARM_SLOT": "{{.Task.Slot}}"}
+        | ({"MRSWARM_NODE": "{{.Node.Hostname}}", "MRSWARM_EDGES": ",".join(opts.edges)} if opts.edges else {}),
         "configs": [{"source": "fleet", "target": FLEET_PATH, "mode": 0o444}],
         "volumes": [{"type": "volume", "source": "data", "target": DATA_PATH}],
         "networks": ["swarm"],
@@ -150,7 +163,7 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         "read_only": True,
         "tmpfs": ["/tmp"],
         "labels": {**common_labels, L_ROLE: "uav"},
-        "depends_on": [s.name for s in plan.services],
+        "depends_on": [s for s in services],
         "deploy": uav_deploy,
     }
     stack = {
@@ -164,6 +177,8 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         stack["secrets"], mounts = _secrets(fleet, name, common_labels)
         for service, m in mounts.items():
             services[service]["secrets"] = m
+        for host in opts.edges[1:]:
+            services[edge_service(host, opts.edges)]["secrets"] = mounts["router"]
     return stack, fleet_json
 
 
@@ -241,6 +256,15 @@ def _swarm_manager(cl: Any) -> None:
                           "(see docs/deploy.md), or pass --init")
     if not info.get("ControlAvailable"):
         raise DeployError("this node is a swarm worker; run `mrswarm deploy swarm` on a manager")
+
+
+def edge_hosts(cl: Any) -> tuple[str, ...]:
+    """The swarm's ready servers by host name, this manager's first: one edge router each."""
+    me = cl.info().get("Swarm", {}).get("NodeID")
+    ready = [n for n in cl.nodes.list() if n.attrs["Status"]["State"] == "ready"
+             and n.attrs["Spec"].get("Availability", "active") == "active"]
+    ready.sort(key=lambda n: (n.id != me, n.attrs["Description"]["Hostname"]))
+    return tuple(n.attrs["Description"]["Hostname"] for n in ready)
 
 
 def init_swarm(cl: Any) -> bool:
