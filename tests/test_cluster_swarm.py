@@ -2,7 +2,8 @@
 
 `mrswarm deploy cluster up --nodes 3` makes three docker engines in network namespaces (one
 swarm, the stack image loaded into each); the stack of 9 virtual UAVs goes up from the manager
-with at most 3 per node, so every node flies 3. A ground station on the manager commands them
+with at most 3 per node, so every node flies 3, and an edge router on every node, linked to the
+manager's. A ground station on the manager commands them
 through the edge router; every UAV must hear all 8 others (6 of them on other nodes), each
 command must be acknowledged by the UAVs of every node, the mission must complete with no two
 UAVs closer than the collision distance, and `cluster down` must leave nothing on the host."""
@@ -55,6 +56,26 @@ def recorded_neighbours(node: cluster.Node, image: str, volume: str, swarm: str)
     return {int(k): v for k, v in json.loads(out.decode().strip().splitlines()[-1]).items()}
 
 
+def edge_links(on: Any, node: cluster.Node, stack: str) -> tuple[set[tuple[str, int]], dict[str, str]]:
+    """The established TCP links of the edge router on ``node`` as (remote IP, remote port), and the
+    stack's containers there (name -> overlay IP)."""
+    fmt = "'{{range .Containers}}{{.Name}} {{.IPv4Address}} {{end}}'"
+    script = ("for c in $(docker ps -q --filter label=org.mrswarm.role=router); do "
+              'nsenter -t $(docker inspect -f "{{.State.Pid}}" $c) -n ss -tnH state established; done; echo ---; '
+              f"docker network inspect {stack} --format {fmt}")
+    res = on(node.index, "sh", "-c", script)
+    assert res.returncode == 0, res.stderr
+    links_txt, _, containers = res.stdout.partition("---")
+    links = set()
+    for ln in links_txt.splitlines():
+        f = ln.split()
+        if len(f) >= 4:
+            ip, port = f[-1].rsplit(":", 1)
+            links.add((ip, int(port)))
+    words = containers.split()
+    return links, {name: ip.split("/")[0] for name, ip in zip(words[::2], words[1::2], strict=False)}
+
+
 def acks(res: subprocess.CompletedProcess[str]) -> dict[int, dict[str, Any]]:
     rows = [json.loads(ln) for ln in res.stdout.splitlines() if ln.startswith("{")]
     return {int(r["uav"]): r for r in rows}
@@ -84,7 +105,8 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
             return deploy_cli("cluster", "exec", *where, str(node), "--", *argv, timeout=timeout)
 
         swarm_up = on(1, sys.executable, "-m", "mrswarm", "deploy", "swarm", "up", "--uavs", str(UAVS), "--swarm", swarm,
-                      "--max-per-node", "3", "--image", docker_image, "--out", str(tmp_path / "stack"), *SMALL_FIELD)
+                      "--max-per-node", "3", "--edge-per-node", "--image", docker_image, "--out", str(tmp_path / "stack"),
+                      *SMALL_FIELD)
         assert swarm_up.returncode == 0, swarm_up.stdout[-3000:] + swarm_up.stderr[-3000:]
         # where the replicas run: 3 on each node (slot k flies UAV k)
         manager = cluster.node_client(cl.manager)
@@ -142,6 +164,21 @@ def test_nine_uavs_on_three_edge_servers_see_each_other_obey_the_ground_station_
         for u, table in heard.items():  # every UAV heard all 8 others, 6 of them on other nodes
             assert sorted(int(k) for k in table) == sorted(set(range(1, UAVS + 1)) - {u}), (u, table)
             assert all(nb["received"] > 50 for nb in table.values()), (u, table)
+
+        # the edges: each worker's UAVs link to their own server's router, which links to the manager's;
+        # no UAV of a worker holds a link to the manager's router
+        seen_links = {n.name: edge_links(on, n, stack) for n in cl.nodes}
+        manager_links, manager_boxes = seen_links[cl.manager.name]
+        manager_router = next(ip for name, ip in manager_boxes.items() if f"{stack}_router." in name)
+        for n in cl.nodes[1:]:
+            links, boxes = seen_links[n.name]
+            uav_ips = {ip for name, ip in boxes.items() if f"{stack}_uav." in name}
+            edge_ip = next(ip for name, ip in boxes.items() if f"{stack}_router-{n.name}." in name)
+            assert len(uav_ips) == 3, boxes
+            assert {ip for ip, port in links if port == 7447} == {manager_router}, (n.name, links)  # it dialled the manager's
+            assert {ip for ip, port in links if port != 7447} == uav_ips, (n.name, links, boxes)  # its own UAVs dialled it
+            assert edge_ip in {ip for ip, _ in manager_links}, (n.name, manager_links)
+            assert not uav_ips & {ip for ip, _ in manager_links}, (n.name, manager_links)  # not the manager's router
 
         for node in (3, 2, 1):  # workers first: their sentinels hold the overlay
             res = on(node, sys.executable, "-m", "mrswarm", "deploy", "swarm", "down", "--swarm", swarm, "--volumes")
