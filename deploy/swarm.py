@@ -7,6 +7,9 @@ and deploys it with ``docker stack deploy``:
 * the infrastructure services of the scenario's connectivity (``deploy/services.py``; today
   the rendezvous/edge router) with DNS round-robin endpoints and their port published on
   the manager in host mode (no ingress mesh needed);
+* with ``StackOptions.edges`` (``swarm up --edge-per-node``), an edge router per server:
+  ``router-<host>`` pinned to each other server, dialling the manager's ``router``; each UAV
+  replica uses its own server's (``deploy/swarm_uav.py``, ``MRSWARM_NODE``/``MRSWARM_EDGES``);
 * ``uav``: a replicated service of N virtual UAVs. Every replica gets the same fleet file
   (a swarm config); replica k runs the k-th UAV config (``deploy/swarm_uav.py``);
 * one attachable overlay network ``mrswarm-<swarm>`` that spans every edge server, created
