@@ -16,8 +16,8 @@ it (docs/security.md), as ``edge.<swarm>``. It counts the handshakes its listene
 the links of certificates outside the roster, and ``--stats FILE`` writes those counters.
 
 Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha] [--keys keys/alpha]``
-(``--connect tls/<other router>:7447`` links it to another edge router: one edge per server, docs/deploy.md)
-(or ``mrswarm router``).
+(or ``mrswarm router``). ``--connect tls/<other router>:7447`` links it to another edge router
+(one edge per server, docs/deploy.md).
 """
 
 from __future__ import annotations

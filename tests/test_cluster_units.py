@@ -45,3 +45,30 @@ def test_a_node_runs_commands_in_its_namespaces_against_its_own_engine(monkeypat
     assert multicast.overlay_netns("0123456789abcdef") == Path("/var/tmp/c/n2/exec/netns/1-0123456789")
     with pytest.raises(cluster.ClusterError, match="no dockerd"):
         cluster.exec_argv(cluster.Node(3, "mrscn3", "10.213.0.13", "/x"), ["true"])
+
+
+def test_an_edge_per_server_is_pinned_there_linked_to_the_managers_and_secured_like_it(tmp_path: Path) -> None:
+    from deploy.services import edge_service
+    from deploy.swarm import StackOptions, stack_spec
+    from mrswarm.deploy_cli import swarm_fleet
+    from mrswarm.scenario import load_scenario
+
+    fleet = swarm_fleet(load_scenario(ROOT / "scenarios/coverage.yaml", []), 6)
+    edges = ("n1", "n2", "n3")
+    stack, _ = stack_spec(fleet, StackOptions(image="mrswarm:t", edges=edges))
+    svc = stack["services"]
+    assert [edge_service(h, edges) for h in ("n1", "n2", "n3", "elsewhere")] == ["router", "router-n2", "router-n3", "router"]
+    assert svc["router"]["deploy"]["placement"]["constraints"] == ["node.hostname == n1"]
+    assert svc["router"]["ports"][0]["published"] == 7447
+    for host in ("n2", "n3"):
+        edge = svc[f"router-{host}"]
+        assert edge["deploy"]["placement"]["constraints"] == [f"node.hostname == {host}"]
+        assert edge["command"][-2:] == ["--connect", "tls/router:7447"] and "ports" not in edge
+        assert edge["secrets"] == svc["router"]["secrets"]  # edge.<swarm>'s pair, the CA and the roster
+    env = svc["uav"]["environment"]
+    assert env["MRSWARM_NODE"] == "{{.Node.Hostname}}" and env["MRSWARM_EDGES"] == "n1,n2,n3"
+    assert set(svc["uav"]["depends_on"]) == {"discovery", "router", "router-n2", "router-n3"}
+    # without edges: one router, and the stack is the one committed in deploy/stack.yml
+    one, _ = stack_spec(fleet, StackOptions(image="mrswarm:t"))
+    assert not any(name.startswith("router-") for name in one["services"])
+    assert "MRSWARM_EDGES" not in one["services"]["uav"]["environment"]
