@@ -190,6 +190,8 @@ def up(nodes: int = 3, root: Path = DEFAULT_ROOT, prefix: str = DEFAULT_PREFIX, 
     _check_host()
     if (root / STATE).exists() or f"{prefix}hub" in netns_names():
         raise ClusterError(f"a cluster already runs at {root} (prefix {prefix}): `mrswarm deploy cluster down` first")
+    if root.exists() and not _ours(root):
+        raise ClusterError(f"--root {root} exists and holds other files: name a new or empty directory")
     cl = Cluster(str(root.resolve()), prefix, [Node(i, f"{prefix}n{i}", f"{SUBNET}.1{i}", str(root.resolve() / f"n{i}"))
                                                for i in range(1, nodes + 1)], list(images))
     try:
@@ -377,9 +379,17 @@ def down(root: Path = DEFAULT_ROOT, prefix: str = DEFAULT_PREFIX, timeout: float
         mnt = line.split()[1]
         if mnt.startswith(f"{root.resolve()}/"):
             _run(["umount", "-l", mnt], check=False)
-    if root.exists():
+    if _ours(root):
         shutil.rmtree(root, ignore_errors=True)
     return {"namespaces": sorted(names), "processes_killed": killed, "left": leftovers(root, prefix)}
+
+
+def _ours(root: Path) -> bool:
+    """Whether ``root`` holds only what :func:`up` puts there (never remove a directory of someone else's)."""
+    if not root.is_dir():
+        return False
+    names = {p.name for p in root.iterdir()}
+    return all(n in (STATE, f".{STATE}.tmp", "images.tar") or (n[:1] == "n" and n[1:].isdigit()) for n in names)
 
 
 def _in_cgroup_of(pid: int, prefix: str) -> bool:

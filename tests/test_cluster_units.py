@@ -72,3 +72,13 @@ def test_an_edge_per_server_is_pinned_there_linked_to_the_managers_and_secured_l
     one, _ = stack_spec(fleet, StackOptions(image="mrswarm:t"))
     assert not any(name.startswith("router-") for name in one["services"])
     assert "MRSWARM_EDGES" not in one["services"]["uav"]["environment"]
+
+
+def test_a_root_with_other_files_is_refused_and_never_removed(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("mine")
+    res = deploy_cli("cluster", "up", "--nodes", "1", "--root", str(tmp_path), "--prefix", f"mu{secrets.token_hex(2)}")
+    assert res.returncode == 2 and "holds other files" in res.stderr, res.stderr
+    res = deploy_cli("cluster", "down", "--root", str(tmp_path), "--prefix", f"mu{secrets.token_hex(2)}")
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    assert json.loads(res.stdout)["left"]["files"] == [str(tmp_path)]  # reported, not removed
+    assert res.returncode == 1
