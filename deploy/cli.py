@@ -8,6 +8,10 @@
     mrswarm deploy swarm up --uavs 20         # the stack on Docker Swarm mode (several edge servers)
     mrswarm deploy swarm seal                 # on each other edge server: drop multicast there
     mrswarm deploy swarm down
+    mrswarm deploy cluster up --nodes 3       # a test cluster: N swarm nodes in network namespaces here
+    mrswarm deploy cluster exec 1 -- CMD      # run CMD on node 1 (its network, its dockerd)
+    mrswarm deploy cluster seal --swarm alpha # the swarm's overlay sealed on every node
+    mrswarm deploy cluster down
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import argparse
 import json
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_UAV, DeployError, client
@@ -145,6 +150,66 @@ def _swarm_seal(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cluster_root(args: argparse.Namespace) -> Path:
+    return Path(args.root)
+
+
+def _cluster_up(args: argparse.Namespace) -> int:
+    from deploy import cluster
+    from deploy.images import image_tag
+
+    images = args.image or [image_tag()]
+    cl = cluster.up(args.nodes, _cluster_root(args), args.prefix, images, log=lambda m: print(m, file=sys.stderr),
+                    timeout=args.wait)
+    print(json.dumps(cluster.status(Path(cl.root)), indent=2))
+    print(f"manager: export DOCKER_HOST={cl.manager.docker_host}   (or: mrswarm deploy cluster exec 1 -- CMD)",
+          file=sys.stderr)
+    return 0
+
+
+def _cluster_down(args: argparse.Namespace) -> int:
+    from deploy import cluster
+
+    out = cluster.down(_cluster_root(args), args.prefix)
+    print(json.dumps(out, indent=2))
+    return 1 if any(out["left"].values()) else 0
+
+
+def _cluster_status(args: argparse.Namespace) -> int:
+    from deploy import cluster
+
+    print(json.dumps(cluster.status(_cluster_root(args)), indent=2))
+    return 0
+
+
+def _cluster_exec(args: argparse.Namespace) -> int:
+    import subprocess
+
+    from deploy import cluster
+
+    argv = args.argv[1:] if args.argv[:1] == ["--"] else args.argv
+    if not argv:
+        raise DeployError("cluster exec: name the command after --")
+    node = cluster.node_by_name(cluster.load(_cluster_root(args)), args.node)
+    return subprocess.run(cluster.exec_argv(node, argv)).returncode
+
+
+def _cluster_seal(args: argparse.Namespace) -> int:
+    import subprocess
+
+    from deploy import cluster
+    from deploy.images import image_tag
+
+    cl = cluster.load(_cluster_root(args))
+    for node in cl.nodes:  # the manager first: it makes the overlay the workers' sentinels attach to
+        cmd = [sys.executable, "-m", "deploy.cli", "swarm", "seal", "--swarm", args.swarm, "--image", args.image or image_tag()]
+        res = subprocess.run(cluster.exec_argv(node, cmd), capture_output=True, text=True, timeout=120)
+        if res.returncode != 0:
+            raise DeployError(f"sealing {args.swarm} on {node.name} failed: {res.stderr.strip()}")
+        print(f"{node.name}: {res.stdout.strip()}")
+    return 0
+
+
 def parser(swarm_up: Callable[[argparse.Namespace], int] | None = None) -> argparse.ArgumentParser:
     """The commands; ``swarm_up`` is the handler of ``swarm up``, given by the layer that reads scenarios."""
     from deploy.images import BASE_TAG, DEFAULT_MIRROR
@@ -183,6 +248,8 @@ def parser(swarm_up: Callable[[argparse.Namespace], int] | None = None) -> argpa
     q.add_argument("--image", default=None)
     q.add_argument("--port", type=int, default=7447, help="router port published on the manager")
     q.add_argument("--max-per-node", type=int, default=0, help="at most this many UAV replicas per edge server")
+    q.add_argument("--edge-per-node", action="store_true", help="an edge router on every edge server, linked to the "
+                   "manager's; each UAV uses its own server's (docs/deploy.md)")
     q.add_argument("--autostart", action="store_true", help="take off and fly without waiting for commands")
     q.add_argument("--log-level", default="INFO")
     q.add_argument("--out", default=None, help="where stack.yml and fleet.json go (default build/swarm/<stack>)")
@@ -199,6 +266,32 @@ def parser(swarm_up: Callable[[argparse.Namespace], int] | None = None) -> argpa
     q.add_argument("--volumes", action="store_true", help="also remove the recorded data volume")
     q.add_argument("--wait", type=float, default=120.0)
     q.set_defaults(func=_swarm_down)
+
+    from deploy.cluster import DEFAULT_PREFIX, DEFAULT_ROOT
+
+    p = sub.add_parser("cluster", help="a test cluster on this machine: swarm nodes in network namespaces (needs root)")
+    csub = p.add_subparsers(dest="cluster_cmd", required=True, metavar="ACTION")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--root", default=str(DEFAULT_ROOT), help="state, data roots and sockets of the nodes")
+    common.add_argument("--prefix", default=DEFAULT_PREFIX, help="names of the namespaces (<prefix>n1.., <prefix>hub)")
+    q = csub.add_parser("up", parents=[common], help="N docker engines in namespaces, one swarm, images loaded")
+    q.add_argument("--nodes", type=int, default=3)
+    q.add_argument("--image", action="append", default=[], help="image to load into every node (repeatable; "
+                   "default mrswarm:<version>)")
+    q.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the engines and the swarm")
+    q.set_defaults(func=_cluster_up)
+    q = csub.add_parser("down", parents=[common], help="stop the nodes and remove everything (also after a failed up)")
+    q.set_defaults(func=_cluster_down)
+    q = csub.add_parser("status", parents=[common], help="the nodes, their docker sockets and swarm state")
+    q.set_defaults(func=_cluster_status)
+    q = csub.add_parser("exec", parents=[common], help="run a command on a node (its namespaces, DOCKER_HOST set)")
+    q.add_argument("node", help="node number (1 is the manager) or name")
+    q.add_argument("argv", nargs=argparse.REMAINDER, help="-- COMMAND ...")
+    q.set_defaults(func=_cluster_exec)
+    q = csub.add_parser("seal", parents=[common], help="a sentinel and no multicast on the swarm's overlay, every node")
+    q.add_argument("--swarm", default="alpha")
+    q.add_argument("--image", default=None)
+    q.set_defaults(func=_cluster_seal)
     return ap
 
 

@@ -31,6 +31,7 @@ so the stack keeps a small sentinel container per server (``deploy/swarm.py``).
 
 from __future__ import annotations
 
+import os
 import shlex
 import shutil
 import subprocess
@@ -90,9 +91,12 @@ def seal(bridge: str, network: str, between_containers: bool = True) -> None:
             raise SealError(f"iptables -I {chain} failed: {res.stderr.strip()}")
 
 
+EXEC_ROOT_ENV = "MRSWARM_DOCKER_EXEC_ROOT"  # dockerd's --exec-root if not the default (a node of deploy/cluster.py)
+
+
 def overlay_netns(network_id: str) -> Path:
     """Where dockerd keeps an overlay network's namespace on this server."""
-    return Path("/var/run/docker/netns") / f"1-{network_id[:10]}"
+    return Path(os.environ.get(EXEC_ROOT_ENV) or "/var/run/docker") / "netns" / f"1-{network_id[:10]}"
 
 
 def seal_overlay(network_id: str, network: str) -> bool:

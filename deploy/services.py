@@ -27,6 +27,13 @@ DISCOVERY_PORT = 7450  # discovery server (UDP beacons, docs/discovery.md)
 KEYS_IN_CONTAINER = "/run/secrets"
 
 
+def edge_service(host: str, edges: tuple[str, ...]) -> str:
+    """The router service a UAV on server ``host`` uses, given the servers with an edge router of
+    their own (the manager's first): ``router`` on the manager or with one router for all,
+    else ``router-<host>`` (``deploy/swarm.py``)."""
+    return "router" if not edges or host == edges[0] or host not in edges else f"router-{host}"
+
+
 @dataclass(frozen=True)
 class Service:
     name: str  # container/service name suffix and the key of its address

@@ -7,6 +7,9 @@ and deploys it with ``docker stack deploy``:
 * the infrastructure services of the scenario's connectivity (``deploy/services.py``; today
   the rendezvous/edge router) with DNS round-robin endpoints and their port published on
   the manager in host mode (no ingress mesh needed);
+* with ``StackOptions.edges`` (``swarm up --edge-per-node``), an edge router per server:
+  ``router-<host>`` pinned to each other server, dialling the manager's ``router``; each UAV
+  replica uses its own server's (``deploy/swarm_uav.py``, ``MRSWARM_NODE``/``MRSWARM_EDGES``);
 * ``uav``: a replicated service of N virtual UAVs. Every replica gets the same fleet file
   (a swarm config); replica k runs the k-th UAV config (``deploy/swarm_uav.py``);
 * one attachable overlay network ``mrswarm-<swarm>`` that spans every edge server, created
@@ -39,7 +42,7 @@ import yaml
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, DeployError, client
 from deploy.multicast import IPV6_OFF
-from deploy.services import ROUTER_PORT, NetworkPlan
+from deploy.services import ROUTER_PORT, NetworkPlan, edge_service
 from deploy.settings import ContainerSettings
 from swarmnet.schema import to_builtins
 from swarmnet.security.identity import NodeName
@@ -57,6 +60,10 @@ class StackOptions:
     port: int = ROUTER_PORT  # router port published on the manager (the GCS / runner connects there)
     max_per_node: int = 0  # 0: no limit; else at most this many UAV replicas on one edge server
     log_level: str = "INFO"
+    # one edge router per server (host names, the manager's first): the manager's is `router`, the
+    # others `router-<host>`, linked to it; each UAV uses its own server's. Empty: one router.
+    edges: tuple[str, ...] = ()
+
 
 
 @dataclass(frozen=True)
@@ -129,6 +136,14 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
                 "labels": {**common_labels, L_ROLE: svc.name},
             },
         }
+        if svc.name == "router" and opts.edges:
+            services[svc.name]["deploy"]["placement"] = {"constraints": [f"node.hostname == {opts.edges[0]}"]}
+            for host in opts.edges[1:]:  # an edge per other server, linked to the manager's (docs/deploy.md)
+                edge = json.loads(json.dumps(services[svc.name]))
+                edge["command"] = [*svc.argv, "--connect", f"{'tls' if fleet.keys is not None else 'tcp'}/router:{svc.port}"]
+                del edge["ports"]  # only the manager's router is published
+                edge["deploy"]["placement"] = {"constraints": [f"node.hostname == {host}"]}
+                services[edge_service(host, opts.edges)] = edge
     uav_deploy: dict[str, Any] = {
         "replicas": len(fleet.uavs),
         "endpoint_mode": "dnsrr",
@@ -142,7 +157,8 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         "image": opts.image,
         "command": ["python3", "-m", "deploy.swarm_uav", "--fleet", FLEET_PATH, "--log-level", opts.log_level],
         "hostname": "uav{{.Task.Slot}}",
-        "environment": {"MRSWARM_SLOT": "{{.Task.Slot}}"},
+        "environment": {"MRSWARM_SLOT": "{{.Task.Slot}}"}
+        | ({"MRSWARM_NODE": "{{.Node.Hostname}}", "MRSWARM_EDGES": ",".join(opts.edges)} if opts.edges else {}),
         "configs": [{"source": "fleet", "target": FLEET_PATH, "mode": 0o444}],
         "volumes": [{"type": "volume", "source": "data", "target": DATA_PATH}],
         "networks": ["swarm"],
@@ -150,7 +166,7 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         "read_only": True,
         "tmpfs": ["/tmp"],
         "labels": {**common_labels, L_ROLE: "uav"},
-        "depends_on": [s.name for s in plan.services],
+        "depends_on": [s for s in services],
         "deploy": uav_deploy,
     }
     stack = {
@@ -164,6 +180,8 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
         stack["secrets"], mounts = _secrets(fleet, name, common_labels)
         for service, m in mounts.items():
             services[service]["secrets"] = m
+        for host in opts.edges[1:]:
+            services[edge_service(host, opts.edges)]["secrets"] = mounts["router"]
     return stack, fleet_json
 
 
@@ -203,16 +221,19 @@ def seal_node(cl: Any, swarm: str, image: str) -> str:
 
     from deploy import multicast
 
-    net = ensure_network(cl, swarm)
+    manager = bool(cl.info().get("Swarm", {}).get("ControlAvailable"))
+    # a worker cannot create (or even list) a swarm network before a container of it runs there:
+    # its sentinel attaches by name (the network is attachable) and brings it here
+    net_name = ensure_network(cl, swarm).name if manager else stack_name(swarm)
     name = f"{stack_name(swarm)}-sentinel-{socket.gethostname()}"[:63]
     found = cl.containers.list(all=True, filters={"name": f"^{name}$"})
     box = found[0] if found else cl.containers.run(
-        image, ["python3", "-c", SENTINEL], name=name, detach=True, network=net.name, read_only=True,
+        image, ["python3", "-c", SENTINEL], name=name, detach=True, network=net_name, read_only=True,
         labels={L_RUN: stack_name(swarm), L_SWARM: swarm, L_ROLE: "sentinel"}, restart_policy={"Name": "unless-stopped"},
         cap_drop=["ALL"], nano_cpus=int(0.05e9), mem_limit="32m")
     if box.status != "running":
         box.start()
-    net.reload()
+    net = cl.networks.get(net_name)
     deadline = time.monotonic() + 20
     while not multicast.seal_overlay(net.id, net.name):
         if time.monotonic() > deadline:
@@ -238,6 +259,15 @@ def _swarm_manager(cl: Any) -> None:
                           "(see docs/deploy.md), or pass --init")
     if not info.get("ControlAvailable"):
         raise DeployError("this node is a swarm worker; run `mrswarm deploy swarm` on a manager")
+
+
+def edge_hosts(cl: Any) -> tuple[str, ...]:
+    """The swarm's ready servers by host name, this manager's first: one edge router each."""
+    me = cl.info().get("Swarm", {}).get("NodeID")
+    ready = [n for n in cl.nodes.list() if n.attrs["Status"]["State"] == "ready"
+             and n.attrs["Spec"].get("Availability", "active") == "active"]
+    ready.sort(key=lambda n: (n.id != me, n.attrs["Description"]["Hostname"]))
+    return tuple(n.attrs["Description"]["Hostname"] for n in ready)
 
 
 def init_swarm(cl: Any) -> bool:
@@ -308,6 +338,19 @@ def down(swarm: str, wait: float = 90.0, volumes: bool = False) -> dict[str, int
     name = stack_name(swarm)
     label = f"{L_RUN}={name}"
     ns = f"com.docker.stack.namespace={name}"
+    if not cl.info().get("Swarm", {}).get("ControlAvailable"):  # a worker: only its sentinel is its own
+        gone = 0
+        for c in cl.containers.list(all=True, sparse=True, filters={"label": label}):
+            c.remove(force=True)
+            gone += 1
+        removed = 0
+        for v in cl.volumes.list(filters={"label": ns}) if volumes else []:
+            try:
+                v.remove(force=True)
+                removed += 1
+            except Exception:  # noqa: BLE001 - its UAVs still run here: the manager's `down` stops them first
+                pass
+        return {"sentinels_removed": gone, "volumes_removed": removed}
     res = subprocess.run([_docker_cli(), "stack", "rm", name], capture_output=True, text=True, timeout=120)
     if res.returncode != 0 and "Nothing found in stack" not in res.stderr:
         raise DeployError(f"docker stack rm failed: {res.stderr.strip()}")

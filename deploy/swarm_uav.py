@@ -22,6 +22,7 @@ from pathlib import Path
 
 from msgspec.structs import replace
 
+from deploy.services import edge_service
 from swarmnet.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
@@ -80,6 +81,11 @@ def main(argv: list[str] | None = None) -> int:
         net = cfg.agent.network
         if not net.endpoints:
             raise SlotError("the fleet's network config names no endpoint")
+        edges = tuple(e for e in os.environ.get("MRSWARM_EDGES", "").split(",") if e)
+        edge = edge_service(os.environ.get("MRSWARM_NODE", ""), edges)
+        if edge != "router":  # this server has an edge router of its own: use it (docs/deploy.md)
+            net = replace(net, endpoints=tuple(e.replace("/router:", f"/{edge}:", 1) for e in net.endpoints))
+            cfg = replace(cfg, agent=replace(cfg.agent, network=net))
         host, port = endpoint_host(net.endpoints[0])
         ip = own_address_towards(host, port, 60.0, stop)
     except (SlotError, ConfigError, ValueError, OSError) as exc:

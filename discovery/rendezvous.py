@@ -16,7 +16,8 @@ it (docs/security.md), as ``edge.<swarm>``. It counts the handshakes its listene
 the links of certificates outside the roster, and ``--stats FILE`` writes those counters.
 
 Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha] [--keys keys/alpha]``
-(or ``mrswarm router``).
+(or ``mrswarm router``). ``--connect tls/<other router>:7447`` links it to another edge router
+(one edge per server, docs/deploy.md).
 """
 
 from __future__ import annotations
@@ -45,12 +46,15 @@ STATS_PERIOD = 1.0  # s between two writes of --stats
 
 
 def router_config(listen: list[str], tuning: TransportTuning | None = None,
-                  credentials: Credentials | None = None) -> dict[str, Any]:
+                  credentials: Credentials | None = None, connect: list[str] | None = None) -> dict[str, Any]:
+    """``connect``: other edge routers this one links to (router to router, e.g. one edge per server)."""
     cfg: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": listen},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True, "multihop": False}},
     }
+    if connect:
+        cfg["connect"] = {"endpoints": connect}
     return secured((tuning or TransportTuning()).apply(cfg), credentials)
 
 
@@ -76,10 +80,10 @@ def write_stats(path: Path, stats: NodeStats, feed: PoseFeed | None) -> None:
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
           feed_swarms: list[str] | None = None, feed_window: float = DEFAULT_WINDOW,
           credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None,
-          interest: Interest | None = None) -> None:
+          interest: Interest | None = None, connect: list[str] | None = None) -> None:
     """Run the router until ``stop`` is set (or ``duration`` s); ``stats`` receives its refusals."""
     stats = stats if stats is not None else NodeStats()
-    session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials))))
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials, connect=connect))))
     links = None
     feed = None
     try:
@@ -121,6 +125,8 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm router", description=__doc__.splitlines()[0])
     ap.add_argument("--listen", action="append", default=None, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    ap.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                    help="another edge router to link to, e.g. tls/router:7447 (repeatable; one edge per server)")
     ap.add_argument("--feed", action="append", default=[], metavar="SWARM",
                     help="run the edge pose feed for this swarm ('*' for all; repeatable)")
     ap.add_argument("--feed-window-ms", type=float, default=DEFAULT_WINDOW * 1000.0,
@@ -170,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         print("WARNING: plain TCP without access control: anyone who reaches this router can command the swarm "
               "(docs/security.md)", file=sys.stderr, flush=True)
     serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_window_ms / 1000.0, credentials,
-          stats, Path(args.stats) if args.stats else None, interest)
+          stats, Path(args.stats) if args.stats else None, interest, args.connect)
     return 0
 
 

@@ -89,8 +89,9 @@ def _swarm_up(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         raise DeployError(str(exc)) from None
     fleet = swarm_fleet(scn, args.uavs, args.autostart)
+    edges = swarm.edge_hosts(client()) if args.edge_per_node and not args.dry_run else ()
     opts = StackOptions(image=args.image or scn.docker.image or image_tag(), container=scn.docker, port=args.port,
-                        max_per_node=args.max_per_node, log_level=args.log_level)
+                        max_per_node=args.max_per_node, log_level=args.log_level, edges=edges)
     out = Path(args.out or f"build/swarm/{swarm.stack_name(scn.swarm)}")
     if args.dry_run:
         print(swarm.write_stack(fleet, opts, out))
