@@ -187,6 +187,8 @@ def test_an_attacked_head_on_flies_as_if_nothing_happened(tmp_path: Path) -> Non
             for verb in ("hold", "resume"):
                 p = gcs.command(verb, [1])
                 assert wait_for(lambda p=p: (gcs.poll(), p.complete)[1], 3.0) and p.acks[1].ok, verb
+                if verb == "hold":  # ... and holds (its state says so) before it is told to resume
+                    assert wait_for(lambda: (phases(), "hold" in seen_phases[1])[1], 5.0, 0.05), seen_phases[1]
 
             # UAV 3 is compromised: a member's certificate, and the swarm's discovery key, which gives it every
             # UAV's locators (the registry); it dials the router (as client and as peer) and the UAVs themselves.
