@@ -132,8 +132,11 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
     t0 = time.time()
     summary = exp.run().to_dict()
     uavs = {k: v for k, v in sampler.result.items() if k.startswith("uav")}
-    if not uavs:
-        raise SystemExit(f"N={n}: no measurement (run aborted? {summary.get('aborted')})")
+    if not uavs:  # the run aborted before the window: a row that says why, and the other cells still count
+        row = {"n": n, "config": config, "aborted": str(summary.get("aborted")), "takeoff": summary.get("takeoff"),
+               "wall_s": round(time.time() - t0, 1), "run_dir": summary.get("run_dir")}
+        console.print(f"[red]N={n} {config}: no measurement:[/] {row['aborted']}")
+        return row
     med = lambda key: statistics.median(v[key] for v in uavs.values())  # noqa: E731
     mx = lambda key: max(v[key] for v in uavs.values())  # noqa: E731
     rtf = summary.get("rtf", {})
@@ -270,12 +273,14 @@ def main(argv: list[str] | None = None) -> int:
     tag = args.tag
     (out / f"{tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
     with open(out / f"{tag}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
-    plot(rows, out / f"{tag}.png")
+    measured = [r for r in rows if "aborted" not in r]
+    if measured:
+        plot(measured, out / f"{tag}.png")
     console.print(f"wrote {out / tag}.json/.csv/.png")
-    return 0
+    return 1 if len(measured) < len(rows) else 0  # 1: a cell aborted (its row says why)
 
 
 if __name__ == "__main__":

@@ -67,10 +67,10 @@ def side_by_side(off: dict[str, Any], on: dict[str, Any]) -> dict[str, Any]:
         return round(100.0 * (b - a) / a, 1)
 
     out: dict[str, Any] = {"n": off["n"], "config": off["config"]}
-    for key in ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "pose_age_p50_ms", "pose_age_p99_ms", "pose_loss",
-                "router_cpu_pct", "rtf_min", "collisions", "refused"):
+    for key in ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "transport_age_p50_ms", "transport_age_p99_ms",
+                "use_age_p50_ms", "pose_loss", "router_cpu_pct", "rtf_min", "collisions", "refused"):
         out[f"{key}_off"], out[f"{key}_on"] = off.get(key), on.get(key)
-    out["cpu_overhead_pct"] = pct(off["cpu_pct_median"], on["cpu_pct_median"])
+    out["cpu_overhead_pct"] = pct(off.get("cpu_pct_median"), on.get("cpu_pct_median"))  # None: a run aborted
     out["within_target"] = out["cpu_overhead_pct"] is not None and out["cpu_overhead_pct"] <= TARGET_OVERHEAD_PCT
     return out
 
@@ -89,9 +89,9 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax[0].plot(ns, [r["cpu_pct_median_off"] for r in rs], "o:", color=c, label=f"{cfg} off")
         ax[0].plot(ns, [r["cpu_pct_median_on"] for r in rs], "o-", color=c, label=f"{cfg} mTLS + ACL")
         ax[1].plot(ns, [r["cpu_overhead_pct"] for r in rs], "o-", color=c, label=cfg)
-        ax[2].plot(ns, [r["pose_age_p50_ms_off"] for r in rs], "o:", color=c, label=f"{cfg} p50 off")
-        ax[2].plot(ns, [r["pose_age_p50_ms_on"] for r in rs], "o-", color=c, label=f"{cfg} p50 on")
-        ax[2].plot(ns, [r["pose_age_p99_ms_on"] for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} p99 on")
+        ax[2].plot(ns, [r["transport_age_p50_ms_off"] for r in rs], "o:", color=c, label=f"{cfg} p50 off")
+        ax[2].plot(ns, [r["transport_age_p50_ms_on"] for r in rs], "o-", color=c, label=f"{cfg} p50 on")
+        ax[2].plot(ns, [r["transport_age_p99_ms_on"] for r in rs], "x--", color=c, alpha=0.6, label=f"{cfg} p99 on")
     ax[0].set_title("CPU per UAV process, median (% of one core)")
     ax[1].axhline(TARGET_OVERHEAD_PCT, color="r", ls=":", label=f"target +{TARGET_OVERHEAD_PCT:g} %")
     ax[1].axhline(0.0, color="k", lw=0.5)
