@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+import zenoh
 from rich.console import Console
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
@@ -250,7 +251,10 @@ class Experiment:
         # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
         # one observer per swarm when several share the airspace
-        self.observer = open_observer(scn, nets, self.swarm_keys)
+        try:
+            self.observer = open_observer(scn, nets, self.swarm_keys)
+        except zenoh.ZError as exc:  # the edge router never accepted the runner: every UAV is stopped, the run says why
+            raise RunAborted(f"the runner could not join the swarm: {exc}") from None
         n = len(ids)
         slowest = min(c.target_rtf for c in configs)
         with self.display:
