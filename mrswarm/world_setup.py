@@ -10,18 +10,15 @@ service joins every swarm as a client of its edge router, as that swarm's ``edge
 
 from __future__ import annotations
 
-import logging
-import time
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-import zenoh
 from msgspec.structs import replace
 
 from mrswarm.runtime import Runtime
 from mrswarm.scenario import Scenario
-from swarmnet.connectivity import Connectivity
+from swarmnet.connectivity import Connectivity, open_retrying
 from swarmnet.messages import Command, Pose
 from swarmnet.observer import PendingCommand, SwarmObserver
 from swarmnet.security.credentials import Credentials
@@ -29,8 +26,6 @@ from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, VirtualUavConfig
 from uav_stack.runtime import make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
-
-log = logging.getLogger(__name__)
 
 OBSERVER_OPEN_TIMEOUT_S = 60.0  # s the runner keeps trying to join the swarm's edge router (as a UAV does)
 
@@ -177,17 +172,5 @@ def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str,
         swarm_ids = {scn.swarm: {u.id for u in scn.uav_list()}} | {o.swarm: {u.id for u in o.uav_list()} for o in
                                                                    scn.other_swarms}
         obs = FleetObserver([(s, conn(s), swarm_ids[s]) for s in nets], name=name)
-    # While a whole swarm starts on a loaded machine (100 UAV processes on 2 cores) the edge router
-    # can take longer than Zenoh's connect timeout to accept one more client: try again, as the
-    # UAVs do (uav_stack/runtime.py), for at most OBSERVER_OPEN_TIMEOUT_S.
-    deadline = time.monotonic() + OBSERVER_OPEN_TIMEOUT_S
-    delay = 0.5
-    while True:
-        try:
-            return obs.open()
-        except zenoh.ZError as exc:
-            if "Unable to connect" not in str(exc) or time.monotonic() + delay > deadline:
-                raise
-            log.warning("the runner could not join the swarm yet (%s); again in %.1f s", exc, delay)
-            time.sleep(delay)
-            delay = min(2 * delay, 4.0)
+    # the edge router may still be busy accepting a whole swarm: try again, as the UAVs do
+    return open_retrying(obs.open, OBSERVER_OPEN_TIMEOUT_S, name)

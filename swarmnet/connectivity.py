@@ -15,13 +15,18 @@ every link is mutual TLS under the swarm's access control (docs/security.md); wi
 from __future__ import annotations
 
 import json
+import logging
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 import zenoh
 
 if TYPE_CHECKING:
     from swarmnet.security.credentials import Credentials
+
+log = logging.getLogger(__name__)
 
 
 @runtime_checkable
@@ -152,3 +157,29 @@ class StaticPeers:
 
     def detach(self) -> None:
         return None
+
+
+T = TypeVar("T")
+
+
+def open_retrying(open_session: Callable[[], T], timeout: float, what: str,
+                  stopped: Callable[[], bool] = lambda: False) -> T:
+    """``open_session()``, tried again after 0.5, 1, 2, 4, 4 ... s while Zenoh says it could not
+    reach any endpoint, for at most ``timeout`` s (or until ``stopped()``); then its error.
+
+    Why: when a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), an
+    edge router can take longer than Zenoh's connect timeout to accept one more client, and a
+    session that fails once would end a UAV or the runner that had only to wait. Any other error
+    (a bad certificate, a bad configuration) is raised at once. ``what`` names the node in the log.
+    """
+    deadline = time.monotonic() + timeout
+    delay = 0.5
+    while True:
+        try:
+            return open_session()
+        except zenoh.ZError as exc:
+            if "Unable to connect" not in str(exc) or stopped() or time.monotonic() + delay > deadline:
+                raise
+            log.warning("%s: could not join the swarm yet (%s); again in %.1f s", what, exc, delay)
+            time.sleep(delay)
+            delay = min(2 * delay, 4.0)

@@ -20,7 +20,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers
+from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError, convert
@@ -102,10 +102,8 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
 
     When a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), the
     edge router can take longer than Zenoh's connect timeout to accept a client, and the session
-    refuses to open: it is tried again after 0.5, 1, 2, 4, 4 ... s until ``timeout`` s.
+    refuses to open: it is tried again until ``timeout`` s (swarmnet.connectivity.open_retrying).
     """
-    import zenoh
-
     node = make_node(cfg)
     if cfg.network.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this node's "
@@ -114,17 +112,7 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
         from swarmnet.security.zenoh_log import ZenohLogTap
 
         ZenohLogTap(node.stats)
-    deadline = time.monotonic() + timeout
-    delay = 0.5
-    while True:
-        try:
-            return node.open()
-        except zenoh.ZError as exc:  # only a router that did not answer is worth another try
-            if "Unable to connect" not in str(exc) or stop.stopped or time.monotonic() + delay > deadline:
-                raise
-            log.warning("UAV %d: swarm node did not open (%s); again in %.1f s", cfg.uav, exc, delay)
-            time.sleep(delay)
-            delay = min(2 * delay, 4.0)
+    return open_retrying(node.open, timeout, f"UAV {cfg.uav}", lambda: stop.stopped)
 
 
 def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
