@@ -119,6 +119,29 @@ def _results(args: argparse.Namespace) -> int:
     return 1 if summary.error else 0
 
 
+# Subcommands that hand their arguments to another module's entry point:
+# name -> (help, module, function taking argv).
+DELEGATED: dict[str, tuple[str, str, str]] = {
+    "agent": ("run the swarm agent against a flight controller (real UAV, SITL)", "uav_stack.runtime", "agent_main"),
+    "fcu": ("a standalone virtual flight controller speaking MAVLink over UDP", "uav_stack.fcu.__main__", "main"),
+    "router": ("a Zenoh rendezvous/edge router", "discovery.rendezvous", "main"),
+    "deploy": ("images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
+               "mrswarm.deploy_cli", "main"),
+    "netem": ("network impairments: presets, change a running swarm, status (docs/netem.md)", "mrswarm.netem_cli", "main"),
+    "discovery": ("discovery server (serve), registry (nodes), probe node, keygen", "discovery.cli", "main"),
+    "netlab": ("routed network-namespace lab without multicast (up/down/list; root)", "discovery.netlab", "main"),
+    "world": ("the world service of a scenario, at the edge: virtual sensors, hazards, airspace (docs/world.md)",
+              "mrswarm.world_cli", "main"),
+    "gcs": ("ground station: watch, telemetry, overrides, record (docs/gcs.md)", "mrswarm.gcs.cli", "main"),
+    "export": ("a recording (run.mcap) as a run folder of CSVs or as JSON Lines (docs/recording.md)",
+               "mrswarm.recorder.cli", "export_main"),
+    "replay": ("republish a recording under its own swarm name, for gcs watch/web and Foxglove",
+               "mrswarm.recorder.cli", "replay_main"),
+    "keys": ("the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
+             "mrswarm.keys_cli", "main"),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm", description="Mixed-reality drone-swarm experiments over cellular edge networks.")
     ap.add_argument("--version", action="version", version=f"mrswarm {_version()}")
@@ -142,45 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 
-    p = sub.add_parser("agent", help="run the swarm agent against a flight controller (real UAV, SITL)", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("uav_stack.runtime", "agent_main", a.rest))
-    p = sub.add_parser("fcu", help="a standalone virtual flight controller speaking MAVLink over UDP", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("uav_stack.fcu.__main__", "main", a.rest))
-    p = sub.add_parser("router", help="a Zenoh rendezvous/edge router", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("discovery.rendezvous", "main", a.rest))
-    p = sub.add_parser("deploy", help="images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
-                       add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.deploy_cli", "main", a.rest))
-
-    p = sub.add_parser("netem", help="network impairments: presets, change a running swarm, status (docs/netem.md)",
-                       add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.netem_cli", "main", a.rest))
-
-    p = sub.add_parser("discovery", help="discovery server (serve), registry (nodes), probe node, keygen", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("discovery.cli", "main", a.rest))
-    p = sub.add_parser("netlab", help="routed network-namespace lab without multicast (up/down/list; root)", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("discovery.netlab", "main", a.rest))
-
-    p = sub.add_parser("world", help="the world service of a scenario, at the edge: virtual sensors, hazards, airspace "
-                                     "(docs/world.md)", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.world_cli", "main", a.rest))
-
-    p = sub.add_parser("gcs", help="ground station: watch, telemetry, overrides, record (docs/gcs.md)", add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.gcs.cli", "main", a.rest))
-    p = sub.add_parser("export", help="a recording (run.mcap) as a run folder of CSVs or as JSON Lines (docs/recording.md)",
-                       add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.recorder.cli", "export_main", a.rest))
-    p = sub.add_parser("replay", help="republish a recording under its own swarm name, for gcs watch/web and Foxglove",
-                       add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.recorder.cli", "replay_main", a.rest))
-
-    p = sub.add_parser("keys", help="the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
-                       add_help=False)
-    p.set_defaults(func=lambda a: _delegate("mrswarm.keys_cli", "main", a.rest))
+    for name, (text, module, func) in DELEGATED.items():  # each parses its own arguments
+        p = sub.add_parser(name, help=text, add_help=False)
+        p.set_defaults(func=lambda a, module=module, func=func: _delegate(module, func, a.rest))
 
     args, rest = ap.parse_known_args(argv)
-    if args.command in ("agent", "fcu", "router", "deploy", "netem", "discovery", "netlab", "gcs", "export", "replay", "keys",
-                        "world"):
+    if args.command in DELEGATED:
         args.rest = rest
     elif rest:
         ap.error(f"unrecognized arguments: {' '.join(rest)}")
