@@ -28,7 +28,7 @@ def test_set_reaches_every_live_uav_and_reports_their_acks(router: str, tmp_path
         proc = subprocess.Popen(cli("set", "--run", str(tmp_path), "--preset", "degraded", "--class", "v2v", "--delay", "150ms"),
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
-            while proc.poll() is None and time.time() - t0 < 60:  # the UAV loop: poll at 25 Hz
+            while proc.poll() is None and time.time() - t0 < 60:  # the UAV loop: poll at 10 Hz
                 for n in nodes:
                     n.poll()
                 time.sleep(0.04)

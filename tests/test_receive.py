@@ -96,7 +96,7 @@ def test_the_age_at_use_counts_each_pose_once_from_its_arrival(rendezvous: Rende
 
 
 def test_a_command_reaches_a_real_agent_and_is_acknowledged_within_10_ms(tmp_path: Path, router: str) -> None:
-    """A virtual UAV process (its loop at 25 Hz) sleeps on its waker between ticks: a command is
+    """A virtual UAV process (its loop at 10 Hz) sleeps on its waker between ticks: a command is
     handled when it arrives, not at the next tick. Round trip measured 20 times; the p50 is asserted."""
     proc = start_virtual_uav(tmp_path, router, swarm="rtt")
     obs = SwarmObserver("rtt", Rendezvous((router,), mode="client"), name="test").open()

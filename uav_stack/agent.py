@@ -6,7 +6,7 @@ Data path, top to bottom, once per tick (see :meth:`Agent.step`):
     SwarmNode.poll -> neighbour table -> mission behaviour -> collision avoidance -> FcuLink setpoint
 
 The agent owns no thread and never blocks: its owner calls :meth:`Agent.step` once per tick
-of a fixed-rate sleep loop (:func:`uav_stack.runtime.run_loop`, 25 Hz by default); the
+of a fixed-rate sleep loop (:func:`uav_stack.runtime.run_loop`, 10 Hz by default); the
 control, telemetry, state and stats timers inside ``step`` run on their own rates and fire on
 the first tick at or after they are due.
 """

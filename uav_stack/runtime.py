@@ -35,7 +35,6 @@ if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-h
 
 log = logging.getLogger(__name__)
 
-TICK_HZ = 25.0  # loop ticks per second (agent step, FCU I/O + batched physics)
 OPEN_TIMEOUT_S = 60.0  # s to keep trying to open the swarm node (a loaded router may accept late)
 _PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
@@ -147,23 +146,37 @@ def check_signing_key(cfg: AgentConfig, ap: argparse.ArgumentParser) -> None:
             ap.error(f"gcs.signing.{exc}")
 
 
+def tick_hz_for(cfg: AgentConfig) -> float:
+    """The loop's ticks per second (Hz): the agent's fastest own rate, its control or its pose
+    rate (10 Hz by default).
+
+    Why not faster: nothing the agent does runs more often, and every tick costs the same fixed
+    wake-up, socket reads and polls whether or not anything is due. A lone virtual UAV cost
+    about a quarter less CPU at 10 Hz than at the former 25 Hz (docs/benchmarks.md). Commands do
+    not wait for a tick (the loop wakes on them), and the FCU's physics keeps its own rate (its
+    steps run in a batch per tick)."""
+    return max(cfg.control_rate_hz, cfg.pose_rate_hz)
+
+
 def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
-             tick_hz: float = TICK_HZ) -> None:
+             tick_hz: float | None = None) -> None:
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
 
-    One wake-up per tick does everything: the FCU's datagrams and physics (run in a batch of
-    fixed sim steps), then the agent's step (MAVLink in, Zenoh in and out, control). The
-    setpoints the agent sends reach the FCU's socket and apply at the next tick, one tick
-    later, as over a real serial link. Fewer, fuller ticks are cheaper than waking on every
-    datagram and timer: with other processes evicting the CPU caches between ticks, each
-    code path costs several times its warm cost (docs/benchmarks.md).
+    One wake-up per tick (``tick_hz``, default :func:`tick_hz_for` the agent's configuration)
+    does everything: the FCU's datagrams and physics (run in a batch of fixed sim steps, up
+    to now), then the agent's step (MAVLink in, Zenoh in and out, control), then the FCU's
+    datagrams once more, so the setpoints the agent has just sent apply from now on, as over a
+    real serial link (within a millisecond), rather than a tick later. Fewer, fuller ticks are
+    cheaper than waking on every datagram and timer: with other processes evicting the CPU
+    caches between ticks, each code path costs several times its warm cost
+    (docs/benchmarks.md).
 
     Between ticks the loop waits on the swarm node's waker rather than sleeping: a command
     (or a netem change) wakes it, and :meth:`Agent.react` handles it at once. Poses do not
     wake it: they wait, stamped with their arrival, for the next tick's control.
     """
     parent = os.getppid()
-    period = 1.0 / tick_hz
+    period = 1.0 / (tick_hz or tick_hz_for(agent.cfg))
     t0 = time.monotonic()
     end = math.inf if duration is None else t0 + duration
     next_tick = t0
@@ -180,6 +193,8 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             fcu.poll_io()
             fcu.service()
         agent.step(time.time())
+        if fcu is not None:
+            fcu.poll_io()  # the setpoints and commands just sent: applied now, not a tick later
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
 
@@ -193,6 +208,8 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
             vehicles=[VehicleConfig(sysid=a.mavlink_sysid, home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
             physics_hz=cfg.physics_hz,
             target_rtf=cfg.target_rtf,
+            # the loop comes back once per tick: a tick's lateness beyond that drops sim time, not less
+            max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(a),
         )
     )
     (host, port), = fcu.open()
