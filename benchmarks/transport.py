@@ -11,7 +11,7 @@ every other agent's (full mesh). The transports, flown one after the other at ev
 * ``zenoh-client``: plain zenoh-python in client mode through one Zenoh router
   (``python -m discovery.rendezvous``); agent -> router -> agents;
 * ``swarmnet``: ``swarmnet.SwarmNode`` on the same peer mesh, its loop polling at the UAV tick
-  (25 Hz); agent -> agents;
+  (10 Hz); agent -> agents;
 * ``swarmnet-edge``: ``SwarmNode`` as a client of the edge router's pose feed (``pose_feed:
   edge``, 3 ms window); agent -> edge router (batches) -> agents.
 
@@ -59,7 +59,7 @@ sys.path.insert(0, str(ROOT))
 
 TRANSPORTS = ("mqtt", "zenoh-peer", "zenoh-client", "swarmnet", "swarmnet-edge")
 POSE_HZ = 10.0
-TICK_HZ = 25.0  # swarmnet agents poll at the UAV loop's tick
+TICK_HZ = 10.0  # swarmnet agents poll at the UAV loop's tick (uav_stack.runtime.tick_hz_for: 10 Hz by default)
 PAYLOAD = struct.Struct("<HId")  # sender, seq, send time (s); padded to 48 bytes
 PAYLOAD_BYTES = 48
 

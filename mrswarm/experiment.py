@@ -60,6 +60,10 @@ from uav_stack.phases import FINISHED, WORKING, AgentPhase
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
+# past that, the wait goes on while UAVs keep getting ready (no new one for READY_STALL_S: give up),
+# up to READY_TIMEOUT_CAP_PER_UAV s per UAV: 100 UAVs starting at once on 2 cores need about 2 min
+READY_STALL_S = 30.0
+READY_TIMEOUT_CAP_PER_UAV = 3.0
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
@@ -259,7 +263,8 @@ class Experiment:
         slowest = min(c.target_rtf for c in configs)
         with self.display:
             self.progress.stage = RunStage.WAITING
-            self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n)
+            self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n,
+                             stall=READY_STALL_S, cap=READY_TIMEOUT_BASE + READY_TIMEOUT_CAP_PER_UAV * n)
             self.progress.stage = RunStage.TAKING_OFF
             takeoff = self._command("takeoff", ids, {AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD,
                                                      AgentPhase.HOVER})
@@ -358,16 +363,28 @@ class Experiment:
                                f"({r.sends} sends)"
         return r
 
-    def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float) -> None:
-        """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s."""
-        deadline = time.time() + timeout
+    def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float, stall: float | None = None,
+                    cap: float | None = None) -> None:
+        """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s.
+
+        With ``stall`` (s), the wait goes on past ``timeout`` while more UAVs keep reaching the
+        phases, until none has for ``stall`` s, and never past ``cap`` s: on a loaded machine a
+        large swarm gets ready slowly but surely, a stuck one is still given up on."""
+        t0 = time.time()
+        deadline = t0 + timeout
+        hard = t0 + max(timeout, cap if cap is not None else timeout)
+        best = 0
         while time.time() < deadline:
             self._tick()
             active = [u for u in ids if u in self._active_ids()]
-            if active and all(self._phase_of(u) in phases for u in active):
+            there = sum(1 for u in active if self._phase_of(u) in phases)
+            if active and there == len(active):
                 return
+            if stall is not None and there > best:  # progress: allow another ``stall`` s from now
+                best = there
+                deadline = min(max(deadline, time.time() + stall), hard)
         behind = {u: str(self._phase_of(u) or "?") for u in ids if self._phase_of(u) not in phases}
-        raise RunAborted(f"timed out after {timeout:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
+        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
 
     def _tick(self) -> None:
         """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""

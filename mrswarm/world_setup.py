@@ -27,7 +27,7 @@ from uav_stack.config import NetworkConfig, VirtualUavConfig
 from uav_stack.runtime import make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
 
-OBSERVER_OPEN_TIMEOUT_S = 60.0  # s the runner keeps trying to join the swarm's edge router (as a UAV does)
+OBSERVER_OPEN_TIMEOUT_S = 120.0  # s the runner keeps trying to join the swarm's edge router (as a UAV does)
 
 
 def other_swarm_keys(scn: Scenario) -> dict[str, str]:
