@@ -92,7 +92,13 @@ class Sampler:
         self.result: dict[str, dict[str, float]] = {}
 
     def _procs(self, exp: Experiment) -> dict[str, psutil.Process]:
-        procs = {n: psutil.Process(pid) for n, pid in exp.runtime.pids().items()}
+        """The run's processes still alive (a UAV that has exited is left out: the run flies on without it)."""
+        procs: dict[str, psutil.Process] = {}
+        for n, pid in exp.runtime.pids().items():
+            try:
+                procs[n] = psutil.Process(pid)
+            except psutil.NoSuchProcess:
+                pass
         procs["runner"] = psutil.Process()
         return procs
 

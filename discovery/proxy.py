@@ -121,7 +121,7 @@ class BeaconDiscovery:
     advertise: tuple[str, ...] = ()
     period: float = DEFAULT_PERIOD
     dial: str = "greater-zid"  # who dials a pair: only the larger ZID (one link per pair), or "always" both
-    scout_port: int = 0  # 0: a free loopback UDP port, picked when the config is built
+    scout_port: int = 0  # 0: a free loopback UDP port, picked anew each time the config is built
     zid: str | None = None  # pin the session's Zenoh id (hex); default: random per session
     lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
@@ -129,6 +129,7 @@ class BeaconDiscovery:
     name: str = "discovery"
 
     def __post_init__(self) -> None:
+        self._pick_port = not self.scout_port  # picked here, so picked again for a retried open
         self.server_addr = parse_server(self.server)
         check_key(self.key)
         for s, k in self.extra_swarms.items():
@@ -161,7 +162,7 @@ class BeaconDiscovery:
             self.realm = r.label if hasattr(r, "label") else str(r)
 
     def zenoh_config(self) -> dict[str, Any]:
-        if not self.scout_port:
+        if self._pick_port:  # a fresh one: another process may have taken the last between its pick and the bind
             self.scout_port = free_port(socket.SOCK_DGRAM, LOCAL_HOST)
         cfg = base_config("peer", self.connect, self.listen, self.tuning, self.credentials)
         cfg["scouting"] = {

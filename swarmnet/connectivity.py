@@ -160,12 +160,16 @@ class StaticPeers:
 
 
 T = TypeVar("T")
+BIND_RETRIES = 3  # opens tried again after "Address already in use"
 
 
 def open_retrying(open_session: Callable[[], T], timeout: float, what: str,
                   stopped: Callable[[], bool] = lambda: False) -> T:
     """``open_session()``, tried again after 0.5, 1, 2, 4, 4 ... s while Zenoh says it could not
-    reach any endpoint, for at most ``timeout`` s (or until ``stopped()``); then its error.
+    reach any endpoint, for at most ``timeout`` s (or until ``stopped()``); then its error. A port
+    already in use is tried again up to BIND_RETRIES times (a connectivity that picks its own free
+    port, such as the discovery proxy's scouting port, picks another: the first may have been taken
+    by another process between its pick and Zenoh's bind, as 50 UAVs starting at once showed).
 
     Why: when a whole swarm starts at once on a loaded machine (100 UAV processes on 2 cores), an
     edge router can take longer than Zenoh's connect timeout to accept one more client, and a
@@ -174,11 +178,15 @@ def open_retrying(open_session: Callable[[], T], timeout: float, what: str,
     """
     deadline = time.monotonic() + timeout
     delay = 0.5
+    binds = 0
     while True:
         try:
             return open_session()
         except zenoh.ZError as exc:
-            if "Unable to connect" not in str(exc) or stopped() or time.monotonic() + delay > deadline:
+            in_use = "Address already in use" in str(exc)
+            binds += in_use
+            if (("Unable to connect" not in str(exc) and not in_use) or binds > BIND_RETRIES or stopped()
+                    or time.monotonic() + delay > deadline):
                 raise
             log.warning("%s: could not join the swarm yet (%s); again in %.1f s", what, exc, delay)
             time.sleep(delay)
