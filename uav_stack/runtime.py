@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-h
 
 log = logging.getLogger(__name__)
 
-OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router may accept late: 100 UAVs start in ~2 min on 2 cores)
+OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
 _PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
