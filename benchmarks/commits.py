@@ -33,7 +33,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RUN_TIMEOUT_S = 900.0  # one scale.py run at one N and one configuration (N = 50: about 3 minutes)
-FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min", "pose_age_p50_ms",
+FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min", "pose_age_p50_ms", "transport_age_p50_ms",
+          "transport_age_p99_ms", "use_age_p50_ms", "use_age_p99_ms", "all_airborne_s",
           "pose_age_p99_ms", "pose_loss", "collisions")
 
 
