@@ -61,10 +61,13 @@ CONFIGS: dict[str, tuple[str, str, str]] = {
 INTEREST = {"radius_m": 60.0, "margin_m": 5.0, "far_rate_hz": 0.5}  # 60 m: ~4.5 others within it at 2500 m^2 per UAV
 
 
-def scenario_for(n: int, duration: float, config: str, interest: dict[str, float] | None = None) -> Scenario:
+def scenario_for(n: int, duration: float, config: str, interest: dict[str, float] | None = None,
+                 lease_s: float | None = None) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
     network: dict[str, Any] = {"connectivity": connectivity, "mode": mode, "pose_feed": feed}
+    if lease_s is not None:
+        network["lease_s"] = lease_s
     if config.endswith("-interest"):
         network["interest"] = interest or INTEREST
     return parse_scenario({
@@ -131,7 +134,7 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
     sampler = Sampler(args.warmup, args.window)
     interest = {**INTEREST, "radius_m": getattr(args, "interest_radius_m", INTEREST["radius_m"]),
                 "far_rate_hz": getattr(args, "interest_far_hz", INTEREST["far_rate_hz"])}
-    scn = scenario_for(n, args.warmup + args.window + 2.0, config, interest)
+    scn = scenario_for(n, args.warmup + args.window + 2.0, config, interest, getattr(args, "lease_s", None))
     if adapt is not None:
         scn = adapt(scn)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
@@ -267,6 +270,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="spatial interest radius of the *-interest configurations, m")
     ap.add_argument("--interest-far-hz", type=float, default=INTEREST["far_rate_hz"],
                     help="far rate of the *-interest configurations, Hz")
+    ap.add_argument("--lease-s", type=float, default=None,
+                    help="network.lease_s of every run (default: the scenario's 3 s; N = 100 on 2 cores needs 10)")
     ap.add_argument("--replot", action="store_true", help="only redraw scale.png from the scale.json in --out")
     args = ap.parse_args(argv)
     out = Path(args.out)

@@ -146,11 +146,11 @@ class BeaconDiscovery:
 
     @classmethod
     def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = (),
-                     credentials: Credentials | None = None) -> BeaconDiscovery:
+                     credentials: Credentials | None = None, tuning: TransportTuning | None = None) -> BeaconDiscovery:
         """From a node's :class:`~discovery.options.ProxyOptions` (``NetworkConfig.discovery``) and its endpoints."""
         return cls(server=opts.server, key=opts.read_key(), listen=tuple(listen), connect=tuple(connect),
                    advertise=opts.advertise, period=opts.period, extra_swarms=dict(opts.extra_swarms), dial=opts.dial,
-                   zid=opts.zid, lanes=opts.lanes, credentials=credentials)
+                   zid=opts.zid, lanes=opts.lanes, credentials=credentials, tuning=tuning or TransportTuning())
 
     def bind(self, identity: Any) -> None:
         """Take the identity of the node that owns the session (fields not set explicitly)."""

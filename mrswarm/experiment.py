@@ -31,6 +31,7 @@ from typing import Any
 
 import yaml
 import zenoh
+from msgspec.structs import replace
 from rich.console import Console
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
@@ -214,6 +215,7 @@ class Experiment:
         net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
                                          connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
                                          keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest)
+        net = replace(net, lease_s=scn.network.lease_s)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),

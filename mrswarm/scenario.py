@@ -37,6 +37,7 @@ from uav_stack.config import (
     Firefighting,
     Flavour,
     GcsConfig,
+    LeaseS,
     MavlinkSigning,
     MissionConfig,
     MissionType,
@@ -176,6 +177,7 @@ class Network(Config, frozen=True):
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
     mode: ZenohMode = "peer"
     pose_feed: PoseFeed = "direct"
+    lease_s: LeaseS = 3.0  # a node silent this long is gone; raise it on an overloaded machine (docs/scale.md)
     interest: Interest | None = None  # spatial interest (docs/scale.md); needs pose_feed: edge
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)

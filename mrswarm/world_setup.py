@@ -64,7 +64,7 @@ def observer_network(net: NetworkConfig, keys: Path | None) -> NetworkConfig:
     the swarm's key directory as seen from here (the identity is the caller's: ctl, edge)."""
     own = Credentials(keys=str(keys)) if keys is not None else None
     if net.endpoints:
-        return NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", security=own)
+        return NetworkConfig(connectivity="rendezvous", endpoints=net.endpoints, mode="client", lease_s=net.lease_s, security=own)
     return replace(net, security=own)
 
 

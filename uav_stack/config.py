@@ -32,6 +32,10 @@ Flavour = Literal["px4", "ardupilot"]  # the autopilot a virtual FCU emulates
 UavId = Annotated[int, Meta(ge=1, le=65535, description="UAV id")]
 Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (ENU m)
 Hz = Annotated[float, Meta(gt=0.0, le=1000.0, description="Hz")]
+# Zenoh's lease: a node silent this long is declared gone (its links closed, its liveliness token
+# dropped). 3 s finds a frozen UAV fast; on a machine so overloaded that a process can go 3 s
+# without running (100 UAVs on 2 cores) the edge router closed live UAVs' sessions: raise it there.
+LeaseS = Annotated[float, Meta(ge=0.5, le=60.0, description="s")]
 Name = Annotated[str, Meta(pattern=r"^[A-Za-z0-9_\-]{1,32}$", description="1-32 characters of [A-Za-z0-9_-]")]
 Point = tuple[float, float]  # x, y (ENU m)
 SensorType = Literal["pollutant", "wind", "fire", "tank", "alarm", "target"]
@@ -47,6 +51,7 @@ class NetworkConfig(Config, frozen=True):
     mode: ZenohMode = "peer"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     pose_feed: PoseFeed = "direct"
+    lease_s: LeaseS = 3.0
     # spatial interest (docs/scale.md): full-rate poses only from UAVs within a radius; needs pose_feed edge
     interest: Interest | None = None
     discovery: ProxyOptions | None = None  # connectivity "discovery": the server and the swarm's key

@@ -20,7 +20,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, open_retrying
+from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError, convert
@@ -75,15 +75,17 @@ def die_with_parent() -> None:
 def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Connectivity:
     """The node's connectivity strategy; ``name`` is who it is, for credentials that do not say."""
     creds = net.security.for_node(name) if net.security is not None and name is not None else net.security
+    tuning = TransportTuning(lease_ms=round(1000 * net.lease_s))
     if net.connectivity == "rendezvous":
-        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen), credentials=creds)
+        return Rendezvous(tuple(net.endpoints), mode=net.mode, listen=tuple(net.listen), tuning=tuning, credentials=creds)
     if net.connectivity == "static":
-        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen), credentials=creds)
+        return StaticPeers(tuple(net.endpoints), listen=tuple(net.listen), tuning=tuning, credentials=creds)
     if net.connectivity == "discovery":  # beacon relay through a discovery server (discovery/proxy.py)
         from discovery.proxy import BeaconDiscovery
 
         assert net.discovery is not None  # NetworkConfig requires it with this connectivity
-        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints, credentials=creds)
+        return BeaconDiscovery.from_options(net.discovery, listen=net.listen, connect=net.endpoints, credentials=creds,
+                                            tuning=tuning)
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
