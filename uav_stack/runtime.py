@@ -154,7 +154,7 @@ def tick_hz_for(cfg: AgentConfig) -> float:
 
     Why not faster: nothing the agent does runs more often, and every tick costs the same fixed
     wake-up, socket reads and polls whether or not anything is due. A lone virtual UAV cost
-    about a quarter less CPU at 10 Hz than at the former 25 Hz (docs/benchmarks.md). Commands do
+    about a fifth less CPU at 10 Hz than at the former 25 Hz (docs/benchmarks.md). Commands do
     not wait for a tick (the loop wakes on them), and the FCU's physics keeps its own rate (its
     steps run in a batch per tick)."""
     return max(cfg.control_rate_hz, cfg.pose_rate_hz)
