@@ -24,10 +24,8 @@ from swarmnet.observer import PendingCommand, SwarmObserver
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from uav_stack.config import NetworkConfig, VirtualUavConfig
-from uav_stack.runtime import make_connectivity
+from uav_stack.runtime import OPEN_TIMEOUT_S, make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
-
-OBSERVER_OPEN_TIMEOUT_S = 120.0  # s the runner keeps trying to join the swarm's edge router (as a UAV does)
 
 
 def other_swarm_keys(scn: Scenario) -> dict[str, str]:
@@ -172,5 +170,5 @@ def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str,
         swarm_ids = {scn.swarm: {u.id for u in scn.uav_list()}} | {o.swarm: {u.id for u in o.uav_list()} for o in
                                                                    scn.other_swarms}
         obs = FleetObserver([(s, conn(s), swarm_ids[s]) for s in nets], name=name)
-    # the edge router may still be busy accepting a whole swarm: try again, as the UAVs do
-    return open_retrying(obs.open, OBSERVER_OPEN_TIMEOUT_S, name)
+    # the edge router may still be busy accepting a whole swarm: try again, as long as the UAVs do
+    return open_retrying(obs.open, OPEN_TIMEOUT_S, name)
