@@ -49,9 +49,10 @@ sys.path.insert(0, str(ROOT))
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
-# name -> (network.connectivity, network.mode, network.pose_feed)
-CONFIGS: dict[str, tuple[str, str, str]] = {
-    "discovery-direct": ("discovery", "peer", "direct"),  # the default: beacon relay, peer mesh, every pose direct
+# name -> (network.connectivity, network.mode, network.pose_feed); None: the scenario leaves it unset
+CONFIGS: dict[str, tuple[str | None, str | None, str | None]] = {
+    "default": (None, None, None),  # chosen for N: discovery-direct up to 25 UAVs, client-edge above (scenario.py)
+    "discovery-direct": ("discovery", "peer", "direct"),  # beacon relay, peer mesh, every pose direct
     "discovery-edge": ("discovery", "peer", "edge"),      # beacon relay, poses batched by the edge router
     "client-edge": ("rendezvous", "client", "edge"),      # every UAV a client of the edge router, batched poses
     "rendezvous-direct": ("rendezvous", "peer", "direct"),
@@ -65,7 +66,8 @@ def scenario_for(n: int, duration: float, config: str, interest: dict[str, float
                  lease_s: float | None = None) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
-    network: dict[str, Any] = {"connectivity": connectivity, "mode": mode, "pose_feed": feed}
+    network: dict[str, Any] = {k: v for k, v in (("connectivity", connectivity), ("mode", mode), ("pose_feed", feed))
+                               if v is not None}
     if lease_s is not None:
         network["lease_s"] = lease_s
     if config.endswith("-interest"):
@@ -155,9 +157,9 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
     row = {
         "n": n,
         "config": config,
-        "connectivity": CONFIGS[config][0],
-        "mode": CONFIGS[config][1],
-        "feed": CONFIGS[config][2],
+        "connectivity": scn.network.connectivity,  # as resolved: the "default" config's choice for this N
+        "mode": scn.network.mode,
+        "feed": scn.network.pose_feed,
         "cpu_pct_median": round(med("cpu_pct"), 3),
         "cpu_pct_max": round(mx("cpu_pct"), 3),
         "rss_mb_median": round(med("rss_mb"), 1),

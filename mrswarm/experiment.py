@@ -1,10 +1,11 @@
 """``mrswarm run``: launch a scenario, fly it, stop every process, summarise.
 
 Sequence: the runtime (deploy/) starts the network and one process (or container) per virtual
-UAV. By default (``network.connectivity: discovery``) the network is a discovery server that
-introduces the UAVs to each other, which then exchange poses peer to peer, plus an edge router
-beside it: the way in for the runner and for ground stations (``mrswarm gcs watch --run``);
-``connectivity: rendezvous`` starts one rendezvous router instead. Then: wait until every agent
+UAV. By default, up to 25 UAVs (``network.connectivity: discovery``), the network is a discovery
+server that introduces the UAVs to each other, which then exchange poses peer to peer, plus an
+edge router beside it: the way in for the runner and for ground stations (``mrswarm gcs watch
+--run``); ``connectivity: rendezvous`` (the default above 25 UAVs, with every UAV its client)
+starts one rendezvous router instead. Then: wait until every agent
 reports ``ready`` -> command ``takeoff`` -> wait until all ``hover`` -> command ``start`` (the
 mission clock starts here, for every UAV at once) -> fly for ``duration`` seconds or until all
 are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.py).
@@ -41,7 +42,7 @@ from mrswarm.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
-from mrswarm.scenario import Scenario
+from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, Interrupted, StopSignals
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import Supervisor, uav_of
@@ -211,9 +212,13 @@ class Experiment:
 
     def _fly(self) -> None:
         scn = self.scn
+        connectivity, mode, pose_feed = scn.network.topology
+        n = len(scn.all_uavs())
+        if n > MESH_MAX_UAVS:  # the network may not be the one a small run gets: say which it is
+            self._say(f"network: {n} UAVs on this machine: {connectivity}, {mode} mode, {pose_feed} pose feed (what the "
+                      f"scenario does not set is chosen for more than {MESH_MAX_UAVS} UAVs: docs/scale.md)")
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
-        net = self.runtime.start_network(scn.network.mode, scn.network.pose_feed, scn.swarm,
-                                         connectivity=scn.network.connectivity or "discovery", discovery=scn.network.discovery,
+        net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,
                                          keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest)
         net = replace(net, lease_s=scn.network.lease_s)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,

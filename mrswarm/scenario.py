@@ -173,10 +173,23 @@ class Security(Config, frozen=True):
         return self.mode == "mtls"
 
 
+MESH_MAX_UAVS = 25
+"""Up to this many UAVs on one machine (every swarm of the airspace counted), the default network
+is the peer mesh with a message per pose; above it, client mode through the edge router with the
+edge pose feed. On 2 cores the peer mesh flew 25 UAVs in real time and 50 at RTF 0.46, client mode
+50 at 0.999 (docs/benchmarks.md)."""
+
+
 class Network(Config, frozen=True):
+    """How the swarm's nodes meet and what they exchange (docs/scenarios.md).
+
+    ``connectivity``, ``mode`` and ``pose_feed`` left unset are chosen for the fleet's size by
+    :meth:`sized_for`, which :class:`Scenario` applies: a scenario always holds them resolved.
+    """
+
     connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
-    mode: ZenohMode = "peer"
-    pose_feed: PoseFeed = "direct"
+    mode: ZenohMode | None = None  # default: peer, or client above MESH_MAX_UAVS UAVs
+    pose_feed: PoseFeed | None = None  # default: direct, or edge above MESH_MAX_UAVS UAVs or with interest
     lease_s: LeaseS = 3.0  # a node silent this long is gone; raise it on an overloaded machine (docs/scale.md)
     interest: Interest | None = None  # spatial interest (docs/scale.md); needs pose_feed: edge
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
@@ -188,12 +201,35 @@ class Network(Config, frozen=True):
             force_setattr(self, "security", Security(mode="off"))
         elif self.security is True:
             force_setattr(self, "security", Security())
-        if self.connectivity is None:  # client mode means "through the edge router": the rendezvous topology
-            force_setattr(self, "connectivity", "rendezvous" if self.mode == "client" else "discovery")
-        if self.interest is not None and self.pose_feed != "edge":
+        if self.interest is not None and self.pose_feed == "direct":
             raise ConfigError("interest", "the edge pose feed does the filtering: set pose_feed: edge")
-        if self.mode == "client" and self.connectivity != "rendezvous":
+        if self.mode == "client" and self.connectivity == "discovery":
             raise ConfigError("mode", "mode 'client' routes through the edge router: set connectivity: rendezvous")
+
+    @property
+    def topology(self) -> tuple[Literal["discovery", "rendezvous"], ZenohMode, PoseFeed]:
+        """``(connectivity, mode, pose_feed)`` as :meth:`sized_for` chose them (a scenario's network always is)."""
+        c, m, f = self.connectivity, self.mode, self.pose_feed
+        assert c is not None and m is not None and f is not None, "a Network outside a Scenario: call sized_for first"
+        return c, m, f
+
+    def sized_for(self, uavs: int, needs_discovery: bool = False) -> Network:
+        """This network with every unset choice made for ``uavs`` UAVs on one machine.
+
+        Up to :data:`MESH_MAX_UAVS`: the peer mesh (``discovery``, ``peer``, ``direct``), the
+        lowest latency. Above it, every pose to every UAV costs more CPU than the machine has, so
+        the unset choices become client mode through the edge router (``rendezvous``) and the
+        edge pose feed: one link and one batch per window per UAV. ``needs_discovery`` (faults
+        on the discovery server) keeps the peer topology. A choice the scenario made is kept;
+        client mode always means ``rendezvous``.
+        """
+        big = uavs > MESH_MAX_UAVS
+        mode = self.mode
+        if mode is None:
+            mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
+        connectivity = self.connectivity or ("rendezvous" if mode == "client" else "discovery")
+        feed = self.pose_feed or ("edge" if big or self.interest is not None else "direct")
+        return replace(self, connectivity=connectivity, mode=mode, pose_feed=feed)
 
     @property
     def secured(self) -> Security:
@@ -315,6 +351,8 @@ class Scenario(Config, kw_only=True, frozen=True):
         if top > 65535:
             raise ConfigError("fleet.first_id", "UAV ids must stay <= 65535")
         self._check_other_swarms()
+        needs_discovery = any("discovery" in f.kind for f in self.faults)
+        force_setattr(self, "network", self.network.sized_for(len(self.all_uavs()), needs_discovery))
         self._check_world()
         self._check_spawn_spacing(self.all_uavs())
         for u in self.all_uavs():
@@ -322,7 +360,7 @@ class Scenario(Config, kw_only=True, frozen=True):
                 raise ConfigError("fleet.spawn" if self.fleet is not None else "uavs",
                                   f"UAV {u.id} spawns at {u.start}, farther than {MAX_OFFSET_M:g} m from the origin")
         if self.faults:
-            check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.connectivity or "discovery")
+            check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.topology[0])
         g = self.gcs
         if g.mavlink:
             from uav_stack.sysid import allocate_sysid

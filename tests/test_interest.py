@@ -44,7 +44,8 @@ def test_interest_config_names_the_field(tmp_path: Path) -> None:
         return scn
 
     with pytest.raises(ScenarioError, match=r"network\.interest.*pose_feed: edge"):
-        load_scenario(network({"interest": {"radius_m": 30}}))
+        load_scenario(network({"pose_feed": "direct", "interest": {"radius_m": 30}}))
+    assert load_scenario(network({"interest": {"radius_m": 30}})).network.pose_feed == "edge"  # unset: the feed it needs
     with pytest.raises(ScenarioError, match=r"network\.interest\.radius_m"):
         load_scenario(network({"pose_feed": "edge", "interest": {"radius_m": 0}}))
     loaded = load_scenario(network({"pose_feed": "edge", "interest": {"radius_m": 30, "far_rate_hz": 0.5}}))

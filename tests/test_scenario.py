@@ -93,12 +93,11 @@ def test_per_uav_configs_round_trip_through_json() -> None:
 
 
 def test_network_defaults_to_discovery_and_client_mode_needs_the_router(tmp_path: Path) -> None:
-    from mrswarm.scenario import Network
-
-    assert Network().connectivity == "discovery"
-    assert Network(mode="client").connectivity == "rendezvous"  # client mode implies the router
     p = tmp_path / "s.yaml"
     p.write_text((ROOT / "tests" / "scenarios" / "mini_coverage.yaml").read_text())
+    net = load_scenario(p).network
+    assert (net.connectivity, net.mode, net.pose_feed) == ("discovery", "peer", "direct")
+    assert load_scenario(p, ["network.mode=client"]).network.connectivity == "rendezvous"  # client mode implies the router
     with pytest.raises(ScenarioError, match="connectivity: rendezvous"):
         load_scenario(p, ["network.connectivity=discovery", "network.mode=client"])
     with pytest.raises(ScenarioError, match="two beacon periods"):
@@ -107,3 +106,30 @@ def test_network_defaults_to_discovery_and_client_mode_needs_the_router(tmp_path
         load_scenario(p, ["network.discovery.key=short"])
     scn = load_scenario(p, ["network.discovery.key=0123456789abcdef0123"])
     assert scn.network.discovery.key == "0123456789abcdef0123"
+
+
+def test_network_left_unset_follows_the_fleets_size(tmp_path: Path) -> None:
+    """Above MESH_MAX_UAVS UAVs (every swarm counted) the unset choices become client mode and the edge
+    feed, which flew 50 UAVs in real time on 2 cores where the peer mesh fell to RTF 0.46; what the
+    scenario sets is kept."""
+    from mrswarm.scenario import MESH_MAX_UAVS
+
+    p = tmp_path / "s.yaml"
+    p.write_text((ROOT / "scenarios" / "coverage.yaml").read_text())
+
+    def net(*sets: str) -> tuple[str | None, str | None, str | None]:
+        n = load_scenario(p, ["fleet.spawn.spacing=6", *sets]).network
+        return n.connectivity, n.mode, n.pose_feed
+
+    assert net(f"fleet.count={MESH_MAX_UAVS}") == ("discovery", "peer", "direct")
+    assert net(f"fleet.count={MESH_MAX_UAVS + 1}") == ("rendezvous", "client", "edge")
+    assert net("fleet.count=50", "network.mode=peer") == ("discovery", "peer", "edge")  # the mesh kept, poses batched
+    assert net("fleet.count=50", "network.pose_feed=direct") == ("rendezvous", "client", "direct")
+    assert net("fleet.count=50", "network.connectivity=discovery") == ("discovery", "peer", "edge")
+    # a fault on the discovery server needs the discovery topology: kept
+    fault = "faults=[{at: 5, kind: kill_discovery}]"
+    assert net("fleet.count=50", fault)[:2] == ("discovery", "peer")
+    # two swarms of 15 in one airspace: 30 UAVs on the machine
+    bravo = "other_swarms=[{swarm: bravo, fleet: {count: 15, first_id: 101, spawn: {center: [0, 60]}}}]"
+    assert net("fleet.count=15", bravo) == ("rendezvous", "client", "edge")
+    assert net("fleet.count=12", bravo.replace("15", "13")) == ("discovery", "peer", "direct")
