@@ -118,6 +118,8 @@ class Agent(OverridesMixin):
         a = cfg.avoidance
         self.zones = zone_field(a.zones, a.zone_margin)
         self.mission = make_mission(cfg, self.payload, self.zones)
+        # asked once: isinstance against a runtime-checkable Protocol costs tens of µs, every tick
+        self.cooperative: Cooperative | None = self.mission if isinstance(self.mission, Cooperative) else None
         self.avoidance = (
             CollisionAvoidance(a.safety_distance, max_speed=cfg.speed * 1.2, time_horizon=a.time_horizon,
                                stale_after=a.stale_after, zones=self.zones)
@@ -255,8 +257,8 @@ class Agent(OverridesMixin):
         Called by :meth:`step`, and by the loop between ticks when the node's waker says a
         command (or fault) arrived, so a command is acknowledged within a millisecond of its arrival."""
         inbox = self.node.poll(now)
-        if inbox.messages and isinstance(self.mission, Cooperative):
-            self._hand_over(inbox.messages, now)
+        if inbox.messages and self.cooperative is not None:
+            self._hand_over(self.cooperative, inbox.messages, now)
         for cmd in inbox.commands:
             self._on_command(cmd, now)
         for fault in inbox.faults:
@@ -267,10 +269,8 @@ class Agent(OverridesMixin):
         m = self.cfg.mission
         return f"{m.type}/{m.strategy}" if m.type == "coverage" else m.type
 
-    def _hand_over(self, messages: list[SwarmMessage], now: float) -> None:
+    def _hand_over(self, mission: Cooperative, messages: list[SwarmMessage], now: float) -> None:
         """Swarm messages on a cooperative mission's topics go to it; a bad one is counted, never fatal."""
-        mission = self.mission
-        assert isinstance(mission, Cooperative)
         for m in messages:
             if m.topic in mission.topics and m.src != self.cfg.uav:
                 try:
@@ -450,8 +450,8 @@ class Agent(OverridesMixin):
         elif self.mission is not None and self.phase in WORKING:
             members = sorted(self.node.alive_uavs() | {self.cfg.uav})
             vx, vy = self.mission.velocity(me, members)
-            if isinstance(self.mission, Cooperative):
-                self._share(self.mission)
+            if self.cooperative is not None:
+                self._share(self.cooperative)
             if self.mission.done:
                 if self.cfg.mission.land_when_done:
                     self._land()
