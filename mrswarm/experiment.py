@@ -43,7 +43,7 @@ from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
 from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
-from mrswarm.signals import FAST_GRACE_S, GRACE_S, Interrupted, StopSignals
+from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import Supervisor, uav_of
 from mrswarm.world_setup import (
@@ -167,7 +167,8 @@ class Experiment:
                 self.observer.close()
             except Exception as exc:  # noqa: BLE001 - stopping must go on
                 self.run_info.write_errors.append(f"observer close: {exc}")
-        self.run_info.exit_codes = dict(self.runtime.stop(FAST_GRACE_S if self.signals.fast else GRACE_S))
+        grace = FAST_GRACE_S if self.signals.fast else GRACE_S + GRACE_S_PER_PROCESS * len(self.scn.all_uavs())
+        self.run_info.exit_codes = dict(self.runtime.stop(grace))
         self.run_info.stopped = time.time()
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested

@@ -22,7 +22,10 @@ from types import FrameType
 from typing import Any
 
 HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-GRACE_S = 5.0  # SIGTERM -> SIGKILL for the children on a normal stop
+GRACE_S = 5.0  # SIGTERM -> SIGKILL for the children on a normal stop, plus GRACE_S_PER_PROCESS each
+# 100 UAV processes stopping at once on 2 cores (closing sessions, final records) did not all exit
+# within 5 s; the ones still writing lost their last second
+GRACE_S_PER_PROCESS = 0.05
 FAST_GRACE_S = 1.0  # ... after a second signal
 
 
