@@ -187,7 +187,7 @@ class Network(Config, frozen=True):
     :meth:`sized_for`, which :class:`Scenario` applies: a scenario always holds them resolved.
     """
 
-    connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode
+    connectivity: Literal["discovery", "rendezvous"] | None = None  # default: discovery, or rendezvous in client mode (sized_for)
     mode: ZenohMode | None = None  # default: peer, or client above MESH_MAX_UAVS UAVs
     pose_feed: PoseFeed | None = None  # default: direct, or edge above MESH_MAX_UAVS UAVs or with interest
     lease_s: LeaseS = 3.0  # a node silent this long is gone; raise it on an overloaded machine (docs/scale.md)
