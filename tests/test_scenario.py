@@ -95,8 +95,7 @@ def test_per_uav_configs_round_trip_through_json() -> None:
 def test_network_defaults_to_discovery_and_client_mode_needs_the_router(tmp_path: Path) -> None:
     p = tmp_path / "s.yaml"
     p.write_text((ROOT / "tests" / "scenarios" / "mini_coverage.yaml").read_text())
-    net = load_scenario(p).network
-    assert (net.connectivity, net.mode, net.pose_feed) == ("discovery", "peer", "direct")
+    assert load_scenario(p).network.topology == ("discovery", "peer", "direct")
     assert load_scenario(p, ["network.mode=client"]).network.connectivity == "rendezvous"  # client mode implies the router
     with pytest.raises(ScenarioError, match="connectivity: rendezvous"):
         load_scenario(p, ["network.connectivity=discovery", "network.mode=client"])
@@ -117,9 +116,8 @@ def test_network_left_unset_follows_the_fleets_size(tmp_path: Path) -> None:
     p = tmp_path / "s.yaml"
     p.write_text((ROOT / "scenarios" / "coverage.yaml").read_text())
 
-    def net(*sets: str) -> tuple[str | None, str | None, str | None]:
-        n = load_scenario(p, ["fleet.spawn.spacing=6", *sets]).network
-        return n.connectivity, n.mode, n.pose_feed
+    def net(*sets: str) -> tuple[str, str, str]:
+        return load_scenario(p, ["fleet.spawn.spacing=6", *sets]).network.topology
 
     assert net(f"fleet.count={MESH_MAX_UAVS}") == ("discovery", "peer", "direct")
     assert net(f"fleet.count={MESH_MAX_UAVS + 1}") == ("rendezvous", "client", "edge")
