@@ -17,12 +17,18 @@ from swarmnet.observer import SwarmObserver
 from tests.conftest import wait_for
 
 
+def see_each_other(*ns: SwarmNode) -> bool:
+    """Wait until every node holds every other's liveliness token: declarations travel in order, so
+    each node then also knows the others' subscribers and a single pose is not dropped for want of a route."""
+    want = {n.identity.uav for n in ns}
+    return wait_for(lambda: all((n.poll(), want <= n.alive_uavs() | {n.identity.uav})[1] for n in ns), 5.0)
+
+
 @pytest.fixture
 def nodes(rendezvous: Rendezvous) -> Iterator[list[SwarmNode]]:
     ns = [SwarmNode(NodeIdentity("alpha", i), rendezvous).open() for i in (1, 2, 3)]
     assert wait_for(lambda: all(len(n.peers()) >= 2 for n in ns), 5.0), "peers did not mesh"
-    # declarations travel in order, so once every token is seen every subscriber is known too
-    assert wait_for(lambda: all((n.poll(), n.alive_uavs() == {1, 2, 3})[1] for n in ns), 5.0)
+    assert see_each_other(*ns)
     yield ns
     for n in ns:
         n.close()
@@ -132,7 +138,7 @@ def test_bad_input_is_counted_not_raised(nodes: list[SwarmNode], rendezvous: Ren
 def test_a_node_that_stops_polling_loses_old_data_but_never_stalls_the_link(rendezvous: Rendezvous) -> None:
     with (SwarmNode(NodeIdentity("alpha", 1), rendezvous, ring_size=64) as slow,
           SwarmNode(NodeIdentity("alpha", 2), rendezvous) as fast):
-        assert wait_for(lambda: len(fast.peers()) >= 1, 5.0)
+        assert see_each_other(slow, fast)
         for i in range(3000):  # flood broadcasts while nobody drains them
             fast.send("flood", i)
         for _ in range(5):
@@ -156,7 +162,7 @@ def test_liveliness_tracks_join_and_leave(rendezvous: Rendezvous) -> None:
 def test_stale_neighbours_are_hidden_then_forgotten(rendezvous: Rendezvous) -> None:
     with SwarmNode(NodeIdentity("alpha", 1), rendezvous, stale_after=0.3, forget_after=0.8) as a, \
             SwarmNode(NodeIdentity("alpha", 2), rendezvous) as b:
-        assert wait_for(lambda: len(a.peers()) >= 1, 5.0)
+        assert see_each_other(a, b)
         b.publish_pose(t_sim=0, x=0, y=0, z=0, vx=0, vy=0, vz=0, yaw=0)
         assert wait_for(lambda: (a.poll(), 2 in a.neighbours)[1], 3.0)
         now = time.time()
