@@ -90,6 +90,8 @@ class ContainerSampler(Sampler):
             for name, pid in exp.runtime.pids().items():
                 if name.startswith("uav"):
                     shim = psutil.Process(pid).parent()
+                    if shim is None:  # the container's process already gone: no shim to measure
+                        continue
                     self.extra_start[f"shim:{name}"] = (sum(shim.cpu_times()[:2]), shim)
             for name, p in daemons().items():
                 self.extra_start[name] = (sum(p.cpu_times()[:2]), p)

@@ -159,11 +159,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rdv = Rendezvous((endpoint,))
         res = bench_poll([None, *PRESETS], args.batch, args.senders, args.repeats, rdv)
-        for preset, r in res.items():
-            name = "off" if preset is None else preset
-            rows.append({"what": "poll", "preset": name, "us_per_msg": round(r["per_msg"] * 1e6, 3),
+        for poll_preset, r in res.items():
+            label = "off" if poll_preset is None else poll_preset
+            rows.append({"what": "poll", "preset": label, "us_per_msg": round(r["per_msg"] * 1e6, 3),
                          "added_us_per_msg": round(r["added"] * 1e6, 3), "received": r["received"], "rejected": r["rejected"]})
-            print(f"poll  {name:10s} {r['per_msg'] * 1e6:6.2f} us/pose (+{r['added'] * 1e6:5.2f} us vs no shim)", flush=True)
+            print(f"poll  {label:10s} {r['per_msg'] * 1e6:6.2f} us/pose (+{r['added'] * 1e6:5.2f} us vs no shim)", flush=True)
     finally:
         stop.set()
         th.join(5)

@@ -27,10 +27,8 @@ from rich.console import Console
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from scale import scenario_for  # noqa: E402
-
+from benchmarks.scale import scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.recorder.reader import Recording, read_recording  # noqa: E402
 

@@ -28,7 +28,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import psutil
 from msgspec.structs import replace
@@ -40,15 +40,16 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.scale import CONFIGS, run_size  # noqa: E402
 from mrswarm.scenario import Scenario, Security  # noqa: E402
 
-MODES = ("off", "mtls")
+SecurityMode = Literal["off", "mtls"]
+MODES: tuple[SecurityMode, ...] = ("off", "mtls")
 TARGET_OVERHEAD_PCT = 10.0  # at most +10 % CPU per UAV (issue 9)
 
 
-def with_security(scn: Scenario, mode: str) -> Scenario:
+def with_security(scn: Scenario, mode: SecurityMode) -> Scenario:
     return replace(scn, name=f"{scn.name}-{mode}", network=replace(scn.network, security=Security(mode=mode)))
 
 
-def measure(n: int, config: str, mode: str, args: argparse.Namespace, console: Console) -> dict[str, Any]:
+def measure(n: int, config: str, mode: SecurityMode, args: argparse.Namespace, console: Console) -> dict[str, Any]:
     """One run (``benchmarks/scale.py``'s run_size on its scenario with ``network.security.mode``)."""
     row = run_size(n, config, args, console, adapt=lambda scn: with_security(scn, mode))
     summary = json.loads((Path(row["run_dir"]) / "summary.json").read_text())
