@@ -862,12 +862,19 @@ def accept_pose_batch(key: str, data: bytes) -> PoseBatch:
     return decode_pose_batch(data)
 
 
-def accept_batched_pose(key: str, data: bytes) -> Pose:
-    """The batch rule: a pose inside an edge-feed batch is accepted as a direct pose on ``key``,
-    the pose key of the sender the batch lists for it (:attr:`PoseBatch.senders`): it decodes
-    and names that UAV. The edge accepted it on that key (:func:`accept_pose`) before batching
-    it; a receiver checks again rather than trust the batch."""
-    return accept_pose(key, data)
+def accept_batched_pose(sender: int, data: bytes) -> Pose:
+    """The batch rule: a pose inside an edge-feed batch decodes and names ``sender``, the UAV the
+    batch lists for it (:attr:`PoseBatch.senders`), as a direct pose must name the UAV of its key
+    (:func:`accept_pose`, ``key_mismatch``). The edge accepted it on that UAV's pose key, which
+    access control binds to the UAV's certificate; a receiver checks again rather than trust
+    the batch.
+
+    Why an id and not the sender's key: formatting a key per pose, then parsing it back, was a
+    quarter of a batched pose's receive path (about 500 poses a second per UAV at N = 50)."""
+    pose = decode_pose(data)
+    if pose.uav != sender:
+        raise Rejected("key_mismatch", f"payload says UAV {pose.uav}, the batch says UAV {sender}")
+    return pose
 
 
 def accept_telemetry(key: str, data: bytes) -> Telemetry:

@@ -42,6 +42,7 @@ from swarmnet.messages import (
     FaultInjection,
     Pose,
     Realm,
+    Rejected,
     SwarmMessage,
     Telemetry,
     accept_batched_pose,
@@ -58,7 +59,7 @@ from swarmnet.messages import (
     encode_telemetry,
 )
 from swarmnet.neighbours import Neighbour, NeighbourTable
-from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, accept_each, receive, subscribe
+from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, receive, subscribe
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
@@ -400,21 +401,26 @@ class SwarmNode:
                 yield kind, arrival
 
     def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
-        """An edge-feed batch becomes the poses it carries, each accepted on its own on the key of
-        the sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a bad
-        one is counted, the others kept)."""
+        """An edge-feed batch becomes the poses it carries, each accepted on its own as from the
+        sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a bad one
+        is counted under the sender's pose key, the others kept). Each keeps the batch's key and
+        arrival stamp: that is where and when it arrived."""
         own = self.identity.uav if self.identity.role == "uav" else None
-        pose_key = self.keys.pose
+        stats = self.stats
         for kind, arrival in arrivals:
             if kind != _BATCH:
                 yield kind, arrival
                 continue
-            self.stats.received["pose_batch"] += 1
-            batch = arrival.item
-            carried = ((pose_key(uav), data, arrival.at) for uav, data in zip(batch.senders, batch.poses, strict=True))
-            for pose in accept_each(carried, accept_batched_pose, self.stats):
-                if pose.item.uav != own:  # our own pose comes back in the swarm's batch: not a neighbour
-                    yield POSE, pose
+            stats.received["pose_batch"] += 1
+            batch, key, at = arrival.item, arrival.key, arrival.at
+            for sender, data in zip(batch.senders, batch.poses, strict=True):
+                try:
+                    pose = accept_batched_pose(sender, data)
+                except Rejected as exc:
+                    stats.reject(exc.reason, self.keys.pose(sender), exc.detail)
+                    continue
+                if pose.uav != own:  # our own pose comes back in the swarm's batch: not a neighbour
+                    yield POSE, Accepted(key, pose, data, at)
 
     def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any, float]]:
         """The netem shim as a filter (docs/netem.md): the one place items are offered to it and released.

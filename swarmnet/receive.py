@@ -33,7 +33,7 @@ import select
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import zenoh
@@ -241,20 +241,10 @@ def drain(ring: Any, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
         yield sample
 
 
-def accept_each(arrivals: Iterable[tuple[str, bytes, float]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
-    """Run ``accept`` on every ``(key, payload, arrival time)``; count each rejection in ``stats`` and skip it."""
-    for key, payload, at in arrivals:
-        try:
-            item = accept(key, payload)
-        except Rejected as exc:
-            stats.reject(exc.reason, key, exc.detail)
-            continue
-        yield Accepted(key, item, payload, at)
-
-
 def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
-    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call): drain and
-    :func:`accept_each` in one loop (every pose passes here)."""
+    """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call): drain, run
+    ``accept`` on each, count every rejection in ``stats`` and skip it, in one loop (every direct
+    pose passes here)."""
     for at, s in inlet.drain(budget):
         key, payload = str(s.key_expr), s.payload.to_bytes()
         try:

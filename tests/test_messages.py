@@ -193,9 +193,9 @@ def test_acceptance_rules_reject_a_valid_payload_in_the_wrong_place_with_a_reaso
     assert issubclass(DecodeError, Rejected)
     assert M.accept_neighbour_pose("mrs/a/7/pose", p7, me=3).uav == 7
     assert reason(M.accept_neighbour_pose, "mrs/a/7/pose", p7, 7) == "own_id"
-    # a batched pose is accepted on the pose key of the sender the batch lists for it, like a direct pose
-    assert M.accept_batched_pose("mrs/a/7/pose", p7).uav == 7
-    assert reason(M.accept_batched_pose, "mrs/a/8/pose", p7) == "key_mismatch"
+    # a batched pose must name the sender the batch lists for it, as a direct pose names its key's UAV
+    assert M.accept_batched_pose(7, p7).uav == 7
+    assert reason(M.accept_batched_pose, 8, p7) == "key_mismatch"
 
     t = Telemetry(4, Realm.VIRTUAL, 1, time.time(), "GUIDED", True, 0.5, 12.0, 1.0, 2.0, 3.0, 1.0)
     assert M.accept_telemetry("mrs/a/4/telemetry", encode_telemetry(t)) == decode_telemetry(encode_telemetry(t))
