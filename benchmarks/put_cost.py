@@ -8,12 +8,13 @@ between puts: back to back (warm), 1 ms and 100 ms (a UAV's tick). The ratio is 
 running cold, which every step of a UAV's loop pays.
 
     python benchmarks/put_cost.py --out benchmarks/results
-    # -> benchmarks/results/put_cost.{json,png}; about 1 minute
+    # -> benchmarks/results/put_cost.{json,csv,png}; about 1 minute
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import statistics
 import subprocess
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pauses-ms", type=float, nargs="+", default=[0.0, 1.0, 100.0])
     ap.add_argument("--puts", type=int, default=200, help="puts per pause")
-    ap.add_argument("--out", type=Path, default=None, help="folder for put_cost.{json,png} (default: print only)")
+    ap.add_argument("--out", type=Path, default=None, help="folder for put_cost.{json,csv,png} (default: print only)")
     args = ap.parse_args(argv)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     pauses = [p / 1000.0 for p in args.pauses_ms]
@@ -117,6 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "put_cost.json").write_text(json.dumps(rows, indent=2) + "\n")
+        with open(args.out / "put_cost.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
         plot(rows, args.out / "put_cost.png")
     return 0
 

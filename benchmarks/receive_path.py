@@ -22,6 +22,7 @@ a second pays a few times more per pose.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import statistics
 import subprocess
@@ -100,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batches", type=int, default=200, help="batches per round")
     ap.add_argument("--repeats", type=int, default=7, help="rounds per interpreter (the median is kept)")
     ap.add_argument("--rounds", type=int, default=3, help="fresh interpreters per checkout, alternated")
-    ap.add_argument("--out", type=Path, default=None, help="folder for receive_path.{json,png} (default: print only)")
+    ap.add_argument("--out", type=Path, default=None, help="folder for receive_path.{json,csv,png} (default: print only)")
     ap.add_argument("--tag", default="receive_path", help="file name stem in --out")
     args = ap.parse_args(argv)
     repos = [r.resolve() for r in (args.repo or [ROOT])]
@@ -117,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / f"{args.tag}.json").write_text(json.dumps(results, indent=2) + "\n")
+        with open(args.out / f"{args.tag}.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["repo", "senders", "us_per_pose_median", "us_per_pose_rounds"])
+            for r in results:
+                w.writerow([r["repo"], r["senders"], r["us_per_pose_median"], " ".join(map(str, r["us_per_pose_rounds"]))])
         plot(results, args.out / f"{args.tag}.png")
     return 0
 
