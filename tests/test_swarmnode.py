@@ -71,7 +71,8 @@ def test_sequence_gaps_count_as_loss(nodes: list[SwarmNode]) -> None:
 def test_swarms_are_isolated(rendezvous: Rendezvous) -> None:
     with SwarmNode(NodeIdentity("alpha", 1), rendezvous) as a, SwarmNode(NodeIdentity("beta", 1), rendezvous) as b, \
             SwarmNode(NodeIdentity("alpha", 2), rendezvous) as a2:
-        time.sleep(0.3)
+        assert see_each_other(a, a2)
+        time.sleep(0.3)  # beta's UAV has no token of alpha's to wait for: give its links the same time
         for _ in range(5):
             a.publish_pose(t_sim=0, x=1, y=1, z=1, vx=0, vy=0, vz=0, yaw=0)
             b.publish_pose(t_sim=0, x=2, y=2, z=2, vx=0, vy=0, vz=0, yaw=0)
