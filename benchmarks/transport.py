@@ -57,6 +57,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from discovery.netutil import free_port  # noqa: E402
+
 TRANSPORTS = ("mqtt", "zenoh-peer", "zenoh-client", "swarmnet", "swarmnet-edge")
 POSE_HZ = 10.0
 TICK_HZ = 10.0  # swarmnet agents poll at the UAV loop's tick (uav_stack.runtime.tick_hz_for: 10 Hz by default)
@@ -228,12 +230,6 @@ def _open(kind: str, me: int, spec: dict[str, Any], rec: Recorder, receive: bool
 
 
 # ---- the runner ------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def start_mosquitto(workdir: Path) -> tuple[subprocess.Popen[bytes], int]:
     binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
     if not Path(binary).exists():

@@ -34,6 +34,7 @@ import yaml
 import zenoh
 from msgspec.structs import replace
 from rich.console import Console
+from rich.markup import escape
 
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
@@ -250,7 +251,7 @@ class Experiment:
             self.runtime.start_uav(c)
         self.run_info.pids = self.runtime.pids()
         self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
-                                     last_pose=self._last_pose)
+                                     last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
         kind = "containers" if self.runtime.name == "docker" else "processes"
@@ -428,7 +429,8 @@ class Experiment:
         if ev.event == "exited":
             why = ev.signal or f"exit code {ev.exit_code}"
             where = f" at {ev.last_pose}" if ev.last_pose else ""
-            self._say(f"[yellow]{ev.name} exited ({why}){where}[/]" + (f"; {ev.detail}" if ev.detail else ""))
+            self._say(f"[yellow]{ev.name} exited ({why}){where}[/]" + (f": {escape(ev.error)}" if ev.error else "")
+                      + (f"; {ev.detail}" if ev.detail else ""))
             if uav is not None:
                 self.lost.add(uav)
                 self.rejoin.pop(uav, None)

@@ -34,7 +34,8 @@ def lost_uavs(info: RunInfo, t0: float) -> list[LostUav]:
         injected = any(f.kind == "kill_uav" and uav in f.targets and f.injected is not None and 0 <= ev.t - f.injected < 5.0
                        for f in info.faults)
         out.append(LostUav(uav=uav, t_s=round(ev.t - t0, 2), exit_code=ev.exit_code, signal=ev.signal, last_pose=ev.last_pose,
-                           restarted_s=round(back - t0, 2) if back is not None else None, injected=injected))
+                           restarted_s=round(back - t0, 2) if back is not None else None, injected=injected,
+                           error=ev.error))
     return out
 
 

@@ -37,6 +37,7 @@ class ProcessEvent(Struct):
     signal: str | None = None  # SIGKILL, SIGSEGV, ... when a signal ended it
     last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
     detail: str = ""
+    error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
 
 
 class FaultRecord(Struct):
@@ -307,6 +308,7 @@ class LostUav(Struct):
     last_pose: list[float] | None  # x, y, z, m, as last received by the runner
     restarted_s: float | None = None  # s after the mission start the process was started again (fleet.restart)
     injected: bool = False  # the fault schedule caused it
+    error: str = ""  # its last error, from its log ("" if it logged none)
 
 
 class ServiceOutage(Struct):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from mrswarm.gcs.session import format_ids
@@ -49,7 +50,8 @@ def summary_table(s: RunSummary) -> Table:
                   + (f" (+{len(s.incidents) - 6} more)" if len(s.incidents) > 6 else ""))
     if s.lost_uavs:
         t.add_row("lost UAVs", "; ".join(
-            f"UAV {lu.uav} at {lu.t_s:.1f} s ({lu.signal or f'exit {lu.exit_code}'})"
+            f"UAV {lu.uav} at {lu.t_s:.1f} s ({lu.signal or f'exit {lu.exit_code}'}"
+            + (f": {escape(lu.error[:120])}" if lu.error else "") + ")"
             + (f", back at {lu.restarted_s:.1f} s" if lu.restarted_s is not None else "") for lu in s.lost_uavs))
     if s.services:
         t.add_row("service outages", "; ".join(

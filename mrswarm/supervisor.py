@@ -20,10 +20,12 @@ so it is recorded once and not mistaken for a crash.
 from __future__ import annotations
 
 import logging
+import re
 import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from mrswarm.runtime import Runtime
 from mrswarm.summary import ProcessEvent
@@ -35,6 +37,9 @@ BACKOFF_FIRST_S = 0.5
 BACKOFF_MAX_S = 10.0
 STABLE_AFTER_S = 30.0  # up this long: the next failure starts the backoff from the beginning again
 MAX_UAV_RESTARTS = 3
+LOG_TAIL_BYTES = 16384  # how much of a failed process's log is read for its last error
+_LOGGED_ERROR = re.compile(r" (?:ERROR|CRITICAL) [\w.]+: (.+)$")  # runtime.setup_logging's format
+_RAISED = re.compile(r"^(?:[\w.]+\.)?\w*(?:Error|Exception|Exit)\b.*$")  # a traceback's last line
 
 
 def is_service(name: str) -> bool:
@@ -59,6 +64,31 @@ def signal_name(code: int | None) -> str | None:
         return f"signal {-code}"
 
 
+def last_error(log_path: Path | None) -> str:
+    """The last error a process wrote to its log: a record logged as ERROR or CRITICAL (its
+    message), or the last line of a traceback; "" if there is none or the log cannot be read.
+
+    Why: "uav3 exited (exit code 2)" leaves the user to find and open the log; the line that
+    says why (a taken port, a bad key file) is what they need, next to the exit."""
+    if log_path is None:
+        return ""
+    try:
+        with open(log_path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(0, f.tell() - LOG_TAIL_BYTES))
+            lines = f.read().decode(errors="replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        line = line.rstrip()
+        m = _LOGGED_ERROR.search(line)
+        if m:
+            return m.group(1)[:300]
+        if _RAISED.match(line):
+            return line[:300]
+    return ""
+
+
 @dataclass
 class _Watch:
     pid: int
@@ -72,11 +102,15 @@ class Supervisor:
     """Turns process exits into events, and restarts what should come back."""
 
     def __init__(self, runtime: Runtime, restart_uavs: bool = False, clock: Callable[[], float] = time.time,
-                 last_pose: Callable[[int], list[float] | None] = lambda uav: None):
+                 last_pose: Callable[[int], list[float] | None] = lambda uav: None,
+                 log_of: Callable[[str], Path | None] = lambda name: None):
+        """``last_pose``: a UAV's last pose the runner received; ``log_of``: a process's log file,
+        where a failed process's last error is read from."""
         self.runtime = runtime
         self.restart_uavs = restart_uavs
         self.clock = clock
         self.last_pose = last_pose
+        self.log_of = log_of
         self.events: list[ProcessEvent] = []
         self.down: dict[str, float] = {}  # name -> wall time it was seen exited, until it is back
         self._watch: dict[str, _Watch] = {}
@@ -119,11 +153,14 @@ class Supervisor:
         if now - w.started >= STABLE_AFTER_S:
             w.backoff = BACKOFF_FIRST_S
         failed = code is None or code != 0
+        if failed:
+            ev.error = last_error(self.log_of(name))
         if is_service(name) or (uav is not None and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
             w.due = now + w.backoff
             ev.detail = f"restart in {w.backoff:g} s"
             w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
-        log.info("%s exited (%s)%s", name, ev.signal or f"code {code}", f"; {ev.detail}" if ev.detail else "")
+        log.info("%s exited (%s)%s%s", name, ev.signal or f"code {code}", f": {ev.error}" if ev.error else "",
+                 f"; {ev.detail}" if ev.detail else "")
         return ev
 
     def _restart(self, name: str, now: float, w: _Watch) -> ProcessEvent | None:

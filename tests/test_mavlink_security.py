@@ -337,3 +337,25 @@ def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
         parse_scenario({**base, "gcs": {"mavlink": False, "signing": {"key_file": "/k"}}})  # routers are on by default
     with pytest.raises(ScenarioError, match=r"gcs\.signing\.requir: unknown field"):
         parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "requir": False}}})
+
+
+def test_an_agent_whose_ground_station_port_is_taken_stops_with_one_line_naming_it() -> None:
+    """``mrswarm agent`` with a udpin endpoint another process holds: exit 2 and an error naming
+    ``gcs.mavlink_endpoints``, not a traceback; nobody's socket is taken over."""
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    taken = holder.getsockname()[1]
+    try:
+        res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpout:127.0.0.1:9", "--swarm", "a",
+                              "--uav", "1", "--insecure", "--origin", "47,8,500",
+                              "--mavlink-endpoint", f"udpin:127.0.0.1:{taken}"],
+                             cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 2, res.stderr
+        assert f"gcs.mavlink_endpoints: udpin:127.0.0.1:{taken}: cannot listen on" in res.stderr, res.stderr
+        assert "Traceback" not in res.stderr, res.stderr
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(b"still mine", ("127.0.0.1", taken))
+        holder.settimeout(2.0)
+        assert holder.recv(64) == b"still mine"
+    finally:
+        holder.close()

@@ -18,7 +18,7 @@ import psutil
 
 from deploy.process_runtime import ProcessRuntime
 from mrswarm.signals import StopSignals
-from mrswarm.supervisor import BACKOFF_FIRST_S, Supervisor
+from mrswarm.supervisor import BACKOFF_FIRST_S, Supervisor, last_error
 from tests.conftest import wait_for
 
 SLEEPER = [sys.executable, "-c", "import time; time.sleep(120)"]
@@ -94,6 +94,31 @@ def test_on_failure_restarts_a_crashed_uav_and_a_planned_restart_is_one_event(tm
         assert [e.event for e in sup.check()] == ["restarted"]  # reported once, not as a crash
     finally:
         rt.stop(grace=2.0)
+
+
+
+def test_a_failed_process_says_why_from_its_log_and_a_killed_one_has_nothing_to_say(tmp_path: Path) -> None:
+    """The exit event carries the failed process's last error, from its real log: a logged ERROR
+    (the runtime's log format), or a traceback's last line. A SIGKILL leaves no error behind."""
+    rt = ProcessRuntime(tmp_path)
+    logged = ("import logging, sys; logging.basicConfig(format='%(asctime)s %(levelname)s %(name)s: %(message)s');"
+              "logging.getLogger('uav_stack.runtime').info('starting');"
+              "logging.getLogger('uav_stack.runtime').error('gcs.mavlink_endpoints: udpin:127.0.0.1:9: taken');"
+              "logging.getLogger('x').warning('after the error, not an error'); sys.exit(2)")
+    rt._spawn("uav1", [sys.executable, "-c", logged])
+    rt._spawn("uav2", [sys.executable, "-c", "print('hello'); {}['missing_key']"])
+    rt._spawn("uav3", SLEEPER)
+    sup = Supervisor(rt, log_of=lambda name: tmp_path / "logs" / f"{name}.log")
+    sup.adopt()
+    try:
+        rt.signal("uav3", signal.SIGKILL)
+        evs = events_until(sup, lambda e: len(e) == 3, 20.0)
+        why = {e.name: (e.exit_code, e.error) for e in evs}
+        assert why == {"uav1": (2, "gcs.mavlink_endpoints: udpin:127.0.0.1:9: taken"),
+                       "uav2": (1, "KeyError: 'missing_key'"), "uav3": (-9, "")}
+    finally:
+        rt.stop(grace=2.0)
+    assert last_error(tmp_path / "no-such.log") == "" and last_error(None) == ""
 
 
 RUNNER = """

@@ -50,6 +50,13 @@ from uav_stack.udp import drain, source_address_for
 
 log = logging.getLogger(__name__)
 
+class EndpointError(OSError):
+    """A ground-station endpoint that cannot be opened (its port is taken, its address is not
+    this machine's, its host does not resolve). The message names the setting,
+    ``gcs.mavlink_endpoints``, and the endpoint, so that the agent can stop with one line that
+    says what to change rather than a traceback."""
+
+
 MAX_DATAGRAM = 1400
 MAX_PEERS = 4  # server endpoints: ground stations answered at once
 PEER_TIMEOUT = 30.0  # s: a silent server-endpoint peer is forgotten
@@ -178,9 +185,13 @@ class UdpEndpoint(Channel):
                 self.dest = (socket.gethostbyname(self.host), self.port)
                 s.bind((self.bind or source_address_for(self.dest[0]), 0))
             s.setblocking(False)
-        except OSError:
+        except OSError as exc:
             s.close()
-            raise
+            what = "listen on" if self.mode == "udpin" else "send to"
+            err = EndpointError(f"gcs.mavlink_endpoints: {self.spec}: cannot {what} {self.host}:{self.port}: "
+                                f"{exc.strerror or exc}")
+            err.errno = exc.errno
+            raise err from exc
         self.sock = s
 
     @property
@@ -279,6 +290,7 @@ class MavlinkRouter:
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> MavlinkRouter:
+        """Open every endpoint, or none: :class:`EndpointError` names the one that failed."""
         try:
             for ep in self.endpoints:
                 ep.open()

@@ -28,10 +28,10 @@ from swarmnet.security.identity import NodeName
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.fcu_link import FcuLink
+from uav_stack.mavlink_router import EndpointError, MavlinkRouter, SigningPolicy
 
-if TYPE_CHECKING:  # both imported at run time only where they are used (numpy-heavy, or optional)
+if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
     from uav_stack.fcu import VirtualFcu
-    from uav_stack.mavlink_router import MavlinkRouter
 
 log = logging.getLogger(__name__)
 
@@ -118,13 +118,14 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
 
 def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
-    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known."""
+    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known.
+
+    Raises :class:`~uav_stack.mavlink_router.EndpointError`, naming the endpoint, when one of the
+    ground-station sockets cannot be opened (a ``udpin`` port another process holds)."""
     sysid = cfg.mavlink_sysid
     link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
     router = None
     if cfg.gcs.mavlink_endpoints:
-        from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
-
         sg = cfg.gcs.signing
         signing = SigningPolicy(sg.read_key(), sg.require) if sg is not None else None
         router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
@@ -215,7 +216,12 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
         )
     )
     (host, port), = fcu.open()
-    link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    try:
+        link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    except EndpointError as exc:
+        log.error("%s", exc)
+        fcu.close()
+        return 2
     # the agent is its FCU's only client (ground stations come through its router): nobody
     # else's datagrams reach the FCU, nor churn the agent out of its peers
     assert link.local_address is not None
@@ -259,7 +265,11 @@ def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
 
 
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:
-    link, router = open_fcu_link(cfg, cfg.fcu)
+    try:
+        link, router = open_fcu_link(cfg, cfg.fcu)
+    except EndpointError as exc:
+        log.error("%s", exc)
+        return 2
     node = open_node(cfg, stop, tap_zenoh_log)
     agent = Agent(cfg, node, link, router=router)
     try:
