@@ -325,6 +325,24 @@ def test_fcu_link_url_errors_are_clear() -> None:
             FcuLink(url).open()
 
 
+def test_an_fcu_link_that_cannot_open_names_the_setting_and_the_link() -> None:
+    """A udpin port another process holds, a serial device that is not there: FcuLinkError with
+    the setting and the link, and the holder keeps its port."""
+    from uav_stack.fcu_link import FcuLinkError
+
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    taken = holder.getsockname()[1]
+    try:
+        with pytest.raises(FcuLinkError, match=rf"^fcu: udpin:127\.0\.0\.1:{taken}: cannot listen on 127\.0\.0\.1:{taken}: "
+                                               "Address already in use$"):
+            FcuLink(f"udpin:127.0.0.1:{taken}").open()
+    finally:
+        holder.close()
+    with pytest.raises(FcuLinkError, match=r"^fcu: serial:/dev/mrswarm-no-such-tty:57600: cannot open /dev/mrswarm-no-such-tty"):
+        FcuLink("serial:/dev/mrswarm-no-such-tty:57600").open()
+
+
 def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
     from mrswarm.scenario import ScenarioError, parse_scenario
     from uav_stack.config import NetworkConfig
@@ -339,19 +357,24 @@ def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
         parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "requir": False}}})
 
 
-def test_an_agent_whose_ground_station_port_is_taken_stops_with_one_line_naming_it() -> None:
-    """``mrswarm agent`` with a udpin endpoint another process holds: exit 2 and an error naming
-    ``gcs.mavlink_endpoints``, not a traceback; nobody's socket is taken over."""
+@pytest.mark.parametrize("taker", ["gcs", "fcu"])
+def test_an_agent_whose_port_is_taken_stops_with_one_line_naming_it(taker: str) -> None:
+    """``mrswarm agent`` with a udpin ground-station endpoint, or a udpin FCU link, on a port
+    another process holds: exit 2 and an error naming the setting (``gcs.mavlink_endpoints``,
+    ``fcu``), not a traceback; nobody's socket is taken over."""
     holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     holder.bind(("127.0.0.1", 0))
     taken = holder.getsockname()[1]
+    link = ["--fcu", f"udpin:127.0.0.1:{taken}"] if taker == "fcu" else [
+        "--fcu", "udpout:127.0.0.1:9", "--mavlink-endpoint", f"udpin:127.0.0.1:{taken}"]
+    setting = "fcu" if taker == "fcu" else "gcs.mavlink_endpoints"
     try:
-        res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpout:127.0.0.1:9", "--swarm", "a",
-                              "--uav", "1", "--insecure", "--origin", "47,8,500",
-                              "--mavlink-endpoint", f"udpin:127.0.0.1:{taken}"],
+        res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", *link, "--swarm", "a",
+                              "--uav", "1", "--insecure", "--origin", "47,8,500"],
                              cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert res.returncode == 2, res.stderr
-        assert f"gcs.mavlink_endpoints: udpin:127.0.0.1:{taken}: cannot listen on" in res.stderr, res.stderr
+        assert f"{setting}: udpin:127.0.0.1:{taken}: cannot listen on 127.0.0.1:{taken}: Address already in use" in res.stderr, \
+            res.stderr
         assert "Traceback" not in res.stderr, res.stderr
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.sendto(b"still mine", ("127.0.0.1", taken))

@@ -59,6 +59,17 @@ VELOCITY_ONLY_MASK = (
 )
 
 
+class FcuLinkError(OSError):
+    """The FCU link cannot be opened. The message names the setting (``fcu``, ``--fcu``) and the
+    link, so that the agent stops with one line that says what to change, not a traceback."""
+
+    @classmethod
+    def of(cls, url: str, what: str, exc: OSError) -> FcuLinkError:
+        err = cls(f"fcu: {url}: cannot {what}: {exc.strerror or exc}")
+        err.errno = exc.errno
+        return err
+
+
 def parse_fcu_url(url: str) -> tuple[str, int]:
     """pymavlink connection strings, plus ``serial:<device>[:<baud>]`` (also ``serial://``, as
     MAVSDK writes it), which pymavlink would read as a UDP host:port. Returns (device, baud)."""
@@ -172,15 +183,25 @@ class FcuLink:
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
+        """Open the link. A URL that is not one raises ValueError; a link that cannot be opened
+        (a udpin port another process holds, a serial device that is not there) raises
+        :class:`FcuLinkError`, which names the setting and the link."""
         udp = parse_udp_url(self.url)
         if udp is not None:
-            self.udp = FcuUdpSocket(*udp, bind=self.bind).open()
+            mode, host, port = udp
+            try:
+                self.udp = FcuUdpSocket(mode, host, port, bind=self.bind).open()
+            except OSError as exc:
+                raise FcuLinkError.of(self.url, f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}", exc) from exc
             self.conn = _UdpConnection(self.udp, self.source_system, self.source_component)
             return self
         device, baud = parse_fcu_url(self.url)
-        self.conn = mavutil.mavlink_connection(
-            device, baud=baud, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
-        )
+        try:
+            self.conn = mavutil.mavlink_connection(
+                device, baud=baud, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
+            )
+        except OSError as exc:
+            raise FcuLinkError.of(self.url, f"open {device}", exc) from exc
         return self
 
     def close(self) -> None:
