@@ -59,6 +59,17 @@ log = logging.getLogger(__name__)
 EXITED_POLL_S = 1.0  # exited() asks the engine at most this often
 
 
+def popen_exit_code(code: int) -> int:
+    """A container's exit code in Popen's convention, as the process runtime reports it: the
+    engine says 128 + N for a main process that signal N ended (137 for SIGKILL), Popen -N."""
+    if 128 < code < 128 + 65:
+        try:
+            return -signal.Signals(code - 128).value
+        except ValueError:
+            pass
+    return code
+
+
 def wait_discovery(server: str, swarm: str, key: str, timeout: float, alive: Callable[[], bool]) -> None:
     """Wait until the discovery server answers a registry query (bounded)."""
     from discovery.client import QueryTimeout, query_registry
@@ -289,14 +300,21 @@ class DockerRuntime:
 
     # ---- status ----------------------------------------------------------------------------
     def exited(self) -> dict[str, int]:
-        """Containers that have exited, with their exit codes (asks the engine at most 1/s)."""
+        """Containers that have exited, with their exit codes (asks the engine at most 1/s). The
+        log of a container seen exited for the first time is saved into ``<run>/logs/`` at once."""
         now = time.monotonic()
         if now - self._exited_at >= EXITED_POLL_S and self.boxes:
             self._exited_at = now
             by_id = {b.container.id: n for n, b in self.boxes.items()}
             for c in self.docker.containers.list(all=True, filters={"label": f"{L_RUN}={self.run}", "status": "exited"}):
                 if c.id in by_id:
-                    self._exited[by_id[c.id]] = int(c.attrs["State"]["ExitCode"])
+                    name = by_id[c.id]
+                    if name not in self._exited:  # its log now, not only at the end: the supervisor reads why it failed
+                        try:
+                            self._save_log(name)
+                        except OSError as exc:  # a full disk: the run goes on, the reason stays in the engine
+                            log.warning("%s: cannot save its log: %s", name, exc.strerror or exc)
+                    self._exited[name] = popen_exit_code(int(c.attrs["State"]["ExitCode"]))
         return dict(self._exited)
 
     def signal(self, name: str, sig: int) -> bool:

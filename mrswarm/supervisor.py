@@ -132,8 +132,11 @@ class Supervisor:
             pids = self.runtime.pids()
             for name, code in exited.items():
                 w = self._watch.get(name)
-                if w is None or pids.get(name) != w.pid or name in self.down:
-                    continue  # not ours, an exit already handled, or already restarted (a new pid)
+                pid = pids.get(name)
+                if w is None or name in self.down or (pid and pid != w.pid):
+                    # not ours, an exit already handled, or running again (a new pid). An exited
+                    # container's pid is 0: without that test, no container's exit was ever an event
+                    continue
                 new.append(ev := self._exited(name, code, now, w))
                 self.events.append(ev)
         for name, w in self._watch.items():

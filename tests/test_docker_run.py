@@ -91,6 +91,58 @@ def test_ctrl_c_removes_every_container_and_still_summarises(docker_image: str, 
     assert no_seal_rules_left(manifest["network"])
 
 
+def test_a_container_that_cannot_start_says_why_at_its_exit(docker_image: str, tmp_path: Path,
+                                                            no_leftovers: None) -> None:
+    """Every UAV is told to listen for ground stations on an address its container does not have
+    (192.0.2.1, TEST-NET: nothing is sent there): each exits at start, and the runner reads why
+    from the container's log as soon as it sees the exit, not only at the end of the run."""
+    res = subprocess.run(
+        [sys.executable, "-m", "mrswarm", "run", str(COVERAGE), "--runtime", "docker", "--out", str(tmp_path), "--no-live",
+         "--set", "fleet.count=2", "--set", "duration=30", "--set", f"docker.image={docker_image}",
+         "--set", "gcs.host=192.0.2.1", "--set", "gcs.listen_base=21000"],
+        cwd=ROOT, capture_output=True, text=True, timeout=280)
+    out = " ".join(res.stdout.split())
+    assert "run aborted: every UAV process has exited" in out, res.stdout[-3000:] + res.stderr[-3000:]
+    run_dir = only_run_dir(tmp_path)
+    events = {e["name"]: e for e in json.loads((run_dir / "run.json").read_text())["events"]}
+    for uav in (1, 2):
+        why = (f"gcs.mavlink_endpoints: udpin:192.0.2.1:{21000 + uav}: cannot listen on 192.0.2.1:{21000 + uav}: "
+               "Cannot assign requested address")
+        assert (events[f"uav{uav}"]["exit_code"], events[f"uav{uav}"]["error"]) == (2, why)
+        assert f"uav{uav} exited (exit code 2): {why}" in out
+    manifest = json.loads((run_dir / "containers.json").read_text())
+    assert not containers_of(manifest["run"]), "containers left behind"
+
+
+def test_a_killed_container_is_lost_then_restarted_and_a_killed_router_comes_back(docker_image: str, tmp_path: Path,
+                                                                                   no_leftovers: None) -> None:
+    """The supervisor with containers: a UAV container killed with SIGKILL is an event and, with
+    ``fleet.restart: on-failure``, runs again; the edge router's container, killed, is started
+    again; the swarm flies on (the process runtime's chaos test, tests/test_chaos_e2e.py)."""
+    import yaml
+
+    scn = yaml.safe_load((ROOT / "tests" / "scenarios" / "mini_coverage.yaml").read_text())
+    scn.update(duration=30, docker={"image": docker_image})
+    scn["fleet"].update(count=3, restart="on-failure")
+    scn["faults"] = [{"at": 4, "kind": "kill_uav", "uav": 2}, {"at": 8, "kind": "kill_router"}]
+    path = tmp_path / "killed.yaml"
+    path.write_text(yaml.safe_dump(scn))
+    out_dir = tmp_path / "out"
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "run", str(path), "--runtime", "docker", "--out", str(out_dir),
+                          "--no-live"], cwd=ROOT, capture_output=True, text=True, timeout=280)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    run_dir = only_run_dir(out_dir)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    [lost] = summary["lost_uavs"]
+    assert (lost["uav"], lost["signal"], lost["injected"]) == (2, "SIGKILL", True)
+    assert lost["restarted_s"] is not None and lost["restarted_s"] > lost["t_s"]
+    [outage] = summary["services"]
+    assert outage["name"] == "router" and outage["restarted_s"] is not None
+    assert summary["separation"]["collisions"] == 0 and summary["coverage"]["final"] > 0.0
+    manifest = json.loads((run_dir / "containers.json").read_text())
+    assert not containers_of(manifest["run"]), "containers left behind"
+
+
 def test_bad_container_settings_fail_fast_with_the_field_name(tmp_path: Path) -> None:
     res = subprocess.run([sys.executable, "-m", "mrswarm", "run", str(COVERAGE), "--runtime", "docker", "--out",
                           str(tmp_path), "--set", "docker.memory_mb=8"], cwd=ROOT, capture_output=True, text=True, timeout=60)

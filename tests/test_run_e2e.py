@@ -95,6 +95,31 @@ def test_ctrl_c_stops_every_process_and_still_summarises(tmp_path: Path) -> None
     assert (run_dir / "summary.json").exists()
 
 
+def test_a_uav_that_cannot_start_is_lost_with_its_reason_and_the_others_fly(tmp_path: Path) -> None:
+    """Another process holds UAV 3's ground-station port: UAV 3 exits at start with one line that
+    names the setting; the runner prints that line with the exit, the summary keeps it, and the
+    three others fly the mission (exit code 0)."""
+    import socket
+
+    from discovery.netutil import free_port
+
+    base = free_port(socket.SOCK_DGRAM) - 3  # UAV i listens on base + i: UAV 3 on the held port
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        holder.bind(("127.0.0.1", base + 3))
+        res = run_cli([str(MINI), "--set", f"gcs.listen_base={base}", "--set", "duration=10"], tmp_path, timeout=180)
+    finally:
+        holder.close()
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    why = f"gcs.mavlink_endpoints: udpin:127.0.0.1:{base + 3}: cannot listen on 127.0.0.1:{base + 3}: Address already in use"
+    assert f"uav3 exited (exit code 2): {why}" in " ".join(res.stdout.split()), res.stdout[-3000:]
+    run_dir = only_run_dir(tmp_path)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert [(lu["uav"], lu["exit_code"], lu["error"]) for lu in summary["lost_uavs"]] == [(3, 2, why)]
+    assert summary["uavs_recorded"] == 3 and summary["coverage"]["final"] > 0.0
+    assert summary["separation"]["collisions"] == 0
+
+
 def test_bad_scenario_fails_fast_with_the_field_name(tmp_path: Path) -> None:
     res = run_cli([str(MINI), "--set", "flight.altitude=500"], tmp_path, timeout=60)
     assert res.returncode == 2
