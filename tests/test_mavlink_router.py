@@ -270,14 +270,14 @@ def test_router_survives_a_flood_of_random_bytes(gcs_port: int) -> None:
 def test_a_taken_ground_station_port_is_an_error_that_names_the_endpoint_and_opens_nothing() -> None:
     """Another process holds the udpin port: the router opens none of its endpoints (the free one
     is released again) and says which setting and endpoint to change."""
-    from uav_stack.mavlink_router import EndpointError
+    from uav_stack.fcu_link import LinkOpenError
 
     holder = udp()
     taken = holder.getsockname()[1]
     free = free_port(socket.SOCK_DGRAM)
     router = MavlinkRouter([f"udpin:127.0.0.1:{free}", f"udpin:127.0.0.1:{taken}"], lambda _b: None, own=COMPANION)
     try:
-        with pytest.raises(EndpointError, match=rf"gcs\.mavlink_endpoints: udpin:127\.0\.0\.1:{taken}: cannot listen on "
+        with pytest.raises(LinkOpenError, match=rf"gcs\.mavlink_endpoints: udpin:127\.0\.0\.1:{taken}: cannot listen on "
                                                 rf"127\.0\.0\.1:{taken}: Address already in use"):
             router.open()
         assert router.addresses() == {}

@@ -326,20 +326,20 @@ def test_fcu_link_url_errors_are_clear() -> None:
 
 
 def test_an_fcu_link_that_cannot_open_names_the_setting_and_the_link() -> None:
-    """A udpin port another process holds, a serial device that is not there: FcuLinkError with
+    """A udpin port another process holds, a serial device that is not there: LinkOpenError with
     the setting and the link, and the holder keeps its port."""
-    from uav_stack.fcu_link import FcuLinkError
+    from uav_stack.fcu_link import LinkOpenError
 
     holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     holder.bind(("127.0.0.1", 0))
     taken = holder.getsockname()[1]
     try:
-        with pytest.raises(FcuLinkError, match=rf"^fcu: udpin:127\.0\.0\.1:{taken}: cannot listen on 127\.0\.0\.1:{taken}: "
+        with pytest.raises(LinkOpenError, match=rf"^fcu: udpin:127\.0\.0\.1:{taken}: cannot listen on 127\.0\.0\.1:{taken}: "
                                                "Address already in use$"):
             FcuLink(f"udpin:127.0.0.1:{taken}").open()
     finally:
         holder.close()
-    with pytest.raises(FcuLinkError, match=r"^fcu: serial:/dev/mrswarm-no-such-tty:57600: cannot open /dev/mrswarm-no-such-tty"):
+    with pytest.raises(LinkOpenError, match=r"^fcu: serial:/dev/mrswarm-no-such-tty:57600: cannot open /dev/mrswarm-no-such-tty"):
         FcuLink("serial:/dev/mrswarm-no-such-tty:57600").open()
 
 

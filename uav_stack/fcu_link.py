@@ -59,13 +59,15 @@ VELOCITY_ONLY_MASK = (
 )
 
 
-class FcuLinkError(OSError):
-    """The FCU link cannot be opened. The message names the setting (``fcu``, ``--fcu``) and the
-    link, so that the agent stops with one line that says what to change, not a traceback."""
+class LinkOpenError(OSError):
+    """One of the agent's MAVLink links cannot be opened: the FCU link (a udpin port another
+    process holds, a serial device that is not there) or a ground-station endpoint of its router.
+    The message names the setting (``fcu``, ``gcs.mavlink_endpoints``) and the link, so that the
+    agent stops with one line that says what to change, not a traceback."""
 
     @classmethod
-    def of(cls, url: str, what: str, exc: OSError) -> FcuLinkError:
-        err = cls(f"fcu: {url}: cannot {what}: {exc.strerror or exc}")
+    def of(cls, setting: str, link: str, what: str, exc: OSError) -> LinkOpenError:
+        err = cls(f"{setting}: {link}: cannot {what}: {exc.strerror or exc}")
         err.errno = exc.errno
         return err
 
@@ -185,14 +187,15 @@ class FcuLink:
     def open(self) -> FcuLink:
         """Open the link. A URL that is not one raises ValueError; a link that cannot be opened
         (a udpin port another process holds, a serial device that is not there) raises
-        :class:`FcuLinkError`, which names the setting and the link."""
+        :class:`LinkOpenError`, which names the setting and the link."""
         udp = parse_udp_url(self.url)
         if udp is not None:
             mode, host, port = udp
             try:
                 self.udp = FcuUdpSocket(mode, host, port, bind=self.bind).open()
             except OSError as exc:
-                raise FcuLinkError.of(self.url, f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}", exc) from exc
+                what = f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}"
+                raise LinkOpenError.of("fcu", self.url, what, exc) from exc
             self.conn = _UdpConnection(self.udp, self.source_system, self.source_component)
             return self
         device, baud = parse_fcu_url(self.url)
@@ -201,7 +204,7 @@ class FcuLink:
                 device, baud=baud, source_system=self.source_system, source_component=self.source_component, autoreconnect=True
             )
         except OSError as exc:
-            raise FcuLinkError.of(self.url, f"open {device}", exc) from exc
+            raise LinkOpenError.of("fcu", self.url, f"open {device}", exc) from exc
         return self
 
     def close(self) -> None:

@@ -44,18 +44,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from uav_stack.fcu_link import LinkOpenError
 from uav_stack.mav import mavlink
 from uav_stack.mavlink_signing import Signer, VerifyingParser
 from uav_stack.udp import drain, source_address_for
 
 log = logging.getLogger(__name__)
-
-class EndpointError(OSError):
-    """A ground-station endpoint that cannot be opened (its port is taken, its address is not
-    this machine's, its host does not resolve). The message names the setting,
-    ``gcs.mavlink_endpoints``, and the endpoint, so that the agent can stop with one line that
-    says what to change rather than a traceback."""
-
 
 MAX_DATAGRAM = 1400
 MAX_PEERS = 4  # server endpoints: ground stations answered at once
@@ -187,11 +181,8 @@ class UdpEndpoint(Channel):
             s.setblocking(False)
         except OSError as exc:
             s.close()
-            what = "listen on" if self.mode == "udpin" else "send to"
-            err = EndpointError(f"gcs.mavlink_endpoints: {self.spec}: cannot {what} {self.host}:{self.port}: "
-                                f"{exc.strerror or exc}")
-            err.errno = exc.errno
-            raise err from exc
+            what = f"{'listen on' if self.mode == 'udpin' else 'send to'} {self.host}:{self.port}"
+            raise LinkOpenError.of("gcs.mavlink_endpoints", self.spec, what, exc) from exc
         self.sock = s
 
     @property
@@ -290,7 +281,7 @@ class MavlinkRouter:
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> MavlinkRouter:
-        """Open every endpoint, or none: :class:`EndpointError` names the one that failed."""
+        """Open every endpoint, or none: :class:`~uav_stack.fcu_link.LinkOpenError` names the one that failed."""
         try:
             for ep in self.endpoints:
                 ep.open()

@@ -27,8 +27,8 @@ from swarmnet.schema import ConfigError, convert
 from swarmnet.security.identity import NodeName
 from uav_stack.agent import Agent
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
-from uav_stack.fcu_link import FcuLink, FcuLinkError
-from uav_stack.mavlink_router import EndpointError, MavlinkRouter, SigningPolicy
+from uav_stack.fcu_link import FcuLink, LinkOpenError
+from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
 
 if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
     from uav_stack.fcu import VirtualFcu
@@ -120,8 +120,7 @@ def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) 
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
     (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known.
 
-    Raises :class:`~uav_stack.mavlink_router.EndpointError` or
-    :class:`~uav_stack.fcu_link.FcuLinkError`, naming the setting and the link, when a
+    Raises :class:`~uav_stack.fcu_link.LinkOpenError`, naming the setting and the link, when a
     ground-station socket or the FCU link cannot be opened (a ``udpin`` port another process
     holds, a serial device that is not there)."""
     sysid = cfg.mavlink_sysid
@@ -220,7 +219,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     (host, port), = fcu.open()
     try:
         link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
-    except (EndpointError, FcuLinkError) as exc:
+    except LinkOpenError as exc:
         log.error("%s", exc)
         fcu.close()
         return 2
@@ -269,7 +268,7 @@ def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
 def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, tap_zenoh_log: bool = False) -> int:
     try:
         link, router = open_fcu_link(cfg, cfg.fcu)
-    except (EndpointError, FcuLinkError) as exc:
+    except LinkOpenError as exc:
         log.error("%s", exc)
         return 2
     node = open_node(cfg, stop, tap_zenoh_log)
