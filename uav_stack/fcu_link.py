@@ -71,6 +71,11 @@ class LinkOpenError(OSError):
         err.errno = exc.errno
         return err
 
+    @classmethod
+    def udp(cls, setting: str, link: str, mode: str, host: str, port: int, exc: OSError) -> LinkOpenError:
+        """A UDP link's socket: a ``udpin`` one listens on host:port, a ``udpout`` one sends there."""
+        return cls.of(setting, link, f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}", exc)
+
 
 def parse_fcu_url(url: str) -> tuple[str, int]:
     """pymavlink connection strings, plus ``serial:<device>[:<baud>]`` (also ``serial://``, as
@@ -194,8 +199,7 @@ class FcuLink:
             try:
                 self.udp = FcuUdpSocket(mode, host, port, bind=self.bind).open()
             except OSError as exc:
-                what = f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}"
-                raise LinkOpenError.of("fcu", self.url, what, exc) from exc
+                raise LinkOpenError.udp("fcu", self.url, mode, host, port, exc) from exc
             self.conn = _UdpConnection(self.udp, self.source_system, self.source_component)
             return self
         device, baud = parse_fcu_url(self.url)

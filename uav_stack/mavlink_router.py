@@ -181,8 +181,7 @@ class UdpEndpoint(Channel):
             s.setblocking(False)
         except OSError as exc:
             s.close()
-            what = f"{'listen on' if self.mode == 'udpin' else 'send to'} {self.host}:{self.port}"
-            raise LinkOpenError.of("gcs.mavlink_endpoints", self.spec, what, exc) from exc
+            raise LinkOpenError.udp("gcs.mavlink_endpoints", self.spec, self.mode, self.host, self.port, exc) from exc
         self.sock = s
 
     @property
