@@ -16,7 +16,6 @@ Writes ``<tag>.json`` (every run's row as that commit's scale.py reported it), `
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -32,6 +31,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.output import write_results  # noqa: E402
+
 RUN_TIMEOUT_S = 900.0  # one scale.py run at one N and one configuration (N = 50: about 3 minutes)
 FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min", "pose_age_p50_ms", "transport_age_p50_ms",
           "transport_age_p99_ms", "use_age_p50_ms", "use_age_p99_ms", "all_airborne_s",
@@ -117,12 +120,8 @@ def main(argv: list[str] | None = None) -> int:
             for tree in trees.values():
                 remove(tree)
     summary = summarise(rows, args.commits)
-    (out / f"{args.tag}.json").write_text(json.dumps({"args": vars(args), "cores": os.cpu_count(), "rows": rows,
-                                                      "median": summary, "loadavg_end": os.getloadavg()}, indent=2))
-    with open(out / f"{args.tag}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    record = {"args": vars(args), "cores": os.cpu_count(), "rows": rows, "median": summary, "loadavg_end": os.getloadavg()}
+    write_results(out, args.tag, record, rows)
     plot(rows, args.commits, out / f"{args.tag}.png", f"N = {args.n}, {args.config}, {args.rounds} rounds, interleaved")
     for c, s in summary.items():
         print(c, s)

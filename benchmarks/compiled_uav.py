@@ -19,7 +19,6 @@ its 1.7 MB of Python become 36 MB of C that take gcc over half an hour.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import shutil
@@ -32,6 +31,9 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.output import write_results  # noqa: E402
 
 # The modules a virtual UAV runs every tick or every second: its FCU, its agent and its
 # behaviours, the swarm node and its receive path, the discovery proxy.
@@ -127,13 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"median CPU: pure Python {med['python']:.2f} %, Cython {med['cython']:.2f} % "
           f"(ratio {med['cython'] / med['python']:.2f})")
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "compiled_uav.json").write_text(json.dumps({"build_s": round(build_s, 1), "modules": HOT_MODULES,
-                                                                 "median_cpu_pct": med, "rows": rows}, indent=2) + "\n")
-        with open(args.out / "compiled_uav.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        record = {"build_s": round(build_s, 1), "modules": HOT_MODULES, "median_cpu_pct": med, "rows": rows}
+        write_results(args.out, "compiled_uav", record, rows)
         plot(rows, args.out / "compiled_uav.png")
     return 0
 

@@ -22,8 +22,6 @@ of one run per (N, runtime); needs the stack image (``mrswarm deploy build``).
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 import statistics
 import sys
@@ -38,6 +36,7 @@ from rich.console import Console
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import Sampler, scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 
@@ -202,11 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
     rows = [run_one(n, rt, args, console) for n in args.sizes for rt in args.runtimes]
-    (out / "containers.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
-    with open(out / "containers.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, "containers", {"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, rows)
     plot(rows, out / "containers.png")
     console.print(f"wrote {out}/containers.json/.csv/.png")
     return 0

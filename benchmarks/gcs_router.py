@@ -14,8 +14,6 @@ writes ``gcs_router.json``, ``gcs_router.csv`` and ``gcs_router.png``.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import socket
 import statistics
 import sys
@@ -31,6 +29,7 @@ from rich.console import Console
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import Sampler, scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Gcs  # noqa: E402
@@ -114,11 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
     rows = [run_once(args.n, False, args, console), run_once(args.n, True, args, console)]
-    (out / "gcs_router.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
-    with open(out / "gcs_router.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, "gcs_router", {"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, rows)
     import matplotlib
 
     matplotlib.use("Agg")

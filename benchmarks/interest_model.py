@@ -23,8 +23,6 @@ simulated UAVs), loopback only.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 import multiprocessing as mp
 import os
@@ -41,6 +39,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
 from swarmnet.connectivity import Rendezvous, to_zenoh  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
@@ -192,11 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = [run_cell(n, on, args) for n in args.sizes for on in (False, True)]
-    (out / f"{args.tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
-    with open(out / f"{args.tag}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, args.tag, {"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, rows)
     plot(rows, out / f"{args.tag}.png")
     print(f"wrote {out / args.tag}.json/.csv/.png")
     return 0

@@ -21,8 +21,6 @@ writes ``netem_shim.json``, ``netem_shim.csv`` and ``netem_shim.png``. Medians o
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import statistics
 import sys
 import threading
@@ -33,6 +31,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from discovery.netutil import free_port  # noqa: E402
 from discovery.rendezvous import serve  # noqa: E402
 from swarmnet.connectivity import Rendezvous  # noqa: E402
@@ -170,11 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     added = next(r["added_us_per_msg"] for r in rows if r["what"] == "poll" and r["preset"] == "none")
     result = {"rows": rows, "no_impairment_added_us_per_msg": added,
               "args": vars(args), "python": sys.version.split()[0], "time": time.strftime("%Y-%m-%d %H:%M:%S")}
-    (out / "netem_shim.json").write_text(json.dumps(result, indent=2))
-    with open(out / "netem_shim.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["what", "preset", "us_per_msg", "added_us_per_msg", "received", "rejected"])
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, "netem_shim", result, rows,
+                  fieldnames=["what", "preset", "us_per_msg", "added_us_per_msg", "received", "rejected"])
     plot(rows, out / "netem_shim.png")
     print(f"no-impairment path adds {added:.2f} us per received pose; wrote {out}/netem_shim.{{json,csv,png}}")
     return 0

@@ -14,8 +14,6 @@ running cold, which every step of a UAV's loop pays.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import statistics
 import subprocess
 import sys
@@ -26,6 +24,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from discovery.netutil import free_port  # noqa: E402
 from swarmnet.connectivity import TransportTuning, base_config, to_zenoh  # noqa: E402
 
@@ -116,12 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(f"pause {row['pause_ms']:6.1f} ms: put p50 {row['p50_us']:6.1f} us, p90 {row['p90_us']:6.1f} us")
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "put_cost.json").write_text(json.dumps(rows, indent=2) + "\n")
-        with open(args.out / "put_cost.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_results(args.out, "put_cost", rows, rows)
         plot(rows, args.out / "put_cost.png")
     return 0
 

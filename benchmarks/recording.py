@@ -15,8 +15,6 @@ writes ``recording.json`` and ``recording.csv``.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import sys
 import time
 from pathlib import Path
@@ -28,6 +26,7 @@ from rich.console import Console
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.recorder.reader import Recording, read_recording  # noqa: E402
@@ -103,11 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"date": time.strftime("%Y-%m-%d"), "cpus": psutil.cpu_count(), "warmup_s": args.warmup, "window_s": args.window}
-    (out / "recording.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2) + "\n")
-    with open(out / "recording.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, "recording", {"meta": meta, "rows": rows}, rows)
     return 0
 
 

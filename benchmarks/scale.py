@@ -30,7 +30,6 @@ The machine is noisy: numbers are medians over the UAV processes of one run per 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import statistics
@@ -46,6 +45,7 @@ from rich.console import Console
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
@@ -284,11 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     console = Console()
     rows = [run_size(n, cfg, args, console) for n in args.sizes for cfg in args.configs]
     tag = args.tag
-    (out / f"{tag}.json").write_text(json.dumps({"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, indent=2))
-    with open(out / f"{tag}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, tag, {"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, rows)
     measured = [r for r in rows if "aborted" not in r]
     if measured:
         plot(measured, out / f"{tag}.png")

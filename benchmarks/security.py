@@ -22,7 +22,6 @@ the default network (discovery, peer mesh, direct poses) and client mode through
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -37,6 +36,7 @@ from rich.console import Console
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import CONFIGS, run_size  # noqa: E402
 from mrswarm.scenario import Scenario, Security  # noqa: E402
 
@@ -134,11 +134,7 @@ def main(argv: list[str] | None = None) -> int:
             console.print(rows[-1])
     record = {"args": vars(args), "cores": psutil.cpu_count(), "target_pct": TARGET_OVERHEAD_PCT, "rows": rows, "runs": runs,
               "when": time.time()}
-    (out / "security.json").write_text(json.dumps(record, indent=2))
-    with open(out / "security.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_results(out, "security", record, rows)
     plot(rows, out / "security.png")
     console.print(f"wrote {out / 'security'}.json/.csv/.png")
     return 0

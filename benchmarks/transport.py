@@ -36,7 +36,6 @@ medians over the agents of each run, summed over rounds for the ages).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -57,6 +56,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.output import write_results  # noqa: E402
 from discovery.netutil import free_port  # noqa: E402
 
 TRANSPORTS = ("mqtt", "zenoh-peer", "zenoh-client", "swarmnet", "swarmnet-edge")
@@ -423,12 +423,7 @@ def main(argv: list[str] | None = None) -> int:
                     order.reverse()
                 rows += [run_cell(n, kind, args, Path(tmp)) for kind in order]
     merged = merge_rounds(rows)
-    (out / f"{args.tag}.json").write_text(json.dumps({"args": vars(args), "cores": os.cpu_count(), "rows": merged,
-                                                      "runs": rows}, indent=1))
-    with open(out / f"{args.tag}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(merged[0]))
-        w.writeheader()
-        w.writerows(merged)
+    write_results(out, args.tag, {"args": vars(args), "cores": os.cpu_count(), "rows": merged, "runs": rows}, merged)
     plot(merged, out / f"{args.tag}.png")
     print(f"wrote {out / args.tag}.json/.csv/.png")
     return 0

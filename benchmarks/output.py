@@ -1,0 +1,41 @@
+"""Where every benchmark's figures go: a JSON record and a CSV table of the same rows.
+
+One writer for all of ``benchmarks/``, so every result folder looks alike and no file is ever
+left half written: each file is written beside its final name and then renamed over it, so an
+interrupted run leaves the previous results whole.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+
+def _replace(path: Path, write: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as f:
+        write(f)
+    os.replace(tmp, path)
+
+
+def write_results(out: Path, name: str, record: Any, rows: list[dict[str, Any]],
+                  fieldnames: list[str] | None = None) -> None:
+    """Write ``out/<name>.json`` (``record``: the rows and what a reader needs to redo them,
+    such as the arguments) and ``out/<name>.csv`` (one line per row of ``rows``).
+
+    The CSV's columns are ``fieldnames``, or else every key any row has, in first-seen order
+    (rows of different configurations may carry different keys).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    _replace(out / f"{name}.json", lambda f: f.write(json.dumps(record, indent=2) + "\n"))
+    cols = fieldnames if fieldnames is not None else list(dict.fromkeys(k for r in rows for k in r))
+
+    def table(f: Any) -> None:
+        w = csv.DictWriter(f, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+
+    _replace(out / f"{name}.csv", table)
