@@ -10,11 +10,12 @@ from __future__ import annotations
 import csv
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 
-def _replace(path: Path, write: Any) -> None:
+def _replace(path: Path, write: Callable[[IO[str]], object]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "w", newline="") as f:
         write(f)
@@ -33,7 +34,7 @@ def write_results(out: Path, name: str, record: Any, rows: list[dict[str, Any]],
     _replace(out / f"{name}.json", lambda f: f.write(json.dumps(record, indent=2) + "\n"))
     cols = fieldnames if fieldnames is not None else list(dict.fromkeys(k for r in rows for k in r))
 
-    def table(f: Any) -> None:
+    def table(f: IO[str]) -> None:
         w = csv.DictWriter(f, fieldnames=cols)
         w.writeheader()
         w.writerows(rows)
