@@ -20,7 +20,8 @@ sends its own pose encoding (at most 48 bytes). The pose age is the receiving pr
 stamp (taken as the sample leaves Zenoh) minus the sender's stamp, both on this machine's wall
 clock: for swarmnet that is its transport age (docs/benchmarks.md). Measured in each agent
 over the window: ages (log histogram, 50 bins per decade), poses received against poses
-published by the others (delivery ratio), the agent's own CPU time (all its threads) and RSS;
+published by the others (delivery ratio; and that of the worst receiver, which tells one agent
+linked late from drops spread over all), the agent's own CPU time (all its threads) and RSS;
 the broker's or router's CPU by this script. ``--receivers K`` makes only K agents subscribe
 (every agent still publishes) for a large N whose full mesh would saturate the machine; a
 swarmnet node always subscribes to poses, so its non-receivers still get them and only skip
@@ -328,11 +329,16 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     # a shorter span than the window (swarmnet's, from tick to tick) is scaled to the window
     expected = sum(r["published"] * (n_recv - (1 if r["receives"] else 0)) for r in reports)
     received = sum(r["received"] * args.window / r["span"] for r in reports if r["receives"] and r["span"] > 0)
+    # the worst receiver: one agent that linked late (or not at all) shows here, drops spread over all do not
+    total = sum(r["published"] for r in reports)
+    worst = min((r["received"] * args.window / r["span"] / (total - r["published"])
+                 for r in reports if r["receives"] and r["span"] > 0 and total > r["published"]), default=None)
     ms = lambda v: round(1000.0 * v, 3) if v == v else None  # noqa: E731
     row = {
         "n": n, "transport": kind, "agents_reported": len(reports), "receivers": n_recv,
         "age_p50_ms": ms(hist.percentile(50)), "age_p99_ms": ms(hist.percentile(99)), "age_max_ms": ms(hist.max),
         "delivery": round(received / expected, 4) if expected else None,
+        "delivery_worst_agent": round(worst, 4) if worst is not None else None,
         "cpu_pct_median": round(statistics.median(r["cpu_pct"] for r in reports), 3) if reports else None,
         "cpu_pct_max": round(max(r["cpu_pct"] for r in reports), 3) if reports else None,
         "rss_mb_median": round(statistics.median(r["rss_mb"] for r in reports), 1) if reports else None,
@@ -341,6 +347,11 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     }
     print({k: v for k, v in row.items() if k != "ages"}, flush=True)
     return row
+
+
+def worst_of(rows: list[dict[str, Any]]) -> float | None:
+    """The worst receiver's delivery over the rounds (rows without it are skipped)."""
+    return min((r["delivery_worst_agent"] for r in rows if r.get("delivery_worst_agent") is not None), default=None)
 
 
 def merge_rounds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -360,7 +371,8 @@ def merge_rounds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({"n": key[0], "transport": key[1], "rounds": len(rs), "receivers": rs[0]["receivers"],
                      "age_p50_ms": round(1000 * h.percentile(50), 3) if h.n else None,
                      "age_p99_ms": round(1000 * h.percentile(99), 3) if h.n else None,
-                     "delivery": med("delivery"), "cpu_pct_median": med("cpu_pct_median"), "rss_mb_median": med("rss_mb_median"),
+                     "delivery": med("delivery"), "delivery_worst_agent": worst_of(rs),
+                     "cpu_pct_median": med("cpu_pct_median"), "rss_mb_median": med("rss_mb_median"),
                      "service_cpu_pct": med("service_cpu_pct")})
     return out
 
