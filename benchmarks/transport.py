@@ -136,7 +136,7 @@ def run_agent(spec: dict[str, Any]) -> dict[str, Any]:
     if tick is not None:
         # a tick due just before the window's end may wake after it: without this one the count
         # stayed unset, and such an agent was reported as having received nothing (N = 25 delivered
-        # 0.96 in 2 of about 12 swarmnet runs: one agent of 25 at 0)
+        # 0.96 in 2 of about 14 swarmnet runs: one agent of 25 at 0)
         tick()
     t = os.times()
     assert cpu0 is not None
