@@ -333,11 +333,11 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     # every published pose should reach every receiver but its sender; a receiver whose count covers
     # a shorter span than the window (swarmnet's, from tick to tick) is scaled to the window
     expected = sum(r["published"] * (n_recv - (1 if r["receives"] else 0)) for r in reports)
-    received = sum(r["received"] * args.window / r["span"] for r in reports if r["receives"] and r["span"] > 0)
+    scaled = [(r, r["received"] * args.window / r["span"]) for r in reports if r["receives"] and r["span"] > 0]
+    received = sum(count for _, count in scaled)
     # the worst receiver: one agent that linked late (or not at all) shows here, drops spread over all do not
     total = sum(r["published"] for r in reports)
-    worst, worst_agent = min(((r["received"] * args.window / r["span"] / (total - r["published"]), r["index"])
-                              for r in reports if r["receives"] and r["span"] > 0 and total > r["published"]),
+    worst, worst_agent = min(((count / (total - r["published"]), r["index"]) for r, count in scaled if total > r["published"]),
                              default=(None, None))
     ms = lambda v: round(1000.0 * v, 3) if v == v else None  # noqa: E731
     row = {
