@@ -3,7 +3,7 @@
 A lone virtual UAV wakes ten times a second, exchanges MAVLink datagrams with its virtual FCU
 over UDP, publishes its pose, telemetry and state over Zenoh, keeps a subscriber thread waiting
 for neighbours' poses, beacons to the discovery server and writes its records. This benchmark
-runs the same I/O in a process that does nothing else, in three steps, and the real lone UAV
+runs the same I/O in a process that does nothing else, in four steps, and the real lone UAV
 beside them, alternated round by round:
 
 * ``wake``: the 10 Hz loop alone (``select`` on an eventfd with a timeout, as the UAV's loop
@@ -12,19 +12,21 @@ beside them, alternated round by round:
   "FCU" socket to an "agent" socket and a setpoint (65 bytes) back, both drained until empty;
   a trajectory row each tick, written out each second; a counters file replaced each second;
   a thread that sends a 200-byte beacon each second and waits in ``select``;
-* ``io+zenoh``: plus a Zenoh peer session linked to a router on 127.0.0.1 (plain TCP, where the
-  UAV's link is TLS): 10 poses (48 bytes, express), 2 telemetry and 1 state ``put`` a second,
-  a pose subscriber whose thread waits in the ring channel, and the command subscribers;
+* ``io+zenoh``: plus a Zenoh peer session linked to a router on 127.0.0.1 over plain TCP:
+  10 poses (48 bytes, express), 2 telemetry and 1 state ``put`` a second, a pose subscriber
+  whose thread waits in the ring channel, and the command subscribers;
+* ``io+zenoh-tls``: the same over mutual TLS with access control, as the UAV's own link (a
+  throw-away CA, a certificate for the UAV and one for the router);
 * ``uav``: a lone virtual UAV in the default configuration (``scale.py --sizes 1 --configs
   default``), its process.
 
 CPU is each process's user+system time over the window (psutil), in % of one core, as
 ``scale.py`` measures a UAV; the router and the discovery server are not counted. The skeleton
-encodes and parses nothing, so ``io+zenoh`` is a lower bound of what any UAV process with this
-I/O costs on the machine, and ``uav`` minus it is what the UAV's own Python costs.
+encodes and parses nothing, so ``io+zenoh-tls`` is a lower bound of what any UAV process with
+this I/O costs on the machine, and ``uav`` minus it is what the UAV's own Python costs.
 
     python benchmarks/lone_floor.py --rounds 3 --window 30 --out benchmarks/results
-    # -> benchmarks/results/lone_floor.{json,csv,png}; about 8 minutes
+    # -> benchmarks/results/lone_floor.{json,csv,png}; about 13 minutes
 """
 
 from __future__ import annotations
@@ -49,22 +51,23 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.output import write_results  # noqa: E402
-from discovery.netutil import free_port  # noqa: E402
+from deploy.process_runtime import wait_file  # noqa: E402
+from discovery.netutil import free_port, wait_tcp  # noqa: E402
+from mrswarm.run_keys import throwaway_keys  # noqa: E402
+from swarmnet.keyspace import SwarmKeys  # noqa: E402
+from swarmnet.security.credentials import Credentials  # noqa: E402
+from swarmnet.security.identity import NodeName  # noqa: E402
 
-VARIANTS = ("wake", "io", "io+zenoh", "uav")
+VARIANTS = ("wake", "io", "io+zenoh", "io+zenoh-tls", "uav")
+SWARM = "floor"
 TICK_S = 0.1  # the UAV's loop: 10 Hz
 TELEMETRY = bytes(89)  # a tick's MAVLink telemetry: about 2.7 frames (GLOBAL_POSITION_INT 10 Hz and the rest)
 SETPOINT = bytes(65)  # SET_POSITION_TARGET_LOCAL_NED, MAVLink 2
 POSE = bytes(48)
 
-_ROUTER = """
-import sys, threading
-from discovery.rendezvous import serve
-serve([sys.argv[1]], threading.Event())
-"""
 
 
-def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path) -> None:
+def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: str = "") -> None:
     """The child process: ``variant``'s I/O for ``seconds`` (every loop bounded in time)."""
     waker = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
     io = variant != "wake"
@@ -88,20 +91,27 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path) -> None
         threading.Thread(target=beacon, daemon=True).start()
         counters = workdir / f"counters-{os.getpid()}.json"
     session: Any = None
-    if variant == "io+zenoh":
+    if variant.startswith("io+zenoh"):
         import zenoh
 
         from swarmnet.connectivity import TransportTuning, base_config, to_zenoh
 
-        session = zenoh.open(to_zenoh(base_config("peer", (endpoint,), ("tcp/127.0.0.1:0",), TransportTuning())))
-        pose = session.declare_publisher("mrs/floor/1/pose", congestion_control=zenoh.CongestionControl.DROP,
+        creds = Credentials(keys=keys, identity=NodeName.uav(1, SWARM).cn) if variant == "io+zenoh-tls" else None
+        session = zenoh.open(to_zenoh(base_config("peer", (endpoint,), ("tcp/127.0.0.1:0",), TransportTuning(), creds)))
+        deadline = time.monotonic() + 10.0  # a link that never came up would measure nothing
+        while not list(session.info.routers_zid()):
+            if time.monotonic() > deadline:
+                raise SystemExit(f"{variant}: no link to the router at {endpoint}")
+            time.sleep(0.1)
+        k = SwarmKeys(SWARM)
+        pose = session.declare_publisher(k.pose(1), congestion_control=zenoh.CongestionControl.DROP,
                                          priority=zenoh.Priority.DATA_HIGH, express=True)
-        telemetry = session.declare_publisher("mrs/floor/1/telemetry")
-        state = session.declare_publisher("mrs/floor/1/state")
-        poses = session.declare_subscriber("mrs/floor/*/pose", zenoh.handlers.RingChannel(64),
+        telemetry = session.declare_publisher(k.telemetry(1))
+        state = session.declare_publisher(k.state(1))
+        poses = session.declare_subscriber(k.all_poses, zenoh.handlers.RingChannel(64),
                                            allowed_origin=zenoh.Locality.REMOTE)
-        session.declare_subscriber("mrs/floor/1/cmd", lambda sample: None)
-        session.declare_subscriber("mrs/floor/cmd", lambda sample: None)
+        session.declare_subscriber(k.cmd(1), lambda sample: None)
+        session.declare_subscriber(k.swarm_cmd, lambda sample: None)
 
         def inlet() -> None:
             try:
@@ -161,10 +171,10 @@ def cpu_of(proc: psutil.Process, warmup: float, window: float) -> float:
     return 100.0 * ((b.user + b.system) - (a.user + a.system)) / window
 
 
-def run_skeleton(variant: str, endpoint: str, window: float, workdir: Path) -> float:
+def run_skeleton(variant: str, endpoint: str, window: float, workdir: Path, keys: Path) -> float:
     warmup = 3.0
     child = subprocess.Popen([sys.executable, __file__, "--child", variant, "--endpoint", endpoint,
-                              "--seconds", str(warmup + window + 2.0), "--workdir", str(workdir)],
+                              "--seconds", str(warmup + window + 2.0), "--workdir", str(workdir), "--keys", str(keys)],
                              env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
         return cpu_of(psutil.Process(child.pid), warmup, window)
@@ -219,26 +229,40 @@ def main() -> int:
     ap.add_argument("--endpoint", default="", help=argparse.SUPPRESS)
     ap.add_argument("--seconds", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--workdir", default="", help=argparse.SUPPRESS)
+    ap.add_argument("--keys", default="", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        skeleton(args.child, args.endpoint, args.seconds, Path(args.workdir))
+        skeleton(args.child, args.endpoint, args.seconds, Path(args.workdir), args.keys)
         return 0
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen([sys.executable, "-c", _ROUTER, endpoint], env={**os.environ, "PYTHONPATH": str(ROOT)})
     rows: list[dict[str, Any]] = []
-    try:
-        time.sleep(1.5)
-        with tempfile.TemporaryDirectory(prefix="lone-floor-") as tmp:
+    routers: list[subprocess.Popen[bytes]] = []
+    with tempfile.TemporaryDirectory(prefix="lone-floor-") as tmp:
+        work = Path(tmp)
+        keys = throwaway_keys(work / "keys", SWARM, [NodeName("edge", 0, SWARM), NodeName.uav(1, SWARM)])
+        plain, tls = free_port(), free_port()
+        endpoints = {"io+zenoh": f"tcp/127.0.0.1:{plain}", "io+zenoh-tls": f"tls/127.0.0.1:{tls}"}
+        try:
+            for endpoint, security in ((endpoints["io+zenoh"], ["--insecure"]),
+                                       (endpoints["io+zenoh-tls"], ["--keys", str(keys), "--stats", str(work / "router.json")])):
+                routers.append(subprocess.Popen([sys.executable, "-m", "discovery.rendezvous", "--listen", endpoint, *security],
+                                                cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            wait_tcp("127.0.0.1", plain, timeout=20.0)
+            wait_file(work / "router.json", timeout=20.0, proc=routers[1])  # a bare TCP probe would count as refused
             for rnd in range(args.rounds):
                 order = VARIANTS if rnd % 2 == 0 else VARIANTS[::-1]
                 for v in order:
-                    cpu = run_uav(args.window, Path(tmp)) if v == "uav" else run_skeleton(v, endpoint, args.window, Path(tmp))
+                    cpu = run_uav(args.window, work) if v == "uav" else \
+                        run_skeleton(v, endpoints.get(v, ""), args.window, work, keys)
                     rows.append({"round": rnd, "variant": v, "cpu_pct": round(cpu, 3)})
                     print(f"round {rnd} {v}: {cpu:.3f} % of a core", flush=True)
-    finally:
-        router.terminate()
-        router.wait(timeout=10)
+        finally:
+            for r in routers:
+                r.terminate()
+                try:
+                    r.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    r.kill()
     medians = {v: statistics.median(r["cpu_pct"] for r in rows if r["variant"] == v) for v in VARIANTS}
     for v, m in medians.items():
         print(f"median {v}: {m:.3f} %")
