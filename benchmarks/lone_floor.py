@@ -66,7 +66,6 @@ SETPOINT = bytes(65)  # SET_POSITION_TARGET_LOCAL_NED, MAVLink 2
 POSE = bytes(48)
 
 
-
 def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: str = "") -> None:
     """The child process: ``variant``'s I/O for ``seconds`` (every loop bounded in time)."""
     waker = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
