@@ -25,8 +25,25 @@ CPU is each process's user+system time over the window (psutil), in % of one cor
 encodes and parses nothing, so ``io+zenoh-tls`` is a lower bound of what any UAV process with
 this I/O costs on the machine, and ``uav`` minus it is what the UAV's own Python costs.
 
+**A UAV of a fleet** (``--fleet N``): the same question for a UAV among N on the machine, in
+the configuration the default chooses above 25 UAVs (client mode through one edge router, the
+edge pose feed, mutual TLS). N skeletons run at once, each with the ``io`` of a lone UAV, a
+client session to the edge router (which runs the pose feed, 3 ms window, as ``mrswarm run``
+starts it), a valid pose each tick, telemetry and state, a liveliness token and the
+subscriptions of a UAV (the feed's batches in a ring channel with a thread that stamps and
+queues them, commands, liveliness), beside the real fleet:
+
+* ``fleet``: the queued batches are dropped at each tick, unread;
+* ``fleet+decode``: each tick also decodes every batch and every pose in it with the UAV's own
+  rules (``accept_pose_batch``, ``accept_batched_pose``) and keeps the newest per sender: the
+  least Python any UAV must run for what it receives;
+* ``uav``: a UAV of the real fleet (``scale.py --configs client-edge``, what the default is
+  above 25 UAVs; the median UAV, as ``scale.py`` reports it).
+
     python benchmarks/lone_floor.py --rounds 3 --window 30 --out benchmarks/results
     # -> benchmarks/results/lone_floor.{json,csv,png}; about 13 minutes
+    python benchmarks/lone_floor.py --fleet 50 --rounds 3 --window 30 --tag fleet_floor_n50
+    # -> benchmarks/results/fleet_floor_n50.{json,csv,png}; about 15 minutes
 """
 
 from __future__ import annotations
@@ -35,6 +52,7 @@ import argparse
 import json
 import os
 import select
+import signal
 import socket
 import statistics
 import subprocess
@@ -42,6 +60,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -54,11 +73,14 @@ from benchmarks.output import write_results  # noqa: E402
 from deploy.process_runtime import wait_file  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
 from mrswarm.run_keys import throwaway_keys  # noqa: E402
+from swarmnet.feed import DEFAULT_WINDOW  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
+from swarmnet.messages import Pose, Realm, Rejected, accept_batched_pose, accept_pose_batch, encode_pose  # noqa: E402
 from swarmnet.security.credentials import Credentials  # noqa: E402
 from swarmnet.security.identity import NodeName  # noqa: E402
 
 VARIANTS = ("wake", "io", "io+zenoh", "io+zenoh-tls", "uav")
+FLEET_VARIANTS = ("fleet", "fleet+decode", "uav")
 SWARM = "floor"
 TICK_S = 0.1  # the UAV's loop: 10 Hz
 TELEMETRY = bytes(89)  # a tick's MAVLink telemetry: about 2.7 frames (GLOBAL_POSITION_INT 10 Hz and the rest)
@@ -66,11 +88,13 @@ SETPOINT = bytes(65)  # SET_POSITION_TARGET_LOCAL_NED, MAVLink 2
 POSE = bytes(48)
 
 
-def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: str = "") -> None:
-    """The child process: ``variant``'s I/O for ``seconds`` (every loop bounded in time)."""
+def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: str = "", uav: int = 1) -> None:
+    """The child process: ``variant``'s I/O for ``seconds`` or until SIGTERM (every loop bounded in time)."""
     waker = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
     io = variant != "wake"
+    fleet = variant.startswith("fleet")
     stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if io:
         fcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -87,39 +111,52 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
                 up.sendto(bytes(200), sink_at)
                 select.select([up], [], [], 1.0)
 
-        threading.Thread(target=beacon, daemon=True).start()
-        counters = workdir / f"counters-{os.getpid()}.json"
+        if not fleet:  # the default fleet's UAVs find the edge router by its address, without discovery
+            threading.Thread(target=beacon, daemon=True).start()
+        counters = workdir / (f"counters-uav{uav}.json" if fleet else f"counters-{os.getpid()}.json")
     session: Any = None
-    if variant.startswith("io+zenoh"):
+    batches: deque[tuple[float, Any]] = deque(maxlen=256)
+    alive: Any = None
+    if variant.startswith(("io+zenoh", "fleet")):
         import zenoh
 
         from swarmnet.connectivity import TransportTuning, base_config, to_zenoh
 
-        creds = Credentials(keys=keys, identity=NodeName.uav(1, SWARM).cn) if variant == "io+zenoh-tls" else None
-        session = zenoh.open(to_zenoh(base_config("peer", (endpoint,), ("tcp/127.0.0.1:0",), TransportTuning(), creds)))
-        deadline = time.monotonic() + 10.0  # a link that never came up would measure nothing
+        creds = None if variant == "io+zenoh" else Credentials(keys=keys, identity=NodeName.uav(uav, SWARM).cn)
+        mode, listen = ("client", ()) if fleet else ("peer", ("tcp/127.0.0.1:0",))
+        session = zenoh.open(to_zenoh(base_config(mode, (endpoint,), listen, TransportTuning(), creds)))
+        deadline = time.monotonic() + 60.0  # a link that never came up would measure nothing
         while not list(session.info.routers_zid()):
             if time.monotonic() > deadline:
                 raise SystemExit(f"{variant}: no link to the router at {endpoint}")
             time.sleep(0.1)
         k = SwarmKeys(SWARM)
-        pose = session.declare_publisher(k.pose(1), congestion_control=zenoh.CongestionControl.DROP,
+        pose = session.declare_publisher(k.pose(uav), congestion_control=zenoh.CongestionControl.DROP,
                                          priority=zenoh.Priority.DATA_HIGH, express=True)
-        telemetry = session.declare_publisher(k.telemetry(1))
-        state = session.declare_publisher(k.state(1))
-        poses = session.declare_subscriber(k.all_poses, zenoh.handlers.RingChannel(64),
-                                           allowed_origin=zenoh.Locality.REMOTE)
-        session.declare_subscriber(k.cmd(1), lambda sample: None)
+        telemetry = session.declare_publisher(k.telemetry(uav))
+        state = session.declare_publisher(k.state(uav))
+        if fleet:
+            poses = session.declare_subscriber(k.pose_feed, zenoh.handlers.RingChannel(256))
+            alive = session.liveliness().declare_subscriber(k.all_alive, zenoh.handlers.RingChannel(256), history=True)
+            session.liveliness().declare_token(k.alive("uav", uav))
+        else:
+            poses = session.declare_subscriber(k.all_poses, zenoh.handlers.RingChannel(64),
+                                               allowed_origin=zenoh.Locality.REMOTE)
+        session.declare_subscriber(k.cmd(uav), lambda sample: None)
         session.declare_subscriber(k.swarm_cmd, lambda sample: None)
 
-        def inlet() -> None:
+        def inlet() -> None:  # as the UAV's inlet: stamp and queue, nothing else on this thread
             try:
                 while True:
-                    poses.handler.recv()
+                    sample = poses.handler.recv()
+                    batches.append((time.time(), sample))
             except zenoh.ZError:
                 return
 
-        threading.Thread(target=inlet, daemon=True).start()
+        inlet_thread = threading.Thread(target=inlet, daemon=True)
+        inlet_thread.start()
+        if fleet:
+            (workdir / f"ready-{uav}").touch()
 
     def drain(sock: socket.socket) -> None:
         for _ in range(256):
@@ -128,10 +165,12 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
             except BlockingIOError:
                 return
 
+    newest: dict[int, Pose] = {}
+    taken = [0, 0]  # batches, poses decoded
     with open(workdir / f"trajectory-{os.getpid()}.csv", "w") as trajectory:  # written by io variants only
         t0 = time.monotonic()
         next_tick, next_second, tick = t0, t0 + 1.0, 0
-        while (now := time.monotonic()) < t0 + seconds:
+        while (now := time.monotonic()) < t0 + seconds and not stop.is_set():
             if next_tick > now:
                 select.select([waker], [], [], next_tick - now)
                 continue
@@ -144,7 +183,19 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
             agent.sendto(SETPOINT, fcu_at)
             drain(fcu)
             if session is not None:
-                pose.put(POSE)
+                if fleet:
+                    wall = time.time()
+                    pose.put(encode_pose(Pose(uav, Realm.VIRTUAL, tick & 0xFFFF, now - t0, wall, 10.0 + uav, 20.0, 30.0,
+                                              0.5, 0.5, 0.0, 1.571)))
+                    for _ in range(len(batches)):
+                        _, sample = batches.popleft()
+                        taken[0] += 1
+                        if variant == "fleet+decode":
+                            taken[1] += decode_batch(sample, newest, uav)
+                    while alive.handler.try_recv() is not None:
+                        pass
+                else:
+                    pose.put(POSE)
                 if tick % 5 == 0:
                     telemetry.put(bytes(60))
                 if tick % 10 == 0:
@@ -154,11 +205,33 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
                 next_second += 1.0
                 trajectory.flush()
                 tmp = counters.with_name(f".{counters.name}.tmp")
-                tmp.write_text(json.dumps({"tick": tick, "rx": list(range(40))}))
+                tmp.write_text(json.dumps({"tick": tick, "t": now - t0, "batches": taken[0], "poses": taken[1],
+                                           "rx": list(range(40))}))
                 os.replace(tmp, counters)
     stop.set()
     if session is not None:
         session.close()
+        # a thread still blocked in Zenoh at exit aborts the process ("FATAL: exception not rethrown")
+        inlet_thread.join(5.0)
+
+
+def decode_batch(sample: Any, newest: dict[int, Pose], own: int) -> int:
+    """A feed batch taken in as a UAV's node takes it: the envelope, then each pose by the batch
+    rule, the newest kept per sender but ``own``. Returns the neighbours' poses accepted."""
+    try:
+        batch = accept_pose_batch(str(sample.key_expr), sample.payload.to_bytes())
+    except Rejected:
+        return 0
+    n = 0
+    for sender, data in zip(batch.senders, batch.poses, strict=True):
+        try:
+            p = accept_batched_pose(sender, data)
+        except Rejected:
+            continue
+        if p.uav != own:  # our own pose comes back in the swarm's batch
+            newest[p.uav] = p
+            n += 1
+    return n
 
 
 def cpu_of(proc: psutil.Process, warmup: float, window: float) -> float:
@@ -185,76 +258,187 @@ def run_skeleton(variant: str, endpoint: str, window: float, workdir: Path, keys
             child.wait()
 
 
-def run_uav(window: float, workdir: Path) -> float:
-    """The real lone UAV: one ``scale.py`` run at N = 1, the default configuration."""
+def run_uav(window: float, workdir: Path, n: int = 1) -> dict[str, float]:
+    """A real UAV: one ``scale.py`` run of ``n`` UAVs, its median UAV. A lone UAV in the default
+    configuration; a fleet in ``client-edge``, what the default is above 25 UAVs, as the skeletons."""
     out = workdir / "scale"
-    cmd = [sys.executable, str(ROOT / "benchmarks" / "scale.py"), "--sizes", "1", "--configs", "default",
-           "--window", str(window), "--out", str(out), "--tag", "lone"]
-    subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True, timeout=600,
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs",
+           "default" if n == 1 else "client-edge",
+           "--window", str(window), "--out", str(out), "--tag", "uav"]
+    subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True, timeout=600 + 6 * n,
                    stdout=subprocess.DEVNULL)
-    rows = json.loads((out / "lone.json").read_text())["rows"]
-    return float(rows[0]["cpu_pct_median"])
+    row = json.loads((out / "uav.json").read_text())["rows"][0]
+    return {"cpu_pct": float(row["cpu_pct_median"]), "cpu_pct_max": float(row["cpu_pct_max"]),
+            "router_cpu_pct": float(row.get("router_cpu_pct") or 0.0), "rtf_min": float(row["rtf_min"]),
+            "batches_rx_per_uav_s": float("nan"), "poses_rx_per_uav_s": float(row.get("poses_rx_per_uav_s") or "nan")}
 
 
-def plot(rows: list[dict[str, Any]], path: Path) -> None:
+THREAD_GROUPS = ("main", "python", "zenoh_rx", "zenoh_tx", "zenoh_other")
+
+
+def thread_times(proc: psutil.Process) -> dict[str, float]:
+    """CPU seconds of ``proc``'s threads by group: its main thread, its other Python threads, and
+    Zenoh's (named by their runtime: ``rx-*`` receive, ``tx-*`` send, ``net-*``/``acc-*``/``app-*``)."""
+    out = dict.fromkeys(THREAD_GROUPS, 0.0)
+    for t in proc.threads():
+        try:
+            name = Path(f"/proc/{proc.pid}/task/{t.id}/comm").read_text().strip()
+        except OSError:  # the thread ended meanwhile
+            continue
+        group = "main" if t.id == proc.pid else "zenoh_rx" if name.startswith("rx-") else \
+            "zenoh_tx" if name.startswith("tx-") else "zenoh_other" if name[:4] in ("net-", "acc-", "app-") else "python"
+        out[group] += t.user_time + t.system_time
+    return out
+
+
+def run_fleet(variant: str, n: int, endpoint: str, window: float, workdir: Path, keys: Path,
+              router: psutil.Process) -> dict[str, float]:
+    """``n`` skeletons of ``variant`` at once: their median and highest CPU, and the edge router's, over ``window`` s."""
+    warmup = 5.0
+    for f in [*workdir.glob("ready-*"), *workdir.glob("counters-uav*")]:
+        f.unlink()
+    children = [subprocess.Popen([sys.executable, __file__, "--child", variant, "--endpoint", endpoint,
+                                  "--seconds", str(300.0 + window), "--workdir", str(workdir), "--keys", str(keys),
+                                  "--uav", str(i)], env={**os.environ, "PYTHONPATH": str(ROOT)})
+                for i in range(1, n + 1)]
+    try:
+        deadline = time.monotonic() + 240.0
+        while len(list(workdir.glob("ready-*"))) < n:
+            if time.monotonic() > deadline or any(c.poll() is not None for c in children):
+                raise SystemExit(f"{variant}: {len(list(workdir.glob('ready-*')))} of {n} skeletons linked to the router")
+            time.sleep(0.5)
+        time.sleep(warmup)
+        procs = [psutil.Process(c.pid) for c in children] + [router]
+        before = [p.cpu_times() for p in procs]
+        threads_before = [thread_times(p) for p in procs[:-1]]
+        time.sleep(window)
+        after = [p.cpu_times() for p in procs]
+        threads_after = [thread_times(p) for p in procs[:-1]]
+        cpu = [100.0 * ((b.user + b.system) - (a.user + a.system)) / window for a, b in zip(before, after, strict=True)]
+        taken = [json.loads((workdir / f"counters-uav{i}.json").read_text()) for i in range(1, n + 1)]
+        by_thread = {f"cpu_pct_{group}": statistics.median(100.0 * (b.get(group, 0.0) - a.get(group, 0.0)) / window
+                                                           for a, b in zip(threads_before, threads_after, strict=True))
+                     for group in THREAD_GROUPS}
+        return {"cpu_pct": statistics.median(cpu[:-1]), "cpu_pct_max": max(cpu[:-1]), "router_cpu_pct": cpu[-1],
+                "rtf_min": float("nan"), "batches_rx_per_uav_s": statistics.median(c["batches"] / c["t"] for c in taken),
+                "poses_rx_per_uav_s": statistics.median(c["poses"] / c["t"] for c in taken), **by_thread}
+    finally:
+        for c in children:
+            c.terminate()
+        for c in children:
+            try:
+                c.wait(timeout=30.0)
+            except subprocess.TimeoutExpired:
+                c.kill()
+                c.wait()
+
+
+def plot(rows: list[dict[str, Any]], path: Path, variants: tuple[str, ...], target: float, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    for i, v in enumerate(VARIANTS):
-        ys = [r["cpu_pct"] for r in rows if r["variant"] == v]
+    for i, v in enumerate(variants):
+        ys = [r["cpu_pct"] for r in rows if r.get("label", r["variant"]) == v]
         ax.scatter([i] * len(ys), ys, color="tab:blue", alpha=0.6)
         if ys:
             ax.hlines(statistics.median(ys), i - 0.3, i + 0.3, color="tab:red")
-    ax.axhline(1.2, color="grey", linestyle="--", label="a lone UAV's target, 1.2 %")
-    ax.set_xticks(range(len(VARIANTS)), VARIANTS)
+    ax.axhline(target, color="grey", linestyle="--", label=f"the target, {target:g} %")
+    ax.set_xticks(range(len(variants)), variants, rotation=15)
     ax.set_ylabel("% of one core (red: median)")
     ax.set_ylim(bottom=0)
-    ax.set_title("A lone UAV's I/O without its logic, and the UAV")
+    ax.set_title(title)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def start_router(listen: str, security: list[str], *extra: str) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, "-m", "discovery.rendezvous", "--listen", listen, *security, *extra],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def measure_lone(args: argparse.Namespace, work: Path, routers: list[subprocess.Popen[bytes]]) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    keys = throwaway_keys(work / "keys", SWARM, [NodeName("edge", 0, SWARM), NodeName.uav(1, SWARM)])
+    plain, tls = free_port(), free_port()
+    endpoints = {"io+zenoh": f"tcp/127.0.0.1:{plain}", "io+zenoh-tls": f"tls/127.0.0.1:{tls}"}
+    routers.append(start_router(endpoints["io+zenoh"], ["--insecure"]))
+    routers.append(start_router(endpoints["io+zenoh-tls"], ["--keys", str(keys), "--stats", str(work / "router.json")]))
+    wait_tcp("127.0.0.1", plain, timeout=20.0)
+    wait_file(work / "router.json", timeout=20.0, proc=routers[1])  # a bare TCP probe would count as refused
+    for rnd in range(args.rounds):
+        for v in VARIANTS if rnd % 2 == 0 else VARIANTS[::-1]:
+            cpu = run_uav(args.window, work)["cpu_pct"] if v == "uav" else \
+                run_skeleton(v, endpoints.get(v, ""), args.window, work, keys)
+            rows.append({"round": rnd, "variant": v, "cpu_pct": round(cpu, 3)})
+            print(f"round {rnd} {v}: {cpu:.3f} % of a core", flush=True)
+    return rows
+
+
+def measure_fleet(args: argparse.Namespace, work: Path, routers: list[subprocess.Popen[bytes]]) -> list[dict[str, Any]]:
+    n = args.fleet
+    rows: list[dict[str, Any]] = []
+    keys = throwaway_keys(work / "keys", SWARM, [NodeName("edge", 0, SWARM), *(NodeName.uav(i, SWARM) for i in range(1, n + 1))])
+    runs: list[tuple[str, str, float]] = []  # (label, variant, the edge feed's window in ms)
+    endpoints: dict[float, str] = {}
+    for w in args.feed_window_ms:  # a router per window, each with its own stats file
+        endpoints[w] = endpoint = f"tls/127.0.0.1:{free_port()}"
+        stats = work / f"router-{w:g}.json"
+        routers.append(start_router(endpoint, ["--keys", str(keys), "--stats", str(stats)], "--feed", SWARM,
+                                    "--feed-window-ms", f"{w:g}"))
+        wait_file(stats, timeout=20.0, proc=routers[-1])
+        for v in args.variants:
+            if v != "uav":
+                runs.append((v if len(args.feed_window_ms) == 1 else f"{v} {w:g} ms", v, w))
+    if "uav" in args.variants:
+        runs.append(("uav", "uav", 1000 * DEFAULT_WINDOW))  # the fleet as mrswarm run starts it
+    by_window = {w: psutil.Process(r.pid) for w, r in zip(args.feed_window_ms, routers, strict=True)}
+    for rnd in range(args.rounds):
+        for label, v, w in runs if rnd % 2 == 0 else runs[::-1]:
+            r = run_uav(args.window, work, n) if v == "uav" else \
+                run_fleet(v, n, endpoints[w], args.window, work, keys, by_window[w])
+            rows.append({"round": rnd, "label": label, "variant": v, "n": n, "feed_window_ms": w,
+                         **{k: round(x, 3) for k, x in r.items()}})
+            print(f"round {rnd} {label}: median {r['cpu_pct']:.3f} % of a core per UAV (max {r['cpu_pct_max']:.3f}), "
+                  f"edge router {r['router_cpu_pct']:.2f} %, {r['batches_rx_per_uav_s']:.0f} batches and "
+                  f"{r['poses_rx_per_uav_s']:.0f} poses taken in a second per UAV", flush=True)
+    return rows
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=3, help="each round runs every variant once, in turn")
     ap.add_argument("--window", type=float, default=30.0, help="measurement window per run, s")
+    ap.add_argument("--fleet", type=int, default=0, metavar="N",
+                    help="a UAV among N (client mode, edge feed, TLS) instead of a lone UAV")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
-    ap.add_argument("--tag", default="lone_floor")
-    ap.add_argument("--child", choices=VARIANTS[:-1], help=argparse.SUPPRESS)
+    ap.add_argument("--tag", default="", help="output file names (default: lone_floor, or fleet_floor_n<N>)")
+    ap.add_argument("--child", choices=[*VARIANTS[:-1], *FLEET_VARIANTS[:-1]], help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", default="", help=argparse.SUPPRESS)
     ap.add_argument("--seconds", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--workdir", default="", help=argparse.SUPPRESS)
     ap.add_argument("--keys", default="", help=argparse.SUPPRESS)
+    ap.add_argument("--feed-window-ms", type=float, nargs="+", default=[1000 * DEFAULT_WINDOW],
+                    help="with --fleet: the edge feed's window(s), ms; the skeletons run at each, side by side "
+                         "(the real fleet at the default)")
+    ap.add_argument("--variants", nargs="+", choices=FLEET_VARIANTS, default=list(FLEET_VARIANTS),
+                    help="with --fleet: which to run")
+    ap.add_argument("--uav", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        skeleton(args.child, args.endpoint, args.seconds, Path(args.workdir), args.keys)
+        skeleton(args.child, args.endpoint, args.seconds, Path(args.workdir), args.keys, args.uav)
         return 0
+    if args.fleet < 0 or args.fleet == 1:
+        ap.error("--fleet: a fleet of at least 2 UAVs (a lone UAV: leave it out)")
+    tag = args.tag or (f"fleet_floor_n{args.fleet}" if args.fleet else "lone_floor")
 
-    rows: list[dict[str, Any]] = []
     routers: list[subprocess.Popen[bytes]] = []
     with tempfile.TemporaryDirectory(prefix="lone-floor-") as tmp:
-        work = Path(tmp)
-        keys = throwaway_keys(work / "keys", SWARM, [NodeName("edge", 0, SWARM), NodeName.uav(1, SWARM)])
-        plain, tls = free_port(), free_port()
-        endpoints = {"io+zenoh": f"tcp/127.0.0.1:{plain}", "io+zenoh-tls": f"tls/127.0.0.1:{tls}"}
         try:
-            for endpoint, security in ((endpoints["io+zenoh"], ["--insecure"]),
-                                       (endpoints["io+zenoh-tls"], ["--keys", str(keys), "--stats", str(work / "router.json")])):
-                routers.append(subprocess.Popen([sys.executable, "-m", "discovery.rendezvous", "--listen", endpoint, *security],
-                                                cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-            wait_tcp("127.0.0.1", plain, timeout=20.0)
-            wait_file(work / "router.json", timeout=20.0, proc=routers[1])  # a bare TCP probe would count as refused
-            for rnd in range(args.rounds):
-                order = VARIANTS if rnd % 2 == 0 else VARIANTS[::-1]
-                for v in order:
-                    cpu = run_uav(args.window, work) if v == "uav" else \
-                        run_skeleton(v, endpoints.get(v, ""), args.window, work, keys)
-                    rows.append({"round": rnd, "variant": v, "cpu_pct": round(cpu, 3)})
-                    print(f"round {rnd} {v}: {cpu:.3f} % of a core", flush=True)
+            rows = (measure_fleet if args.fleet else measure_lone)(args, Path(tmp), routers)
         finally:
             for r in routers:
                 r.terminate()
@@ -262,13 +446,17 @@ def main() -> int:
                     r.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     r.kill()
-    medians = {v: statistics.median(r["cpu_pct"] for r in rows if r["variant"] == v) for v in VARIANTS}
+    labels = tuple(dict.fromkeys(r.get("label", r["variant"]) for r in rows))
+    medians = {v: statistics.median(r["cpu_pct"] for r in rows if r.get("label", r["variant"]) == v) for v in labels}
     for v, m in medians.items():
         print(f"median {v}: {m:.3f} %")
     out = Path(args.out)
-    write_results(out, args.tag, {"args": vars(args), "medians": medians, "rows": rows}, rows)
-    plot(rows, out / f"{args.tag}.png")
-    print(f"wrote {out / args.tag}.json/.csv/.png")
+    write_results(out, tag, {"args": vars(args), "medians": medians, "rows": rows}, rows)
+    if args.fleet:
+        plot(rows, out / f"{tag}.png", labels, 1.5, f"A UAV among {args.fleet}: its I/O without its logic, and the UAV")
+    else:
+        plot(rows, out / f"{tag}.png", labels, 1.2, "A lone UAV's I/O without its logic, and the UAV")
+    print(f"wrote {out / tag}.json/.csv/.png")
     return 0
 
 
