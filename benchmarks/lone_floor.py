@@ -453,7 +453,8 @@ def main() -> int:
     out = Path(args.out)
     write_results(out, tag, {"args": vars(args), "medians": medians, "rows": rows}, rows)
     if args.fleet:
-        plot(rows, out / f"{tag}.png", labels, 1.5, f"A UAV among {args.fleet}: its I/O without its logic, and the UAV")
+        plot(rows, out / f"{tag}.png", labels, 1.5,
+             f"A UAV among {args.fleet}: its I/O without its logic" + (", and the UAV" if "uav" in labels else ""))
     else:
         plot(rows, out / f"{tag}.png", labels, 1.2, "A lone UAV's I/O without its logic, and the UAV")
     print(f"wrote {out / tag}.json/.csv/.png")
