@@ -24,6 +24,8 @@ feed with ``network.interest`` (``--interest-radius-m``, ``--interest-far-hz``);
 gives the poses each UAV received a second and the mean number of others within the radius::
 
     python benchmarks/scale.py --sizes 10 25 50 100 --configs client-edge client-edge-interest --tag scale_interest
+
+Ticks on the wall clock's grid (``network.align_ticks``) against each UAV's own: ``client-edge-aligned``.
 The machine is noisy: numbers are medians over the UAV processes of one run per cell.
 """
 
@@ -58,6 +60,7 @@ CONFIGS: dict[str, tuple[str | None, str | None, str | None]] = {
     "rendezvous-direct": ("rendezvous", "peer", "direct"),
     "discovery-edge-interest": ("discovery", "peer", "edge"),  # as discovery-edge, with spatial interest
     "client-edge-interest": ("rendezvous", "client", "edge"),  # as client-edge, with spatial interest
+    "client-edge-aligned": ("rendezvous", "client", "edge"),  # as client-edge, every UAV's ticks on the wall clock's grid
 }
 INTEREST = {"radius_m": 60.0, "margin_m": 5.0, "far_rate_hz": 0.5}  # 60 m: ~4.5 others within it at 2500 m^2 per UAV
 
@@ -72,6 +75,8 @@ def scenario_for(n: int, duration: float, config: str, interest: dict[str, float
         network["lease_s"] = lease_s
     if config.endswith("-interest"):
         network["interest"] = interest or INTEREST
+    if config.endswith("-aligned"):
+        network["align_ticks"] = True
     return parse_scenario({
         "name": f"scale{n}",
         "swarm": f"bench{n}",

@@ -195,6 +195,9 @@ class Network(Config, frozen=True):
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
     security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
+    # every UAV ticks (and publishes its pose) on the wall clock's grid, all at the same instants:
+    # fewer, fuller edge-feed batches, less CPU; older poses on a loaded machine (docs/scale.md)
+    align_ticks: bool = False
 
     def __post_init__(self) -> None:
         if self.security is False:
@@ -491,6 +494,7 @@ class Scenario(Config, kw_only=True, frozen=True):
                 failsafe=self.failsafe,
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
+                align_ticks=self.network.align_ticks,
             )
             out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
                                         heading=math.radians(u.heading), flavour=u.flavour))

@@ -178,12 +178,18 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
     Between ticks the loop waits on the swarm node's waker rather than sleeping: a command
     (or a netem change) wakes it, and :meth:`Agent.react` handles it at once. Poses do not
     wake it: they wait, stamped with their arrival, for the next tick's control.
+
+    With ``align_ticks`` in the agent's configuration the ticks fall on the wall clock's grid
+    (whole multiples of the period since the Unix epoch), found again at every tick so that a
+    step of the wall clock moves the grid, never bursts it; otherwise the grid starts now.
+    Either way a late tick skips to the next one on its grid.
     """
     parent = os.getppid()
     period = 1.0 / (tick_hz or tick_hz_for(agent.cfg))
     t0 = time.monotonic()
     end = math.inf if duration is None else t0 + duration
-    next_tick = t0
+    aligned = agent.cfg.align_ticks
+    next_tick = t0 + (-time.time()) % period if aligned else t0
     while not stop.stopped:
         now_m = time.monotonic()
         if now_m >= end:
@@ -192,7 +198,13 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             if agent.node.waker.wait(min(next_tick, end) - now_m):
                 agent.react(time.time())
             continue
-        next_tick = max(next_tick + period, now_m)  # late: skip, never burst
+        if aligned:  # the next instant of the wall clock's grid after this tick's own
+            to_next = period - (time.time() % period)
+            # a wake-up a hair before its instant (the two clocks' readings differ by
+            # microseconds) belongs to that instant: not a second tick right after it
+            next_tick = now_m + (to_next if to_next > 0.1 * period else to_next + period)
+        else:
+            next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
             fcu.poll_io()
             fcu.service()

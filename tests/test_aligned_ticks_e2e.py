@@ -1,0 +1,71 @@
+"""``network.align_ticks``: every UAV ticks on the wall clock's grid, so the edge feed carries a
+round of poses in one batch rather than one batch per pose (docs/scale.md).
+
+Real UAV processes through a real edge router: four UAVs fly a short coverage in client mode
+with the edge feed; their trajectory rows (one per control tick, stamped with the wall time)
+must fall on the 100 ms grid, and the batches they received must each carry the poses of
+several others.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from mrswarm.analysis import load_stats, load_tracks
+from mrswarm.experiment import Experiment
+from mrswarm.scenario import parse_scenario
+
+N = 4
+PERIOD = 0.1  # s: the agent's 10 Hz tick
+
+
+def scenario(align: bool) -> object:
+    return parse_scenario({
+        "name": "aligned",
+        "swarm": "aligned",
+        "seed": 3,
+        "duration": 12,
+        "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
+        "network": {"connectivity": "rendezvous", "mode": "client", "pose_feed": "edge", "align_ticks": align},
+        "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
+        "mission": {"type": "coverage", "strategy": "lawnmower", "area": {"x_min": -30, "x_max": 30, "y_min": -20, "y_max": 20},
+                    "sensor_radius": 6},
+        "fleet": {"count": N, "spawn": {"pattern": "line", "spacing": 8, "center": [0, -25]}},
+    })
+
+
+def fly(tmp_path: Path, align: bool) -> tuple[dict[int, float], float]:
+    """Each UAV's median distance of its ticks from the 100 ms grid (s), and the neighbours'
+    poses per edge-feed batch received, over the swarm."""
+    exp = Experiment(scenario(align), tmp_path / str(align), console=Console(quiet=True), live=False,  # type: ignore[arg-type]
+                     log_level="WARNING")
+    summary = exp.run().to_dict()
+    run = Path(summary["run_dir"])
+    assert summary["uavs_recorded"] == N, summary.get("aborted")
+    assert summary["separation"]["collisions"] == 0
+    off_grid = {}
+    for uav, track in load_tracks(run).items():
+        phase = np.mod(track.t, PERIOD)
+        off_grid[uav] = float(np.median(np.minimum(phase, PERIOD - phase)))  # a tick a hair early is on the grid too
+    stats = load_stats(run)
+    poses = sum(s["net"]["received"].get("pose", 0) for s in stats.values())
+    batches = sum(s["net"]["received"].get("pose_batch", 0) for s in stats.values())
+    assert batches > 0, "no edge-feed batch received"
+    return off_grid, poses / batches
+
+
+@pytest.mark.e2e
+def test_aligned_ticks_fall_on_the_grid_and_share_batches(tmp_path: Path) -> None:
+    off_grid, per_batch = fly(tmp_path, align=True)
+    # every UAV's ticks within a few ms of the same wall-clock instants (a loaded machine runs them late)
+    assert max(off_grid.values()) < 0.015, off_grid
+    # a round's poses reach each UAV together: the 3 others in one batch, not one batch each
+    assert per_batch >= 2.0, per_batch
+
+    # each UAV's own grid (the default): ticks anywhere in the period, a batch per pose or so
+    _own, own_per_batch = fly(tmp_path, align=False)
+    assert own_per_batch < per_batch, (own_per_batch, per_batch)
