@@ -198,12 +198,31 @@ class Agent(OverridesMixin):
 
     # ---- the loop body --------------------------------------------------------------------
     def step(self, now: float) -> None:
+        """One tick: :meth:`sense` then :meth:`act` at once."""
+        self._act(now, self._sense(now))
+
+    def sense(self, now: float) -> None:
+        """The first half of a tick whose halves run apart (``network.align_ticks``): the FCU's
+        messages in, the own pose out. :meth:`act` follows once the swarm's poses of the same
+        instant have had time to arrive. What ground stations sent the FCU leaves now, not then."""
+        self._sense(now)
+        if self.router is not None:
+            self.router.flush()
+
+    def act(self, now: float) -> None:
+        """The second half of a tick whose halves run apart: the FCU's messages that came
+        meanwhile, then what arrived from the swarm, control, setpoints and reports."""
+        self.link.poll()
+        self._act(now, self._update_own())
+
+    def _sense(self, now: float) -> bool:
+        """FCU in, pose out; True if the own position is known."""
         link, node = self.link, self.node
         link.poll()
         link.service()
         router = self.router
         if router is not None:
-            router.poll()  # ground stations -> FCU (sent by router.flush() below)
+            router.poll()  # ground stations -> FCU (sent by router.flush() in _act)
             if router.takeover is not None:
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None
@@ -222,6 +241,11 @@ class Agent(OverridesMixin):
                 t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
                 t_wall=st.position_at,
             )
+        return have_pos
+
+    def _act(self, now: float, have_pos: bool) -> None:
+        """Swarm in, control and reports out."""
+        link, node, router = self.link, self.node, self.router
         self.react(now)
         if self._deferred:
             self._settle_acks(now)

@@ -179,17 +179,17 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
     (or a netem change) wakes it, and :meth:`Agent.react` handles it at once. Poses do not
     wake it: they wait, stamped with their arrival, for the next tick's control.
 
-    With ``align_ticks`` in the agent's configuration the ticks fall on the wall clock's grid
-    (whole multiples of the period since the Unix epoch), found again at every tick so that a
-    step of the wall clock moves the grid, never bursts it; otherwise the grid starts now.
-    Either way a late tick skips to the next one on its grid.
+    With ``align_ticks`` in the agent's configuration the ticks fall on the wall clock's grid,
+    every UAV's at the same instants, each tick in two halves (:func:`_run_aligned`).
     """
     parent = os.getppid()
     period = 1.0 / (tick_hz or tick_hz_for(agent.cfg))
     t0 = time.monotonic()
     end = math.inf if duration is None else t0 + duration
-    aligned = agent.cfg.align_ticks
-    next_tick = t0 + (-time.time()) % period if aligned else t0
+    if agent.cfg.align_ticks:
+        _run_aligned(agent, stop, fcu, period, end, parent)
+        return
+    next_tick = t0
     while not stop.stopped:
         now_m = time.monotonic()
         if now_m >= end:
@@ -198,19 +198,61 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             if agent.node.waker.wait(min(next_tick, end) - now_m):
                 agent.react(time.time())
             continue
-        if aligned:  # the next instant of the wall clock's grid after this tick's own
-            to_next = period - (time.time() % period)
-            # a wake-up a hair before its instant (the two clocks' readings differ by
-            # microseconds) belongs to that instant: not a second tick right after it
-            next_tick = now_m + (to_next if to_next > 0.1 * period else to_next + period)
-        else:
-            next_tick = max(next_tick + period, now_m)  # late: skip, never burst
+        next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
             fcu.poll_io()
             fcu.service()
         agent.step(time.time())
         if fcu is not None:
             fcu.poll_io()  # the setpoints and commands just sent: applied now, not a tick later
+        if os.getppid() != parent:  # re-parented: the launcher is gone
+            break
+
+
+def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: float, end: float, parent: int) -> None:
+    """:func:`run_loop` on the wall clock's grid: each tick's halves half a period apart.
+
+    At each instant of the grid (whole multiples of ``period`` s since the Unix epoch, found
+    again every tick, so that a step of the wall clock moves the grid, never bursts it) the FCU
+    and :meth:`Agent.sense`: the own pose leaves, as every other UAV's does at that instant.
+    Half a period later :meth:`Agent.act`: the control sees the others' poses of that instant
+    (a loaded machine delays them by tens of ms) rather than those of the instant before. A
+    late half runs at once; a half more than a period late is skipped.
+    """
+    def next_instant(now_m: float) -> float:
+        to_next = period - (time.time() % period)
+        # a wake-up a hair before its instant (the two clocks' readings differ by microseconds)
+        # belongs to that instant: not a second tick right after it
+        return now_m + (to_next if to_next > 0.1 * period else to_next + period)
+
+    next_sense = next_instant(time.monotonic())
+    next_act = math.inf
+    while not stop.stopped:
+        now_m = time.monotonic()
+        if now_m >= end:
+            break
+        due = min(next_sense, next_act)
+        if due > now_m:
+            if agent.node.waker.wait(min(due, end) - now_m):
+                agent.react(time.time())
+            continue
+        if next_act <= next_sense:  # the act of the last instant first, even when late
+            next_act = math.inf
+            if fcu is not None:
+                fcu.poll_io()
+            agent.act(time.time())
+            if fcu is not None:
+                fcu.poll_io()  # the setpoints just sent: applied now
+            continue
+        instant = next_sense  # its own instant, unless more than a period late
+        next_sense = next_instant(now_m)
+        next_act = max(instant, next_sense - period) + 0.5 * period
+        if fcu is not None:
+            fcu.poll_io()
+            fcu.service()
+        agent.sense(time.time())
+        if fcu is not None:
+            fcu.poll_io()
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
 
