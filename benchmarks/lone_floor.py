@@ -37,8 +37,12 @@ queues them, commands, liveliness), beside the real fleet:
 * ``fleet+decode``: each tick also decodes every batch and every pose in it with the UAV's own
   rules (``accept_pose_batch``, ``accept_batched_pose``) and keeps the newest per sender: the
   least Python any UAV must run for what it receives;
-* ``uav``: a UAV of the real fleet (``scale.py --configs client-edge``, what the default is
-  above 25 UAVs; the median UAV, as ``scale.py`` reports it).
+* ``fleet-aligned``, ``fleet-aligned+decode``: the same with every skeleton's ticks on the wall
+  clock's 100 ms grid, as ``network.align_ticks`` has the UAVs' (all at the same instants);
+* ``uav``: a UAV of the real fleet, each UAV's ticks on its own grid (``scale.py --configs
+  client-edge``; the median UAV, as ``scale.py`` reports it);
+* ``uav-aligned``: the same with aligned ticks (``client-edge-aligned``, what the default is
+  above 25 UAVs).
 
     python benchmarks/lone_floor.py --rounds 3 --window 30 --out benchmarks/results
     # -> benchmarks/results/lone_floor.{json,csv,png}; about 13 minutes
@@ -80,7 +84,7 @@ from swarmnet.security.credentials import Credentials  # noqa: E402
 from swarmnet.security.identity import NodeName  # noqa: E402
 
 VARIANTS = ("wake", "io", "io+zenoh", "io+zenoh-tls", "uav")
-FLEET_VARIANTS = ("fleet", "fleet+decode", "uav")
+FLEET_VARIANTS = ("fleet", "fleet+decode", "fleet-aligned", "fleet-aligned+decode", "uav", "uav-aligned")
 SWARM = "floor"
 TICK_S = 0.1  # the UAV's loop: 10 Hz
 TELEMETRY = bytes(89)  # a tick's MAVLink telemetry: about 2.7 frames (GLOBAL_POSITION_INT 10 Hz and the rest)
@@ -93,6 +97,7 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     waker = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
     io = variant != "wake"
     fleet = variant.startswith("fleet")
+    decode = variant.endswith("+decode")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if io:
@@ -170,11 +175,17 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     with open(workdir / f"trajectory-{os.getpid()}.csv", "w") as trajectory:  # written by io variants only
         t0 = time.monotonic()
         next_tick, next_second, tick = t0, t0 + 1.0, 0
+        if "aligned" in variant:  # on the wall clock's grid; the first tick at its next instant
+            next_tick = t0 + (-time.time()) % TICK_S
         while (now := time.monotonic()) < t0 + seconds and not stop.is_set():
             if next_tick > now:
                 select.select([waker], [], [], next_tick - now)
                 continue
-            next_tick = max(next_tick + TICK_S, now)
+            if "aligned" in variant:  # the grid's next instant (a wake-up a hair early belongs to this one)
+                to_next = TICK_S - time.time() % TICK_S
+                next_tick = now + (to_next if to_next > 0.1 * TICK_S else to_next + TICK_S)
+            else:
+                next_tick = max(next_tick + TICK_S, now)
             tick += 1
             if not io:
                 continue
@@ -190,7 +201,7 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
                     for _ in range(len(batches)):
                         _, sample = batches.popleft()
                         taken[0] += 1
-                        if variant == "fleet+decode":
+                        if decode:
                             taken[1] += decode_batch(sample, newest, uav)
                     while alive.handler.try_recv() is not None:
                         pass
@@ -258,12 +269,10 @@ def run_skeleton(variant: str, endpoint: str, window: float, workdir: Path, keys
             child.wait()
 
 
-def run_uav(window: float, workdir: Path, n: int = 1) -> dict[str, float]:
-    """A real UAV: one ``scale.py`` run of ``n`` UAVs, its median UAV. A lone UAV in the default
-    configuration; a fleet in ``client-edge``, what the default is above 25 UAVs, as the skeletons."""
+def run_uav(window: float, workdir: Path, n: int = 1, config: str = "default") -> dict[str, float]:
+    """A real UAV: one ``scale.py`` run of ``n`` UAVs in ``config``, its median UAV."""
     out = workdir / "scale"
-    cmd = [sys.executable, str(ROOT / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs",
-           "default" if n == 1 else "client-edge",
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs", config,
            "--window", str(window), "--out", str(out), "--tag", "uav"]
     subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True, timeout=600 + 6 * n,
                    stdout=subprocess.DEVNULL)
@@ -391,14 +400,16 @@ def measure_fleet(args: argparse.Namespace, work: Path, routers: list[subprocess
                                     "--feed-window-ms", f"{w:g}"))
         wait_file(stats, timeout=20.0, proc=routers[-1])
         for v in args.variants:
-            if v != "uav":
+            if not v.startswith("uav"):
                 runs.append((v if len(args.feed_window_ms) == 1 else f"{v} {w:g} ms", v, w))
-    if "uav" in args.variants:
-        runs.append(("uav", "uav", 1000 * DEFAULT_WINDOW))  # the fleet as mrswarm run starts it
+    for v in ("uav", "uav-aligned"):
+        if v in args.variants:
+            runs.append((v, v, 1000 * DEFAULT_WINDOW))  # the fleet as mrswarm run starts it
     by_window = {w: psutil.Process(r.pid) for w, r in zip(args.feed_window_ms, routers, strict=True)}
     for rnd in range(args.rounds):
         for label, v, w in runs if rnd % 2 == 0 else runs[::-1]:
-            r = run_uav(args.window, work, n) if v == "uav" else \
+            r = run_uav(args.window, work, n, {"uav": "client-edge", "uav-aligned": "client-edge-aligned"}[v]) \
+                if v.startswith("uav") else \
                 run_fleet(v, n, endpoints[w], args.window, work, keys, by_window[w])
             rows.append({"round": rnd, "label": label, "variant": v, "n": n, "feed_window_ms": w,
                          **{k: round(x, 3) for k, x in r.items()}})
@@ -416,7 +427,7 @@ def main() -> int:
                     help="a UAV among N (client mode, edge feed, TLS) instead of a lone UAV")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     ap.add_argument("--tag", default="", help="output file names (default: lone_floor, or fleet_floor_n<N>)")
-    ap.add_argument("--child", choices=[*VARIANTS[:-1], *FLEET_VARIANTS[:-1]], help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=[*VARIANTS[:-1], *FLEET_VARIANTS[:-2]], help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", default="", help=argparse.SUPPRESS)
     ap.add_argument("--seconds", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--workdir", default="", help=argparse.SUPPRESS)
@@ -453,8 +464,8 @@ def main() -> int:
     out = Path(args.out)
     write_results(out, tag, {"args": vars(args), "medians": medians, "rows": rows}, rows)
     if args.fleet:
-        plot(rows, out / f"{tag}.png", labels, 1.5,
-             f"A UAV among {args.fleet}: its I/O without its logic" + (", and the UAV" if "uav" in labels else ""))
+        and_uav = ", and the UAV" if any(v.startswith("uav") for v in labels) else ""
+        plot(rows, out / f"{tag}.png", labels, 1.5, f"A UAV among {args.fleet}: its I/O without its logic{and_uav}")
     else:
         plot(rows, out / f"{tag}.png", labels, 1.2, "A lone UAV's I/O without its logic, and the UAV")
     print(f"wrote {out / tag}.json/.csv/.png")
