@@ -217,7 +217,7 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     and :meth:`Agent.sense`: the own pose leaves, as every other UAV's does at that instant.
     Half a period later :meth:`Agent.act`: the control sees the others' poses of that instant
     (a loaded machine delays them by tens of ms) rather than those of the instant before. A
-    late half runs at once; a half more than a period late is skipped.
+    late half runs at once; instants missed by a loop late more than a period are not made up.
     """
     def next_instant(now_m: float) -> float:
         to_next = period - (time.time() % period)
