@@ -55,7 +55,7 @@ from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
 # name -> (network.connectivity, network.mode, network.pose_feed); None: the scenario leaves it unset
 CONFIGS: dict[str, tuple[str | None, str | None, str | None]] = {
-    "default": (None, None, None),  # chosen for N: discovery-direct up to 25 UAVs, client-edge above (scenario.py)
+    "default": (None, None, None),  # chosen for N: discovery-direct up to 25 UAVs, client-edge-aligned above (scenario.py)
     "discovery-direct": ("discovery", "peer", "direct"),  # beacon relay, peer mesh, every pose direct
     "discovery-edge": ("discovery", "peer", "edge"),      # beacon relay, poses batched by the edge router
     "client-edge": ("rendezvous", "client", "edge"),      # every UAV a client of the edge router, batched poses
