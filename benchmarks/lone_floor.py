@@ -98,6 +98,9 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     io = variant != "wake"
     fleet = variant.startswith("fleet")
     decode = variant.endswith("+decode")
+    aligned = "aligned" in variant  # ticks on the wall clock's grid, as network.align_ticks has the UAVs'
+    if aligned:  # imported only here: the other skeletons load no more than their I/O needs
+        from uav_stack.runtime import next_grid_instant
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if io:
@@ -174,18 +177,13 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     taken = [0, 0]  # batches, poses decoded
     with open(workdir / f"trajectory-{os.getpid()}.csv", "w") as trajectory:  # written by io variants only
         t0 = time.monotonic()
-        next_tick, next_second, tick = t0, t0 + 1.0, 0
-        if "aligned" in variant:  # on the wall clock's grid; the first tick at its next instant
-            next_tick = t0 + (-time.time()) % TICK_S
+        next_tick = next_grid_instant(t0, TICK_S) if aligned else t0
+        next_second, tick = t0 + 1.0, 0
         while (now := time.monotonic()) < t0 + seconds and not stop.is_set():
             if next_tick > now:
                 select.select([waker], [], [], next_tick - now)
                 continue
-            if "aligned" in variant:  # the grid's next instant (a wake-up a hair early belongs to this one)
-                to_next = TICK_S - time.time() % TICK_S
-                next_tick = now + (to_next if to_next > 0.1 * TICK_S else to_next + TICK_S)
-            else:
-                next_tick = max(next_tick + TICK_S, now)
+            next_tick = next_grid_instant(now, TICK_S) if aligned else max(next_tick + TICK_S, now)
             tick += 1
             if not io:
                 continue
@@ -245,13 +243,17 @@ def decode_batch(sample: Any, newest: dict[int, Pose], own: int) -> int:
     return n
 
 
+def cpu_pct(a: Any, b: Any, window: float) -> float:
+    """% of one core used between two ``cpu_times()`` readings ``window`` s apart (user + system)."""
+    return 100.0 * ((b.user + b.system) - (a.user + a.system)) / window
+
+
 def cpu_of(proc: psutil.Process, warmup: float, window: float) -> float:
     """% of one core that ``proc`` used over ``window`` s, after ``warmup`` s."""
     time.sleep(warmup)
     a = proc.cpu_times()
     time.sleep(window)
-    b = proc.cpu_times()
-    return 100.0 * ((b.user + b.system) - (a.user + a.system)) / window
+    return cpu_pct(a, proc.cpu_times(), window)
 
 
 def run_skeleton(variant: str, endpoint: str, window: float, workdir: Path, keys: Path) -> float:
@@ -323,7 +325,7 @@ def run_fleet(variant: str, n: int, endpoint: str, window: float, workdir: Path,
         time.sleep(window)
         after = [p.cpu_times() for p in procs]
         threads_after = [thread_times(p) for p in procs[:-1]]
-        cpu = [100.0 * ((b.user + b.system) - (a.user + a.system)) / window for a, b in zip(before, after, strict=True)]
+        cpu = [cpu_pct(a, b, window) for a, b in zip(before, after, strict=True)]
         taken = [json.loads((workdir / f"counters-uav{i}.json").read_text()) for i in range(1, n + 1)]
         by_thread = {f"cpu_pct_{group}": statistics.median(100.0 * (b.get(group, 0.0) - a.get(group, 0.0)) / window
                                                            for a, b in zip(threads_before, threads_after, strict=True))

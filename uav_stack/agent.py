@@ -222,7 +222,7 @@ class Agent(OverridesMixin):
         link.service()
         router = self.router
         if router is not None:
-            router.poll()  # ground stations -> FCU (sent by router.flush() in _act)
+            router.poll()  # ground stations -> FCU (sent by router.flush(): in sense, or in _act)
             if router.takeover is not None:
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None

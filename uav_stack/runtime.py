@@ -209,6 +209,15 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             break
 
 
+def next_grid_instant(now_m: float, period: float) -> float:
+    """The monotonic time (s) of the wall clock's next grid instant after ``now_m``: the next
+    whole multiple of ``period`` s since the Unix epoch. A wake-up a hair before its instant (the
+    two clocks' readings differ by microseconds) belongs to that instant: the one after is
+    returned, not a second tick right after it."""
+    to_next = period - (time.time() % period)
+    return now_m + (to_next if to_next > 0.1 * period else to_next + period)
+
+
 def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: float, end: float, parent: int) -> None:
     """:func:`run_loop` on the wall clock's grid: each tick's halves half a period apart.
 
@@ -219,13 +228,7 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     (a loaded machine delays them by tens of ms) rather than those of the instant before. A
     late half runs at once; instants missed by a loop late more than a period are not made up.
     """
-    def next_instant(now_m: float) -> float:
-        to_next = period - (time.time() % period)
-        # a wake-up a hair before its instant (the two clocks' readings differ by microseconds)
-        # belongs to that instant: not a second tick right after it
-        return now_m + (to_next if to_next > 0.1 * period else to_next + period)
-
-    next_sense = next_instant(time.monotonic())
+    next_sense = next_grid_instant(time.monotonic(), period)
     next_act = math.inf
     while not stop.stopped:
         now_m = time.monotonic()
@@ -245,7 +248,7 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
                 fcu.poll_io()  # the setpoints just sent: applied now
             continue
         instant = next_sense  # its own instant, unless more than a period late
-        next_sense = next_instant(now_m)
+        next_sense = next_grid_instant(now_m, period)
         next_act = max(instant, next_sense - period) + 0.5 * period
         if fcu is not None:
             fcu.poll_io()
