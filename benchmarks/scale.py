@@ -63,6 +63,7 @@ CONFIGS: dict[str, tuple[str | None, str | None, str | None]] = {
     "discovery-edge-interest": ("discovery", "peer", "edge"),  # as discovery-edge, with spatial interest
     "client-edge-interest": ("rendezvous", "client", "edge"),  # as client-edge, with spatial interest
     "client-edge-aligned": ("rendezvous", "client", "edge"),  # as client-edge, every UAV's ticks on the wall clock's grid
+    "discovery-direct-aligned": ("discovery", "peer", "direct"),  # as discovery-direct, ticks on the wall clock's grid
 }
 INTEREST = {"radius_m": 60.0, "margin_m": 5.0, "far_rate_hz": 0.5}  # 60 m: ~4.5 others within it at 2500 m^2 per UAV
 

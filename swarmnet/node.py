@@ -24,6 +24,7 @@ each pose's age at use (arrival to first use). Both ages live in ``stats.ages``.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -161,6 +162,8 @@ class SwarmNode:
         self._subscribers: list[Any] = []  # kept for as long as the session is open
         self._alive_inlet: Inlet | None = None
         self._netem_inlet: Inlet | None = None
+        self._pose_inlet: Inlet | None = None  # direct poses (not the edge feed's batches): expect_poses()
+        self._expected_since = math.inf  # the instant (wall time, s) whose poses expect_poses() waits for
         self._links: LinkWatch | None = None  # secured swarms: counts links of non-members
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
@@ -212,8 +215,10 @@ class SwarmNode:
                     streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), accept_pose_batch))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                streams.append((POSE, inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE),
-                                pose_rule))
+                poses = inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE)
+                if poses.how == "thread":
+                    self._pose_inlet = poses
+                streams.append((POSE, poses, pose_rule))
             message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
             streams.append((MESSAGE, inlet(k.all_broadcast, 256, "ring", allowed_origin=zenoh.Locality.REMOTE), message_rule))
             if ident.role == "uav":
@@ -256,7 +261,7 @@ class SwarmNode:
                 self._links.close()
                 self._links = None
             self._streams.clear()
-            self._alive_inlet = self._netem_inlet = None
+            self._alive_inlet = self._netem_inlet = self._pose_inlet = None
             self._pubs.clear()
             try:
                 s.close()
@@ -393,6 +398,44 @@ class SwarmNode:
                 n.used = True
                 used(now - n.last_recv)
         return out
+
+    def expect_poses(self, instant: float) -> int | None:
+        """Wake the owner (:attr:`waker`) once the poses of the tick at ``instant`` (wall time, s)
+        have arrived: one from each neighbour heard from at the instant before. Returns how many
+        it waits for: 0 if nobody was heard, None if it cannot tell (the edge feed's batches),
+        and then nothing is armed.
+
+        For aligned ticks (``network.align_ticks``): every UAV publishes at the same instants,
+        so the control can run on the swarm's poses of this instant as soon as they are in
+        (:meth:`expected_poses_due`).
+        """
+        inlet = self._pose_inlet
+        if inlet is None:
+            return None
+        self._expected_since = instant
+        since = instant - 1.5 * self.pose_period
+        count = sum(1 for n in self.neighbours if n.last_recv >= since)
+        if count:
+            inlet.expect(count, instant, self.waker)
+        return count
+
+    def expected_poses_in(self) -> bool:
+        """The poses :meth:`expect_poses` waits for have arrived (a :meth:`poll` takes them in)."""
+        inlet = self._pose_inlet
+        return inlet is not None and inlet.expectation_met
+
+    def expected_poses_due(self) -> float | None:
+        """Once :meth:`expected_poses_in` and a :meth:`poll` took them in: the wall time (s) at
+        which a netem shim releases the last of them it holds; None if it holds none (or there
+        is no shim): they are delivered. A lost pose never comes: the others do not wait for it."""
+        if self.netem is None:
+            return None
+        return self.netem.held_until(POSE, self._expected_since)
+
+    def stop_expecting_poses(self) -> None:
+        """Forget what :meth:`expect_poses` armed, met or not: the owner no longer waits."""
+        if self._pose_inlet is not None:
+            self._pose_inlet.cancel_expectation()
 
     def _arrivals(self, budget: int) -> Iterator[tuple[int, Accepted[Any]]]:
         """Every accepted sample of the data streams, stream by stream (poses first)."""

@@ -28,6 +28,7 @@ delivered.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import threading
@@ -136,7 +137,8 @@ class Inlet:
       watch every UAV): a ring channel drained by the owner; the arrival is the drain's time.
     """
 
-    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "_thread", "__weakref__")
+    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "_thread", "_lock", "_since", "_short", "_quorum_waker",
+                 "__weakref__")
 
     def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback"):
         if waker is not None and how == "ring":
@@ -148,6 +150,10 @@ class Inlet:
         self.clock = clock
         self.how = how
         self.size = size
+        self._lock = threading.Lock()  # the expectation (below), between the owner and the inlet's thread
+        self._since = math.inf  # wall time (s) from which arrivals count towards the expectation
+        self._short = 0  # arrivals still expected before the quorum waker is notified (0: none armed)
+        self._quorum_waker: Waker | None = None
 
     @property
     def stamped(self) -> bool:
@@ -193,17 +199,62 @@ class Inlet:
         t.join(timeout)
         return not t.is_alive()
 
+    def expect(self, count: int, since: float, waker: Waker) -> None:
+        """Notify ``waker`` once ``count`` samples stamped at or after ``since`` (wall time, s)
+        have arrived, those already waiting included; a new expectation replaces the last.
+
+        Why: a UAV whose ticks are aligned (``network.align_ticks``) controls as soon as its
+        neighbours' poses of the tick's instant are in, rather than at a fixed offset that must
+        cover the slowest of them. Only an inlet with its own thread ("thread") counts arrivals.
+        """
+        if self.how != "thread":
+            raise ValueError("only an inlet with its own thread counts arrivals")
+        with self._lock:
+            self._since = since
+            self._quorum_waker = waker
+            short = count - sum(1 for at, _ in self._q if at >= since)
+            self._short = short if short > 0 else 0
+        if short <= 0:
+            waker.notify()
+
+    @property
+    def expectation_met(self) -> bool:
+        """The samples :meth:`expect` waits for have all arrived (until :meth:`cancel_expectation`)."""
+        return self._short == 0 and self._since != math.inf
+
+    def cancel_expectation(self) -> None:
+        """Forget the expectation, met or not (the owner has stopped waiting)."""
+        with self._lock:
+            self._short = 0
+            self._since = math.inf
+
+    def _arrived(self, at: float, n: int) -> None:
+        """``n`` samples stamped ``at`` came in: towards the expectation, if one is armed."""
+        waker = None
+        with self._lock:
+            if self._short and at >= self._since:
+                self._short = max(self._short - n, 0)
+                if not self._short:
+                    waker = self._quorum_waker
+        if waker is not None:
+            waker.notify()
+
     def _receive(self, channel: Any) -> None:
         append, stamp, notify = self._q.append, self.clock, (self.waker.notify if self.waker is not None else None)
         recv, try_recv = channel.recv, channel.try_recv
         while True:
             try:
                 sample = recv()  # blocks, the interpreter's lock released
-                append((stamp(), sample))
+                at = stamp()
+                append((at, sample))
+                n = 1
                 while (more := try_recv()) is not None:  # those that came meanwhile: one wake-up
                     append((stamp(), more))
+                    n += 1
             except zenoh.ZError:  # the subscription or the session ended
                 return
+            if self._short:
+                self._arrived(at, n)
             if notify is not None:
                 notify()
 

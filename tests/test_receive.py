@@ -97,6 +97,78 @@ def test_the_age_at_use_counts_each_pose_once_from_its_arrival(rendezvous: Rende
         b.close()
 
 
+def test_a_node_wakes_its_owner_once_the_poses_of_an_instant_are_in(rendezvous: Rendezvous) -> None:
+    """Aligned ticks (``network.align_ticks``) act as soon as every neighbour heard at the last
+    instant has sent its pose of this one: the waker fires on the last of them, not before."""
+    a, b, c = (SwarmNode(NodeIdentity("alpha", uav), rendezvous).open() for uav in (1, 2, 3))
+    try:
+        assert c.expect_poses(time.time()) == 0  # nobody heard yet: nothing to wait for
+
+        def pose(n: SwarmNode) -> None:
+            n.publish_pose(t_sim=0.0, x=0.0, y=float(n.identity.uav), z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+
+        def heard() -> bool:  # published until the peers' direct links carry them
+            pose(a)
+            pose(b)
+            return (c.poll(), 1 in c.neighbours and 2 in c.neighbours)[1]
+
+        assert wait_for(heard, 10.0, period=0.1)
+        time.sleep(0.2)
+        c.poll()  # the stragglers
+        t_round = time.time()  # a round: each heard at the last instant (within 1.5 pose periods)
+        pose(a)
+        pose(b)
+        assert wait_for(lambda: (c.poll(), all(n.last_recv >= t_round for n in c.neighbours))[1], 3.0)
+        c.waker.clear()
+        instant = time.time()
+        assert c.expect_poses(instant) == 2
+        pose(a)
+        assert not c.waker.wait(0.3) and not c.expected_poses_in()  # one of two: keep waiting
+        pose(b)
+        assert c.waker.wait(3.0) and c.expected_poses_in()
+        c.poll()
+        assert all(n.last_recv >= instant for n in c.neighbours)  # what woke it: both poses of the instant
+
+        # a pose that came before the owner asked, but after the instant, counts too
+        c.stop_expecting_poses()
+        assert not c.expected_poses_in()
+        t_round = time.time()
+        pose(a)
+        pose(b)
+        assert wait_for(lambda: (c.poll(), all(n.last_recv >= t_round for n in c.neighbours))[1], 3.0)
+        instant = time.time()
+        pose(a)
+        assert wait_for(lambda: len(c._pose_inlet or []) == 1, 3.0)
+        c.waker.clear()
+        assert c.expect_poses(instant) == 2
+        pose(b)
+        assert c.waker.wait(3.0) and c.expected_poses_in()
+        c.stop_expecting_poses()
+
+        # through a netem shim a pose's arrival is not its delivery: due when the shim releases it
+        with SwarmNode(NodeIdentity("alpha", 4), rendezvous, netem={"v2v": {"delay": {"ms": 200.0}}}) as d:
+            assert wait_for(lambda: (pose(a), d.poll(), 1 in d.neighbours)[2], 10.0, period=0.1)
+            time.sleep(0.3)
+            d.poll()  # the last of those released
+            t_round = time.time()
+            pose(a)
+            assert wait_for(lambda: (d.poll(), (nb := d.neighbours.get(1)) is not None and nb.last_recv >= t_round)[1], 3.0)
+            instant = time.time()
+            assert d.expect_poses(instant) == 1
+            pose(a)
+            assert d.waker.wait(3.0) and d.expected_poses_in()
+            d.poll()  # the shim takes it in, and holds it
+            due = d.expected_poses_due()
+            assert due is not None and instant + 0.19 <= due <= instant + 0.4
+            time.sleep(max(due - time.time(), 0.0) + 0.01)
+            d.poll()
+            nb = d.neighbours.get(1)
+            assert d.expected_poses_due() is None and nb is not None and nb.last_recv == pytest.approx(due)
+    finally:
+        for n in (a, b, c):
+            n.close()
+
+
 def test_a_command_reaches_a_real_agent_and_is_acknowledged_within_10_ms(tmp_path: Path, router: str) -> None:
     """A virtual UAV process (its loop at 10 Hz) sleeps on its waker between ticks: a command is
     handled when it arrives, not at the next tick. Round trip measured 20 times; the p50 is asserted."""

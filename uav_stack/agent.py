@@ -204,7 +204,7 @@ class Agent(OverridesMixin):
     def sense(self, now: float) -> None:
         """The first half of a tick whose halves run apart (``network.align_ticks``): the FCU's
         messages in, the own pose out. :meth:`act` follows once the swarm's poses of the same
-        instant have had time to arrive. What ground stations sent the FCU leaves now, not then."""
+        instant are in (uav_stack.runtime). What ground stations sent the FCU leaves now, not then."""
         self._sense(now)
         if self.router is not None:
             self.router.flush()

@@ -219,37 +219,64 @@ def next_grid_instant(now_m: float, period: float) -> float:
 
 
 def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: float, end: float, parent: int) -> None:
-    """:func:`run_loop` on the wall clock's grid: each tick's halves half a period apart.
+    """:func:`run_loop` on the wall clock's grid: each tick in two halves, sense then act.
 
     At each instant of the grid (whole multiples of ``period`` s since the Unix epoch, found
     again every tick, so that a step of the wall clock moves the grid, never bursts it) the FCU
     and :meth:`Agent.sense`: the own pose leaves, as every other UAV's does at that instant.
-    Half a period later :meth:`Agent.act`: the control sees the others' poses of that instant
-    (a loaded machine delays them by tens of ms) rather than those of the instant before. A
-    late half runs at once; instants missed by a loop late more than a period are not made up.
+    Then :meth:`Agent.act`: the control sees the others' poses of that instant rather than
+    those of the instant before. With direct poses it acts as soon as they have arrived, one
+    from each neighbour heard at the instant before (:meth:`SwarmNode.expect_poses`; through a
+    netem shim, when the shim releases the last of them), half a period after the instant at
+    the latest; with the edge feed's batches, half a period after it (a loaded machine delays
+    them by tens of ms). A UAV that heard nobody runs the whole tick at once. A late half runs
+    at once; instants missed by a loop late more than a period are not made up.
     """
+    node = agent.node
     next_sense = next_grid_instant(time.monotonic(), period)
-    next_act = math.inf
+    instant = next_act = math.inf
     while not stop.stopped:
         now_m = time.monotonic()
         if now_m >= end:
             break
         due = min(next_sense, next_act)
         if due > now_m:
-            if agent.node.waker.wait(min(due, end) - now_m):
-                agent.react(time.time())
+            if node.waker.wait(min(due, end) - now_m):
+                if next_act < math.inf and node.expected_poses_in():  # the instant's poses have arrived
+                    node.stop_expecting_poses()
+                    next_act = now_m  # act now: it takes them in, and any command
+                    if node.netem is not None:  # unless the shim holds them: act when it releases the last
+                        agent.react(time.time())
+                        due_wall = node.expected_poses_due()
+                        if due_wall is not None:
+                            next_act = min(instant + 0.5 * period, time.monotonic() + max(due_wall - time.time(), 0.0))
+                else:
+                    agent.react(time.time())
             continue
         if next_act <= next_sense:  # the act of the last instant first, even when late
             next_act = math.inf
+            node.stop_expecting_poses()
             if fcu is not None:
                 fcu.poll_io()
             agent.act(time.time())
             if fcu is not None:
                 fcu.poll_io()  # the setpoints just sent: applied now
             continue
-        instant = next_sense  # its own instant, unless more than a period late
+        instant = next_sense
         next_sense = next_grid_instant(now_m, period)
-        next_act = max(instant, next_sense - period) + 0.5 * period
+        instant = max(instant, next_sense - period)  # its own instant, unless more than a period late
+        if node.expect_poses(time.time() - (now_m - instant)) == 0:  # (the instant's wall time)
+            # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
+            if fcu is not None:
+                fcu.poll_io()
+                fcu.service()
+            agent.step(time.time())
+            if fcu is not None:
+                fcu.poll_io()
+            if os.getppid() != parent:
+                break
+            continue
+        next_act = instant + 0.5 * period
         if fcu is not None:
             fcu.poll_io()
             fcu.service()

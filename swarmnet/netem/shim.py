@@ -313,6 +313,15 @@ class NetemShim:
     def next_due(self) -> float | None:
         return self._heap[0][0] if self._heap else None
 
+    def held_until(self, kind: int, since: float) -> float | None:
+        """When the last item of ``kind`` that arrived at or after ``since`` (wall time, s) and is
+        still held is released (its time to send); None if none is held."""
+        last = None
+        for tts, _, _, _, arrived, k, _, _ in self._heap:
+            if k == kind and arrived >= since and (last is None or tts > last):
+                last = tts
+        return last
+
     # ---- reporting --------------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
         return {
