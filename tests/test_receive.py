@@ -169,6 +169,44 @@ def test_a_node_wakes_its_owner_once_the_poses_of_an_instant_are_in(rendezvous: 
             n.close()
 
 
+def test_an_expectation_is_armed_safely_while_samples_pour_in(rendezvous: Rendezvous) -> None:
+    """The owner arms an expectation (counting the samples already waiting) while the inlet's
+    thread appends more: it must never fail ("deque mutated during iteration" once killed UAVs)."""
+    with zenoh.open(to_zenoh(rendezvous.zenoh_config())) as s:
+        waker = Waker()
+        inlet = Inlet(512, None, how="thread")
+        sub = subscribe(s, "t/flood", inlet)
+        stop = threading.Event()
+
+        def flood() -> None:
+            pub = s.declare_publisher("t/flood")
+            while not stop.is_set():
+                for _ in range(50):
+                    pub.put(b"x")
+                time.sleep(0.0005)
+
+        th = threading.Thread(target=flood)
+        th.start()
+        try:
+            assert wait_for(lambda: len(inlet) > 100, 5.0)
+            since, armed = time.time(), 0
+            deadline = time.monotonic() + 1.5
+            while time.monotonic() < deadline:
+                inlet.expect(1_000_000, since, waker)  # scans the waiting samples while more come
+                armed += 1
+                for _ in inlet.drain(64):
+                    pass
+            assert armed > 100 and not inlet.expectation_met
+            inlet.expect(1, since, waker)  # already met by what keeps coming
+            assert waker.wait(2.0) and inlet.expectation_met
+        finally:
+            stop.set()
+            th.join(5.0)
+            sub.undeclare()
+            assert inlet.join(2.0)
+            waker.close()
+
+
 def test_a_command_reaches_a_real_agent_and_is_acknowledged_within_10_ms(tmp_path: Path, router: str) -> None:
     """A virtual UAV process (its loop at 10 Hz) sleeps on its waker between ticks: a command is
     handled when it arrives, not at the next tick. Round trip measured 20 times; the p50 is asserted."""
