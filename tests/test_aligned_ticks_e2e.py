@@ -1,5 +1,6 @@
 """``network.align_ticks``: every UAV ticks on the wall clock's grid, so the edge feed carries a
-round of poses in one batch rather than one batch per pose (docs/scale.md).
+round of poses in one batch rather than one batch per pose, and with direct poses the control
+runs as soon as the instant's poses are in (docs/scale.md).
 
 Real UAV processes through a real edge router: four UAVs fly a short coverage in client mode
 with the edge feed. Each tick's poses leave at the grid's instants and its control runs half a
@@ -24,14 +25,18 @@ N = 4
 PERIOD = 0.1  # s: the agent's 10 Hz tick
 
 
-def scenario(align: bool) -> object:
+EDGE = {"connectivity": "rendezvous", "mode": "client", "pose_feed": "edge"}
+DIRECT = {"connectivity": "discovery", "mode": "peer", "pose_feed": "direct"}
+
+
+def scenario(align: bool, network: dict[str, str] = EDGE) -> object:
     return parse_scenario({
         "name": "aligned",
         "swarm": "aligned",
         "seed": 3,
         "duration": 12,
         "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
-        "network": {"connectivity": "rendezvous", "mode": "client", "pose_feed": "edge", "align_ticks": align},
+        "network": {**network, "align_ticks": align},
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "lawnmower", "area": {"x_min": -30, "x_max": 30, "y_min": -20, "y_max": 20},
                     "sensor_radius": 6},
@@ -69,3 +74,27 @@ def test_aligned_ticks_fall_on_the_grid_and_share_batches(tmp_path: Path) -> Non
     # each UAV's own grid (the default): ticks anywhere in the period, a batch per pose or so
     _own, own_per_batch = fly(tmp_path, align=False)
     assert own_per_batch < per_batch, (own_per_batch, per_batch)
+
+
+def fly_direct(tmp_path: Path, align: bool) -> dict[str, float]:
+    """The summary's age at use (ms: p50, p99...) of a flight with direct poses."""
+    exp = Experiment(scenario(align, DIRECT), tmp_path / f"direct-{align}", console=Console(quiet=True),  # type: ignore[arg-type]
+                     live=False, log_level="WARNING")
+    summary = exp.run().to_dict()
+    assert summary["uavs_recorded"] == N, summary.get("aborted")
+    assert summary["separation"]["collisions"] == 0
+    use: dict[str, float] = summary["network"]["use_age_ms"]
+    assert use["n"] > 100, use
+    return use
+
+
+@pytest.mark.e2e
+def test_aligned_ticks_with_direct_poses_control_on_the_poses_of_the_instant(tmp_path: Path) -> None:
+    """With direct poses the control runs as soon as the instant's poses are in: they are used
+    within a few ms of their arrival, where a UAV on its own grid uses them half a period later
+    on average (they arrive anywhere in its 100 ms)."""
+    aligned = fly_direct(tmp_path, align=True)
+    own = fly_direct(tmp_path, align=False)
+    assert aligned["p50"] < 20.0, aligned
+    assert own["p50"] > 30.0, own
+    assert aligned["p50"] < own["p50"] / 2, (aligned, own)

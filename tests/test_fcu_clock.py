@@ -27,13 +27,33 @@ def test_sim_clock_paces_and_drops_backlog() -> None:
     c.advance(2)
     assert c.dropped_wall_s == 0.0
     c.plan_wake(c.next_step_wall)
-    # starved for 5 s: only max_catchup_s worth of steps, the rest of the wall time is dropped
+    # starved for 5 s: only max_catchup_s worth of steps (within a step), the rest of the wall
+    # time is dropped, in whole steps, so that the steps keep their phase to the wall clock
     n = c.due_steps(105.2)
-    assert n == int(0.1 / 0.04) + 1
-    assert c.dropped_wall_s == pytest.approx(5.2 - 100.16 + 100 - 0.1, abs=1e-6)
+    assert int(0.1 / 0.04) + 1 <= n <= int(0.1 / 0.04) + 2
+    late = 5.2 - 100.16 + 100
+    assert late - 0.1 - 0.04 < c.dropped_wall_s <= late - 0.1
+    assert c.dropped_wall_s / 0.04 == pytest.approx(round(c.dropped_wall_s / 0.04), abs=1e-6)
     c.advance(n)
     assert c.sim_time == pytest.approx((3 + n) * 0.02)
     assert c.rtf_total(105.2) < 0.1  # RTF fell instead of the sim bursting
+
+
+def test_a_dropped_backlog_keeps_the_phase_of_the_10_hz_grid() -> None:
+    """Aligned ticks rely on the virtual FCU's 10 Hz telemetry staying on the wall clock's grid:
+    a late host drops whole 0.1 s, and the steps on the grid stay on it."""
+    c = SimClock(physics_hz=50.0, target_rtf=1.0, max_catchup_s=0.2, phase_steps=5)
+    c.start(100.0)
+    for late_by in (0.537, 1.013, 3.333):
+        c.plan_wake(c.next_step_wall)
+        now = c.next_step_wall + late_by
+        n = c.due_steps(now)
+        c.advance(n)
+        on_grid = c.wall_of_step((c.steps // 5 + 1) * 5)  # the next step on the 10 Hz grid (telemetry)
+        assert (on_grid - 100.0) / 0.1 == pytest.approx(round((on_grid - 100.0) / 0.1), abs=1e-6)
+        assert c.dropped_wall_s / 0.1 == pytest.approx(round(c.dropped_wall_s / 0.1), abs=1e-6)
+        assert now - c.next_step_wall < 0.2 + 0.1  # the backlog left: max_catchup_s, and less than 0.1 s more
+    assert c.dropped_wall_s > 4.0
 
 
 def test_rtf_meter_window() -> None:

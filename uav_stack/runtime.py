@@ -209,6 +209,14 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             break
 
 
+# Aligned ticks: the latest the control waits for the poses a netem shim holds back, in periods
+# after the instant (then it acts on those it has; the rest are used a tick later).
+LATEST_ACT = 0.9
+# Aligned ticks: the virtual FCU's steps fall this long (s) before the grid's instants, so that the
+# step of an instant is always due when the loop wakes for it (the clocks differ by microseconds).
+FCU_LEAD_S = 0.001
+
+
 def next_grid_instant(now_m: float, period: float) -> float:
     """The monotonic time (s) of the wall clock's next grid instant after ``now_m``: the next
     whole multiple of ``period`` s since the Unix epoch. A wake-up a hair before its instant (the
@@ -227,9 +235,9 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     Then :meth:`Agent.act`: the control sees the others' poses of that instant rather than
     those of the instant before. With direct poses it acts as soon as they have arrived, one
     from each neighbour heard at the instant before (:meth:`SwarmNode.expect_poses`; through a
-    netem shim, when the shim releases the last of them), half a period after the instant at
-    the latest; with the edge feed's batches, half a period after it (a loaded machine delays
-    them by tens of ms). A UAV that heard nobody runs the whole tick at once. A late half runs
+    netem shim, when the shim releases the last of them, up to :data:`LATEST_ACT` of a period),
+    half a period after the instant at the latest; with the edge feed's batches, half a period
+    after it (a loaded machine delays them by tens of ms). A UAV that heard nobody runs the whole tick at once. A late half runs
     at once; instants missed by a loop late more than a period are not made up.
     """
     node = agent.node
@@ -245,11 +253,12 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
                 if next_act < math.inf and node.expected_poses_in():  # the instant's poses have arrived
                     node.stop_expecting_poses()
                     next_act = now_m  # act now: it takes them in, and any command
-                    if node.netem is not None:  # unless the shim holds them: act when it releases the last
-                        agent.react(time.time())
+                    if node.netem is not None:  # unless the shim holds them: act when it releases the last,
+                        agent.react(time.time())  # even past half a period (an LTE profile's 50 ms)
                         due_wall = node.expected_poses_due()
                         if due_wall is not None:
-                            next_act = min(instant + 0.5 * period, time.monotonic() + max(due_wall - time.time(), 0.0))
+                            next_act = min(instant + LATEST_ACT * period,
+                                           time.monotonic() + max(due_wall - time.time(), 0.0))
                 else:
                     agent.react(time.time())
             continue
@@ -300,7 +309,11 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
             max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(a),
         )
     )
-    (host, port), = fcu.open()
+    start = None
+    if a.align_ticks:  # the FCU's 10 Hz position on the ticks' grid, a hair before each instant: the
+        period = 1.0 / tick_hz_for(a)  # pose that leaves at an instant is the position of that instant
+        start = time.monotonic() - (time.time() % period) - FCU_LEAD_S
+    (host, port), = fcu.open(start)
     try:
         link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
     except LinkOpenError as exc:

@@ -6,7 +6,8 @@ A physics step of ``dt = 1/physics_hz`` sim seconds is due every ``dt / target_r
 seconds. The FCU may run several due steps in one wake-up (it plans its wake-ups with
 ``plan_wake``); when the caller comes back more than ``max_catchup_s`` of wall time after
 the planned wake-up, the excess backlog is dropped: sim time falls behind wall time
-(RTF < target) instead of the simulation bursting forward. Nothing else breaks, because
+(RTF < target) instead of the simulation bursting forward. It is dropped in whole multiples of
+``phase_steps`` steps, so that the steps keep their phase to the wall clock. Nothing else breaks, because
 every FCU timer runs on sim time.
 """
 
@@ -26,6 +27,7 @@ class SimClock:
     wall_start: float = 0.0
     next_step_wall: float = 0.0
     planned_wake: float = 0.0  # when the host loop was asked to come back
+    phase_steps: int = 1  # a backlog is dropped in whole multiples of this many steps' wall time
     _started: bool = field(default=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -64,7 +66,10 @@ class SimClock:
             return 0
         late = wall_now - max(self.planned_wake, self.next_step_wall)
         if late > self.max_catchup_s:
-            drop = late - self.max_catchup_s
+            # whole multiples of phase_steps steps: the steps (and the telemetry on them) keep
+            # their phase to the wall clock, which aligned ticks rely on (uav_stack.runtime)
+            per = self.wall_per_step * self.phase_steps
+            drop = math.floor((late - self.max_catchup_s) / per) * per
             self.dropped_wall_s += drop
             self.next_step_wall += drop
         lag = wall_now - self.next_step_wall

@@ -56,7 +56,9 @@ class VirtualFcu:
         self.config = config
         self._wall = clock
         self.stats = FcuStats()
-        self.clock = SimClock(config.physics_hz, config.target_rtf, config.max_catchup_s)
+        # a late host drops backlog in whole 0.1 s: the telemetry's 10 Hz grid (StreamSet) keeps its phase
+        self.clock = SimClock(config.physics_hz, config.target_rtf, config.max_catchup_s,
+                              phase_steps=max(1, round(0.1 * config.physics_hz)))
         # the sim clock is read exactly (no network jitter): a short span already measures well
         self._meter = RtfMeter(sample_every_s=0.25, min_span_s=0.05)
         yaws = np.array([float(v.yaw) for v in config.vehicles])
@@ -95,8 +97,12 @@ class VirtualFcu:
         self._opened = False
 
     # ----------------------------------------------------------- lifecycle
-    def open(self) -> list[tuple[str, int]]:
-        """Bind every vehicle's socket; return the bound (host, port) per vehicle."""
+    def open(self, start: float | None = None) -> list[tuple[str, int]]:
+        """Bind every vehicle's socket; return the bound (host, port) per vehicle.
+
+        ``start``: the time on the FCU's clock (s, at most a step or so before now) from which
+        the simulation runs, so that its steps, and the telemetry on every 10 Hz step, fall on a
+        grid of the caller's (aligned ticks); default now."""
         if self._opened:
             return [v.link.sock.getsockname()[:2] for v in self.vehicles]  # type: ignore[union-attr]
         addrs: list[tuple[str, int]] = []
@@ -109,7 +115,7 @@ class VirtualFcu:
             raise
         self._by_fd = {v.link.fileno(): v for v in self.vehicles}
         now = self._wall()
-        self.clock.start(now)
+        self.clock.start(now if start is None else min(start, now))
         self._meter.restart()
         self._meter.add(now, 0.0)
         self.ctx.unix_at_start = time.time()
