@@ -25,9 +25,10 @@ gives the poses each UAV received a second and the mean number of others within 
 
     python benchmarks/scale.py --sizes 10 25 50 100 --configs client-edge client-edge-interest --tag scale_interest
 
-Ticks on the wall clock's grid (``network.align_ticks``, the default with the edge feed) against
-each UAV's own: ``client-edge-aligned`` against ``client-edge``; every named configuration but
-``*-aligned`` has each UAV tick on its own grid, as before the option existed.
+Ticks on the wall clock's grid (``network.align_ticks``, the default) against each UAV's own:
+``client-edge-aligned`` against ``client-edge``, ``discovery-direct-aligned`` against
+``discovery-direct``; every named configuration but ``*-aligned`` has each UAV tick on its own
+grid, as before the option existed.
 The machine is noisy: numbers are medians over the UAV processes of one run per cell.
 """
 
@@ -55,7 +56,7 @@ from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
 # name -> (network.connectivity, network.mode, network.pose_feed); None: the scenario leaves it unset
 CONFIGS: dict[str, tuple[str | None, str | None, str | None]] = {
-    "default": (None, None, None),  # chosen for N: discovery-direct up to 25 UAVs, client-edge-aligned above (scenario.py)
+    "default": (None, None, None),  # chosen for N: discovery-direct-aligned up to 25 UAVs, client-edge-aligned above
     "discovery-direct": ("discovery", "peer", "direct"),  # beacon relay, peer mesh, every pose direct
     "discovery-edge": ("discovery", "peer", "edge"),      # beacon relay, poses batched by the edge router
     "client-edge": ("rendezvous", "client", "edge"),      # every UAV a client of the edge router, batched poses

@@ -217,8 +217,7 @@ class Experiment:
         connectivity, mode, pose_feed = scn.network.topology
         n = len(scn.all_uavs())
         if n > MESH_MAX_UAVS:  # the network may not be the one a small run gets: say which it is
-            ticks = ", ticks aligned" if scn.network.align_ticks else ""
-            self._say(f"network: {n} UAVs on this machine: {connectivity}, {mode} mode, {pose_feed} pose feed{ticks} (what "
+            self._say(f"network: {n} UAVs on this machine: {connectivity}, {mode} mode, {pose_feed} pose feed (what "
                       f"the scenario does not set is chosen for more than {MESH_MAX_UAVS} UAVs: docs/scale.md)")
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,

@@ -196,9 +196,10 @@ class Network(Config, frozen=True):
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
     security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
     # every UAV ticks (and publishes its pose) on the wall clock's grid, all at the same instants,
-    # its control half a period later: fewer, fuller edge-feed batches, less CPU (docs/scale.md).
-    # Default: on with the edge feed (sized_for)
-    align_ticks: bool | None = None
+    # its control as soon as the others' poses of the instant are in: poses used a few ms old
+    # rather than 50, fewer and fuller edge-feed batches, less CPU (docs/scale.md). false: each
+    # UAV on its own grid, no simultaneous wake-ups (the transport age of a crowded machine)
+    align_ticks: bool = True
 
     def __post_init__(self) -> None:
         if self.security is False:
@@ -224,9 +225,8 @@ class Network(Config, frozen=True):
         lowest latency. Above it, every pose to every UAV costs more CPU than the machine has, so
         the unset choices become client mode through the edge router (``rendezvous``) and the
         edge pose feed: one link and one batch per window per UAV. ``needs_discovery`` (faults
-        on the discovery server) keeps the peer topology. With the edge feed the UAVs' ticks
-        are aligned (``align_ticks``): a round's poses then share a few batches. A choice the
-        scenario made is kept; client mode always means ``rendezvous``.
+        on the discovery server) keeps the peer topology. A choice the scenario made is kept;
+        client mode always means ``rendezvous``.
         """
         big = uavs > MESH_MAX_UAVS
         mode = self.mode
@@ -234,8 +234,7 @@ class Network(Config, frozen=True):
             mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
         connectivity = self.connectivity or ("rendezvous" if mode == "client" else "discovery")
         feed = self.pose_feed or ("edge" if big or self.interest is not None else "direct")
-        align = self.align_ticks if self.align_ticks is not None else feed == "edge"
-        return replace(self, connectivity=connectivity, mode=mode, pose_feed=feed, align_ticks=align)
+        return replace(self, connectivity=connectivity, mode=mode, pose_feed=feed)
 
     @property
     def secured(self) -> Security:
@@ -497,7 +496,7 @@ class Scenario(Config, kw_only=True, frozen=True):
                 failsafe=self.failsafe,
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
-                align_ticks=bool(self.network.align_ticks),
+                align_ticks=self.network.align_ticks,
             )
             out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
                                         heading=math.radians(u.heading), flavour=u.flavour))

@@ -133,10 +133,10 @@ def test_network_left_unset_follows_the_fleets_size(tmp_path: Path) -> None:
     assert net("fleet.count=12", bravo.replace("15", "13")) == ("discovery", "peer", "direct")
 
 
-def test_ticks_are_aligned_by_default_with_the_edge_feed_only(tmp_path: Path) -> None:
-    """``network.align_ticks`` left unset is on with the edge feed (a round's poses then share a
-    few batches: less CPU, fresher poses at N = 50) and off with direct poses; a UAV process gets
-    the resolved value; what the scenario sets is kept."""
+def test_ticks_are_aligned_by_default_whatever_the_network(tmp_path: Path) -> None:
+    """``network.align_ticks`` is on unless the scenario turns it off: with direct poses the
+    control then uses the instant's poses as soon as they are in, with the edge feed a round's
+    poses share a few batches; a UAV process gets the value; what the scenario sets is kept."""
     from mrswarm.scenario import MESH_MAX_UAVS
     from uav_stack.config import NetworkConfig
 
@@ -147,8 +147,9 @@ def test_ticks_are_aligned_by_default_with_the_edge_feed_only(tmp_path: Path) ->
         scn = load_scenario(p, ["fleet.spawn.spacing=6", *sets])
         return [c.agent.align_ticks for c in scn.virtual_uav_configs(NetworkConfig(), None)]
 
-    assert not any(aligned(f"fleet.count={MESH_MAX_UAVS}"))
+    assert all(aligned(f"fleet.count={MESH_MAX_UAVS}"))
     assert all(aligned(f"fleet.count={MESH_MAX_UAVS + 1}"))
+    assert not any(aligned("fleet.count=4", "network.align_ticks=false"))
     assert not any(aligned("fleet.count=50", "network.align_ticks=false"))
     assert all(aligned("fleet.count=4", "network.align_ticks=true"))
     assert all(aligned("fleet.count=4", "network.pose_feed=edge"))
