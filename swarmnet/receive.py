@@ -229,33 +229,27 @@ class Inlet:
             self._short = 0
             self._since = math.inf
 
-    def _arrived(self, at: float, n: int) -> None:
-        """``n`` samples stamped ``at`` came in: towards the expectation, if one is armed."""
-        waker = None
-        with self._lock:
-            if self._short and at >= self._since:
-                self._short = max(self._short - n, 0)
-                if not self._short:
-                    waker = self._quorum_waker
-        if waker is not None:
-            waker.notify()
-
     def _receive(self, channel: Any) -> None:
-        append, stamp, notify = self._q.append, self.clock, (self.waker.notify if self.waker is not None else None)
-        recv, try_recv = channel.recv, channel.try_recv
+        extend, stamp, notify = self._q.extend, self.clock, (self.waker.notify if self.waker is not None else None)
+        recv, try_recv, lock = channel.recv, channel.try_recv, self._lock
         while True:
             try:
                 sample = recv()  # blocks, the interpreter's lock released
                 at = stamp()
-                append((at, sample))
-                n = 1
+                burst = [(at, sample)]
                 while (more := try_recv()) is not None:  # those that came meanwhile: one wake-up
-                    append((stamp(), more))
-                    n += 1
+                    burst.append((stamp(), more))
             except zenoh.ZError:  # the subscription or the session ended
                 return
-            if self._short:
-                self._arrived(at, n)
+            reached = None
+            with lock:  # queued and counted at once: expect() sees each sample either waiting or counted
+                extend(burst)
+                if self._short and at >= self._since:
+                    self._short = max(self._short - len(burst), 0)
+                    if not self._short:
+                        reached = self._quorum_waker
+            if reached is not None:
+                reached.notify()
             if notify is not None:
                 notify()
 
