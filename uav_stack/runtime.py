@@ -274,22 +274,14 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
         instant = next_sense
         next_sense = next_grid_instant(now_m, period)
         instant = max(instant, next_sense - period)  # its own instant, unless more than a period late
-        if node.expect_poses(time.time() - (now_m - instant)) == 0:  # (the instant's wall time)
-            # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
-            if fcu is not None:
-                fcu.poll_io()
-                fcu.service()
-            agent.step(time.time())
-            if fcu is not None:
-                fcu.poll_io()
-            if os.getppid() != parent:
-                break
-            continue
-        next_act = instant + 0.5 * period
+        # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
+        whole = node.expect_poses(time.time() - (now_m - instant)) == 0  # (the instant's wall time)
+        if not whole:
+            next_act = instant + 0.5 * period
         if fcu is not None:
             fcu.poll_io()
             fcu.service()
-        agent.sense(time.time())
+        (agent.step if whole else agent.sense)(time.time())
         if fcu is not None:
             fcu.poll_io()
         if os.getppid() != parent:  # re-parented: the launcher is gone
