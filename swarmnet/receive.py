@@ -212,8 +212,8 @@ class Inlet:
         with self._lock:
             self._since = since
             self._quorum_waker = waker
-            waiting = tuple(self._q)  # one step in C: the inlet's thread may append meanwhile, never within
-            short = count - sum(1 for at, _ in waiting if at >= since)
+            # the inlet's thread queues under this lock too: the queue holds still while counted
+            short = count - sum(1 for at, _ in self._q if at >= since)
             self._short = short if short > 0 else 0
         if short <= 0:
             waker.notify()

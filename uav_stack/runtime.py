@@ -237,8 +237,9 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     from each neighbour heard at the instant before (:meth:`SwarmNode.expect_poses`; through a
     netem shim, when the shim releases the last of them, up to :data:`LATEST_ACT` of a period),
     half a period after the instant at the latest; with the edge feed's batches, half a period
-    after it (a loaded machine delays them by tens of ms). A UAV that heard nobody runs the whole tick at once. A late half runs
-    at once; instants missed by a loop late more than a period are not made up.
+    after it (a loaded machine delays them by tens of ms). A UAV that heard nobody runs the
+    whole tick at once. A late half runs at once; instants missed by a loop late more than a
+    period are not made up.
     """
     node = agent.node
     next_sense = next_grid_instant(time.monotonic(), period)
