@@ -1,0 +1,48 @@
+"""The runner's live separation: poses of different instants compared at one time."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from mrswarm.live import LiveMetrics
+from mrswarm.scenario import load_scenario
+from swarmnet.messages import Pose, Realm
+from swarmnet.observer import UavView
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def pose(uav: int, t: float, x: float, vx: float, y: float = 0.0) -> Pose:
+    return Pose(uav=uav, realm=Realm.VIRTUAL, seq=0, t_sim=t, t_wall=t, x=x, y=y, z=15.0, vx=vx, vy=0.0, vz=0.0, yaw=0.0)
+
+
+def observer(*poses: Pose) -> Any:
+    """What update_separation reads of the runner's SwarmObserver: its views of the UAVs."""
+    return SimpleNamespace(uavs={p.uav: UavView(uav=p.uav, pose=p) for p in poses})
+
+
+def test_two_uavs_parting_are_not_reported_closer_than_they_were() -> None:
+    """Two UAVs parting at 5 m/s each, 6 m apart at t = 100 s: the newest pose of one is of
+    t = 100, the other's latest is of the period before (100 ms old). As received they look
+    5.5 m apart; at one instant they were never closer than 6 m, which the summary reports."""
+    metrics = LiveMetrics(load_scenario(ROOT / "scenarios" / "coverage.yaml"))
+    a = pose(1, 100.0, x=3.0, vx=5.0)
+    b = pose(2, 99.9, x=-2.5, vx=-5.0)  # at 100.0 it is at x = -3.0
+    metrics.update_separation(observer(a, b))
+    assert metrics.min_sep_now == pytest.approx(6.0, abs=1e-9)
+    assert metrics.min_sep == pytest.approx(6.0, abs=1e-9)
+
+
+def test_a_uav_gone_quiet_is_left_out_not_carried_on() -> None:
+    """A UAV whose last pose is 5 s older than the others' (its process died in the air) is
+    neither compared where it was nor flown on along its last velocity."""
+    metrics = LiveMetrics(load_scenario(ROOT / "scenarios" / "coverage.yaml"))
+    a = pose(1, 100.0, x=0.0, vx=0.0)
+    b = pose(2, 100.0, x=20.0, vx=0.0)
+    dead = pose(3, 95.0, x=1.0, vx=4.0)  # 1 m from UAV 1 when last heard; carried on, 21 m
+    metrics.update_separation(observer(a, b, dead))
+    assert metrics.min_sep_now == pytest.approx(20.0)
