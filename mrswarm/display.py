@@ -98,7 +98,8 @@ class Display:
         if time.time() - self._last_line < LINE_EVERY_S:
             return
         self._last_line = time.time()
-        self.console.print(status_line(self.progress, self.metrics), markup=False, highlight=False)
+        # one line each, never folded at a pipe's 80 columns: a log is read and grepped line by line
+        self.console.print(status_line(self.progress, self.metrics), markup=False, highlight=False, soft_wrap=True)
 
     def _table(self, obs: SwarmObserver | None) -> Group:
         return status_table(self.scenario, self.progress, self.metrics, obs)

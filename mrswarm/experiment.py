@@ -208,7 +208,7 @@ class Experiment:
     def _say(self, text: str) -> None:
         """Print, unless the terminal is gone (after SIGHUP a write to it fails)."""
         try:
-            self.console.print(text, highlight=False)
+            self.console.print(text, highlight=False, soft_wrap=not self.console.is_terminal)  # a pipe: unfolded lines
         except OSError:
             self.console.quiet = True
 
