@@ -685,6 +685,25 @@ def decode_pose_batch(data: bytes) -> PoseBatch:
                      poses=poses)
 
 
+def batched_pose_count(data: bytes, exclude: int = 0) -> int:
+    """How many poses an edge-feed batch carries from UAVs other than ``exclude``; 0 for a
+    payload that is not one.
+
+    Why: a UAV on the edge feed with aligned ticks counts the poses of an instant as they arrive,
+    on its pose inlet's thread (:meth:`swarmnet.receive.Inlet.expect`), to act as soon as they
+    are in; the batch's own pose of the UAV (the feed sends the swarm's poses to all) is not a
+    neighbour's. About a microsecond for a batch of ten; the full checks run when the owner
+    takes the batch in (:func:`accept_pose_batch`)."""
+    try:
+        o = _unpack(data, MAX_BATCH_BYTES)
+    except DecodeError:
+        return 0
+    senders = o[3] if len(o) == 5 and o[0] == _BATCH_TAG else None
+    if type(senders) is not list:
+        return 0
+    return len(senders) - senders.count(exclude)
+
+
 # --- virtual sensors and actuators (world service) -----------------------------------------
 _READING_TAG = tag(Kind.READING)
 _ACTUATION_TAG = tag(Kind.ACTUATION)

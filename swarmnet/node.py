@@ -53,6 +53,7 @@ from swarmnet.messages import (
     accept_pose,
     accept_pose_batch,
     accept_swarm_message,
+    batched_pose_count,
     encode_ack,
     encode_pose,
     encode_state,
@@ -162,7 +163,7 @@ class SwarmNode:
         self._subscribers: list[Any] = []  # kept for as long as the session is open
         self._alive_inlet: Inlet | None = None
         self._netem_inlet: Inlet | None = None
-        self._pose_inlet: Inlet | None = None  # direct poses (not the edge feed's batches): expect_poses()
+        self._pose_inlet: Inlet | None = None  # the poses expect_poses() counts: direct, or the edge feed's batches
         self._expected_since = math.inf  # the instant (wall time, s) whose poses expect_poses() waits for
         self._links: LinkWatch | None = None  # secured swarms: counts links of non-members
         self._pubs: dict[str, Any] = {}
@@ -195,10 +196,11 @@ class SwarmNode:
             streams = self._streams
             clock = self.clock
 
-            def inlet(key: str, size: int, how: How, wakes: bool = False, **options: Any) -> Inlet:
+            def inlet(key: str, size: int, how: How, wakes: bool = False, weigh: Callable[[zenoh.Sample], int] | None = None,
+                      **options: Any) -> Inlet:
                 if not self.arrival_stamps and not wakes:
                     how = "ring"  # an observer: the drain's time will do
-                into = Inlet(size, self.waker if wakes else None, clock, how)
+                into = Inlet(size, self.waker if wakes else None, clock, how, weigh)
                 self._subscribers.append(subscribe(s, key, into, **options))
                 return into
             if ident.role == "uav":
@@ -210,7 +212,14 @@ class SwarmNode:
                 self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
             # poses first: the hot path
             if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
-                streams.append((_BATCH, inlet(k.pose_feed, 256, "thread"), accept_pose_batch))
+                # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
+                # spatial interest, whose far poses come at a lower rate on a feed of their own
+                counts = ident.role == "uav" and not self.near_feed
+                feed = inlet(k.pose_feed, 256, "thread",
+                             weigh=(lambda sample: batched_pose_count(sample.payload.to_bytes(), me)) if counts else None)
+                if counts and feed.how == "thread":
+                    self._pose_inlet = feed
+                streams.append((_BATCH, feed, accept_pose_batch))
                 if self.near_feed:
                     streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), accept_pose_batch))
             else:
@@ -401,9 +410,10 @@ class SwarmNode:
 
     def expect_poses(self, instant: float) -> int | None:
         """Wake the owner (:attr:`waker`) once the poses of the tick at ``instant`` (wall time, s)
-        have arrived: one from each neighbour heard from at the instant before. Returns how many
-        it waits for: 0 if nobody was heard, None if it cannot tell (the edge feed's batches),
-        and then nothing is armed.
+        have arrived: one from each neighbour heard from at the instant before, directly or in
+        the edge feed's batches. Returns how many it waits for: 0 if nobody was heard, None if
+        it cannot tell (an observer; the edge feed with spatial interest, whose far neighbours
+        send less often), and then nothing is armed.
 
         For aligned ticks (``network.align_ticks``): every UAV publishes at the same instants,
         so the control can run on the swarm's poses of this instant as soon as they are in

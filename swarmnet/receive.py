@@ -121,7 +121,9 @@ class Inlet:
 
     ``size`` bounds the queue (the oldest sample is dropped when full, as a ring channel does);
     ``waker``, if given, is notified of every sample (for streams the owner handles at once);
-    ``clock`` stamps the arrival (wall time, s). Three ways to take samples from Zenoh (``how``):
+    ``clock`` stamps the arrival (wall time, s); ``weigh``, if given, says how many of the items
+    :meth:`expect` counts a sample carries (an edge-feed batch: the neighbours' poses in it; by
+    default each sample is one). Three ways to take samples from Zenoh (``how``):
 
     * ``"thread"`` (a hot stream: a UAV's neighbour poses): a Zenoh ring channel, and a thread
       of the inlet's own blocked in it (the interpreter's lock released) that stamps each sample
@@ -137,10 +139,11 @@ class Inlet:
       watch every UAV): a ring channel drained by the owner; the arrival is the drain's time.
     """
 
-    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "_thread", "_lock", "_since", "_short", "_quorum_waker",
-                 "__weakref__")
+    __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "weigh", "_thread", "_lock", "_since", "_short",
+                 "_quorum_waker", "__weakref__")
 
-    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback"):
+    def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback",
+                 weigh: Callable[[zenoh.Sample], int] | None = None):
         if waker is not None and how == "ring":
             raise ValueError("a ring inlet is drained by its owner: it cannot wake it")
         self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
@@ -150,6 +153,7 @@ class Inlet:
         self.clock = clock
         self.how = how
         self.size = size
+        self.weigh = weigh
         self._lock = threading.Lock()  # the expectation (below), between the owner and the inlet's thread
         self._since = math.inf  # wall time (s) from which arrivals count towards the expectation
         self._short = 0  # arrivals still expected before the quorum waker is notified (0: none armed)
@@ -200,8 +204,9 @@ class Inlet:
         return not t.is_alive()
 
     def expect(self, count: int, since: float, waker: Waker) -> None:
-        """Notify ``waker`` once ``count`` samples stamped at or after ``since`` (wall time, s)
-        have arrived, those already waiting included; a new expectation replaces the last.
+        """Notify ``waker`` once ``count`` samples (or items, with ``weigh``) stamped at or after
+        ``since`` (wall time, s) have arrived, those already waiting included; a new expectation
+        replaces the last.
 
         Why: a UAV whose ticks are aligned (``network.align_ticks``) controls as soon as its
         neighbours' poses of the tick's instant are in, rather than at a fixed offset that must
@@ -213,7 +218,8 @@ class Inlet:
             self._since = since
             self._quorum_waker = waker
             # the inlet's thread queues under this lock too: the queue holds still while counted
-            short = count - sum(1 for at, _ in self._q if at >= since)
+            weigh = self.weigh
+            short = count - sum(1 if weigh is None else weigh(s) for at, s in self._q if at >= since)
             self._short = short if short > 0 else 0
         if short <= 0:
             waker.notify()
@@ -231,7 +237,7 @@ class Inlet:
 
     def _receive(self, channel: Any) -> None:
         extend, stamp, notify = self._q.extend, self.clock, (self.waker.notify if self.waker is not None else None)
-        recv, try_recv, lock = channel.recv, channel.try_recv, self._lock
+        recv, try_recv, lock, weigh = channel.recv, channel.try_recv, self._lock, self.weigh
         while True:
             try:
                 sample = recv()  # blocks, the interpreter's lock released
@@ -245,7 +251,11 @@ class Inlet:
             with lock:  # queued and counted at once: expect() sees each sample either waiting or counted
                 extend(burst)
                 if self._short and at >= self._since:
-                    self._short = max(self._short - len(burst), 0)
+                    try:
+                        got = len(burst) if weigh is None else sum(weigh(s) for _, s in burst)
+                    except Exception:  # noqa: BLE001 - a rule that fails must not end this thread: not counted
+                        got = 0
+                    self._short = max(self._short - got, 0)
                     if not self._short:
                         reached = self._quorum_waker
             if reached is not None:

@@ -13,7 +13,19 @@ import zenoh
 from discovery.rendezvous import serve
 from swarmnet.connectivity import Rendezvous, to_zenoh
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Kind, Pose, PoseBatch, Realm, decode_pose_batch, encode_pose, encode_pose_batch, tag
+from swarmnet.messages import (
+    BATCH_VERSION,
+    MAX_BATCH_BYTES,
+    Kind,
+    Pose,
+    PoseBatch,
+    Realm,
+    batched_pose_count,
+    decode_pose_batch,
+    encode_pose,
+    encode_pose_batch,
+    tag,
+)
 from swarmnet.node import NodeIdentity, SwarmNode
 from tests.conftest import free_port, wait_for
 
@@ -34,7 +46,7 @@ def test_batch_codec_round_trip_and_limits() -> None:
     p = encode_pose(Pose(3, Realm.VIRTUAL, 1, 1.0, time.time(), 1, 2, 3, 0, 0, 0, 0))
     b = decode_pose_batch(encode_pose_batch(PoseBatch(7, time.time(), [3, 4], [p, p])))
     assert b.seq == 7 and b.poses == [p, p] and b.senders == [3, 4]
-    from swarmnet.messages import BATCH_VERSION, DecodeError
+    from swarmnet.messages import DecodeError
     v = BATCH_VERSION
     with pytest.raises(DecodeError):  # a 49-byte "pose" inside a batch
         decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [3], [bytes(49)]], use_bin_type=True))
@@ -46,6 +58,19 @@ def test_batch_codec_round_trip_and_limits() -> None:
         decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, v), 1, 1, [0], [p]], use_bin_type=True))
     with pytest.raises(DecodeError):  # version 1 carried no senders
         decode_pose_batch(msgpack.packb([tag(Kind.POSE_BATCH, 1), 1, 1, [p]], use_bin_type=True))
+
+
+def test_a_batch_is_counted_without_decoding_and_bad_input_counts_nothing() -> None:
+    """What the edge-feed inlet's thread counts towards an instant's poses: the neighbours' poses
+    in a batch, not the UAV's own; anything that is not a batch counts 0, never raises."""
+    p = encode_pose(Pose(3, Realm.VIRTUAL, 1, 1.0, time.time(), 1, 2, 3, 0, 0, 0, 0))
+    batch = encode_pose_batch(PoseBatch(7, time.time(), [3, 4, 5], [p, p, p]))
+    assert batched_pose_count(batch) == 3
+    assert batched_pose_count(batch, exclude=4) == 2
+    for bad in (b"", b"\xc1", encode_pose(Pose(3, Realm.VIRTUAL, 1, 1.0, time.time(), 1, 2, 3, 0, 0, 0, 0)),
+                msgpack.packb([tag(Kind.POSE_BATCH, BATCH_VERSION), 1, 1, 5, [p]], use_bin_type=True),
+                msgpack.packb({"senders": [1, 2]}), bytes(MAX_BATCH_BYTES + 1), batch[:-3]):
+        assert batched_pose_count(bad) == 0, bad
 
 
 def test_edge_feed_delivers_every_pose_in_batches_per_swarm(edge: Rendezvous) -> None:
@@ -99,3 +124,41 @@ def test_a_batched_pose_must_name_the_sender_the_batch_lists(edge: Rendezvous) -
         assert wait_for(lambda: (victim.poll(), 7 in victim.neighbours)[1], 3.0)
         assert sorted(nb.uav for nb in victim.neighbours) == [7]  # the honest pose of the batch is kept
         assert victim.stats.rejected["key_mismatch"] == 1
+
+
+def test_a_uav_on_the_edge_feed_wakes_once_the_poses_of_an_instant_are_in(edge: Rendezvous) -> None:
+    """Aligned ticks on the edge feed: the UAV counts the neighbours' poses inside the batches as
+    they arrive and is woken on the last one expected (one from each neighbour heard at the
+    instant before), not by its own pose coming back in the swarm's batch."""
+    a, b, c = (SwarmNode(NodeIdentity("alpha", uav), edge, pose_feed="edge").open() for uav in (1, 2, 3))
+    try:
+        def pose(n: SwarmNode) -> None:
+            n.publish_pose(t_sim=0.0, x=0.0, y=float(n.identity.uav), z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+
+        def heard() -> bool:  # published until the router's feed carries them
+            pose(a)
+            pose(b)
+            return (c.poll(), 1 in c.neighbours and 2 in c.neighbours)[1]
+
+        assert wait_for(heard, 10.0, period=0.1)
+        time.sleep(0.3)
+        c.poll()  # the stragglers
+        t_round = time.time()  # a round: each heard at the last instant (within 1.5 pose periods)
+        pose(a)
+        pose(b)
+        assert wait_for(lambda: (c.poll(), all(n.last_recv >= t_round for n in c.neighbours))[1], 3.0)
+        c.waker.clear()
+        instant = time.time()
+        assert c.expect_poses(instant) == 2
+        pose(a)
+        pose(c)  # its own, back in the swarm's batch: not a neighbour's
+        assert not c.waker.wait(0.4) and not c.expected_poses_in()  # one of two: keep waiting
+        pose(b)
+        assert c.waker.wait(3.0) and c.expected_poses_in()
+        c.poll()
+        assert all(n.last_recv >= instant for n in c.neighbours)  # what woke it: both poses of the instant
+        assert c.stats.received["pose_batch"] > 0
+        c.stop_expecting_poses()
+    finally:
+        for n in (a, b, c):
+            n.close()

@@ -236,10 +236,10 @@ class AgentConfig(Config, frozen=True):
     control_rate_hz: Hz = 10.0
     # tick on the wall clock's grid (whole multiples of the tick period since the Unix epoch), so
     # that every UAV whose clock is synchronised publishes its pose at the same instants, and
-    # controls on the others' poses of that instant: as soon as they are in (direct poses), or
-    # half a period later (the edge feed, whose batches then carry a round of poses in a few,
-    # not one per window) (uav_stack.runtime.run_loop, docs/scale.md). False: each UAV's grid
-    # starts when it does, and a tick is one piece.
+    # controls on the others' poses of that instant as soon as they are in, half a period later
+    # at the latest (the edge feed's batches then carry a round of poses in a few, not one per
+    # window) (uav_stack.runtime.run_loop, docs/scale.md). False: each UAV's grid starts when it
+    # does, and a tick is one piece.
     align_ticks: bool = False
     stale_after: Annotated[float, Meta(gt=0.0, description="s")] = 1.0
     autostart: bool = False  # start the mission without waiting for a "start" command

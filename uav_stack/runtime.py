@@ -233,11 +233,12 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     again every tick, so that a step of the wall clock moves the grid, never bursts it) the FCU
     and :meth:`Agent.sense`: the own pose leaves, as every other UAV's does at that instant.
     Then :meth:`Agent.act`: the control sees the others' poses of that instant rather than
-    those of the instant before. With direct poses it acts as soon as they have arrived, one
-    from each neighbour heard at the instant before (:meth:`SwarmNode.expect_poses`; through a
-    netem shim, when the shim releases the last of them, up to :data:`LATEST_ACT` of a period),
-    half a period after the instant at the latest; with the edge feed's batches, half a period
-    after it (a loaded machine delays them by tens of ms). A UAV that heard nobody runs the
+    those of the instant before. It acts as soon as they have arrived, one from each neighbour
+    heard at the instant before, directly or in the edge feed's batches
+    (:meth:`SwarmNode.expect_poses`; through a netem shim, when the shim releases the last of
+    them, up to :data:`LATEST_ACT` of a period), half a period after the instant at the latest
+    (a pose lost, or a loaded machine's tens of ms). With spatial interest on the edge feed it
+    cannot tell, and acts half a period after the instant. A UAV that heard nobody runs the
     whole tick at once. A late half runs at once; instants missed by a loop late more than a
     period are not made up.
     """
