@@ -11,8 +11,9 @@ empties and stamps; a rare stream (commands) may use a minimal callback; an owne
 stamps drains a ring channel itself (:class:`Inlet`).
 
 Streams that must be handled at once (commands, netem changes) also notify a :class:`Waker`,
-whose file descriptor the owner's loop waits on between its ticks; poses do not wake anyone:
-they are taken in at the next control tick, with their arrival time.
+whose file descriptor the owner's loop waits on between its ticks. Poses wake nobody one by
+one: they are taken in at the next control, with their arrival time; with aligned ticks the
+pose inlet counts them and wakes the owner once the instant's poses are in (:meth:`Inlet.expect`).
 
 The path, top to bottom::
 
