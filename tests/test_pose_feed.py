@@ -28,6 +28,7 @@ from swarmnet.messages import (
 )
 from swarmnet.node import NodeIdentity, SwarmNode
 from tests.conftest import free_port, wait_for
+from tests.pose_rounds import hear_a_round, publish_pose
 
 
 @pytest.fixture
@@ -131,22 +132,9 @@ def test_a_uav_on_the_edge_feed_wakes_once_the_poses_of_an_instant_are_in(edge: 
     they arrive and is woken on the last one expected (one from each neighbour heard at the
     instant before), not by its own pose coming back in the swarm's batch."""
     a, b, c = (SwarmNode(NodeIdentity("alpha", uav), edge, pose_feed="edge").open() for uav in (1, 2, 3))
+    pose = publish_pose
     try:
-        def pose(n: SwarmNode) -> None:
-            n.publish_pose(t_sim=0.0, x=0.0, y=float(n.identity.uav), z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
-
-        def heard() -> bool:  # published until the router's feed carries them
-            pose(a)
-            pose(b)
-            return (c.poll(), 1 in c.neighbours and 2 in c.neighbours)[1]
-
-        assert wait_for(heard, 10.0, period=0.1)
-        time.sleep(0.3)
-        c.poll()  # the stragglers
-        t_round = time.time()  # a round: each heard at the last instant (within 1.5 pose periods)
-        pose(a)
-        pose(b)
-        assert wait_for(lambda: (c.poll(), all(n.last_recv >= t_round for n in c.neighbours))[1], 3.0)
+        hear_a_round(c, a, b, settle_s=0.3)  # each heard at the last instant, through the router's feed
         c.waker.clear()
         instant = time.time()
         assert c.expect_poses(instant) == 2

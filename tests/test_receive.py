@@ -22,6 +22,7 @@ from swarmnet.receive import How, Inlet, Waker, subscribe
 from swarmnet.stats import PoseAges
 from tests.conftest import free_port, wait_for
 from tests.gcs_helpers import start_virtual_uav, stop_process
+from tests.pose_rounds import hear_a_round, publish_pose
 
 
 @pytest.mark.parametrize("how", ["thread", "callback"])
@@ -101,24 +102,10 @@ def test_a_node_wakes_its_owner_once_the_poses_of_an_instant_are_in(rendezvous: 
     """Aligned ticks (``network.align_ticks``) act as soon as every neighbour heard at the last
     instant has sent its pose of this one: the waker fires on the last of them, not before."""
     a, b, c = (SwarmNode(NodeIdentity("alpha", uav), rendezvous).open() for uav in (1, 2, 3))
+    pose = publish_pose
     try:
         assert c.expect_poses(time.time()) == 0  # nobody heard yet: nothing to wait for
-
-        def pose(n: SwarmNode) -> None:
-            n.publish_pose(t_sim=0.0, x=0.0, y=float(n.identity.uav), z=5.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
-
-        def heard() -> bool:  # published until the peers' direct links carry them
-            pose(a)
-            pose(b)
-            return (c.poll(), 1 in c.neighbours and 2 in c.neighbours)[1]
-
-        assert wait_for(heard, 10.0, period=0.1)
-        time.sleep(0.2)
-        c.poll()  # the stragglers
-        t_round = time.time()  # a round: each heard at the last instant (within 1.5 pose periods)
-        pose(a)
-        pose(b)
-        assert wait_for(lambda: (c.poll(), all(n.last_recv >= t_round for n in c.neighbours))[1], 3.0)
+        hear_a_round(c, a, b)  # each heard at the last instant, over the peers' direct links
         c.waker.clear()
         instant = time.time()
         assert c.expect_poses(instant) == 2
