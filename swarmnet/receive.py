@@ -35,7 +35,7 @@ import select
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import zenoh
@@ -219,8 +219,7 @@ class Inlet:
             self._since = since
             self._quorum_waker = waker
             # the inlet's thread queues under this lock too: the queue holds still while counted
-            weigh = self.weigh
-            short = count - sum(1 if weigh is None else weigh(s) for at, s in self._q if at >= since)
+            short = count - self._weight(s for at, s in self._q if at >= since)
             self._short = short if short > 0 else 0
         if short <= 0:
             waker.notify()
@@ -236,9 +235,20 @@ class Inlet:
             self._short = 0
             self._since = math.inf
 
+    def _weight(self, samples: Iterable[zenoh.Sample]) -> int:
+        """How many items :meth:`expect` counts in ``samples``: one each, or what ``weigh`` says.
+        A rule that fails counts 0: it must end neither the inlet's thread nor the owner's loop."""
+        weigh = self.weigh
+        if weigh is None:
+            return sum(1 for _ in samples)
+        try:
+            return sum(weigh(s) for s in samples)
+        except Exception:  # noqa: BLE001
+            return 0
+
     def _receive(self, channel: Any) -> None:
         extend, stamp, notify = self._q.extend, self.clock, (self.waker.notify if self.waker is not None else None)
-        recv, try_recv, lock, weigh = channel.recv, channel.try_recv, self._lock, self.weigh
+        recv, try_recv, lock = channel.recv, channel.try_recv, self._lock
         while True:
             try:
                 sample = recv()  # blocks, the interpreter's lock released
@@ -252,11 +262,7 @@ class Inlet:
             with lock:  # queued and counted at once: expect() sees each sample either waiting or counted
                 extend(burst)
                 if self._short and at >= self._since:
-                    try:
-                        got = len(burst) if weigh is None else sum(weigh(s) for _, s in burst)
-                    except Exception:  # noqa: BLE001 - a rule that fails must not end this thread: not counted
-                        got = 0
-                    self._short = max(self._short - got, 0)
+                    self._short = max(self._short - self._weight(s for _, s in burst), 0)
                     if not self._short:
                         reached = self._quorum_waker
             if reached is not None:
