@@ -99,6 +99,43 @@ def test_edge_feed_delivers_every_pose_in_batches_per_swarm(edge: Rendezvous) ->
             n.close()
 
 
+def test_without_a_shim_batches_land_as_through_the_stages(edge: Rendezvous) -> None:
+    """A UAV without a netem shim takes a batch's poses straight into its table (the fast path);
+    one with a pass-through shim runs every stage. Fed the same batches, honest and forged,
+    they end with the same neighbours, counters, rejections and number of transport ages."""
+    keys = SwarmKeys("alpha")
+    senders = [SwarmNode(NodeIdentity("alpha", i), edge, pose_feed="edge").open() for i in (1, 2)]
+    fast = SwarmNode(NodeIdentity("alpha", 3), edge, pose_feed="edge").open()
+    staged = SwarmNode(NodeIdentity("alpha", 4), edge, pose_feed="edge", netem={"preset": "none"}).open()
+    forger = zenoh.open(to_zenoh(edge.zenoh_config()))
+    try:
+        assert fast.netem is None and staged.netem is not None
+        assert wait_for(lambda: all((n.poll(), {1, 2} <= n.alive_uavs())[1] for n in (fast, staged)), 5.0)
+        time.sleep(0.3)
+        for k in range(10):
+            for i, n in enumerate(senders):
+                n.publish_pose(t_sim=k * 0.1, x=float(i), y=float(k), z=5.0, vx=0, vy=0, vz=0, yaw=0)
+            time.sleep(0.1)
+        p2 = encode_pose(Pose(2, Realm.VIRTUAL, 1, 0.0, time.time(), 0, 0, 0, 0, 0, 0, 0))
+        p7 = encode_pose(Pose(7, Realm.VIRTUAL, 1, 0.0, time.time(), 7, 7, 7, 0, 0, 0, 0))
+        forger.put(keys.pose_feed, encode_pose_batch(PoseBatch(1, time.time(), [5, 7], [p2, p7])))  # 1 of 2 forged
+        time.sleep(0.4)
+        outcome = []
+        for n in (fast, staged):
+            n.poll()
+            table = sorted((nb.uav, nb.received, nb.lost, nb.pose.x, nb.pose.y) for nb in n.neighbours)
+            outcome.append((table, n.stats.received["pose"], dict(n.stats.rejected), n.stats.ages.transport.n))
+        assert outcome[0] == outcome[1]
+        table, received, rejected, ages = outcome[0]
+        assert table == [(1, 10, 0, 0.0, 9.0), (2, 10, 0, 1.0, 9.0), (7, 1, 0, 7.0, 7.0)]
+        assert received == 21 and ages == 21 and rejected == {"key_mismatch": 1}
+        assert fast.stats.received["pose_batch"] == staged.stats.received["pose_batch"] >= 5
+    finally:
+        forger.close()
+        for n in senders + [fast, staged]:
+            n.close()
+
+
 def test_edge_feed_drops_invalid_and_spoofed_poses(edge: Rendezvous) -> None:
     keys = SwarmKeys("alpha")
     with SwarmNode(NodeIdentity("alpha", 1), edge, pose_feed="edge") as victim, \
