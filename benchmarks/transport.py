@@ -12,6 +12,9 @@ every other agent's (full mesh). The transports, flown one after the other at ev
   (``python -m discovery.rendezvous``); agent -> router -> agents;
 * ``swarmnet``: ``swarmnet.SwarmNode`` on the same peer mesh, its loop polling at the UAV tick
   (10 Hz); agent -> agents;
+* ``swarmnet-client``: ``SwarmNode`` in client mode through the same router, each pose routed
+  on its own (``mode: client``, ``pose_feed: direct``: UAVs behind carrier NAT); agent -> router
+  -> agents;
 * ``swarmnet-edge``: ``SwarmNode`` as a client of the edge router's pose feed (``pose_feed:
   edge``, 3 ms window); agent -> edge router (batches) -> agents.
 
@@ -60,7 +63,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.output import write_results  # noqa: E402
 from discovery.netutil import free_port  # noqa: E402
 
-TRANSPORTS = ("mqtt", "zenoh-peer", "zenoh-client", "swarmnet", "swarmnet-edge")
+TRANSPORTS = ("mqtt", "zenoh-peer", "zenoh-client", "swarmnet", "swarmnet-client", "swarmnet-edge")
 POSE_HZ = 10.0
 TICK_HZ = 10.0  # swarmnet agents poll at the UAV loop's tick (uav_stack.runtime.tick_hz_for: 10 Hz by default)
 PAYLOAD = struct.Struct("<HId")  # sender, seq, send time (s); padded to 48 bytes
@@ -202,7 +205,7 @@ def _open(kind: str, me: int, spec: dict[str, Any], rec: Recorder, receive: bool
             s.declare_subscriber("bench/*/pose", on_sample, allowed_origin=zenoh.Locality.REMOTE)
         return (lambda seq: pub.put(_payload(me, seq))), s.close, None
 
-    if kind in ("swarmnet", "swarmnet-edge"):
+    if kind in ("swarmnet", "swarmnet-client", "swarmnet-edge"):
         from swarmnet.connectivity import Rendezvous, StaticPeers
         from swarmnet.node import NodeIdentity, SwarmNode
 
@@ -285,7 +288,7 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     spec: dict[str, Any] = {"transport": kind, "warmup": args.warmup, "window": args.window}
     if kind == "mqtt":
         service, spec["broker_port"] = start_mosquitto(workdir)
-    elif kind in ("zenoh-client", "swarmnet-edge"):
+    elif kind in ("zenoh-client", "swarmnet-client", "swarmnet-edge"):
         service, spec["router"] = start_router(feed=kind == "swarmnet-edge")
     else:
         spec["ports"] = [free_port() for _ in range(n)]
