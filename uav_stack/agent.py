@@ -32,7 +32,6 @@ from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
 from uav_stack.fcu_link import CommandHandle, FcuLink
-from uav_stack.gcs_streams import GcsStreams
 from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
@@ -159,7 +158,6 @@ class Agent(OverridesMixin):
         # recorded instead of the reported position, which an injected fault may falsify
         self.truth: Callable[[], tuple[float, float, float, float, float, float, bool]] | None = None
         self.records = RecordHealth()  # recording errors degrade, never stop the flight
-        self.gcs_streams = GcsStreams(link)  # the FCU's ground-station streams only while one listens
         self.recorder: TrajectoryRecorder | None = None
         self.age_window = AgeWindow(node.stats.ages)
         self.age_log: PoseAgeLog | None = None
@@ -228,8 +226,6 @@ class Agent(OverridesMixin):
             if router.takeover is not None:
                 self._gcs_takeover = router.takeover[1]
                 router.takeover = None
-        # the ground stations' streams while one listens; asked before the router forwards what it sent
-        self.gcs_streams.update(now, router.gcs_heard_at if router is not None else -math.inf)
         have_pos = self._update_own()
         if self.payload is not None:
             self.payload.poll(now)  # sensor readings that arrived: the behaviour reads the latest
@@ -545,7 +541,6 @@ class Agent(OverridesMixin):
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            "gcs_streams": self.gcs_streams.as_dict(),
             "net": self.node.stats.to_dict(links),
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,

@@ -186,7 +186,6 @@ class FcuLink:
         self.conn: Any = None
         self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
-        self.seen_at: dict[str, float] = {}  # message name -> when the FCU's latest of it arrived (wall clock, s)
         self._next_heartbeat = 0.0
 
     # ---- lifecycle ----------------------------------------------------------------------
@@ -299,7 +298,6 @@ class FcuLink:
             return
         st = self.state
         now = self.clock()
-        self.seen_at[mtype] = now
         if mtype == "HEARTBEAT":
             st.sysid = ids[0]
             if msg.autopilot != st.autopilot:
@@ -378,13 +376,6 @@ class FcuLink:
     def _send_command_long(self, command: int, params: tuple[float, ...], confirmation: int = 0) -> None:
         p = list(params) + [math.nan] * (7 - len(params))
         self.conn.mav.command_long_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, command, confirmation, *p)
-
-    def set_message_interval(self, msg_id: int, interval_us: int) -> None:
-        """Ask the FCU to stream message ``msg_id`` every ``interval_us`` µs on this link (-1: stop
-        it, 0: its default rate). Not tracked as a pending command, so as not to displace another
-        request of the same command: the caller sees in :attr:`seen_at` whether it took effect."""
-        self.counts["commands"] += 1
-        self._send_command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(interval_us)))
 
     def command(self, command: int, *params: float) -> CommandHandle:
         """Send COMMAND_LONG; unused params go out as NaN (= unset). Replaces a pending one."""

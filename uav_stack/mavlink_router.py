@@ -38,7 +38,6 @@ The allocation of MAVLink system ids for more than 250 UAVs is :func:`uav_stack.
 from __future__ import annotations
 
 import logging
-import math
 import socket
 import time
 from collections.abc import Callable
@@ -276,9 +275,6 @@ class MavlinkRouter:
         # the latest ground-station command that moves our vehicle or changes its mode:
         # (wall time, description); the agent treats it as a human taking over
         self.takeover: tuple[float, str] | None = None
-        # when a ground station last sent us a frame we routed (wall clock, s): the agent asks the
-        # FCU for the ground stations' streams only while one speaks (uav_stack/gcs_streams.py)
-        self.gcs_heard_at = -math.inf
         self._to_fcu: list[bytes] = []
         self._to_fcu_len = 0
 
@@ -362,7 +358,6 @@ class MavlinkRouter:
             self.stats.bad_datagrams += 1
         if n:
             ep.note_peer(addr, self.stats)
-            self.gcs_heard_at = self.clock()
         return n
 
     def _route_from_gcs(self, ep: UdpEndpoint, m: Any) -> None:
