@@ -187,11 +187,11 @@ def up(nodes: int = 3, root: Path = DEFAULT_ROOT, prefix: str = DEFAULT_PREFIX, 
     """Bring up ``nodes`` edge servers as one swarm; on any failure, remove what was made and raise."""
     if not 1 <= nodes <= MAX_NODES:
         raise ClusterError(f"--nodes must be in 1..{MAX_NODES}, got {nodes}")
+    if root.exists() and not _ours(root):  # the arguments first: this needs neither root nor docker to tell
+        raise ClusterError(f"--root {root} exists and holds other files: name a new or empty directory")
     _check_host()
     if (root / STATE).exists() or f"{prefix}hub" in netns_names():
         raise ClusterError(f"a cluster already runs at {root} (prefix {prefix}): `mrswarm deploy cluster down` first")
-    if root.exists() and not _ours(root):
-        raise ClusterError(f"--root {root} exists and holds other files: name a new or empty directory")
     cl = Cluster(str(root.resolve()), prefix, [Node(i, f"{prefix}n{i}", f"{SUBNET}.1{i}", str(root.resolve() / f"n{i}"))
                                                for i in range(1, nodes + 1)], list(images))
     try:
