@@ -27,6 +27,7 @@ import argparse
 import collections
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -61,7 +62,7 @@ def _short(path: str) -> str:
     """A file as a reader knows it: the project's relative path, or a library's from its package on."""
     if path.startswith(str(ROOT) + "/"):
         return path[len(str(ROOT)) + 1:]
-    return path.split("site-packages/")[-1].split("/lib/python3")[-1]
+    return re.sub(r"^.*/(site-packages|lib/python3\.\d+)/", "", path)  # a library, or the standard library
 
 
 def find_uav(uav: int, deadline: float) -> int:
@@ -92,7 +93,7 @@ def profile(args: argparse.Namespace, work: Path) -> tuple[collections.Counter[t
         return innermost_python(script)
     finally:
         try:
-            os.killpg(scale.pid, 15)
+            os.killpg(scale.pid, signal.SIGTERM)
         except ProcessLookupError:
             pass
         scale.wait(60)
