@@ -138,9 +138,10 @@ def project_requirements(root: Path = ROOT, full: bool = False) -> list[str]:
 
 
 def source_hash(root: Path = ROOT) -> str:
-    """Hash of what goes into the project wheel (package sources + pyproject)."""
+    """Hash of what goes into the project wheel (package sources, C included, + pyproject and setup.py)."""
     h = hashlib.sha256()
-    files = [root / "pyproject.toml"] + sorted(p for pkg in PACKAGES for p in (root / pkg).rglob("*.py"))
+    files = [root / "pyproject.toml", root / "setup.py"] + sorted(
+        p for pkg in PACKAGES for ext in ("*.py", "*.c") for p in (root / pkg).rglob(ext))
     for f in files:
         h.update(str(f.relative_to(root)).encode())
         h.update(f.read_bytes())
@@ -175,7 +176,8 @@ def build_wheelhouse(out: Path, root: Path = ROOT, full: bool = False, log: Call
         # build from a copy so setuptools' build/ and egg-info never land in the work tree
         src = Path(tmp) / "src"
         shutil.copytree(root, src, ignore=shutil.ignore_patterns(".git", "results", "build", "dist", "*.egg-info",
-                                                               "__pycache__", ".pytest_cache", "benchmarks", "tests"))
+                                                               "__pycache__", ".pytest_cache", "benchmarks", "tests",
+                                                               "*.so"))  # the wheel builds its own
         env = dict(os.environ, SOURCE_DATE_EPOCH="315532800")
         res = subprocess.run([sys.executable, "-m", "pip", "--disable-pip-version-check", "wheel", "--quiet", "--no-deps",
                               "--wheel-dir", str(project), str(src)],

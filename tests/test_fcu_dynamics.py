@@ -10,6 +10,8 @@ import pytest
 from uav_stack.fcu.dynamics import G, MultirotorArray, MultirotorParams
 
 DT = 0.02
+_NOT_BUILT = ("the compiled step (uav_stack/fcu/_dynamics.c) was not built: install gcc and Python's headers "
+              "(apt: gcc python3-dev), then pip install -e . again")
 
 
 def fly(d: MultirotorArray, seconds: float, n_per_call: int = 5) -> None:
@@ -136,12 +138,17 @@ def _random_scenario(d: MultirotorArray, rng: np.random.Generator, k: int) -> No
         d.armed[: n // 3] = False  # some fall, some rest on the ground
 
 
+@pytest.mark.parametrize("scalar", ["compiled", "python"])
 @pytest.mark.parametrize("n", [1, 7, 100])
-def test_scalar_and_vector_paths_agree(n: int) -> None:
+def test_scalar_and_vector_paths_agree(n: int, scalar: str) -> None:
     rng = np.random.default_rng(n)
     yaw = rng.uniform(-3, 3, n)
     a, b = MultirotorArray(n, yaw=yaw), MultirotorArray(n, yaw=yaw)
     a.scalar_max, b.scalar_max = 0, 10_000  # force vector / scalar
+    if scalar == "python":
+        b.compiled_step = None
+    else:
+        assert b.compiled_step is not None, _NOT_BUILT
     a.armed[:] = b.armed[:] = True
     for k in range(4):
         state = np.random.default_rng(100 + k)
@@ -167,3 +174,56 @@ def test_hundred_vehicles_step_together() -> None:
     assert np.allclose(d.pos, targets, atol=0.05)
     assert not d.landed.any()
     assert d.pos.shape == (n, 3) and d.yaw.shape == (n,)
+
+
+def _mission(d: MultirotorArray, seconds: float, n_per_call: int) -> list[np.ndarray]:
+    """Take off, fly a square in wind with yaw targets, land, disarm: every branch of the step."""
+    d.armed[:] = True
+    d.wind[:] = (2.0, -1.0, 0.0)
+    track = []
+    legs = [(0.0, 0.0, -10.0), (30.0, 0.0, -10.0), (30.0, 30.0, -12.0), (0.0, 30.0, -8.0), (0.0, 0.0, 0.5)]
+    per_leg = seconds / len(legs)
+    for k, sp in enumerate(legs):
+        d.pos_sp[:] = sp
+        d.yaw_sp[:] = np.nan if k % 2 else 0.5 * k
+        d.yaw_rate_sp[:] = 0.2
+        calls = int(per_leg / (DT * n_per_call))
+        for _ in range(calls):
+            d.step(DT, n_per_call)
+            track.append(np.concatenate([d.pos.ravel(), d.vel.ravel(), d.acc.ravel(), d.yaw, d.roll, d.pitch,
+                                         d.battery, d.landed.astype(float), d.yaw_rate, d.pitch_rate]))
+    d.armed[:] = False  # motors off on the ground: it must rest, then stay put
+    for _ in range(50):
+        d.step(DT, 1)
+        track.append(np.concatenate([d.pos.ravel(), d.vel.ravel(), d.landed.astype(float)]))
+    return track
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_compiled_and_python_steps_fly_the_same_mission(n: int) -> None:
+    """A virtual UAV runs the compiled step when it was built: it must fly as the Python one does."""
+    yaw = np.linspace(-2.0, 2.0, n)
+    c, p = MultirotorArray(n, yaw=yaw), MultirotorArray(n, yaw=yaw)
+    assert c.compiled_step is not None, _NOT_BUILT
+    p.compiled_step = None
+    tc, tp = _mission(c, 80.0, 2), _mission(p, 80.0, 2)
+    assert len(tc) == len(tp) > 1000
+    worst = max(float(np.max(np.abs(a - b))) for a, b in zip(tc, tp, strict=True))
+    assert worst < 1e-9  # the same equations; at most hypot's last bits differ
+    assert c.landed.all() and not c.armed.any() and np.allclose(c.pos[:, 2], 0.0)
+    assert c.battery[0] < 1.0
+
+
+def test_compiled_step_names_a_bad_array() -> None:
+    d = MultirotorArray(2)
+    assert d.compiled_step is not None, _NOT_BUILT
+    d.armed[:] = True
+    d.wind = np.zeros((2, 3), np.float32)  # wrong dtype: a clear error, not a wrong flight
+    with pytest.raises(ValueError, match="MultirotorArray.wind must be a writable C-contiguous float64 array of 2 vehicles"):
+        d.step(DT, 1)
+    d.wind = np.zeros((4, 3))[::2]  # the right shape, but a strided view
+    with pytest.raises(ValueError, match="wind"):
+        d.step(DT, 1)
+    d.wind = np.zeros((2, 3))
+    d.step(DT, 1)
+    assert np.isfinite(d.pos).all()

@@ -16,16 +16,39 @@ quadrotor flying under its own position/velocity controllers (docs/fcu.md, Dynam
 All state lives in ``(N,)`` or ``(N, 3)`` float arrays; ``step`` advances every vehicle with a
 fixed number of vectorised numpy operations, independent of N. A NaN in ``pos_sp`` on an
 axis means "no position control on that axis": that axis follows ``vel_ff`` only.
+
+A few vehicles (a virtual UAV has one) take a scalar path instead: compiled
+(``_dynamics.c``, built at install when a C compiler is there) or, without it, the same
+equations in Python. :data:`DYNAMICS` says which this process runs; ``MRSWARM_PURE_PYTHON=1``
+in the environment chooses the Python step (to compare the two).
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
 G = 9.80665
+
+
+def _compiled_step() -> ModuleType | None:
+    """The compiled step, unless it was not built or the environment asks for Python."""
+    if os.environ.get("MRSWARM_PURE_PYTHON", "") not in ("", "0"):
+        return None
+    try:
+        from uav_stack.fcu import _dynamics  # type: ignore[attr-defined]
+    except ImportError:  # not built (no C compiler at install), or built for another Python
+        return None
+    return _dynamics
+
+
+_COMPILED = _compiled_step()
+DYNAMICS = "compiled" if _COMPILED is not None else "python"
+"""Which scalar step this process runs: ``"compiled"`` or ``"python"`` (in a UAV's status file)."""
 
 
 @dataclass
@@ -139,19 +162,27 @@ class MultirotorArray:
 
     # --------------------------------------------------------------------- step
     scalar_max: int = 8
+    compiled_step: ModuleType | None = _COMPILED  # None: the scalar path in Python (tests compare the two)
 
     def step(self, dt: float, n: int = 1) -> None:
         """Advance all vehicles by ``n`` steps of ``dt`` seconds (semi-implicit Euler;
         stable for dt <= ~0.05).
 
         numpy's per-call overhead (~0.6 us) dominates for a handful of vehicles, so small
-        fleets take an equivalent scalar path (same equations, ``math`` on floats, arrays
-        converted once per call); tests check that both paths agree.
+        fleets take an equivalent scalar path (same equations on floats): compiled when it was
+        built (a few microseconds a call), else in Python (``math`` on floats, arrays converted
+        once per call, about 60 us a call); tests check that all three agree.
         """
         if n < 1:
             return
         if self.n <= self.scalar_max:
-            self._step_scalar(dt, n)
+            if self.compiled_step is not None:
+                prm = self.params
+                self.compiled_step.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
+                               prm.drag, prm.acc_up, prm.acc_dn, prm.landed_alt, prm.landed_speed,
+                               prm.battery_idle_fraction, prm.tau_att)
+            else:
+                self._step_scalar(dt, n)
         else:
             for _ in range(n):
                 self._step_vector(dt)

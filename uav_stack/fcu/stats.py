@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
+from uav_stack.fcu.dynamics import DYNAMICS
+
 
 @dataclass
 class FcuStats:
@@ -45,4 +47,5 @@ class FcuStats:
             "physics_steps": self.physics_steps,
             "dropped_wall_s": self.dropped_wall_s,
             "failsafes": dict(self.failsafes),
+            "dynamics": DYNAMICS,  # which scalar step this process runs: "compiled" or "python"
         }
