@@ -5,7 +5,7 @@ and on a noisy 2-core machine only an interleaved comparison in one run says any
 flies every commit once, in turn, so a load spike hits both sides alike. Each commit is checked out
 into a throw-away git worktree and its own ``benchmarks/scale.py`` runs there (with ``PYTHONPATH``
 pointing at that tree, also for the UAV processes it spawns), so an old commit is measured exactly
-as it was.
+as it was; a commit with a ``setup.py`` gets its C extensions built in its tree first.
 
 Writes ``<tag>.json`` (every run's row as that commit's scale.py reported it), ``<tag>.csv`` and
 ``<tag>.png`` (CPU per UAV, RTF and pose age per commit and round) into ``--out``.
@@ -46,6 +46,11 @@ def checkout(commit: str, where: Path) -> Path:
     tree = where / commit
     subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
                    capture_output=True)
+    if (tree / "setup.py").exists():  # its compiled pieces, built in place as `pip install -e .` builds them
+        res = subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree, capture_output=True,
+                             text=True)
+        if res.returncode != 0:
+            print(f"{commit}: build_ext failed, its pure-Python fallbacks run:\n{res.stderr[-2000:]}", file=sys.stderr)
     return tree
 
 

@@ -400,11 +400,12 @@ class SwarmNode:
         """
         now = self.clock() if now is None else now
         out = list(self.neighbours)
-        used = self.stats.ages.used
+        ages = []
         for n in out:
             if not n.used:
                 n.used = True
-                used(now - n.last_recv)
+                ages.append(now - n.last_recv)
+        self.stats.ages.used_many(ages)
         return out
 
     def expect_poses(self, instant: float) -> int | None:
@@ -503,12 +504,16 @@ class SwarmNode:
         """Poses that arrived at ``at`` (local wall time, s) into the neighbour table, counted as
         received, the transport age of each one the table takes recorded (as :meth:`_deliver`
         does for one)."""
-        update, arrived = self.neighbours.update, self.stats.ages.arrived
+        update = self.neighbours.update
+        srcs: list[int] = []
+        ages: list[float] = []
         n = 0
         for pose, _ in poses:
             n += 1
             if update(pose, at):
-                arrived(pose.uav, at - pose.t_wall)
+                srcs.append(pose.uav)
+                ages.append(at - pose.t_wall)
+        self.stats.ages.arrived_many(srcs, ages)
         self.stats.received["pose"] += n
 
     def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any, float]]:

@@ -9,6 +9,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -19,7 +20,7 @@ from swarmnet.messages import Pose, Realm, decode_pose, decode_pose_batch, encod
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
 from swarmnet.receive import How, Inlet, Waker, subscribe
-from swarmnet.stats import PoseAges
+from swarmnet.stats import LogHistogram, PoseAges
 from tests.conftest import free_port, wait_for
 from tests.gcs_helpers import start_virtual_uav, stop_process
 from tests.pose_rounds import hear_a_round, publish_pose
@@ -60,6 +61,43 @@ def test_an_inlet_stamps_each_sample_on_arrival_and_wakes_its_owner(rendezvous: 
         # the inlet's thread leaves Zenoh once its channel closed (one left inside at exit aborts the process)
         assert inlet.join(2.0)
         waker.close()
+
+
+def test_ages_filed_when_read_make_the_histograms_one_by_one_adds_make() -> None:
+    """Transport ages are noted as poses arrive and filed when read (a UAV of 50 takes in 500 a
+    second): the histograms a user reads must be those that adding each age as it came gives."""
+    rng = np.random.default_rng(11)
+    ages = PoseAges()
+    want, want_links = LogHistogram(), {}
+    values = np.concatenate([rng.lognormal(np.log(0.003), 1.0, 3000), [0.0, 1e-6, 5e3, -0.2, -0.01]])
+    rng.shuffle(values)
+    senders = rng.integers(1, 50, values.size)
+    half = values.size // 2
+    for u, v in zip(senders[:half].tolist(), values[:half].tolist(), strict=True):
+        ages.arrived(u, v)  # a direct pose
+    for k in range(half, values.size, 9):  # batches of nine, as the edge feed sends them
+        ages.arrived_many(senders[k:k + 9].tolist(), values[k:k + 9].tolist())
+    for u, v in zip(senders.tolist(), values.tolist(), strict=True):
+        if v >= 0:
+            want.add(v)
+            want_links.setdefault(u, LogHistogram()).add(v)
+    got = ages.transport
+    assert got.bins == want.bins and got.n == want.n == values.size - 2
+    assert got.total == pytest.approx(want.total) and got.max == want.max
+    for q in (50, 90, 99, 100):
+        assert got.percentile(q) == want.percentile(q)
+    assert set(ages.links) == set(want_links)
+    for u, h in want_links.items():
+        assert ages.links[u].bins == h.bins and ages.links[u].n == h.n and ages.links[u].max == h.max
+    assert ages.negative == {"transport": 2} and ages.most_negative == pytest.approx(-0.2)
+    ages.used_many([0.001, 0.004, -0.001])  # the last: the wall clock stepped back
+    ages.used(0.002)
+    assert ages.use.n == 3 and ages.use.max == 0.004 and ages.negative == {"transport": 2, "use": 1}
+    # a node nobody reads keeps a bounded backlog
+    for _ in range(PoseAges.FILE_AT + 10):
+        ages.arrived(7, 0.001)
+        ages.used(0.001)
+    assert len(ages._ages) < PoseAges.FILE_AT and len(ages._uses) < PoseAges.FILE_AT
 
 
 def test_ages_below_zero_are_counted_apart_not_mixed_into_the_histograms() -> None:
