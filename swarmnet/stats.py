@@ -60,7 +60,9 @@ class LogHistogram:
         if not values.size:
             return
         b = self.bins
-        for i, c in zip(*(x.tolist() for x in np.unique(bins, return_counts=True)), strict=True):
+        counts = np.bincount(bins)
+        used = np.flatnonzero(counts)
+        for i, c in zip(used.tolist(), counts[used].tolist(), strict=True):
             b[i] = b.get(i, 0) + c
         self.n += int(values.size)
         finite = values[values == values]
@@ -161,11 +163,13 @@ class PoseAges:
     filing each into two histograms as it came (a log10, two dict updates, four Python calls)
     cost as much as decoding it. :meth:`arrived` and :meth:`arrived_many` only note the sender
     and the age (:meth:`used` and :meth:`used_many` the age at use); reading :attr:`transport`,
-    :attr:`links` or :attr:`use` (the agent does once a second) files what was noted in a few
-    numpy operations, as do :data:`FILE_AT` notes unread.
+    :attr:`links` or :attr:`use` files what was noted in a few numpy operations, as do
+    :data:`FILE_AT` notes unread. The agent reads the ages of all and at use once a second, the
+    per-sender histograms (a dict entry per sender and bin) every ten.
     """
 
-    __slots__ = ("_transport", "_links", "_use", "negative", "most_negative", "_srcs", "_ages", "_uses")
+    __slots__ = ("_transport", "_links", "_use", "negative", "most_negative", "_srcs", "_ages", "_uses", "_link_notes",
+                 "_link_noted")
 
     FILE_AT = 8192  # notes kept unread at most (a node that nobody reads stays bounded)
 
@@ -178,6 +182,8 @@ class PoseAges:
         self._srcs: list[int] = []  # noted, not yet filed: sending UAV ...
         self._ages: list[float] = []  # ... and transport age, s
         self._uses: list[float] = []  # ages at use, s
+        self._link_notes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (senders, bins, ages) in transport, not links
+        self._link_noted = 0
 
     @property
     def transport(self) -> LogHistogram:
@@ -189,6 +195,7 @@ class PoseAges:
     def links(self) -> dict[int, LogHistogram]:
         """The transport ages by sending UAV."""
         self._file()
+        self._file_links()
         return self._links
 
     @property
@@ -212,7 +219,8 @@ class PoseAges:
             self._file()
 
     def _file(self) -> None:
-        """File the noted ages into the histograms, as :meth:`LogHistogram.add` would one by one."""
+        """File the noted ages into the histogram of all (a few distinct bins: cheap each second);
+        the per-sender histograms, read less often, get theirs when :attr:`links` is read."""
         if not self._ages:
             return
         ages = np.array(self._ages, dtype=np.float64)
@@ -226,17 +234,43 @@ class PoseAges:
                 return
         bins = LogHistogram.indices(ages)
         self._transport.add_many(bins, ages)
-        # per sender: one sort, then each sender's run of ages
-        order = np.argsort(srcs, kind="stable")
-        srcs, ages, bins = srcs[order], ages[order], bins[order]
-        senders, starts = np.unique(srcs, return_index=True)
-        ends = [*starts[1:].tolist(), len(srcs)]
+        self._link_notes.append((srcs, bins, ages))
+        self._link_noted += ages.size
+        if self._link_noted >= self.FILE_AT:
+            self._file_links()
+
+    def _file_links(self) -> None:
+        """File the ages already in the histogram of all into each sender's histogram."""
+        if not self._link_notes:
+            return
+        srcs, bins, ages = (np.concatenate(x) for x in zip(*self._link_notes, strict=True))
+        self._link_notes.clear()
+        self._link_noted = 0
+        # one sort by (sender, bin), then each distinct pair's count into its sender's dict
+        order = np.lexsort((bins, srcs))
+        srcs, bins, ages = srcs[order], bins[order], ages[order]
+        keys = srcs * _NBINS + bins
+        firsts = np.flatnonzero(np.diff(keys, prepend=-1))  # where each (sender, bin) run starts
+        counts = np.diff(firsts, append=keys.size)
         links = self._links
-        for u, a, b in zip(senders.tolist(), starts.tolist(), ends, strict=True):
+        for key, c in zip(keys[firsts].tolist(), counts.tolist(), strict=True):
+            u, i = divmod(key, _NBINS)
             h = links.get(u)
             if h is None:
                 h = links[u] = LogHistogram()
-            h.add_many(bins[a:b], ages[a:b])
+            h.bins[i] = h.bins.get(i, 0) + c
+        # count, sum and maximum per sender
+        starts = np.flatnonzero(np.diff(srcs, prepend=-1))
+        finite = np.where(ages == ages, ages, 0.0)  # NaN counts, as in LogHistogram.add_at, but adds nothing
+        sums = np.add.reduceat(finite, starts)
+        maxes = np.maximum.reduceat(finite, starts)
+        ns = np.diff(starts, append=srcs.size)
+        for u, n, t, m in zip(srcs[starts].tolist(), ns.tolist(), sums.tolist(), maxes.tolist(), strict=True):
+            h = links[u]
+            h.n += n
+            h.total += t
+            if m > h.max:
+                h.max = m
 
     def used(self, age: float) -> None:
         """A pose was first used by the controller ``age`` s after it arrived."""
@@ -287,6 +321,7 @@ class PoseAges:
 
 # LogHistogram.index's constants as module globals (it runs for every pose): 1 + (log10(v) - log10(LO)) * 50
 _LO, _PER_DECADE, _OVERFLOW = LogHistogram.LO, LogHistogram.PER_DECADE, LogHistogram.NBINS - 1
+_NBINS = LogHistogram.NBINS
 _LOG_LO = math.log10(_LO)
 _log10 = math.log10
 

@@ -60,48 +60,74 @@ static const Field FIELDS[N_FIELDS] = {
 
 static PyObject *field_names[N_FIELDS];
 
-static void release_all(Py_buffer *views, int count) {
-    for (int k = 0; k < count; k++) PyBuffer_Release(&views[k]);
+/* The arrays of one MultirotorArray, exported once and kept: getting ~25 numpy buffers anew on
+ * every call cost more than the step itself. An attribute that now holds another array (the
+ * vectorised path assigns new ones) is exported again; a kept export also stops numpy from
+ * resizing the array under us. */
+typedef struct {
+    PyObject_HEAD
+    Py_ssize_t n;               /* vehicles the kept views were checked for */
+    PyObject *objs[N_FIELDS];   /* borrowed: each stays alive through its view */
+    Py_buffer views[N_FIELDS];
+} Stepper;
+
+static void stepper_forget(Stepper *st, int k) {
+    if (st->objs[k] != NULL) {
+        PyBuffer_Release(&st->views[k]);
+        st->objs[k] = NULL;
+    }
 }
 
 /* Every field of `obj` as a writable C-contiguous buffer of the right type and length. */
-static int get_fields(PyObject *obj, Py_ssize_t n, Py_buffer *views) {
+static int stepper_views(Stepper *st, PyObject *obj, Py_ssize_t n) {
     for (int k = 0; k < N_FIELDS; k++) {
         PyObject *arr = PyObject_GetAttr(obj, field_names[k]);
-        if (arr == NULL) { release_all(views, k); return -1; }
-        int rc = PyObject_GetBuffer(arr, &views[k], PyBUF_WRITABLE | PyBUF_FORMAT | PyBUF_C_CONTIGUOUS);
-        Py_DECREF(arr);  /* the buffer keeps the array alive until it is released */
+        if (arr == NULL) return -1;
+        if (arr == st->objs[k] && st->n == n) {  /* the array we hold a view of */
+            Py_DECREF(arr);
+            continue;
+        }
+        stepper_forget(st, k);
+        int rc = PyObject_GetBuffer(arr, &st->views[k], PyBUF_WRITABLE | PyBUF_FORMAT | PyBUF_C_CONTIGUOUS);
         const Field *f = &FIELDS[k];
         int ok = 0;
         if (rc == 0) {
-            const char *fmt = views[k].format ? views[k].format : "B";
+            const char *fmt = st->views[k].format ? st->views[k].format : "B";
             ok = f->kind == 'b'
-                ? (strcmp(fmt, "?") == 0 && views[k].len == n)
-                : (strcmp(fmt, "d") == 0 && views[k].len == (Py_ssize_t)sizeof(double) * n * (f->kind == 'v' ? 3 : 1));
+                ? (strcmp(fmt, "?") == 0 && st->views[k].len == n)
+                : (strcmp(fmt, "d") == 0 && st->views[k].len == (Py_ssize_t)sizeof(double) * n * (f->kind == 'v' ? 3 : 1));
+            if (!ok) PyBuffer_Release(&st->views[k]);
         }
         if (!ok) {  /* read-only, strided, of another type or size: say which array */
+            Py_DECREF(arr);
             PyErr_Clear();
             PyErr_Format(PyExc_ValueError, "MultirotorArray.%s must be a writable C-contiguous %s array of %zd vehicles",
                          f->name, f->kind == 'b' ? "bool" : "float64", n);
-            release_all(views, rc == 0 ? k + 1 : k);
             return -1;
         }
+        st->objs[k] = arr;
+        Py_DECREF(arr);  /* the view holds its own reference */
     }
+    st->n = n;
     return 0;
 }
 
+static void stepper_dealloc(Stepper *st) {
+    for (int k = 0; k < N_FIELDS; k++) stepper_forget(st, k);
+    Py_TYPE(st)->tp_free((PyObject *)st);
+}
+
 PyDoc_STRVAR(step_doc,
-"step(arr, dt, n, kp_xy, kp_z, bz2, kp_yaw, tau_vel_xy, tau_vel_z, drag, acc_up, acc_dn,\n"
+"Stepper().step(arr, dt, n, kp_xy, kp_z, bz2, kp_yaw, tau_vel_xy, tau_vel_z, drag, acc_up, acc_dn,\n"
 "     landed_alt, landed_speed, idle, tau_att)\n\n"
 "Advance every vehicle of the MultirotorArray ``arr`` by ``n`` steps of ``dt`` s, in place:\n"
 "MultirotorArray._step_scalar's equations (the parameters are MultirotorParams' fields of the\n"
 "same names; bz2 is twice the vertical braking deceleration, m/s^2; idle the battery's idle fraction).");
 
-static PyObject *step(PyObject *self, PyObject *args) {
+static PyObject *step(Stepper *st, PyObject *args) {
     PyObject *obj;
     double dt, kpxy, kpz, bz2, kpyaw, tau_xy, tau_z, drag, acc_up, acc_dn, l_alt, l_spd, idle, tau_att;
     int n;
-    (void)self;
     if (!PyArg_ParseTuple(args, "Odiddddddddddddd:step", &obj, &dt, &n, &kpxy, &kpz, &bz2, &kpyaw, &tau_xy, &tau_z,
                           &drag, &acc_up, &acc_dn, &l_alt, &l_spd, &idle, &tau_att))
         return NULL;
@@ -114,10 +140,9 @@ static PyObject *step(PyObject *self, PyObject *args) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "MultirotorArray.n must be >= 1");
         return NULL;
     }
-    Py_buffer views[N_FIELDS];
-    if (get_fields(obj, nv, views) < 0) return NULL;
-#define D(k) ((double *)views[k].buf)
-#define B(k) ((char *)views[k].buf)
+    if (stepper_views(st, obj, nv) < 0) return NULL;
+#define D(k) ((double *)st->views[k].buf)
+#define B(k) ((char *)st->views[k].buf)
     double *P = D(F_POS), *V = D(F_VEL), *A = D(F_ACC), *PSP = D(F_POS_SP), *VFF = D(F_VEL_FF), *W = D(F_WIND);
     char *armed_l = B(F_ARMED), *landed_o = B(F_LANDED);
     double *gz_l = D(F_GROUND_Z), *vxy_l = D(F_VXY_MAX), *vup_l = D(F_VZ_UP), *vdn_l = D(F_VZ_DN);
@@ -231,18 +256,28 @@ static PyObject *step(PyObject *self, PyObject *args) {
         rr_o[i] = roll_rate;
         pr_o[i] = pitch_rate;
     }
-    release_all(views, N_FIELDS);
     Py_RETURN_NONE;
 }
 
-static PyMethodDef methods[] = {
-    {"step", step, METH_VARARGS, step_doc},
+static PyMethodDef stepper_methods[] = {
+    {"step", (PyCFunction)step, METH_VARARGS, step_doc},
     {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject StepperType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "uav_stack.fcu._dynamics.Stepper",
+    .tp_doc = PyDoc_STR("Steps one MultirotorArray (keep one per array: it keeps views of its arrays)."),
+    .tp_basicsize = sizeof(Stepper),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_new = PyType_GenericNew,
+    .tp_dealloc = (destructor)stepper_dealloc,
+    .tp_methods = stepper_methods,
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_dynamics",
-    "The virtual FCU's multirotor step, compiled (see dynamics.MultirotorArray.step).", -1, methods,
+    "The virtual FCU's multirotor step, compiled (see dynamics.MultirotorArray.step).", -1, NULL,
     NULL, NULL, NULL, NULL,
 };
 
@@ -251,5 +286,14 @@ PyMODINIT_FUNC PyInit__dynamics(void) {
         field_names[k] = PyUnicode_InternFromString(FIELDS[k].name);
         if (field_names[k] == NULL) return NULL;
     }
-    return PyModule_Create(&module);
+    if (PyType_Ready(&StepperType) < 0) return NULL;
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) return NULL;
+    Py_INCREF(&StepperType);
+    if (PyModule_AddObject(m, "Stepper", (PyObject *)&StepperType) < 0) {
+        Py_DECREF(&StepperType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -29,6 +29,7 @@ import math
 import os
 from dataclasses import dataclass
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -140,6 +141,7 @@ class MultirotorArray:
         self._gcol = np.array([[0.0], [0.0], [G]], f)
         self._bz = 0.5 * min(p.acc_up, p.acc_dn)  # vertical braking deceleration of the profile
         self._2bz = 2.0 * self._bz
+        self._stepper: Any = None  # the compiled step's views of these arrays, made at the first step
 
     # ------------------------------------------------------------------ helpers
     def stop_point(self, i: int) -> np.ndarray:
@@ -178,7 +180,9 @@ class MultirotorArray:
         if self.n <= self.scalar_max:
             if self.compiled_step is not None:
                 prm = self.params
-                self.compiled_step.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
+                if self._stepper is None:
+                    self._stepper = self.compiled_step.Stepper()
+                self._stepper.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
                                prm.drag, prm.acc_up, prm.acc_dn, prm.landed_alt, prm.landed_speed,
                                prm.battery_idle_fraction, prm.tau_att)
             else:
