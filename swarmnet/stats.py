@@ -227,8 +227,9 @@ class PoseAges:
         srcs = np.array(self._srcs, dtype=np.int64)
         self._ages.clear()
         self._srcs.clear()
-        if (ages < 0.0).any():
-            srcs = srcs[ages >= 0.0]
+        negative = ages < 0.0
+        if negative.any():
+            srcs = srcs[~negative]  # the mask _count_negative applies (a NaN age stays, as add_at keeps it)
             ages = self._count_negative("transport", ages)
             if not ages.size:
                 return
@@ -250,7 +251,7 @@ class PoseAges:
         order = np.lexsort((bins, srcs))
         srcs, bins, ages = srcs[order], bins[order], ages[order]
         keys = srcs * _NBINS + bins
-        firsts = np.flatnonzero(np.diff(keys, prepend=-1))  # where each (sender, bin) run starts
+        firsts = np.flatnonzero(np.diff(keys, prepend=keys[0] - 1))  # where each (sender, bin) run starts
         counts = np.diff(firsts, append=keys.size)
         links = self._links
         for key, c in zip(keys[firsts].tolist(), counts.tolist(), strict=True):
@@ -260,7 +261,7 @@ class PoseAges:
                 h = links[u] = LogHistogram()
             h.bins[i] = h.bins.get(i, 0) + c
         # count, sum and maximum per sender
-        starts = np.flatnonzero(np.diff(srcs, prepend=-1))
+        starts = np.flatnonzero(np.diff(srcs, prepend=srcs[0] - 1))
         finite = np.where(ages == ages, ages, 0.0)  # NaN counts, as in LogHistogram.add_at, but adds nothing
         sums = np.add.reduceat(finite, starts)
         maxes = np.maximum.reduceat(finite, starts)

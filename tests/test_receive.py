@@ -69,7 +69,7 @@ def test_ages_filed_when_read_make_the_histograms_one_by_one_adds_make() -> None
     rng = np.random.default_rng(11)
     ages = PoseAges()
     want, want_links = LogHistogram(), {}
-    values = np.concatenate([rng.lognormal(np.log(0.003), 1.0, 3000), [0.0, 1e-6, 5e3, -0.2, -0.01]])
+    values = np.concatenate([rng.lognormal(np.log(0.003), 1.0, 3000), [0.0, 1e-6, 5e3, -0.2, -0.01, np.nan]])
     rng.shuffle(values)
     senders = rng.integers(1, 50, values.size)
     half = values.size // 2
@@ -78,11 +78,11 @@ def test_ages_filed_when_read_make_the_histograms_one_by_one_adds_make() -> None
     for k in range(half, values.size, 9):  # batches of nine, as the edge feed sends them
         ages.arrived_many(senders[k:k + 9].tolist(), values[k:k + 9].tolist())
     for u, v in zip(senders.tolist(), values.tolist(), strict=True):
-        if v >= 0:
+        if not v < 0:  # a NaN too: add keeps it (bin 0)
             want.add(v)
             want_links.setdefault(u, LogHistogram()).add(v)
     got = ages.transport
-    assert got.bins == want.bins and got.n == want.n == values.size - 2
+    assert got.bins == want.bins and got.n == want.n == values.size - 2  # all but the two below zero
     assert got.total == pytest.approx(want.total) and got.max == want.max
     for q in (50, 90, 99, 100):
         assert got.percentile(q) == want.percentile(q)
