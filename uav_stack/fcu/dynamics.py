@@ -172,8 +172,9 @@ class MultirotorArray:
 
         numpy's per-call overhead (~0.6 us) dominates for a handful of vehicles, so small
         fleets take an equivalent scalar path (same equations on floats): compiled when it was
-        built (a few microseconds a call), else in Python (``math`` on floats, arrays converted
-        once per call, about 60 us a call); tests check that all three agree.
+        built, else in Python (``math`` on floats, arrays converted once per call). One vehicle,
+        two steps a call, warm: 0.84 us compiled, 10.8 us in Python; in a UAV among 50 others,
+        caches cold, several times that. Tests check that all three paths agree.
         """
         if n < 1:
             return
