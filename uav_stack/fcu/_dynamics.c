@@ -59,6 +59,7 @@ static const Field FIELDS[N_FIELDS] = {
 };
 
 static PyObject *field_names[N_FIELDS];
+static PyObject *name_n;  /* "n", interned once like the field names */
 
 /* The arrays of one MultirotorArray, exported once and kept: getting ~25 numpy buffers anew on
  * every call cost more than the step itself. An attribute that now holds another array (the
@@ -132,7 +133,7 @@ static PyObject *step(Stepper *st, PyObject *args) {
                           &drag, &acc_up, &acc_dn, &l_alt, &l_spd, &idle, &tau_att))
         return NULL;
     if (n < 1) Py_RETURN_NONE;
-    PyObject *nobj = PyObject_GetAttrString(obj, "n");
+    PyObject *nobj = PyObject_GetAttr(obj, name_n);
     if (nobj == NULL) return NULL;
     Py_ssize_t nv = PyLong_AsSsize_t(nobj);
     Py_DECREF(nobj);
@@ -286,6 +287,8 @@ PyMODINIT_FUNC PyInit__dynamics(void) {
         field_names[k] = PyUnicode_InternFromString(FIELDS[k].name);
         if (field_names[k] == NULL) return NULL;
     }
+    name_n = PyUnicode_InternFromString("n");
+    if (name_n == NULL) return NULL;
     if (PyType_Ready(&StepperType) < 0) return NULL;
     PyObject *m = PyModule_Create(&module);
     if (m == NULL) return NULL;
