@@ -1,10 +1,12 @@
-"""The one compiled piece of mrswarm, optional: everything else is in pyproject.toml.
+"""The compiled pieces of mrswarm, both optional: everything else is in pyproject.toml.
 
-``uav_stack.fcu._dynamics`` is the virtual FCU's multirotor step in C (uav_stack/fcu/_dynamics.c).
-It is built when a C compiler and Python's headers are there (apt: gcc python3-dev; a pyenv or
-python.org Python brings its headers). Without them the build skips it (``optional=True``) and the
-FCU runs the same equations in Python. A UAV reports which one it runs in its status file
-(``virtual_fcu.dynamics`` in ``uav<N>.json``).
+- ``uav_stack.fcu._dynamics``: the virtual FCU's multirotor step (uav_stack/fcu/_dynamics.c);
+- ``swarmnet._intake``: an edge-feed batch of poses into the neighbour table (swarmnet/_intake.c).
+
+They are built when a C compiler and Python's headers are there (apt: gcc python3-dev; a pyenv or
+python.org Python brings its headers). Without them the build skips them (``optional=True``) and
+the same rules run in Python. A UAV reports which it runs in its status file
+(``virtual_fcu.dynamics`` and ``net.intake`` in ``uav<N>.json``).
 """
 
 from setuptools import Extension, setup
@@ -17,6 +19,12 @@ setup(
             # no fused multiply-add: the same rounding as the Python step, so both fly alike
             extra_compile_args=["-O2", "-ffp-contract=off"],
             optional=True,
-        )
+        ),
+        Extension(
+            "swarmnet._intake",
+            ["swarmnet/_intake.c"],
+            extra_compile_args=["-O2", "-ffp-contract=off"],  # the same rounding as the Python rules
+            optional=True,
+        ),
     ]
 )

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
+from swarmnet.intake import BatchIntake
 from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
@@ -54,7 +55,6 @@ from swarmnet.messages import (
     accept_pose,
     accept_pose_batch,
     accept_swarm_message,
-    batched_pose_count,
     encode_ack,
     encode_pose,
     encode_state,
@@ -107,6 +107,11 @@ class Inbox:
     left: list[str] = field(default_factory=list)  # ... and disappeared
 
 
+def _as_received(key: str, data: bytes) -> bytes:
+    """The edge feed's streams keep a batch as it came: :meth:`SwarmNode._take_batch` checks it."""
+    return data
+
+
 def _accept_netem_set(key: str, data: bytes) -> NetemSet:
     from swarmnet.netem.control import decode_netem_set
 
@@ -153,6 +158,7 @@ class SwarmNode:
         self.ring_size = ring_size
         self.clock = clock
         self.neighbours = NeighbourTable(stale_after, forget_after)
+        self.intake = BatchIntake(self.neighbours)  # edge-feed batches into it: compiled when built
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
         self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
@@ -216,13 +222,14 @@ class SwarmNode:
                 # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
                 # spatial interest, whose far poses come at a lower rate on a feed of their own
                 counts = ident.role == "uav" and not self.near_feed
+                count = self.intake.count
                 feed = inlet(k.pose_feed, 256, "thread",
-                             weigh=(lambda sample: batched_pose_count(sample.payload.to_bytes(), me)) if counts else None)
+                             weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None)
                 if counts and feed.how == "thread":
                     self._pose_inlet = feed
-                streams.append((_BATCH, feed, accept_pose_batch))
+                streams.append((_BATCH, feed, _as_received))
                 if self.near_feed:
-                    streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), accept_pose_batch))
+                    streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), _as_received))
             else:
                 pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
                 poses = inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE)
@@ -288,6 +295,11 @@ class SwarmNode:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    @property
+    def _own_uav(self) -> int | None:
+        """The UAV whose own pose comes back in the swarm's batches and is no neighbour (None: not a UAV)."""
+        return self.identity.uav if self.identity.role == "uav" else None
 
     @property
     def zid(self) -> str:
@@ -468,9 +480,36 @@ class SwarmNode:
             return
         for kind, arrival in arrivals:
             if kind == _BATCH:
-                self._take_poses(self._batch_poses(arrival.item), arrival.at)
+                self._take_batch(arrival.key, arrival.payload, arrival.at)
             else:
                 self._deliver(kind, arrival.item, arrival.at, inbox)
+
+    def _take_batch(self, key: str, payload: bytes, at: float) -> None:
+        """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table: in
+        one compiled pass when every rule accepts all of it (:class:`~swarmnet.intake.BatchIntake`),
+        otherwise the Python way (:meth:`_accept_batch`, :meth:`_batch_poses`, :meth:`_take_poses`),
+        which names and counts what it refuses. Both end alike (tests/test_intake.py)."""
+        srcs: list[int] = []
+        ages: list[float] = []
+        n = self.intake.take(payload, self._own_uav, at, srcs, ages)
+        if n is not None:
+            stats = self.stats
+            stats.received["pose_batch"] += 1
+            stats.received["pose"] += n
+            stats.ages.arrived_many(srcs, ages)
+            return
+        batch = self._accept_batch(key, payload)
+        if batch is not None:
+            self._take_poses(self._batch_poses(batch), at)
+
+    def _accept_batch(self, key: str, payload: bytes) -> PoseBatch | None:
+        """The batch's envelope decoded (:func:`~swarmnet.messages.accept_pose_batch`), or None,
+        the reason counted in ``stats.rejected``."""
+        try:
+            return accept_pose_batch(key, payload)
+        except Rejected as exc:
+            self.stats.reject(exc.reason, key, exc.detail)
+            return None
 
     def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
         """An edge-feed batch becomes the poses it carries (:meth:`_batch_poses`). Each keeps the
@@ -480,7 +519,10 @@ class SwarmNode:
                 yield kind, arrival
                 continue
             key, at = arrival.key, arrival.at
-            for pose, data in self._batch_poses(arrival.item):
+            batch = self._accept_batch(key, arrival.payload)
+            if batch is None:
+                continue
+            for pose, data in self._batch_poses(batch):
                 yield POSE, Accepted(key, pose, data, at)
 
     def _batch_poses(self, batch: PoseBatch) -> Iterator[tuple[Pose, bytes]]:
@@ -488,7 +530,7 @@ class SwarmNode:
         from the sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a
         bad one is counted under the sender's pose key, the others kept); our own pose, which
         comes back in the swarm's batch, left out."""
-        own = self.identity.uav if self.identity.role == "uav" else None
+        own = self._own_uav
         stats = self.stats
         stats.received["pose_batch"] += 1
         for sender, data in zip(batch.senders, batch.poses, strict=True):

@@ -103,8 +103,11 @@ class Waker:
             return True
         return False
 
+    def __del__(self) -> None:  # a node never opened, or dropped without close(): its descriptor back
+        self.close()
+
     def close(self) -> None:
-        if self.closed:
+        if getattr(self, "closed", True):  # (also when __init__ failed before setting it)
             return
         self.closed = True
         for fd in {self._r, self._w}:

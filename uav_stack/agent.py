@@ -541,7 +541,8 @@ class Agent(OverridesMixin):
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            "net": self.node.stats.to_dict(links),
+            # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake)
+            "net": {**self.node.stats.to_dict(links), "intake": "compiled" if self.node.intake.compiled else "python"},
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}

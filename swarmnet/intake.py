@@ -1,0 +1,84 @@
+"""Edge-feed batches into the neighbour table: one compiled pass for a clean batch, the Python rules for the rest.
+
+Why: a UAV of 50 on the edge feed takes in about 500 poses a second. The Python path decodes
+the batch, then each pose (:func:`~swarmnet.messages.accept_batched_pose`), builds a
+:class:`~swarmnet.messages.Pose`, applies :meth:`NeighbourTable.update
+<swarmnet.neighbours.NeighbourTable.update>` and notes the transport age: about 8 µs a pose
+with the caches a UAV's tick finds, a quarter of a UAV-of-50's main thread
+(docs/benchmarks.md). ``swarmnet._intake`` (``swarmnet/_intake.c``, built at install when a C
+compiler is there) does all of that in one pass for a batch that every rule accepts, and
+declines anything else untouched, so the Python rules still decide, name and count every
+rejection: the fast path is narrower than they are, never wider (``tests/test_intake.py`` runs
+both on valid, corrupted and adversarial batches and compares the tables).
+
+:data:`INTAKE` says which this process runs (a UAV's status file: ``net.intake``);
+``MRSWARM_PURE_PYTHON=1`` in the environment chooses Python, as for the FCU's step.
+"""
+
+from __future__ import annotations
+
+import os
+from types import ModuleType
+from typing import Any
+
+from swarmnet.messages import BATCH_VERSION, Kind, Pose, Realm, batched_pose_count, tag
+from swarmnet.neighbours import Neighbour, NeighbourTable
+
+
+def _compiled() -> ModuleType | None:
+    """The compiled intake, unless it was not built or the environment asks for Python."""
+    if os.environ.get("MRSWARM_PURE_PYTHON", "") not in ("", "0"):
+        return None
+    try:
+        from swarmnet import _intake  # type: ignore[attr-defined]
+    except ImportError:  # not built (no C compiler at install), or built for another Python
+        return None
+    return _intake
+
+
+_COMPILED = _compiled()
+INTAKE = "compiled" if _COMPILED is not None else "python"
+"""Which intake this process runs: ``"compiled"`` or ``"python"``."""
+
+
+class BatchIntake:
+    """The compiled fast path bound to one neighbour table (one per :class:`~swarmnet.node.SwarmNode`;
+    :meth:`take` only from the owner's thread, :meth:`count` from any).
+
+    Without the compiled module :meth:`take` always declines and :meth:`count` counts in Python,
+    so the caller needs no second code path for that case.
+    """
+
+    __slots__ = ("table", "_fast")
+
+    def __init__(self, table: NeighbourTable, compiled: bool = True):
+        self.table = table
+        self._fast: Any = None
+        if compiled and _COMPILED is not None:  # the realms by wire value, the tags the feed and the UAVs write
+            self._fast = _COMPILED.Intake(Pose, Neighbour, (Realm(0), Realm(1)), tag(Kind.POSE_BATCH, BATCH_VERSION),
+                                          tag(Kind.POSE))
+
+    @property
+    def compiled(self) -> bool:
+        return self._fast is not None
+
+    def take(self, payload: bytes, own: int | None, at: float, srcs: list[int], ages: list[float]) -> int | None:
+        """A batch that arrived at ``at`` (wall time, s) into the table, every pose but ``own``'s,
+        with the rules of :meth:`NeighbourTable.update <swarmnet.neighbours.NeighbourTable.update>`;
+        the id and transport age (s) of each pose the table took appended to ``srcs`` and ``ages``.
+        Returns how many poses were not ``own``'s, or None, with nothing changed, when any rule
+        would refuse anything in it (or there is no compiled intake): take it the Python way."""
+        fast = self._fast
+        if fast is None:
+            return None
+        return fast.take(payload, own or 0, self.table._table, at, srcs, ages)  # noqa: SLF001 - the table's own fast path
+
+    def count(self, payload: bytes, exclude: int) -> int:
+        """:func:`~swarmnet.messages.batched_pose_count`: the poses of UAVs other than ``exclude``
+        in a batch (0 if it is not one), for the pose inlet's thread."""
+        fast = self._fast
+        if fast is not None:
+            n: int = fast.count(payload, exclude)
+            if n >= 0:
+                return n
+        return batched_pose_count(payload, exclude)
