@@ -15,6 +15,9 @@ a fresh interpreter, alternating, so that both see the machine's load of the mom
     git worktree add /tmp/before HEAD~1
     python benchmarks/receive_path.py --repo /tmp/before --repo . --rounds 3
 
+``--pure-python`` measures each checkout a second time with ``MRSWARM_PURE_PYTHON=1``: the
+Python rules in place of the compiled intake (``swarmnet._intake``), in the same run.
+
 The numbers are warm (the same poses again and again, caches hot): a UAV that wakes ten times
 a second pays a few times more per pose.
 """
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -36,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 _CHILD = r"""
 import json, statistics, sys, time
 from swarmnet.connectivity import Rendezvous
-from swarmnet.messages import Pose, PoseBatch, Realm, encode_pose
+from swarmnet.messages import Pose, PoseBatch, Realm, encode_pose, encode_pose_batch
 from swarmnet.node import _BATCH, Inbox, NodeIdentity, SwarmNode
 from swarmnet.receive import Accepted
 
@@ -47,7 +51,8 @@ ids = list(range(2, 2 + senders))
 def arrivals(k, now):
     poses = [encode_pose(Pose(u, Realm.VIRTUAL, k % 65536, 0.1 * k, now - 0.003, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5))
              for u in ids]
-    return [(_BATCH, Accepted("mrs/bench/feed/poses", PoseBatch(k, now, ids, poses), b"", now))]
+    batch = PoseBatch(k, now, ids, poses)  # checkouts before the compiled intake take the decoded batch, later ones the payload
+    return [(_BATCH, Accepted("mrs/bench/feed/poses", batch, encode_pose_batch(batch), now))]
 
 def chained(arrivals, now, inbox):  # checkouts before SwarmNode._take_in: the stages one after the other
     for kd, item, at in node._through_netem(node._unbatch(arrivals), now):
@@ -70,11 +75,12 @@ print(json.dumps({"us_per_pose": 1e6 * statistics.median(per)}))
 """
 
 
-def measure(repo: Path, senders: int, batches: int, repeats: int) -> float:
+def measure(repo: Path, senders: int, batches: int, repeats: int, pure_python: bool = False) -> float:
     """Median µs per pose of one fresh interpreter importing swarmnet from ``repo``."""
+    env = {**os.environ, "MRSWARM_PURE_PYTHON": "1" if pure_python else "0"}
     out = subprocess.run([sys.executable, "-c", f"import sys; sys.path.insert(0, {str(repo)!r})\n" + _CHILD,
                           str(senders), str(batches), str(repeats)],
-                         capture_output=True, text=True, timeout=300, cwd=repo)
+                         capture_output=True, text=True, timeout=300, cwd=repo, env=env)
     if out.returncode != 0:
         raise SystemExit(f"{repo}: the measuring interpreter failed:\n{out.stderr}")
     return float(json.loads(out.stdout.strip().splitlines()[-1])["us_per_pose"])
@@ -88,7 +94,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    names = [Path(r["repo"]).name or r["repo"] for r in rows]
+    names = [(Path(r["repo"]).name or r["repo"]) + (" (python)" if r.get("pure_python") else "") for r in rows]
     ax.bar(names, [r["us_per_pose_median"] for r in rows], color="tab:blue", alpha=0.6)
     for i, r in enumerate(rows):
         ax.plot([i] * len(r["us_per_pose_rounds"]), r["us_per_pose_rounds"], "k.", ms=5)
@@ -106,28 +112,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batches", type=int, default=200, help="batches per round")
     ap.add_argument("--repeats", type=int, default=7, help="rounds per interpreter (the median is kept)")
     ap.add_argument("--rounds", type=int, default=3, help="fresh interpreters per checkout, alternated")
+    ap.add_argument("--pure-python", action="store_true", help="also each checkout with MRSWARM_PURE_PYTHON=1")
     ap.add_argument("--out", type=Path, default=None, help="folder for receive_path.{json,csv,png} (default: print only)")
     ap.add_argument("--tag", default="receive_path", help="file name stem in --out")
     args = ap.parse_args(argv)
     repos = [r.resolve() for r in (args.repo or [ROOT])]
+    variants = [(repo, pure) for repo in repos for pure in ((False, True) if args.pure_python else (False,))]
     results: list[dict[str, Any]] = []
-    per: dict[str, list[float]] = {str(r): [] for r in repos}
+    per: dict[tuple[Path, bool], list[float]] = {v: [] for v in variants}
     for i in range(args.rounds):
-        for repo in repos if i % 2 == 0 else repos[::-1]:
-            per[str(repo)].append(measure(repo, args.senders, args.batches, args.repeats))
-    for repo, vals in per.items():
-        row = {"repo": repo, "senders": args.senders, "us_per_pose_median": round(statistics.median(vals), 2),
-               "us_per_pose_rounds": [round(v, 2) for v in vals]}
+        for repo, pure in variants if i % 2 == 0 else variants[::-1]:
+            per[(repo, pure)].append(measure(repo, args.senders, args.batches, args.repeats, pure))
+    for (repo, pure), vals in per.items():
+        row = {"repo": str(repo), "pure_python": pure, "senders": args.senders,
+               "us_per_pose_median": round(statistics.median(vals), 2), "us_per_pose_rounds": [round(v, 2) for v in vals]}
         results.append(row)
-        print(f"{repo}: {row['us_per_pose_median']:.2f} us/pose (rounds: {row['us_per_pose_rounds']})")
+        label = f"{repo}{' (python)' if pure else ''}"
+        print(f"{label}: {row['us_per_pose_median']:.2f} us/pose (rounds: {row['us_per_pose_rounds']})")
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / f"{args.tag}.json").write_text(json.dumps(results, indent=2) + "\n")
         with open(args.out / f"{args.tag}.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["repo", "senders", "us_per_pose_median", "us_per_pose_rounds"])
+            w.writerow(["repo", "pure_python", "senders", "us_per_pose_median", "us_per_pose_rounds"])
             for r in results:
-                w.writerow([r["repo"], r["senders"], r["us_per_pose_median"], " ".join(map(str, r["us_per_pose_rounds"]))])
+                w.writerow([r["repo"], r["pure_python"], r["senders"], r["us_per_pose_median"],
+                            " ".join(map(str, r["us_per_pose_rounds"]))])
         plot(results, args.out / f"{args.tag}.png")
     return 0
 

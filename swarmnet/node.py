@@ -9,8 +9,11 @@ the one receive path of :mod:`swarmnet.receive`, top to bottom:
 
 1. runtime netem changes (``mrs/<swarm>/netem/set``), so a change applies to this poll;
 2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
-   messages, commands), rejections counted in :attr:`SwarmNode.stats`;
-3. edge-feed batches unpacked into the poses they carry;
+   messages, commands), rejections counted in :attr:`SwarmNode.stats`; a batch is kept as it
+   came for step 3;
+3. edge-feed batches checked and unpacked into the poses they carry; without a shim, a batch
+   every rule accepts goes into the neighbour table in one compiled pass
+   (:class:`~swarmnet.intake.BatchIntake`), with the outcome of steps 3 to 5;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
 5. delivery: poses into the neighbour table with their arrival time (their transport age
    recorded), messages and commands into the :class:`Inbox`;
