@@ -17,26 +17,13 @@ both on valid, corrupted and adversarial batches and compares the tables).
 
 from __future__ import annotations
 
-import os
-from types import ModuleType
 from typing import Any
 
+from swarmnet.compiled import compiled_module
 from swarmnet.messages import BATCH_VERSION, Kind, Pose, Realm, batched_pose_count, tag
 from swarmnet.neighbours import Neighbour, NeighbourTable
 
-
-def _compiled() -> ModuleType | None:
-    """The compiled intake, unless it was not built or the environment asks for Python."""
-    if os.environ.get("MRSWARM_PURE_PYTHON", "") not in ("", "0"):
-        return None
-    try:
-        from swarmnet import _intake  # type: ignore[attr-defined]
-    except ImportError:  # not built (no C compiler at install), or built for another Python
-        return None
-    return _intake
-
-
-_COMPILED = _compiled()
+_COMPILED = compiled_module("swarmnet._intake")
 INTAKE = "compiled" if _COMPILED is not None else "python"
 """Which intake this process runs: ``"compiled"`` or ``"python"``."""
 

@@ -26,28 +26,18 @@ in the environment chooses the Python step (to compare the two).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 
+from swarmnet.compiled import compiled_module
+
 G = 9.80665
 
 
-def _compiled_step() -> ModuleType | None:
-    """The compiled step, unless it was not built or the environment asks for Python."""
-    if os.environ.get("MRSWARM_PURE_PYTHON", "") not in ("", "0"):
-        return None
-    try:
-        from uav_stack.fcu import _dynamics  # type: ignore[attr-defined]
-    except ImportError:  # not built (no C compiler at install), or built for another Python
-        return None
-    return _dynamics
-
-
-_COMPILED = _compiled_step()
+_COMPILED = compiled_module("uav_stack.fcu._dynamics")
 DYNAMICS = "compiled" if _COMPILED is not None else "python"
 """Which scalar step this process runs: ``"compiled"`` or ``"python"`` (in a UAV's status file)."""
 
