@@ -1,5 +1,5 @@
 /*
- * swarmnet._intake: an edge-feed batch into the neighbour table in one compiled pass.
+ * swarmnet._intake: an edge-feed batch, or a direct pose, into the neighbour table in one compiled pass.
  *
  * Why: a UAV of 50 on the edge feed takes in about 500 poses a second, four or five batches
  * per tick. In Python each pose is a msgpack decode, a range check, a Pose object, the
@@ -463,6 +463,63 @@ static PyObject *Intake_take(Intake *self, PyObject *args) {
     return PyLong_FromSsize_t(taken_count);
 }
 
+/* The UAV id of a key "mrs/<swarm>/<uav>/...", as swarmnet.keyspace.uav_from_key reads it, for
+ * ASCII digits only (narrower: other Unicode digits are declined); -1 if not one. */
+static int64_t uav_of_key(const char *k, Py_ssize_t n) {
+    if (n < 4 || memcmp(k, "mrs/", 4) != 0) return -1;
+    Py_ssize_t i = 4;
+    while (i < n && k[i] != '/') i++; /* the swarm */
+    if (i >= n) return -1;
+    Py_ssize_t start = ++i, digits = 0;
+    int64_t v = 0;
+    while (i < n && k[i] != '/') {
+        if (k[i] < '0' || k[i] > '9' || ++digits > 5) return -1;
+        v = v * 10 + (k[i] - '0');
+        i++;
+    }
+    if (i == start || v < UAV_ID_MIN || v > UAV_ID_MAX) return -1;
+    return v;
+}
+
+PyDoc_STRVAR(take_pose_doc,
+"take_pose(key, data, own, table, at, srcs, ages) -> int | None\n\n"
+"A direct pose ``data`` (bytes) that arrived at ``at`` (wall time, s) on ``key``\n"
+"(``mrs/<swarm>/<uav>/pose``) into ``table``, with NeighbourTable.update's rules; its id and\n"
+"transport age appended to ``srcs`` and ``ages`` if the table took it. Returns 1 (delivered,\n"
+"taken or not); None, with nothing changed, if any rule would refuse it (its key names another\n"
+"UAV, it is ``own``'s (0: none), it does not decode): the caller then takes it the Python way.");
+
+static PyObject *Intake_take_pose(Intake *self, PyObject *args) {
+    PyObject *key, *table, *srcs, *ages;
+    Py_buffer buf;
+    long long own;
+    double at;
+    if (!PyArg_ParseTuple(args, "Uy*LO!dO!O!", &key, &buf, &own, &PyDict_Type, &table, &at, &PyList_Type, &srcs,
+                          &PyList_Type, &ages))
+        return NULL;
+    WirePose w;
+    Py_ssize_t klen;
+    const char *k = PyUnicode_AsUTF8AndSize(key, &klen);
+    int clean = k != NULL && read_pose(buf.buf, buf.len, self->pose_tag, &w) == 0 && w.uav == uav_of_key(k, klen) &&
+                w.uav != own;
+    PyBuffer_Release(&buf);
+    if (k == NULL) return NULL;
+    if (!clean) Py_RETURN_NONE;
+    PyObject *pose;
+    int rc = update(self, table, &w, at, &pose);
+    if (rc < 0) return NULL;
+    if (rc == 1) {
+        PyObject *u = PyLong_FromLongLong(w.uav);
+        PyObject *age = PyFloat_FromDouble(at - (double)w.t_wall_us / 1e6);
+        Py_DECREF(pose);
+        int bad = u == NULL || age == NULL || PyList_Append(srcs, u) < 0 || PyList_Append(ages, age) < 0;
+        Py_XDECREF(u);
+        Py_XDECREF(age);
+        if (bad) return NULL;
+    }
+    return PyLong_FromLong(1);
+}
+
 PyDoc_STRVAR(count_doc,
 "count(data, exclude) -> int\n\n"
 "How many poses an edge-feed batch carries from UAVs other than ``exclude``, as\n"
@@ -510,6 +567,7 @@ done:
 static PyMethodDef Intake_methods[] = {
     {"take", (PyCFunction)Intake_take, METH_VARARGS, take_doc},
     {"count", (PyCFunction)Intake_count, METH_VARARGS, count_doc},
+    {"take_pose", (PyCFunction)Intake_take_pose, METH_VARARGS, take_pose_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -1,4 +1,4 @@
-"""Edge-feed batches into the neighbour table: one compiled pass for a clean batch, the Python rules for the rest.
+"""Poses into the neighbour table: one compiled pass for a clean edge-feed batch or direct pose, the Python rules for the rest.
 
 Why: a UAV of 50 on the edge feed takes in about 500 poses a second. The Python path decodes
 the batch, then each pose (:func:`~swarmnet.messages.accept_batched_pose`), builds a
@@ -9,7 +9,9 @@ with the caches a UAV's tick finds, a quarter of a UAV-of-50's main thread
 compiler is there) does all of that in one pass for a batch that every rule accepts, and
 declines anything else untouched, so the Python rules still decide, name and count every
 rejection: the fast path is narrower than they are, never wider (``tests/test_intake.py`` runs
-both on valid, corrupted and adversarial batches and compares the tables).
+both on valid, corrupted and adversarial batches and compares the tables). A direct pose (the
+default network up to 25 UAVs: each neighbour's pose a message of its own) takes the same
+pass, one at a time (:meth:`BatchIntake.take_pose`).
 
 :data:`INTAKE` says which this process runs (a UAV's status file: ``net.intake``);
 ``MRSWARM_PURE_PYTHON=1`` in the environment chooses Python, as for the FCU's step.
@@ -59,6 +61,15 @@ class BatchIntake:
         if fast is None:
             return None
         return fast.take(payload, own or 0, self.table._table, at, srcs, ages)  # noqa: SLF001 - the table's own fast path
+
+    def take_pose(self, key: str, payload: bytes, own: int | None, at: float, srcs: list[int], ages: list[float]) -> bool:
+        """A direct pose that arrived at ``at`` on ``key`` (``mrs/<swarm>/<uav>/pose``) into the
+        table, as :meth:`take` takes a batch's; True when it was delivered (taken by the table or
+        counted there as a duplicate or late), False, with nothing changed, when any rule would
+        refuse it (its key names another UAV, it is ``own``'s, it does not decode) or there is no
+        compiled intake: take it the Python way."""
+        fast = self._fast
+        return fast is not None and fast.take_pose(key, payload, own or 0, self.table._table, at, srcs, ages) is not None  # noqa: SLF001
 
     def count(self, payload: bytes, exclude: int) -> int:
         """:func:`~swarmnet.messages.batched_pose_count`: the poses of UAVs other than ``exclude``

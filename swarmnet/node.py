@@ -9,10 +9,10 @@ the one receive path of :mod:`swarmnet.receive`, top to bottom:
 
 1. runtime netem changes (``mrs/<swarm>/netem/set``), so a change applies to this poll;
 2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
-   messages, commands), rejections counted in :attr:`SwarmNode.stats`; a batch is kept as it
-   came for step 3;
-3. edge-feed batches checked and unpacked into the poses they carry; without a shim, a batch
-   every rule accepts goes into the neighbour table in one compiled pass
+   messages, commands), rejections counted in :attr:`SwarmNode.stats`; poses and batches are
+   kept as they came for step 3;
+3. poses decoded and checked, edge-feed batches unpacked into the poses they carry; without a
+   shim, a pose or batch every rule accepts goes into the neighbour table in one compiled pass
    (:class:`~swarmnet.intake.BatchIntake`), with the outcome of steps 3 to 5;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
 5. delivery: poses into the neighbour table with their arrival time (their transport age
@@ -161,7 +161,8 @@ class SwarmNode:
         self.ring_size = ring_size
         self.clock = clock
         self.neighbours = NeighbourTable(stale_after, forget_after)
-        self.intake = BatchIntake(self.neighbours)  # edge-feed batches into it: compiled when built
+        self.intake = BatchIntake(self.neighbours)  # poses into it: compiled when built
+        self._pose_rule: Accept[Pose] = accept_pose  # a direct pose's rule; a UAV's (not its own id) once open
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
         self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
@@ -234,11 +235,11 @@ class SwarmNode:
                 if self.near_feed:
                     streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), _as_received))
             else:
-                pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
+                self._pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
                 poses = inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE)
                 if poses.how == "thread":
                     self._pose_inlet = poses
-                streams.append((POSE, poses, pose_rule))
+                streams.append((POSE, poses, _as_received))
             message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
             streams.append((MESSAGE, inlet(k.all_broadcast, 256, "ring", allowed_origin=zenoh.Locality.REMOTE), message_rule))
             if ident.role == "uav":
@@ -481,11 +482,25 @@ class SwarmNode:
             for kind, item, at in self._through_netem(self._unbatch(arrivals), now):
                 self._deliver(kind, item, at, inbox)
             return
+        take_pose, own = self.intake.take_pose, self._own_uav
+        srcs: list[int] = []
+        ages: list[float] = []
+        direct = 0  # direct poses the compiled intake delivered
         for kind, arrival in arrivals:
-            if kind == _BATCH:
+            if kind == POSE:
+                if take_pose(arrival.key, arrival.payload, own, arrival.at, srcs, ages):
+                    direct += 1
+                else:
+                    pose = self._accept_pose(arrival.key, arrival.payload)
+                    if pose is not None:
+                        self._deliver(POSE, pose, arrival.at, inbox)
+            elif kind == _BATCH:
                 self._take_batch(arrival.key, arrival.payload, arrival.at)
             else:
                 self._deliver(kind, arrival.item, arrival.at, inbox)
+        if direct:
+            self.stats.received["pose"] += direct
+            self.stats.ages.arrived_many(srcs, ages)
 
     def _take_batch(self, key: str, payload: bytes, at: float) -> None:
         """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table: in
@@ -505,6 +520,15 @@ class SwarmNode:
         if batch is not None:
             self._take_poses(self._batch_poses(batch), at)
 
+    def _accept_pose(self, key: str, payload: bytes) -> Pose | None:
+        """A direct pose decoded and checked by its stream's rule, or None, the reason counted in
+        ``stats.rejected``."""
+        try:
+            return self._pose_rule(key, payload)
+        except Rejected as exc:
+            self.stats.reject(exc.reason, key, exc.detail)
+            return None
+
     def _accept_batch(self, key: str, payload: bytes) -> PoseBatch | None:
         """The batch's envelope decoded (:func:`~swarmnet.messages.accept_pose_batch`), or None,
         the reason counted in ``stats.rejected``."""
@@ -515,9 +539,15 @@ class SwarmNode:
             return None
 
     def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
-        """An edge-feed batch becomes the poses it carries (:meth:`_batch_poses`). Each keeps the
-        batch's key and arrival stamp: that is where and when it arrived."""
+        """Poses decoded for the netem shim: a direct pose by its stream's rule (:meth:`_accept_pose`),
+        an edge-feed batch into the poses it carries (:meth:`_batch_poses`). Each keeps the key and
+        arrival stamp it came with: that is where and when it arrived."""
         for kind, arrival in arrivals:
+            if kind == POSE:  # a direct pose, kept as it came: decoded here
+                pose = self._accept_pose(arrival.key, arrival.payload)
+                if pose is not None:
+                    yield POSE, Accepted(arrival.key, pose, arrival.payload, arrival.at)
+                continue
             if kind != _BATCH:
                 yield kind, arrival
                 continue

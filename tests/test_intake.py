@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import random
 import struct
+from functools import partial
 from typing import Any
 
 import msgpack
@@ -23,13 +24,15 @@ from swarmnet.messages import (
     Pose,
     PoseBatch,
     Realm,
+    accept_neighbour_pose,
     batched_pose_count,
     encode_pose,
     encode_pose_batch,
     tag,
 )
 from swarmnet.neighbours import NeighbourTable
-from swarmnet.node import NodeIdentity, SwarmNode
+from swarmnet.node import POSE, Inbox, NodeIdentity, SwarmNode
+from swarmnet.receive import Accepted
 
 OWN = 1
 KEY = "mrs/alpha/feed/poses"
@@ -225,3 +228,58 @@ def test_every_pose_field_at_and_past_its_limits(field: int, lo: int, hi: int) -
         slow._take_batch(KEY, payload, 1.8e9)
         assert _state(fast) == _state(slow), (field, value)
         assert len(slow.neighbours) == (1 if lo <= value <= hi and sender != OWN else 0), (field, value)
+
+
+def _direct(seed: int, n: int) -> list[tuple[str, bytes, float]]:
+    """``n`` direct poses: those of ``_batches`` one by one, each on its sender's key, and keys
+    that go wrong (another UAV's id, our own, leading zeros, non-ASCII digits, too many digits,
+    another root, too short)."""
+    rng = random.Random(seed)
+    out = []
+    for payload, at in _batches(seed, n):
+        try:
+            o = msgpack.unpackb(payload)
+            senders, poses = o[3], o[4]
+        except Exception:  # noqa: BLE001 - a corrupted batch: its bytes sent as one pose
+            out.append((f"mrs/alpha/{rng.randrange(1, 9)}/pose", payload[:48], at))
+            continue
+        if type(senders) is not list or type(poses) is not list:
+            continue
+        for s, p in zip(senders, poses, strict=False):  # a corrupted batch may list more of one
+            if type(p) is not bytes:
+                continue
+            seg = str(s)
+            r = rng.random()
+            if r < 0.05:
+                seg = str(rng.randrange(2, 9))
+            elif r < 0.08:
+                seg = "000" + seg
+            elif r < 0.1:
+                seg = "\u0663"  # ARABIC-INDIC DIGIT THREE: a digit to str.isdigit
+            elif r < 0.12:
+                seg = rng.choice(["123456", "00000" + seg])  # six digits: too many, whatever their value
+            if r > 0.98:
+                key = f"mrx/alpha/{seg}/pose"  # another root
+            elif r > 0.96:
+                key = f"mrs/{seg}"  # no UAV segment
+            else:
+                key = f"mrs/alpha/{seg}/pose"
+            out.append((key, p, at + rng.uniform(0.0, 0.01)))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_and_python_direct_poses_end_alike(seed: int) -> None:
+    """The default network up to 25 UAVs sends each pose on its sender's key: the compiled pass
+    and the Python rules end alike there too, on the same kinds of input and on bad keys."""
+    fast, slow = _node(compiled=True), _node(compiled=False)
+    fast._pose_rule = slow._pose_rule = partial(accept_neighbour_pose, me=OWN)
+    took = 0
+    for key, payload, at in _direct(seed, 150):
+        for node in (fast, slow):
+            arrival = Accepted(key, payload, payload, at)
+            node._take_in(iter([(POSE, arrival)]), at, Inbox())
+        assert _state(fast) == _state(slow), (key, payload.hex())
+        took += BatchIntake(NeighbourTable()).take_pose(key, payload, OWN, at, [], [])
+    rejected = _state(slow)["stats"]["rejected"]
+    assert took > 200 and "key_mismatch" in rejected and "own_id" in rejected, (took, rejected)
