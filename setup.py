@@ -1,7 +1,7 @@
 """The compiled pieces of mrswarm, both optional: everything else is in pyproject.toml.
 
 - ``uav_stack.fcu._dynamics``: the virtual FCU's multirotor step (uav_stack/fcu/_dynamics.c);
-- ``swarmnet._intake``: an edge-feed batch of poses into the neighbour table (swarmnet/_intake.c).
+- ``swarmnet._intake``: poses (edge-feed batches, direct poses) into the neighbour table (swarmnet/_intake.c).
 
 They are built when a C compiler and Python's headers are there (apt: gcc python3-dev; a pyenv or
 python.org Python brings its headers). Without them the build skips them (``optional=True``) and

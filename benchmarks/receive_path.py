@@ -17,6 +17,8 @@ a fresh interpreter, alternating, so that both see the machine's load of the mom
 
 ``--pure-python`` measures each checkout a second time with ``MRSWARM_PURE_PYTHON=1``: the
 Python rules in place of the compiled intake (``swarmnet._intake``), in the same run.
+``--direct`` feeds direct poses instead (a message per neighbour pose, the default network up
+to 25 UAVs), each accepted by its stream's rule as the drain does it, then taken in.
 
 The numbers are warm (the same poses again and again, caches hot): a UAV that wakes ten times
 a second pays a few times more per pose.
@@ -39,16 +41,27 @@ ROOT = Path(__file__).resolve().parents[1]
 # Runs inside a fresh interpreter whose sys.path starts at the checkout being measured.
 _CHILD = r"""
 import json, statistics, sys, time
+from functools import partial
+import swarmnet.node as node_module
 from swarmnet.connectivity import Rendezvous
-from swarmnet.messages import Pose, PoseBatch, Realm, encode_pose, encode_pose_batch
-from swarmnet.node import _BATCH, Inbox, NodeIdentity, SwarmNode
+from swarmnet.messages import Pose, PoseBatch, Realm, accept_neighbour_pose, encode_pose, encode_pose_batch
+from swarmnet.node import _BATCH, POSE, Inbox, NodeIdentity, SwarmNode
 from swarmnet.receive import Accepted
 
-senders, batches, repeats = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+senders, batches, repeats, direct = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "direct"
 node = SwarmNode(NodeIdentity("bench", 1), Rendezvous(endpoints=("tcp/127.0.0.1:9",)))  # never opened
 ids = list(range(2, 2 + senders))
+rule = partial(accept_neighbour_pose, me=1)
+# a direct pose's stream: checkouts with the compiled intake keep the payload and decode it in _take_in
+accept = getattr(node_module, "_as_received", rule) if hasattr(node, "_pose_rule") else rule
+if hasattr(node, "_pose_rule"):
+    node._pose_rule = rule
 
 def arrivals(k, now):
+    if direct:  # the poses of one tick, each accepted by its stream's rule as receive() does
+        tick = [(f"mrs/bench/{u}/pose", encode_pose(Pose(u, Realm.VIRTUAL, k % 65536, 0.1 * k, now - 0.003, 1.0, 2.0, 3.0,
+                                                          0.1, 0.2, 0.3, 0.5))) for u in ids]
+        return ((POSE, Accepted(key, accept(key, p), p, now)) for key, p in tick)
     poses = [encode_pose(Pose(u, Realm.VIRTUAL, k % 65536, 0.1 * k, now - 0.003, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.5))
              for u in ids]
     batch = PoseBatch(k, now, ids, poses)  # checkouts before the compiled intake take the decoded batch, later ones the payload
@@ -66,7 +79,7 @@ def one_round(seq0):
     inbox = Inbox()
     t0 = time.thread_time()
     for arr in feed:
-        take_in(iter(arr), now, inbox)
+        take_in(iter(arr), now, inbox)  # (a direct tick's generator accepts each pose as it is taken in)
     return (time.thread_time() - t0) / (batches * senders)
 
 one_round(0)  # warm-up
@@ -75,11 +88,11 @@ print(json.dumps({"us_per_pose": 1e6 * statistics.median(per)}))
 """
 
 
-def measure(repo: Path, senders: int, batches: int, repeats: int, pure_python: bool = False) -> float:
+def measure(repo: Path, senders: int, batches: int, repeats: int, pure_python: bool = False, direct: bool = False) -> float:
     """Median µs per pose of one fresh interpreter importing swarmnet from ``repo``."""
     env = {**os.environ, "MRSWARM_PURE_PYTHON": "1" if pure_python else "0"}
     out = subprocess.run([sys.executable, "-c", f"import sys; sys.path.insert(0, {str(repo)!r})\n" + _CHILD,
-                          str(senders), str(batches), str(repeats)],
+                          str(senders), str(batches), str(repeats), "direct" if direct else "batch"],
                          capture_output=True, text=True, timeout=300, cwd=repo, env=env)
     if out.returncode != 0:
         raise SystemExit(f"{repo}: the measuring interpreter failed:\n{out.stderr}")
@@ -99,7 +112,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     for i, r in enumerate(rows):
         ax.plot([i] * len(r["us_per_pose_rounds"]), r["us_per_pose_rounds"], "k.", ms=5)
     ax.set_ylabel("CPU µs per batched pose")
-    ax.set_title(f"edge-feed receive path, {rows[0]['senders']} poses per batch (warm)")
+    what = "direct poses" if rows[0].get("direct") else "edge-feed batches"
+    ax.set_title(f"receive path, {what}, {rows[0]['senders']} poses per tick (warm)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -113,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="rounds per interpreter (the median is kept)")
     ap.add_argument("--rounds", type=int, default=3, help="fresh interpreters per checkout, alternated")
     ap.add_argument("--pure-python", action="store_true", help="also each checkout with MRSWARM_PURE_PYTHON=1")
+    ap.add_argument("--direct", action="store_true",
+                    help="direct poses (a message each, the default network up to 25 UAVs), each accepted by its "
+                         "stream's rule, instead of edge-feed batches")
     ap.add_argument("--out", type=Path, default=None, help="folder for receive_path.{json,csv,png} (default: print only)")
     ap.add_argument("--tag", default="receive_path", help="file name stem in --out")
     args = ap.parse_args(argv)
@@ -122,9 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     per: dict[tuple[Path, bool], list[float]] = {v: [] for v in variants}
     for i in range(args.rounds):
         for repo, pure in variants if i % 2 == 0 else variants[::-1]:
-            per[(repo, pure)].append(measure(repo, args.senders, args.batches, args.repeats, pure))
+            per[(repo, pure)].append(measure(repo, args.senders, args.batches, args.repeats, pure, args.direct))
     for (repo, pure), vals in per.items():
-        row = {"repo": str(repo), "pure_python": pure, "senders": args.senders,
+        row = {"repo": str(repo), "pure_python": pure, "direct": args.direct, "senders": args.senders,
                "us_per_pose_median": round(statistics.median(vals), 2), "us_per_pose_rounds": [round(v, 2) for v in vals]}
         results.append(row)
         label = f"{repo}{' (python)' if pure else ''}"

@@ -11,7 +11,7 @@ declines anything else untouched, so the Python rules still decide, name and cou
 rejection: the fast path is narrower than they are, never wider (``tests/test_intake.py`` runs
 both on valid, corrupted and adversarial batches and compares the tables). A direct pose (the
 default network up to 25 UAVs: each neighbour's pose a message of its own) takes the same
-pass, one at a time (:meth:`BatchIntake.take_pose`).
+pass, one at a time (:meth:`PoseIntake.take_pose`).
 
 :data:`INTAKE` says which this process runs (a UAV's status file: ``net.intake``);
 ``MRSWARM_PURE_PYTHON=1`` in the environment chooses Python, as for the FCU's step.
@@ -30,7 +30,7 @@ INTAKE = "compiled" if _COMPILED is not None else "python"
 """Which intake this process runs: ``"compiled"`` or ``"python"``."""
 
 
-class BatchIntake:
+class PoseIntake:
     """The compiled fast path bound to one neighbour table (one per :class:`~swarmnet.node.SwarmNode`;
     :meth:`take` only from the owner's thread, :meth:`count` from any).
 

@@ -13,7 +13,7 @@ the one receive path of :mod:`swarmnet.receive`, top to bottom:
    kept as they came for step 3;
 3. poses decoded and checked, edge-feed batches unpacked into the poses they carry; without a
    shim, a pose or batch every rule accepts goes into the neighbour table in one compiled pass
-   (:class:`~swarmnet.intake.BatchIntake`), with the outcome of steps 3 to 5;
+   (:class:`~swarmnet.intake.PoseIntake`), with the outcome of steps 3 to 5;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
 5. delivery: poses into the neighbour table with their arrival time (their transport age
    recorded), messages and commands into the :class:`Inbox`;
@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
-from swarmnet.intake import BatchIntake
+from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
@@ -161,7 +161,7 @@ class SwarmNode:
         self.ring_size = ring_size
         self.clock = clock
         self.neighbours = NeighbourTable(stale_after, forget_after)
-        self.intake = BatchIntake(self.neighbours)  # poses into it: compiled when built
+        self.intake = PoseIntake(self.neighbours)  # poses into it: compiled when built
         self._pose_rule: Accept[Pose] = accept_pose  # a direct pose's rule; a UAV's (not its own id) once open
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
@@ -504,7 +504,7 @@ class SwarmNode:
 
     def _take_batch(self, key: str, payload: bytes, at: float) -> None:
         """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table: in
-        one compiled pass when every rule accepts all of it (:class:`~swarmnet.intake.BatchIntake`),
+        one compiled pass when every rule accepts all of it (:class:`~swarmnet.intake.PoseIntake`),
         otherwise the Python way (:meth:`_accept_batch`, :meth:`_batch_poses`, :meth:`_take_poses`),
         which names and counts what it refuses. Both end alike (tests/test_intake.py)."""
         srcs: list[int] = []

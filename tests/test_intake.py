@@ -17,7 +17,7 @@ import msgpack
 import pytest
 
 from swarmnet.connectivity import Rendezvous
-from swarmnet.intake import INTAKE, BatchIntake
+from swarmnet.intake import INTAKE, PoseIntake
 from swarmnet.messages import (
     BATCH_VERSION,
     Kind,
@@ -43,7 +43,7 @@ def _node(compiled: bool) -> SwarmNode:
     """A UAV's node, never opened: the intake needs no session."""
     node = SwarmNode(NodeIdentity("alpha", OWN), Rendezvous(("tcp/127.0.0.1:9",)))
     node.waker.close()  # its file descriptor, which a node never opened keeps otherwise
-    node.intake = BatchIntake(node.neighbours, compiled=compiled)
+    node.intake = PoseIntake(node.neighbours, compiled=compiled)
     return node
 
 
@@ -173,7 +173,7 @@ def test_compiled_and_python_intake_end_alike_on_any_batch(seed: int) -> None:
         fast._take_batch(KEY, payload, at)
         slow._take_batch(KEY, payload, at)
         assert _state(fast) == _state(slow), payload.hex()
-        took_fast += BatchIntake(NeighbourTable()).take(payload, OWN, at, [], []) is not None
+        took_fast += PoseIntake(NeighbourTable()).take(payload, OWN, at, [], []) is not None
     # both paths were exercised: most batches clean, a third corrupted
     assert 200 < took_fast < 330
     rejected = _state(slow)["stats"]["rejected"]
@@ -182,7 +182,7 @@ def test_compiled_and_python_intake_end_alike_on_any_batch(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", range(3))
 def test_the_compiled_count_of_an_instant_is_the_python_one(seed: int) -> None:
-    intake = BatchIntake(NeighbourTable())
+    intake = PoseIntake(NeighbourTable())
     for payload, _ in _batches(100 + seed, 300):
         for exclude in (OWN, 3, 0):
             assert intake.count(payload, exclude) == batched_pose_count(payload, exclude), payload.hex()
@@ -280,6 +280,6 @@ def test_compiled_and_python_direct_poses_end_alike(seed: int) -> None:
             arrival = Accepted(key, payload, payload, at)
             node._take_in(iter([(POSE, arrival)]), at, Inbox())
         assert _state(fast) == _state(slow), (key, payload.hex())
-        took += BatchIntake(NeighbourTable()).take_pose(key, payload, OWN, at, [], [])
+        took += PoseIntake(NeighbourTable()).take_pose(key, payload, OWN, at, [], [])
     rejected = _state(slow)["stats"]["rejected"]
     assert took > 200 and "key_mismatch" in rejected and "own_id" in rejected, (took, rejected)
