@@ -32,10 +32,10 @@ INTAKE = "compiled" if _COMPILED is not None else "python"
 
 class PoseIntake:
     """The compiled fast path bound to one neighbour table (one per :class:`~swarmnet.node.SwarmNode`;
-    :meth:`take` only from the owner's thread, :meth:`count` from any).
+    :meth:`take` and :meth:`take_pose` only from the owner's thread, :meth:`count` from any).
 
-    Without the compiled module :meth:`take` always declines and :meth:`count` counts in Python,
-    so the caller needs no second code path for that case.
+    Without the compiled module :meth:`take` and :meth:`take_pose` always decline and
+    :meth:`count` counts in Python, so the caller needs no second code path for that case.
     """
 
     __slots__ = ("table", "_fast")
