@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import zenoh
 
@@ -75,6 +75,7 @@ if TYPE_CHECKING:
     from swarmnet.security.links import LinkWatch
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 ROLES = ("uav", "gcs", "edge", "observer")
 # Where an accepted item goes; also the ``kind`` the netem shim keeps with an item it holds.
@@ -111,7 +112,8 @@ class Inbox:
 
 
 def _as_received(key: str, data: bytes) -> bytes:
-    """The edge feed's streams keep a batch as it came: :meth:`SwarmNode._take_batch` checks it."""
+    """The pose streams (direct poses, the edge feed's batches) keep a sample as it came: the
+    compiled intake takes it from there, or the stream's rule in :meth:`SwarmNode._accept`."""
     return data
 
 
@@ -491,7 +493,7 @@ class SwarmNode:
                 if take_pose(arrival.key, arrival.payload, own, arrival.at, srcs, ages):
                     direct += 1
                 else:
-                    pose = self._accept_pose(arrival.key, arrival.payload)
+                    pose = self._accept(self._pose_rule, arrival.key, arrival.payload)
                     if pose is not None:
                         self._deliver(POSE, pose, arrival.at, inbox)
             elif kind == _BATCH:
@@ -505,7 +507,8 @@ class SwarmNode:
     def _take_batch(self, key: str, payload: bytes, at: float) -> None:
         """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table: in
         one compiled pass when every rule accepts all of it (:class:`~swarmnet.intake.PoseIntake`),
-        otherwise the Python way (:meth:`_accept_batch`, :meth:`_batch_poses`, :meth:`_take_poses`),
+        otherwise the Python way (:func:`~swarmnet.messages.accept_pose_batch`, :meth:`_batch_poses`,
+        :meth:`_take_poses`),
         which names and counts what it refuses. Both end alike (tests/test_intake.py)."""
         srcs: list[int] = []
         ages: list[float] = []
@@ -516,35 +519,27 @@ class SwarmNode:
             stats.received["pose"] += n
             stats.ages.arrived_many(srcs, ages)
             return
-        batch = self._accept_batch(key, payload)
+        batch = self._accept(accept_pose_batch, key, payload)
         if batch is not None:
             self._take_poses(self._batch_poses(batch), at)
 
-    def _accept_pose(self, key: str, payload: bytes) -> Pose | None:
-        """A direct pose decoded and checked by its stream's rule, or None, the reason counted in
-        ``stats.rejected``."""
+    def _accept(self, rule: Accept[T], key: str, payload: bytes) -> T | None:
+        """A pose or batch kept as it came (:func:`_as_received`), decoded and checked by ``rule``;
+        None, the reason counted in ``stats.rejected``, if the rule refuses it (as
+        :func:`~swarmnet.receive.receive` counts the other streams')."""
         try:
-            return self._pose_rule(key, payload)
-        except Rejected as exc:
-            self.stats.reject(exc.reason, key, exc.detail)
-            return None
-
-    def _accept_batch(self, key: str, payload: bytes) -> PoseBatch | None:
-        """The batch's envelope decoded (:func:`~swarmnet.messages.accept_pose_batch`), or None,
-        the reason counted in ``stats.rejected``."""
-        try:
-            return accept_pose_batch(key, payload)
+            return rule(key, payload)
         except Rejected as exc:
             self.stats.reject(exc.reason, key, exc.detail)
             return None
 
     def _unbatch(self, arrivals: Iterable[tuple[int, Accepted[Any]]]) -> Iterator[tuple[int, Accepted[Any]]]:
-        """Poses decoded for the netem shim: a direct pose by its stream's rule (:meth:`_accept_pose`),
+        """Poses decoded for the netem shim: a direct pose by its stream's rule (:meth:`_accept`),
         an edge-feed batch into the poses it carries (:meth:`_batch_poses`). Each keeps the key and
         arrival stamp it came with: that is where and when it arrived."""
         for kind, arrival in arrivals:
             if kind == POSE:  # a direct pose, kept as it came: decoded here
-                pose = self._accept_pose(arrival.key, arrival.payload)
+                pose = self._accept(self._pose_rule, arrival.key, arrival.payload)
                 if pose is not None:
                     yield POSE, Accepted(arrival.key, pose, arrival.payload, arrival.at)
                 continue
@@ -552,7 +547,7 @@ class SwarmNode:
                 yield kind, arrival
                 continue
             key, at = arrival.key, arrival.at
-            batch = self._accept_batch(key, arrival.payload)
+            batch = self._accept(accept_pose_batch, key, arrival.payload)
             if batch is None:
                 continue
             for pose, data in self._batch_poses(batch):
