@@ -104,7 +104,10 @@ class Waker:
         return False
 
     def __del__(self) -> None:  # a node never opened, or dropped without close(): its descriptor back
-        self.close()
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001, S110 - at interpreter exit os may be gone; nothing to report
+            pass
 
     def close(self) -> None:
         if getattr(self, "closed", True):  # (also when __init__ failed before setting it)
