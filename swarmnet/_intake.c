@@ -116,28 +116,28 @@ static int read_pose(const unsigned char *p, Py_ssize_t n, int64_t pose_tag, Wir
 
 typedef struct {
     Py_ssize_t n, capacity;
-    int64_t *senders;
     WirePose *poses;
 } Batch;
 
 /* Room for n poses in *b (it only grows); 0 ok, -1 out of memory (a MemoryError set). */
 static int reserve(Batch *b, Py_ssize_t n) {
     if (n <= b->capacity) return 0;
-    int64_t *s = PyMem_Realloc(b->senders, (size_t)n * sizeof(int64_t));
-    if (s == NULL) goto oom;
-    b->senders = s;
     WirePose *p = PyMem_Realloc(b->poses, (size_t)n * sizeof(WirePose));
-    if (p == NULL) goto oom;
+    if (p == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
     b->poses = p;
     b->capacity = n;
     return 0;
-oom:
-    PyErr_NoMemory();
-    return -1;
 }
 
-/* 1 and the batch in *b if it is clean, 0 if not, -1 out of memory. */
-static int read_batch(const unsigned char *data, Py_ssize_t len, int64_t batch_tag, int64_t pose_tag, Batch *b) {
+/* Whether a batch is clean: 1 yes, 0 no, -1 out of memory. The senders and the poses are read
+ * side by side. With `b`, the batch is kept there (take()); without, only `*others` is (count(),
+ * on the pose inlet's thread, perhaps while the owner's take() has its batch in the scratch
+ * space): how many poses are not `exclude`'s. */
+static int read_batch(const unsigned char *data, Py_ssize_t len, int64_t batch_tag, int64_t pose_tag, Batch *b,
+                      int64_t exclude, long long *others) {
     Reader r = {data, data + len};
     int64_t t;
     if (len < 1 || len > MAX_BATCH_BYTES) return 0;
@@ -147,20 +147,26 @@ static int read_batch(const unsigned char *data, Py_ssize_t len, int64_t batch_t
     if (read_int_in(&r, 0, INT64_MAX, &t)) return 0; /* t_wall, us */
     Py_ssize_t n = read_array(&r);
     if (n < 0 || n > MAX_BATCH_POSES) return 0;
-    if (reserve(b, n) < 0) return -1;
+    if (b != NULL && reserve(b, n) < 0) return -1;
+    Reader senders = r;
     for (Py_ssize_t i = 0; i < n; i++)
-        if (read_int_in(&r, UAV_ID_MIN, UAV_ID_MAX, &b->senders[i])) return 0;
+        if (read_int_in(&r, UAV_ID_MIN, UAV_ID_MAX, &t)) return 0;
     if (read_array(&r) != n) return 0;
+    long long not_excluded = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
+        int64_t sender;
+        WirePose one, *w = b != NULL ? &b->poses[i] : &one;
+        read_int(&senders, &sender); /* read (and checked) above */
         if (r.end - r.p < 2 || *r.p != 0xc4) return 0; /* bin 8 */
         Py_ssize_t plen = r.p[1];
         r.p += 2;
-        if (r.end - r.p < plen) return 0;
-        if (read_pose(r.p, plen, pose_tag, &b->poses[i]) || b->poses[i].uav != b->senders[i]) return 0;
+        if (r.end - r.p < plen || read_pose(r.p, plen, pose_tag, w) || w->uav != sender) return 0;
         r.p += plen;
+        not_excluded += sender != exclude;
     }
     if (r.p != r.end) return 0;
-    b->n = n;
+    if (b != NULL) b->n = n;
+    if (others != NULL) *others = not_excluded;
     return 1;
 }
 
@@ -193,7 +199,6 @@ static void Intake_dealloc(Intake *self) {
         Py_XDECREF(self->neighbour_name[i]);
         Py_XDECREF(self->neighbour_descr[i]);
     }
-    PyMem_Free(self->batch.senders);
     PyMem_Free(self->batch.poses);
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
@@ -332,10 +337,19 @@ static int pose_stamp_seq(Intake *self, PyObject *pose, double *t_wall, long lon
     return rc;
 }
 
-/* NeighbourTable.update for one clean pose arrived at `at`: 1 taken, 0 not (duplicate or
- * older), -1 error. `pose` is made only when the table takes it. */
-static int update(Intake *self, PyObject *table, const WirePose *w, double at, PyObject **taken) {
-    *taken = NULL;
+/* Its id and transport age (s) appended to `srcs` and `ages`: a pose the table took. 0 ok, -1 error. */
+static int note_taken(const WirePose *w, double at, PyObject *srcs, PyObject *ages) {
+    PyObject *u = PyLong_FromLongLong(w->uav);
+    PyObject *age = PyFloat_FromDouble(at - (double)w->t_wall_us / 1e6);
+    int bad = u == NULL || age == NULL || PyList_Append(srcs, u) < 0 || PyList_Append(ages, age) < 0;
+    Py_XDECREF(u);
+    Py_XDECREF(age);
+    return bad ? -1 : 0;
+}
+
+/* NeighbourTable.update for one clean pose arrived at `at`, and note_taken() if the table takes
+ * it: 1 taken, 0 not (duplicate or older), -1 error. The Pose is made only when it is taken. */
+static int update(Intake *self, PyObject *table, const WirePose *w, double at, PyObject *srcs, PyObject *ages) {
     PyObject *key = PyLong_FromLongLong(w->uav);
     if (key == NULL) return -1;
     PyObject *n = PyDict_GetItemWithError(table, key); /* borrowed */
@@ -360,8 +374,8 @@ static int update(Intake *self, PyObject *table, const WirePose *w, double at, P
         }
         Py_DECREF(nb);
         Py_DECREF(key);
-        *taken = pose;
-        return 1;
+        Py_DECREF(pose);
+        return note_taken(w, at, srcs, ages) < 0 ? -1 : 1;
     }
     Py_INCREF(n);
     PyObject *old = nget(self, n, N_POSE_);
@@ -397,22 +411,13 @@ static int update(Intake *self, PyObject *table, const WirePose *w, double at, P
         iv = iv == 0.0 ? gap : iv + RATE_ALPHA * (gap - iv);
         if (nset(self, n, N_INTERVAL, PyFloat_FromDouble(iv)) < 0) goto fail_n;
     }
-    PyObject *pose = make_pose(self, w);
-    if (pose == NULL) goto fail_n;
-    Py_INCREF(pose);
-    if (nset(self, n, N_POSE_, pose) < 0 || nset(self, n, N_LAST_RECV, PyFloat_FromDouble(at)) < 0) {
-        Py_DECREF(pose);
+    /* nset takes each new reference, also when it fails */
+    if (nset(self, n, N_POSE_, make_pose(self, w)) < 0 || nset(self, n, N_LAST_RECV, PyFloat_FromDouble(at)) < 0 ||
+        nset(self, n, N_USED, Py_NewRef(Py_False)) < 0)
         goto fail_n;
-    }
-    Py_INCREF(Py_False);
-    if (nset(self, n, N_USED, Py_False) < 0) {
-        Py_DECREF(pose);
-        goto fail_n;
-    }
     Py_DECREF(n);
     Py_DECREF(key);
-    *taken = pose;
-    return 1;
+    return note_taken(w, at, srcs, ages) < 0 ? -1 : 1;
 fail_n:
     Py_DECREF(n);
 fail:
@@ -438,29 +443,14 @@ static PyObject *Intake_take(Intake *self, PyObject *args) {
                           &ages))
         return NULL;
     Batch *b = &self->batch;
-    int clean = read_batch(buf.buf, buf.len, self->batch_tag, self->pose_tag, b);
+    long long not_own = 0;
+    int clean = read_batch(buf.buf, buf.len, self->batch_tag, self->pose_tag, b, own, &not_own);
     PyBuffer_Release(&buf);
     if (clean < 0) return NULL;
     if (!clean) Py_RETURN_NONE;
-    Py_ssize_t taken_count = 0;
-    for (Py_ssize_t i = 0; i < b->n; i++) {
-        const WirePose *w = &b->poses[i];
-        if (w->uav == own) continue;
-        taken_count++;
-        PyObject *pose;
-        int rc = update(self, table, w, at, &pose);
-        if (rc < 0) return NULL;
-        if (rc == 1) {
-            PyObject *u = PyLong_FromLongLong(w->uav);
-            PyObject *age = PyFloat_FromDouble(at - (double)w->t_wall_us / 1e6);
-            Py_DECREF(pose);
-            int bad = u == NULL || age == NULL || PyList_Append(srcs, u) < 0 || PyList_Append(ages, age) < 0;
-            Py_XDECREF(u);
-            Py_XDECREF(age);
-            if (bad) return NULL;
-        }
-    }
-    return PyLong_FromSsize_t(taken_count);
+    for (Py_ssize_t i = 0; i < b->n; i++)
+        if (b->poses[i].uav != own && update(self, table, &b->poses[i], at, srcs, ages) < 0) return NULL;
+    return PyLong_FromLongLong(not_own);
 }
 
 /* The UAV id of a key "mrs/<swarm>/<uav>/...", as swarmnet.keyspace.uav_from_key reads it, for
@@ -505,18 +495,7 @@ static PyObject *Intake_take_pose(Intake *self, PyObject *args) {
     PyBuffer_Release(&buf);
     if (k == NULL) return NULL;
     if (!clean) Py_RETURN_NONE;
-    PyObject *pose;
-    int rc = update(self, table, &w, at, &pose);
-    if (rc < 0) return NULL;
-    if (rc == 1) {
-        PyObject *u = PyLong_FromLongLong(w.uav);
-        PyObject *age = PyFloat_FromDouble(at - (double)w.t_wall_us / 1e6);
-        Py_DECREF(pose);
-        int bad = u == NULL || age == NULL || PyList_Append(srcs, u) < 0 || PyList_Append(ages, age) < 0;
-        Py_XDECREF(u);
-        Py_XDECREF(age);
-        if (bad) return NULL;
-    }
+    if (update(self, table, &w, at, srcs, ages) < 0) return NULL;
     return PyLong_FromLong(1);
 }
 
@@ -528,40 +507,11 @@ PyDoc_STRVAR(count_doc,
 
 static PyObject *Intake_count(Intake *self, PyObject *args) {
     Py_buffer buf;
-    long long exclude;
+    long long exclude, others = 0;
     if (!PyArg_ParseTuple(args, "y*L", &buf, &exclude)) return NULL;
-    /* the whole batch checked as read_batch checks it, but without its scratch space (this runs
-       on the pose inlet's thread, perhaps while the owner's take() has its batch there): the
-       senders and the poses read side by side */
-    const unsigned char *data = buf.buf;
-    Reader r = {data, data + buf.len};
-    long long count = -1;
-    int64_t t;
-    Py_ssize_t n;
-    if (buf.len < 1 || buf.len > MAX_BATCH_BYTES || *r.p++ != 0x95 || read_int(&r, &t) || t != self->batch_tag ||
-        read_int_in(&r, 0, UINT32, &t) || read_int_in(&r, 0, INT64_MAX, &t) || (n = read_array(&r)) < 0 ||
-        n > MAX_BATCH_POSES)
-        goto done;
-    Reader senders = r;
-    for (Py_ssize_t i = 0; i < n; i++)
-        if (read_int_in(&r, UAV_ID_MIN, UAV_ID_MAX, &t)) goto done;
-    if (read_array(&r) != n) goto done;
-    long long others = 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        int64_t sender;
-        WirePose w;
-        read_int(&senders, &sender);
-        if (r.end - r.p < 2 || *r.p != 0xc4) goto done;
-        Py_ssize_t plen = r.p[1];
-        r.p += 2;
-        if (r.end - r.p < plen || read_pose(r.p, plen, self->pose_tag, &w) || w.uav != sender) goto done;
-        r.p += plen;
-        others += sender != exclude;
-    }
-    if (r.p == r.end) count = others;
-done:
+    int clean = read_batch(buf.buf, buf.len, self->batch_tag, self->pose_tag, NULL, exclude, &others);
     PyBuffer_Release(&buf);
-    return PyLong_FromLongLong(count);
+    return PyLong_FromLongLong(clean == 1 ? others : -1);
 }
 
 static PyMethodDef Intake_methods[] = {

@@ -227,10 +227,9 @@ class PoseAges:
         srcs = np.array(self._srcs, dtype=np.int64)
         self._ages.clear()
         self._srcs.clear()
-        negative = ages < 0.0
-        if negative.any():
-            srcs = srcs[~negative]  # the mask _count_negative applies (a NaN age stays, as add_at keeps it)
-            ages = self._count_negative("transport", ages)
+        keep = self._count_negative("transport", ages)
+        if keep is not None:  # a NaN age stays, as add_at keeps it
+            srcs, ages = srcs[keep], ages[keep]
             if not ages.size:
                 return
         bins = LogHistogram.indices(ages)
@@ -289,19 +288,21 @@ class PoseAges:
         if self._uses:
             uses = np.array(self._uses, dtype=np.float64)
             self._uses.clear()
-            uses = self._count_negative("use", uses)
+            keep = self._count_negative("use", uses)
+            if keep is not None:
+                uses = uses[keep]
             self._use.add_many(LogHistogram.indices(uses), uses)
 
-    def _count_negative(self, which: str, ages: np.ndarray) -> np.ndarray:
-        """``ages`` without those below zero, which are counted under ``which``. A transport age
-        is negative only between hosts whose clocks disagree; an age at use only if the wall
-        clock stepped back between arrival and use."""
+    def _count_negative(self, which: str, ages: np.ndarray) -> np.ndarray | None:
+        """Count the ``ages`` below zero under ``which``; return the mask of those to keep, or
+        None if all are kept. A transport age is negative only between hosts whose clocks
+        disagree; an age at use only if the wall clock stepped back between arrival and use."""
         negative = ages < 0.0
         if not negative.any():
-            return ages
+            return None
         self.negative[which] += int(negative.sum())
         self.most_negative = min(self.most_negative, float(ages[negative].min()))
-        return ages[~negative]
+        return ~negative
 
     def to_dict(self, links: bool = True) -> dict[str, Any]:
         """``links=False`` leaves out the per-link histograms (the bulk of it with many neighbours)."""
