@@ -70,6 +70,7 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     status = [json.loads(p.read_text()) for p in run_dir.glob("uav[0-9]*.json")]
     assert len(status) == 4 and {st["virtual_fcu"]["dynamics"] for st in status} == {"compiled"}
     assert {st["net"]["intake"] for st in status} == {"compiled"}
+    assert {st["virtual_fcu"]["mavlink"] for st in status} == {"compiled"}
     takeoff = summary["takeoff"]
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000

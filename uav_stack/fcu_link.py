@@ -29,6 +29,7 @@ from typing import Any
 from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, mode_name, profile_for
 from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
 from uav_stack.mav import mavlink, mavutil
+from uav_stack.mavcodec import MAVLink
 from uav_stack.rtf import RtfMeter
 from uav_stack.udp import Addr
 
@@ -424,17 +425,9 @@ class _UdpConnection:
 
     def __init__(self, sock: FcuUdpSocket, source_system: int, source_component: int):
         self.sock = sock
-        self.mav = mavlink.MAVLink(sock, srcSystem=source_system, srcComponent=source_component)
+        self.mav = MAVLink(sock, srcSystem=source_system, srcComponent=source_component)
         self.mav.robust_parsing = True
-
-    def parse_datagram(self, data: bytes) -> list[Any]:
-        """The frames of one datagram: a datagram holds whole frames, so nothing carries over."""
-        p = self.mav
-        p.buf = bytearray()
-        p.buf_index = 0
-        p.expected_length = mavlink.HEADER_LEN_V1 + 2
-        p.have_prefix_error = False
-        return p.parse_buffer(data) or []
+        self.parse_datagram = self.mav.parse_datagram  # a datagram holds whole frames: nothing carries over
 
     def write(self, data: bytes) -> None:
         self.sock.write(data)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.mav import mavlink
+from uav_stack.mavcodec import MAVLink
 from uav_stack.udp import drain
 
 Addr = tuple[str, int]
@@ -147,18 +148,14 @@ class DatagramParser:
     """Parses whole UDP datagrams with a MAVLink decoder whose state is reset per datagram."""
 
     def __init__(self) -> None:
-        self.mav = mavlink.MAVLink(None)
+        self.mav = MAVLink(None)
         self.mav.robust_parsing = True
 
     def parse(self, data: bytes) -> tuple[list[mavlink.MAVLink_message], bool]:
         """(good messages, datagram was clean)."""
         d = self.mav
-        d.buf = bytearray()
-        d.buf_index = 0
-        d.expected_length = mavlink.HEADER_LEN_V1 + 2
-        d.have_prefix_error = False
         try:
-            msgs = d.parse_buffer(data) or []
+            msgs = d.parse_datagram(data)
         except Exception:  # noqa: BLE001 - any decoder failure is a bad datagram
             return [], False
         bad = [m for m in msgs if isinstance(m, mavlink.MAVLink_bad_data)]

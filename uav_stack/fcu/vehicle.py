@@ -40,6 +40,7 @@ from uav_stack.fcu.stats import FcuStats
 from uav_stack.fcu.telemetry import ENCODERS, StreamSet, heartbeat
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink
+from uav_stack.mavcodec import pack
 
 M = mavlink
 NAN = math.nan
@@ -147,7 +148,7 @@ class Vehicle:
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
         mav = self.mav
-        buf = msg.pack(mav)
+        buf = pack(msg, mav)
         mav.seq = (mav.seq + 1) & 0xFF
         self.link.queue(buf)
         self.ctx.stats.messages_out += 1

@@ -1,0 +1,116 @@
+"""MAVLink 2 frames of the FCU link, packed and parsed by compiled code where pymavlink's rules allow.
+
+Every tick a virtual UAV's FCU packs its telemetry and the agent parses it, and the agent packs
+its setpoint and the FCU parses that: about 40 messages a second each way, over the real UDP
+link. pymavlink does this in Python (its ``decode``, ``_pack`` and CRC object were 13-15 % of a
+UAV's main thread, docs/benchmarks.md). ``uav_stack._mavcodec`` (uav_stack/_mavcodec.c, built
+by ``setup.py``, optional) does the same work in one pass for the dialect's *plain* messages:
+no array and no string fields, unsigned MAVLink 2 frames. It is not a second codec: it takes
+each message's layout, CRC extra and class from pymavlink, and builds the same objects
+pymavlink builds (every attribute equal, ``tests/test_mavcodec.py``).
+
+* :func:`pack` gives the frame ``msg.pack(mav)`` gives and leaves the same attributes on the
+  message; a message with arrays or strings, or a link that signs, goes to pymavlink.
+* :meth:`MAVLink.parse_datagram` takes the messages of a datagram in one pass when every frame
+  in it is a plain, unsigned MAVLink 2 frame with a good CRC; any other datagram goes to
+  pymavlink's parser, which names and counts whatever is wrong, as before.
+* :class:`MAVLink` is pymavlink's ``MAVLink`` with both: its ``*_send`` methods pack with
+  :func:`pack`. The FCU's vehicles and the agent's FCU link use it.
+
+:data:`MAVCODEC` says which this process runs (a UAV's status file: ``virtual_fcu.mavlink``);
+``MRSWARM_PURE_PYTHON=1`` chooses pymavlink for all of it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from swarmnet.compiled import compiled_module
+from uav_stack.mav import mavlink
+
+
+def _plain(cls: Any) -> bool:
+    """No arrays and no strings: the payload is the class's fields, in wire order, one value each."""
+    return (all(n == 1 for n in cls.lengths) and "char" not in cls.fieldtypes
+            and len(cls.ordered_fieldnames) == len(cls.unpacker.unpack(bytes(cls.unpacker.size))))
+
+
+def _templates(cls: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A message of ``cls`` and its header as pymavlink's own decode leaves them (every value is
+    overwritten per message; the rest, ``_type``, ``_fieldnames``..., is what pymavlink sets)."""
+    sender = mavlink.MAVLink(None, 1, 1)
+    frame = cls(*([0] * len(cls.fieldnames))).pack(sender)
+    msg = mavlink.MAVLink(None).decode(bytearray(frame))
+    return dict(vars(msg)), dict(vars(msg._header))
+
+
+def _build() -> Any:
+    compiled = compiled_module("uav_stack._mavcodec")
+    if compiled is None or float(mavlink.WIRE_PROTOCOL_VERSION) != 2.0:
+        return None
+    specs = []
+    header: dict[str, Any] = {}
+    for msgid, cls in sorted(mavlink.mavlink_map.items()):
+        if not _plain(cls):
+            continue
+        template, header = _templates(cls)
+        specs.append((cls, msgid, cls.crc_extra, cls.unpacker.unpack, cls.unpacker.pack, cls.unpacker.size,
+                      tuple(cls.ordered_fieldnames), template))
+    return compiled.Codec(mavlink.MAVLink_header, header, specs)
+
+
+_CODEC = _build()
+MAVCODEC = "compiled" if _CODEC is not None else "pymavlink"
+"""Which framing this process runs on its FCU link: ``"compiled"`` or ``"pymavlink"``."""
+
+
+def pack(msg: Any, mav: Any) -> bytes:
+    """``msg.pack(mav)``: the frame, and ``msg``'s ``_header``, ``_payload``, ``_msgbuf`` and ``_crc``
+    as pymavlink sets them. Like pymavlink it leaves ``mav.seq`` to the caller."""
+    if _CODEC is None:
+        return bytes(msg.pack(mav))
+    return bytes(_CODEC.pack(msg, mav))
+
+
+class MAVLink(mavlink.MAVLink):
+    """pymavlink's ``MAVLink`` for a link of whole datagrams, framing plain messages with the compiled pass.
+
+    :meth:`send` and every ``*_send`` method pack with :func:`pack`; :meth:`parse_datagram` parses
+    one datagram. Counters (``total_packets_sent``, ``total_packets_received``...) and callbacks
+    behave as pymavlink's own.
+    """
+
+    def send(self, mavmsg: Any, force_mavlink1: bool = False) -> None:
+        buf = mavmsg.pack(self, force_mavlink1=True) if force_mavlink1 else pack(mavmsg, self)
+        self.file.write(buf)
+        self.seq = (self.seq + 1) % 256
+        self.total_packets_sent += 1
+        self.total_bytes_sent += len(buf)
+        if self.send_callback is not None and self.send_callback_args is not None and self.send_callback_kwargs is not None:
+            self.send_callback(mavmsg, *self.send_callback_args, **self.send_callback_kwargs)
+
+    def parse_datagram(self, data: bytes) -> list[Any]:
+        """The messages of one datagram (it holds whole frames, so nothing carries over from the last).
+
+        Plain, unsigned MAVLink 2 frames with good CRCs, all of them, are parsed by the compiled pass;
+        any other datagram by pymavlink's ``parse_buffer``, which returns its bad data as
+        ``MAVLink_bad_data`` and may raise on some corrupt frames, as it always did.
+        """
+        self.buf = bytearray()
+        self.buf_index = 0
+        self.expected_length = mavlink.HEADER_LEN_V1 + 2
+        self.have_prefix_error = False
+        msgs: list[Any] | None = _CODEC.decode(data) if _CODEC is not None else None
+        if msgs is None:
+            return self.parse_buffer(data) or []
+        self.total_bytes_received += len(data)
+        self.total_packets_received += len(msgs)
+        if self.callback is not None and self.callback_args is not None and self.callback_kwargs is not None:
+            for m in msgs:
+                self.callback(m, *self.callback_args, **self.callback_kwargs)
+        return msgs
+
+
+def frames_plainly(cls: Any) -> bool:
+    """Does the compiled pass frame messages of ``cls`` (False when it is absent)?"""
+    return _CODEC is not None and bool(_CODEC.knows(cls))
