@@ -83,7 +83,7 @@ class MAVLink(mavlink.MAVLink):
     def send(self, mavmsg: Any, force_mavlink1: bool = False) -> None:
         buf = mavmsg.pack(self, force_mavlink1=True) if force_mavlink1 else pack(mavmsg, self)
         self.file.write(buf)
-        self.seq = (self.seq + 1) % 256
+        self.seq = (self.seq + 1) % 256  # type: ignore[has-type]  # pymavlink leaves it unannotated
         self.total_packets_sent += 1
         self.total_bytes_sent += len(buf)
         if self.send_callback is not None and self.send_callback_args is not None and self.send_callback_kwargs is not None:
