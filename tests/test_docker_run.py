@@ -52,6 +52,11 @@ def test_coverage_in_five_containers_covers_without_collisions_and_leaves_nothin
     assert summary["separation"]["min_m"] > 1.0
     assert summary["rtf"]["min"] > 0.8
     assert summary["network"]["transport_age_ms"]["n"] > 100
+    # the image's wheel carries the compiled pieces, and every UAV in a container ran them
+    status = [json.loads(p.read_text()) for p in run_dir.glob("uav[0-9]*.json")]
+    assert len(status) == 5
+    assert {(st["virtual_fcu"]["dynamics"], st["virtual_fcu"]["mavlink"], st["net"]["intake"]) for st in status} == \
+        {("compiled", "compiled", "compiled")}
     # really containers: one per UAV plus the discovery server and the edge router (the runner's
     # way in), each with its own IP, multicast sealed. UAVs reach each other only through what
     # the discovery server relays: gossip is off and 1.9+ routers do not relay between peers.
