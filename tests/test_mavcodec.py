@@ -225,3 +225,32 @@ def test_send_methods_write_pymavlinks_bytes_and_count_alike() -> None:
     assert ours.file.out == theirs.file.out
     assert (ours.seq, ours.total_packets_sent, ours.total_bytes_sent) == \
            (theirs.seq, theirs.total_packets_sent, theirs.total_bytes_sent)
+
+
+def test_a_pymavlink_that_frames_or_builds_differently_switches_the_pass_off_for_that_message(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The import-time check (``mavcodec._agrees``) refuses a message the pass would get wrong:
+    a layout or CRC extra unlike pymavlink's, or a decode that sets an attribute per message."""
+    from swarmnet.compiled import compiled_module
+
+    compiled = compiled_module("uav_stack._mavcodec")
+    assert compiled is not None
+    att = M.MAVLink_attitude_message
+
+    def codec(crc_extra: int) -> Any:
+        template, header = mavcodec._templates(att)
+        return compiled.Codec(M.MAVLink_header, header, [(att, att.id, crc_extra, att.unpacker.unpack, att.unpacker.pack,
+                                                          att.unpacker.size, tuple(att.ordered_fieldnames), template)])
+
+    assert mavcodec._agrees(codec(att.crc_extra), att)
+    assert not mavcodec._agrees(codec((att.crc_extra + 1) & 0xFF), att)  # another CRC extra
+
+    decode = M.MAVLink.decode
+
+    def newer_decode(self: Any, msgbuf: bytearray) -> Any:  # a pymavlink that notes each frame's length
+        m = decode(self, msgbuf)
+        m._frame_len = len(msgbuf)
+        return m
+
+    monkeypatch.setattr(M.MAVLink, "decode", newer_decode)
+    assert not mavcodec._agrees(codec(att.crc_extra), att)
