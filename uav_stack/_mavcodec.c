@@ -218,7 +218,16 @@ fail:
     return NULL;
 }
 
+static int ready(Codec *self) {
+    if (self->by_id == NULL || self->s_cflags == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "Codec was not initialised");
+        return 0;
+    }
+    return 1;
+}
+
 static PyObject *codec_decode(Codec *self, PyObject *arg) {
+    if (!ready(self)) return NULL;
     Py_buffer view;
     if (PyObject_GetBuffer(arg, &view, PyBUF_SIMPLE) < 0) return NULL;
     const unsigned char *p = view.buf;
@@ -289,7 +298,7 @@ static PyObject *pack_by_pymavlink(Codec *self, PyObject *msg, PyObject *mav) {
 
 static PyObject *codec_pack(Codec *self, PyObject *args) {
     PyObject *msg, *mav;
-    if (!PyArg_ParseTuple(args, "OO", &msg, &mav)) return NULL;
+    if (!ready(self) || !PyArg_ParseTuple(args, "OO", &msg, &mav)) return NULL;
     PyObject *spec = PyDict_GetItemWithError(self->by_cls, (PyObject *)Py_TYPE(msg));
     if (spec == NULL) {
         if (PyErr_Occurred()) return NULL;
@@ -371,6 +380,7 @@ static PyObject *codec_pack(Codec *self, PyObject *args) {
 }
 
 static PyObject *codec_knows(Codec *self, PyObject *cls) {
+    if (!ready(self)) return NULL;
     int r = PyDict_Contains(self->by_cls, cls);
     if (r < 0) return NULL;
     return PyBool_FromLong(r);
