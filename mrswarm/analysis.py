@@ -44,6 +44,7 @@ from mrswarm.summary import (
 from mrswarm.world_report import WorldData, world_report
 from swarmnet.stats import LogHistogram
 from uav_stack.phases import WORKING
+from uav_stack.recorder import links_file_name
 
 GRID_HZ = 10.0  # resampling rate of the trajectories
 AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
@@ -133,7 +134,8 @@ def load_tracks(run_dir: Path) -> dict[int, Track]:
 
 
 def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
-    """The last counters JSON of every UAV (``uav<N>.json``); unreadable files are skipped."""
+    """The last counters JSON of every UAV (``uav<N>.json``), with its per-link pose ages
+    (``age_links_uav<N>.json``) as ``net.transport_age_links``; unreadable files are skipped."""
     out = {}
     for path in sorted(run_dir.glob("uav*.json")):
         try:
@@ -143,6 +145,14 @@ def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
             continue
         if isinstance(d, dict):
             out[uav] = d
+    for uav, d in out.items():
+        try:
+            links = json.loads((run_dir / links_file_name(uav)).read_text())
+        except (ValueError, OSError):
+            continue  # none yet, or a run from before the file existed (its counters file carries them)
+        net = d.get("net")
+        if isinstance(links, dict) and isinstance(net, dict) and isinstance(links.get("transport_age_links"), dict):
+            net["transport_age_links"] = links["transport_age_links"]
     return out
 
 

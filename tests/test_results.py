@@ -23,7 +23,7 @@ from mrswarm.scenario import Scenario, load_scenario
 from mrswarm.summary import RunInfo, RunSummary
 from swarmnet.stats import LogHistogram
 from uav_stack.phases import AgentPhase
-from uav_stack.recorder import TrajectoryRecorder
+from uav_stack.recorder import TrajectoryRecorder, links_file_name
 
 ROOT = Path(__file__).resolve().parents[1]
 T0 = 1_700_000_000.0  # wall time of the mission start in the synthetic runs
@@ -38,17 +38,22 @@ def record(run_dir: Path, uav: int, xyz: np.ndarray, phases: list[AgentPhase], t
     rec.close()
 
 
-def stats(run_dir: Path, uav: int, ages_s: list[float], lost: int, received: int, use_s: float = 0.05) -> None:
-    """What a UAV writes: the transport age of its poses (all from UAV 9) and their age at use."""
+def stats(run_dir: Path, uav: int, ages_s: list[float], lost: int, received: int, use_s: float = 0.05,
+          links_inside: bool = False) -> None:
+    """What a UAV writes: the transport age of its poses (all from UAV 9) and their age at use; the
+    per-link ages in their own file, or (``links_inside``, as runs before that file did) in the counters."""
     h, use = LogHistogram(), LogHistogram()
     for a in ages_s:
         h.add(a)
         use.add(use_s)
+    links = {"9": h.to_dict()}
     (run_dir / f"uav{uav}.json").write_text(json.dumps({
-        "net": {"transport_age": h.to_dict(), "transport_age_links": {"9": h.to_dict()}, "use_age": use.to_dict(),
-                "sent": {"pose": 100}, "received": {"pose": received}, "rejected": {"malformed": 1}},
+        "net": {"transport_age": h.to_dict(), "use_age": use.to_dict(), "sent": {"pose": 100}, "received": {"pose": received},
+                "rejected": {"malformed": 1}, **({"transport_age_links": links} if links_inside else {})},
         "neighbours": {"9": {"lost": lost, "received": received}},
     }))
+    if not links_inside:
+        (run_dir / links_file_name(uav)).write_text(json.dumps({"uav": uav, "written_at": T0, "transport_age_links": links}))
 
 
 def save_scenario(run_dir: Path, source: Path) -> Scenario:
@@ -68,7 +73,7 @@ def head_on_dir(tmp_path: Path) -> Path:
     for uav, sign in ((1, 1.0), (2, -1.0)):
         xyz = np.stack([sign * x, np.full_like(t, 0.3 * sign), np.full_like(t, 10.0)], axis=1)
         record(run_dir, uav, xyz, [AgentPhase.MISSION] * len(t), t, rtf=1.0 if uav == 1 else 0.5)
-        stats(run_dir, uav, [0.02] * 50 + [0.04] * 50, lost=1, received=99)
+        stats(run_dir, uav, [0.02] * 50 + [0.04] * 50, lost=1, received=99, links_inside=uav == 2)  # both formats
     RunInfo(scenario=scn.name, started=T0 - 20, pids={"uav1": 1, "uav2": 2}, mission_start=T0, exit_codes={"uav1": 0, "uav2": 0},
             stopped=T0 + 11).write(run_dir / "run.json")
     return run_dir

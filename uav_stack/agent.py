@@ -21,8 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import msgspec
-
 from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
@@ -36,7 +34,7 @@ from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import AgeWindow, PoseAgeLog
-from uav_stack.recorder import RecordHealth, TrajectoryRecorder, write_json_atomic
+from uav_stack.recorder import RecordHealth, TrajectoryRecorder, links_file_name, write_json_atomic
 from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
@@ -48,7 +46,7 @@ ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * 
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
-LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms in the counters file
+LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms (their own file)
 
 
 @dataclass
@@ -137,7 +135,6 @@ class Agent(OverridesMixin):
         self._next_state = 0.0
         self._next_stats = 0.0
         self._next_link_stats = 0.0
-        self._link_stats = msgspec.Raw(b"{}")
         self._offboard_stream_since: float | None = None
         self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
         self.closest_seen = math.inf
@@ -558,16 +555,18 @@ class Agent(OverridesMixin):
         }
 
     def write_stats(self, now: float, final: bool = False) -> None:
-        """The counters file (every second; the per-link histograms, its bulk with many neighbours,
-        every LINK_STATS_EVERY s and at the end), the trajectory's flush, the pose ages' second."""
+        """The counters file (every second), the per-link pose-age histograms in a file of their
+        own (every LINK_STATS_EVERY s and at the end: with 49 neighbours they are 90 % of the
+        bytes, and every reader of the counters file would re-read them each second), the
+        trajectory's flush, the pose ages' second."""
         if self.cfg.record_dir:
-            links = final or now >= self._next_link_stats
-            if links:  # encoded once here, then copied into each write as it is
+            folder = Path(self.cfg.record_dir)
+            if final or now >= self._next_link_stats:
                 self._next_link_stats = now + LINK_STATS_EVERY
-                self._link_stats = msgspec.Raw(msgspec.json.encode(self.node.stats.ages.links_dict()))
-            d = self.stats(now, links=False)
-            d["net"]["transport_age_links"] = self._link_stats  # as of the last full write
-            write_json_atomic(Path(self.cfg.record_dir) / f"uav{self.cfg.uav}.json", d, self.records, now)
+                write_json_atomic(folder / links_file_name(self.cfg.uav),
+                                  {"uav": self.cfg.uav, "written_at": now,
+                                   "transport_age_links": self.node.stats.ages.links_dict()}, self.records, now)
+            write_json_atomic(folder / f"uav{self.cfg.uav}.json", self.stats(now, links=False), self.records, now)
         if self.recorder is not None:
             self.recorder.flush(now)
         ages = self.age_window.sample()

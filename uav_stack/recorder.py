@@ -158,6 +158,15 @@ class TrajectoryRecorder:
 _encode = msgspec.json.Encoder().encode  # ~10x faster than json.dumps on the counters; NaN becomes null
 
 
+LINKS_GLOB = "age_links_uav*.json"
+
+
+def links_file_name(uav: int) -> str:
+    """The file of a UAV's per-link transport-age histograms (``{"uav", "written_at",
+    "transport_age_links"}``), beside its counters file ``uav<N>.json`` in the run folder."""
+    return f"age_links_uav{uav}.json"
+
+
 def write_json_atomic(path: str | Path, data: dict[str, Any], health: RecordHealth | None = None, now: float = 0.0) -> bool:
     """Replace ``path`` with ``data`` as JSON (temporary file, rename); False, counted, if it could not be written.
 

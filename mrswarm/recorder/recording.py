@@ -6,7 +6,7 @@ With a run folder (the runner's recorder), it also keeps the run's files inside 
 the scenario and network description at the start, the UAVs' counter files (``uav<N>.json``,
 which hold the netem link statistics) every ``counters_every`` s as ``/uav/<N>/counters``, and at
 the end every file ``mrswarm results`` needs besides the trajectories (``run.json``,
-``uav<N>.json``, ``age_uav<N>.csv``) as attachments.
+``uav<N>.json``, ``age_uav<N>.csv``, ``age_links_uav<N>.json``) as attachments.
 """
 
 from __future__ import annotations
@@ -24,11 +24,12 @@ from mrswarm.recorder.mcap_writer import McapWriter
 from mrswarm.recorder.records import Record, Translator
 from swarmnet.observer import SwarmObserver
 from swarmnet.version import __version__
+from uav_stack.recorder import LINKS_GLOB
 
 POLL = 0.02  # s between two drains: the resolution of the arrival times
 COUNTERS_EVERY = 5.0  # s between two readings of the UAVs' counter files
 START_FILES = ("scenario.yaml", "network.json")
-END_GLOBS = ("run.json", "uav*.json", "age_uav*.csv")
+END_GLOBS = ("run.json", "uav*.json", "age_uav*.csv", LINKS_GLOB)
 MEDIA_TYPES = {".json": "application/json", ".yaml": "application/yaml", ".csv": "text/csv"}
 
 
