@@ -24,6 +24,7 @@ pymavlink builds (every attribute equal, ``tests/test_mavcodec.py``).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from swarmnet.compiled import compiled_module
@@ -95,12 +96,15 @@ MAVCODEC = "compiled" if _CODEC is not None else "pymavlink"
 """Which framing this process runs on its FCU link: ``"compiled"`` or ``"pymavlink"``."""
 
 
-def pack(msg: Any, mav: Any) -> bytes:
-    """``msg.pack(mav)``: the frame, and ``msg``'s ``_header``, ``_payload``, ``_msgbuf`` and ``_crc``
-    as pymavlink sets them. Like pymavlink it leaves ``mav.seq`` to the caller."""
-    if _CODEC is None:
-        return bytes(msg.pack(mav))
-    return bytes(_CODEC.pack(msg, mav))
+def _pymavlink_pack(msg: Any, mav: Any) -> bytes:
+    frame: bytes = msg.pack(mav)
+    return frame
+
+
+pack: Callable[[Any, Any], bytes] = _CODEC.pack if _CODEC is not None else _pymavlink_pack
+"""``pack(msg, mav)`` is ``msg.pack(mav)``: the frame, and ``msg``'s ``_header``, ``_payload``, ``_msgbuf``
+and ``_crc`` as pymavlink sets them; like pymavlink it leaves ``mav.seq`` to the caller. The compiled
+pass itself when present (it hands what it does not frame to ``msg.pack``): no Python call in between."""
 
 
 class MAVLink(mavlink.MAVLink):
