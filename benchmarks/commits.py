@@ -11,6 +11,12 @@ Writes ``<tag>.json`` (every run's row as that commit's scale.py reported it), `
 ``<tag>.png`` (CPU per UAV, RTF and pose age per commit and round) into ``--out``.
 
     python benchmarks/commits.py 51f2dd7 03c8027 --n 25 --rounds 2 --tag house_n25
+
+With ``--python`` given more than once, every commit is flown under each interpreter in turn
+(the benchmark, the UAV processes and the C extensions all that interpreter's), labelled
+``<commit>@<python>``: the same code on two builds of CPython, side by side.
+
+    python benchmarks/commits.py HEAD --python /usr/bin/python3.11 --python python3 --n 1 --rounds 3
 """
 
 from __future__ import annotations
@@ -41,16 +47,19 @@ FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min
           "pose_age_p99_ms", "pose_loss", "collisions")
 
 
-def checkout(commit: str, where: Path) -> Path:
-    """A detached worktree of ``commit`` under ``where`` (removed by :func:`remove`)."""
+def checkout(commit: str, where: Path, pythons: list[str]) -> Path:
+    """A detached worktree of ``commit`` under ``where`` (removed by :func:`remove`), its C
+    extensions built by each of ``pythons`` (one file per interpreter's ABI tag)."""
     tree = where / commit
     subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True,
                    capture_output=True)
     if (tree / "setup.py").exists():  # its compiled pieces, built in place as `pip install -e .` builds them
-        res = subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree, capture_output=True,
-                             text=True)
-        if res.returncode != 0:
-            print(f"{commit}: build_ext failed, its pure-Python fallbacks run:\n{res.stderr[-2000:]}", file=sys.stderr)
+        for python in pythons:
+            res = subprocess.run([python, "setup.py", "-q", "build_ext", "--inplace"], cwd=tree,
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                print(f"{commit}: build_ext by {python} failed, its pure-Python fallbacks run:\n{res.stderr[-2000:]}",
+                      file=sys.stderr)
     return tree
 
 
@@ -58,10 +67,11 @@ def remove(tree: Path) -> None:
     subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], capture_output=True)
 
 
-def run_scale(tree: Path, n: int, config: str, out: Path, extra: list[str]) -> dict[str, Any]:
-    """One run of ``tree``'s own scale.py; its one row."""
+def run_scale(tree: Path, n: int, config: str, out: Path, extra: list[str], python: str = sys.executable
+              ) -> dict[str, Any]:
+    """One run of ``tree``'s own scale.py under ``python``; its one row."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    cmd = [sys.executable, str(tree / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs", config,
+    cmd = [python, str(tree / "benchmarks" / "scale.py"), "--sizes", str(n), "--configs", config,
            "--out", str(out), *extra]
     subprocess.run(cmd, cwd=tree, env=env, check=True, timeout=RUN_TIMEOUT_S)
     rows: list[dict[str, Any]] = json.loads((out / "scale.json").read_text())["rows"]
@@ -107,27 +117,35 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scale-args", default="", help="more arguments for every scale.py run (one string)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     ap.add_argument("--tag", default="commits")
+    ap.add_argument("--python", action="append", default=None,
+                    help="interpreter to fly with (default: this one); more than once: each commit under each")
     args = ap.parse_args(argv)
+    pythons: list[str] = args.python or [sys.executable]
+    sides = [(c, py) for c in args.commits for py in pythons]  # each round flies every side once, in turn
+
+    def label(c: str, py: str) -> str:
+        return c if len(pythons) == 1 else f"{c}@{py}"
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="mrswarm-commits-") as tmp:
         where = Path(tmp)
-        trees = {c: checkout(c, where) for c in args.commits}
+        trees = {c: checkout(c, where, pythons) for c in args.commits}
         try:
             for rnd in range(args.rounds):
-                for c, tree in trees.items():
-                    res = where / f"res-{c}-{rnd}"
-                    row = run_scale(tree, args.n, args.config, res, args.scale_args.split())
-                    rows.append({"commit": c, "round": rnd, **{f: row.get(f) for f in FIELDS}})
-                    print(f"round {rnd} {c}: " + ", ".join(f"{f}={row.get(f)}" for f in FIELDS), flush=True)
+                for k, (c, py) in enumerate(sides):
+                    res = where / f"res-{k}-{rnd}"
+                    row = run_scale(trees[c], args.n, args.config, res, args.scale_args.split(), py)
+                    rows.append({"commit": label(c, py), "round": rnd, **{f: row.get(f) for f in FIELDS}})
+                    print(f"round {rnd} {label(c, py)}: " + ", ".join(f"{f}={row.get(f)}" for f in FIELDS), flush=True)
         finally:
             for tree in trees.values():
                 remove(tree)
-    summary = summarise(rows, args.commits)
+    labels = [label(c, py) for c, py in sides]
+    summary = summarise(rows, labels)
     record = {"args": vars(args), "cores": os.cpu_count(), "rows": rows, "median": summary, "loadavg_end": os.getloadavg()}
     write_results(out, args.tag, record, rows)
-    plot(rows, args.commits, out / f"{args.tag}.png", f"N = {args.n}, {args.config}, {args.rounds} rounds, interleaved")
+    plot(rows, labels, out / f"{args.tag}.png", f"N = {args.n}, {args.config}, {args.rounds} rounds, interleaved")
     for c, s in summary.items():
         print(c, s)
     return 0
