@@ -38,6 +38,17 @@ log = logging.getLogger(__name__)
 OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
 _PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
+# Zenoh's receive runtime with one worker thread instead of two: a UAV has one link (client) or
+# a few dozen (peer mesh), and with two workers each arriving batch woke the second one for
+# nothing (tokio wakes a sibling to steal work). Zenoh reads it (RON) when it first starts a
+# runtime; a ZENOH_RUNTIME the user set is kept. The edge router keeps Zenoh's defaults.
+UAV_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+
+
+def lean_zenoh_runtime() -> None:
+    """Give this UAV process's Zenoh :data:`UAV_ZENOH_RUNTIME`, unless ``ZENOH_RUNTIME`` is set.
+    Call before the first Zenoh session opens."""
+    os.environ.setdefault("ZENOH_RUNTIME", UAV_ZENOH_RUNTIME)
 
 
 class StopFlag:
@@ -392,6 +403,7 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log-file", default=None)
     args = ap.parse_args(argv)
     die_with_parent()
+    lean_zenoh_runtime()
     stop = StopFlag().install()
     setup_logging(args.log_level, args.log_file)
     try:
@@ -447,6 +459,7 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--log-level", default="INFO")
     args = ap.parse_args(argv)
+    lean_zenoh_runtime()
     stop = StopFlag().install()
     setup_logging(args.log_level)
     if not 0 <= args.sysid <= 250:
