@@ -206,9 +206,10 @@ def _open(kind: str, me: int, spec: dict[str, Any], rec: Recorder, receive: bool
         return (lambda seq: pub.put(_payload(me, seq))), s.close, None
 
     if kind in ("swarmnet", "swarmnet-client", "swarmnet-edge"):
-        from swarmnet.connectivity import Rendezvous, StaticPeers
+        from swarmnet.connectivity import Rendezvous, StaticPeers, lean_zenoh_runtime
         from swarmnet.node import NodeIdentity, SwarmNode
 
+        lean_zenoh_runtime()  # Zenoh's runtime as a UAV process has it (ZENOH_RUNTIME='()': Zenoh's defaults)
         if kind == "swarmnet":
             ports = spec["ports"]
             conn: Any = StaticPeers(tuple(f"tcp/127.0.0.1:{ports[j]}" for j in range(me)), listen=(f"tcp/127.0.0.1:{ports[me]}",))

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +28,21 @@ if TYPE_CHECKING:
     from swarmnet.security.credentials import Credentials
 
 log = logging.getLogger(__name__)
+
+
+# Zenoh's receive runtime on one worker thread instead of its default two, for a process with
+# one node of few links (a UAV: one link in client mode, a few dozen in a peer mesh). With two,
+# tokio woke the second worker for nothing at each arriving batch; with one, a UAV of 50 cost
+# 8 % less CPU, side by side (docs/benchmarks.md). Zenoh reads it (RON) when it first starts a
+# runtime. A router, which reads from every UAV at once, keeps Zenoh's defaults.
+LEAN_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+
+
+def lean_zenoh_runtime() -> None:
+    """Give this process's Zenoh :data:`LEAN_ZENOH_RUNTIME`, unless ``ZENOH_RUNTIME`` is already
+    set (``ZENOH_RUNTIME='()'`` keeps Zenoh's defaults). Call before the first session opens:
+    later calls change nothing in a process whose Zenoh runtimes have started."""
+    os.environ.setdefault("ZENOH_RUNTIME", LEAN_ZENOH_RUNTIME)
 
 
 @runtime_checkable

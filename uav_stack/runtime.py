@@ -20,7 +20,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, open_retrying
+from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, lean_zenoh_runtime, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.schema import ConfigError, convert
@@ -38,17 +38,6 @@ log = logging.getLogger(__name__)
 OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
 _PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
-# Zenoh's receive runtime with one worker thread instead of two: a UAV has one link (client) or
-# a few dozen (peer mesh), and with two workers each arriving batch woke the second one for
-# nothing (tokio wakes a sibling to steal work). Zenoh reads it (RON) when it first starts a
-# runtime; a ZENOH_RUNTIME the user set is kept. The edge router keeps Zenoh's defaults.
-UAV_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
-
-
-def lean_zenoh_runtime() -> None:
-    """Give this UAV process's Zenoh :data:`UAV_ZENOH_RUNTIME`, unless ``ZENOH_RUNTIME`` is set.
-    Call before the first Zenoh session opens."""
-    os.environ.setdefault("ZENOH_RUNTIME", UAV_ZENOH_RUNTIME)
 
 
 class StopFlag:
