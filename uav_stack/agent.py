@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import random
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -538,8 +539,10 @@ class Agent(OverridesMixin):
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake)
-            "net": {**self.node.stats.to_dict(links), "intake": "compiled" if self.node.intake.compiled else "python"},
+            # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake);
+            # "zenoh_runtime": the process's ZENOH_RUNTIME ("": Zenoh's defaults; swarmnet.connectivity.lean_zenoh_runtime)
+            "net": {**self.node.stats.to_dict(links), "intake": "compiled" if self.node.intake.compiled else "python",
+                    "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}
