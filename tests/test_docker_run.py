@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from deploy import multicast
+from swarmnet.connectivity import LEAN_ZENOH_RUNTIME
 from tests.conftest import wait_for
 from tests.docker_support import containers_of, docker_image, no_leftovers  # noqa: F401
 
@@ -57,6 +58,7 @@ def test_coverage_in_five_containers_covers_without_collisions_and_leaves_nothin
     assert len(status) == 5
     assert {(st["virtual_fcu"]["dynamics"], st["virtual_fcu"]["mavlink"], st["net"]["intake"]) for st in status} == \
         {("compiled", "compiled", "compiled")}
+    assert {st["net"]["zenoh_runtime"] for st in status} == {LEAN_ZENOH_RUNTIME}  # a UAV in a container too
     # really containers: one per UAV plus the discovery server and the edge router (the runner's
     # way in), each with its own IP, multicast sealed. UAVs reach each other only through what
     # the discovery server relays: gossip is off and 1.9+ routers do not relay between peers.
