@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 # tokio woke the second worker for nothing at each arriving batch; with one, a UAV of 50 cost
 # 8 % less CPU, side by side (docs/benchmarks.md). Zenoh reads it (RON) when it first starts a
 # runtime. A router, which reads from every UAV at once, keeps Zenoh's defaults.
-LEAN_ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+LEAN_ZENOH_RUNTIME = "(rx: (handover: app), tx: (handover: app), net: (handover: app), acc: (handover: app))"
 
 
 def lean_zenoh_runtime() -> None:
