@@ -30,11 +30,16 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-# Zenoh's receive runtime on one worker thread instead of its default two, for a process with
-# one node of few links (a UAV: one link in client mode, a few dozen in a peer mesh). With two,
-# tokio woke the second worker for nothing at each arriving batch; with one, a UAV of 50 cost
-# 8 % less CPU, side by side (docs/benchmarks.md). Zenoh reads it (RON) when it first starts a
-# runtime. A router, which reads from every UAV at once, keeps Zenoh's defaults.
+# All of Zenoh's runtimes (receive, transmit, network, accept) handed over to its application
+# runtime, which has one worker thread: one Zenoh thread instead of five or more, for a process
+# with one node of few links (a UAV: one link in client mode, a few dozen in a peer mesh). By
+# default Zenoh runs two receive workers (tokio woke the second for nothing at each arriving
+# batch) and a transmit thread that each put wakes. Side by side, a UAV of 50 cost 8 % less
+# CPU with the receive runtime alone on one worker, and 5.5 % less again with everything on one
+# (docs/benchmarks.md). Nothing of the UAV's runs Python on that thread that could wait (its
+# subscriptions are ring channels or minimal callbacks, swarmnet/receive.py). Zenoh reads it
+# (RON) when it first starts a runtime. A router, which reads from every UAV at once, keeps
+# Zenoh's defaults.
 LEAN_ZENOH_RUNTIME = "(rx: (handover: app), tx: (handover: app), net: (handover: app), acc: (handover: app))"
 
 

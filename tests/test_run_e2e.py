@@ -71,7 +71,7 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     status = [json.loads(p.read_text()) for p in run_dir.glob("uav[0-9]*.json")]
     assert len(status) == 4 and {st["virtual_fcu"]["dynamics"] for st in status} == {"compiled"}
     assert {st["net"]["intake"] for st in status} == {"compiled"}
-    # and Zenoh's receive runtime on one thread (swarmnet.connectivity.lean_zenoh_runtime)
+    # and all of Zenoh on one worker thread (swarmnet.connectivity.lean_zenoh_runtime)
     assert {st["net"]["zenoh_runtime"] for st in status} == {LEAN_ZENOH_RUNTIME}
     assert {st["virtual_fcu"]["mavlink"] for st in status} == {"compiled"}
     takeoff = summary["takeoff"]

@@ -1,4 +1,4 @@
-"""A UAV process runs Zenoh's receive runtime on one worker thread, and a user's choice wins.
+"""A UAV process runs all of Zenoh's runtimes on one worker thread, and a user's choice wins.
 
 Each case is a real child process (Zenoh reads ``ZENOH_RUNTIME`` once, when its first runtime
 starts, so it cannot be changed inside this test process): two sessions linked over TCP on
@@ -57,16 +57,26 @@ def _rx_threads(out: dict) -> int:
     return sum(1 for name in out["threads"] if name.startswith("rx-"))
 
 
-def test_lean_runtime_receives_on_one_rx_thread() -> None:
+def _zenoh_threads(out: dict) -> list[str]:
+    """Zenoh's worker threads by name (``app-0``, ``rx-1``, ...): those of its five runtimes."""
+    return [name for name in out["threads"] if name.split("-")[0] in ("app", "acc", "tx", "rx", "net")]
+
+
+def test_lean_runtime_sends_and_receives_on_one_zenoh_thread() -> None:
     out = _child("lean", None)
     assert out["received"], "the sample did not cross the link"
     assert out["env"] == LEAN_ZENOH_RUNTIME
-    assert _rx_threads(out) == 1, out["threads"]
+    # two sessions, a listener, a link, a sample: all on the application runtime. Its one worker
+    # is app-0; any app-N beyond it is tokio's blocking pool (opening a session waits in one),
+    # whose threads end after 10 s idle. None of the receive, transmit, network or accept runtimes.
+    names = _zenoh_threads(out)
+    assert "app-0" in names and all(name.startswith("app-") for name in names), out["threads"]
 
 
 def test_zenoh_defaults_have_two_rx_threads_and_a_users_choice_is_kept() -> None:
     default = _child("plain", None)
     assert default["received"] and _rx_threads(default) == 2, default["threads"]
+    assert {name.split("-")[0] for name in _zenoh_threads(default)} >= {"app", "tx", "rx", "net"}, default["threads"]
     kept = _child("lean", "()")  # '()': Zenoh's own defaults, asked for by the user
     assert kept["received"] and kept["env"] == "()" and _rx_threads(kept) == 2, kept["threads"]
     three = _child("lean", "(rx: (worker_threads: 3))")
