@@ -58,3 +58,21 @@ def test_recording_resumes_where_it_stopped_once_the_disk_takes_it(tmp_path: Pat
     assert write_json_atomic(blocker / "uav1.json", {"uav": 1}, health, 103.0)
     assert json.loads((blocker / "uav1.json").read_text()) == {"uav": 1}
     assert not list(blocker.glob(".*.tmp")) and health.rows_dropped == 0
+
+
+def test_no_trajectory_row_waits_a_second_before_it_is_on_disk(tmp_path: Path) -> None:
+    """A UAV killed outright (SIGKILL) loses less than a second of its trajectory: at 10 Hz the
+    file is written out at the last tick before a row would have waited a whole second, not at
+    the first tick after (which let the chaos test's killed UAV lose 1.04 s)."""
+    rec = TrajectoryRecorder(tmp_path / "uav1.csv")
+    t0 = 1_700_000_000.0
+    worst = 0.0
+    for k in range(200):  # 20 s of 10 Hz ticks, each a little late or early, as on a loaded machine
+        now = t0 + k / 10 + (0.004 if k % 3 else -0.003)
+        rec.write(now, (now, k / 10, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0, "mission", "OFFBOARD", 1, 1.0))
+        with open(tmp_path / "uav1.csv", newline="") as f:
+            on_disk = [float(r["t_wall"]) for r in csv.DictReader(f)]
+        # a kill just before the next tick (now + 0.1 s) loses what came after the last row on disk
+        worst = max(worst, now + 0.1 - (on_disk[-1] if on_disk else t0))
+    rec.close()
+    assert 0.9 <= worst < 1.0 + 0.01, worst  # under a second (the ticks' own jitter aside), and not far under

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -130,13 +131,20 @@ class AppendLog:
 
 
 class TrajectoryRecorder:
-    """``uav<N>.csv``: one row per control tick, written out every ``flush_every`` seconds."""
+    """``uav<N>.csv``: one row per control tick, written out so that no row waits longer than
+    ``flush_every`` seconds (a process killed outright loses less than that).
+
+    A row flushes the file when the next row, a tick later, would be past the deadline: the
+    tick is the time since the row before (s, at most ``flush_every``). Flushing at the first
+    tick *after* the deadline instead would let a row wait a second and a tick.
+    """
 
     def __init__(self, path: str | Path, flush_every: float = 1.0, health: RecordHealth | None = None):
         self.path = Path(path)
         self.log = AppendLog(self.path, ",".join(TRAJECTORY_COLUMNS) + "\n", health)
         self.flush_every = flush_every
         self._last_flush = 0.0
+        self._last_row = math.nan  # wall time of the row before, s
 
     @property
     def health(self) -> RecordHealth:
@@ -144,7 +152,9 @@ class TrajectoryRecorder:
 
     def write(self, now: float, row: tuple[Any, ...]) -> None:
         self.log.add(",".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + "\n")
-        if now - self._last_flush >= self.flush_every:
+        tick = min(max(now - self._last_row, 0.0), self.flush_every) if not math.isnan(self._last_row) else 0.0
+        self._last_row = now
+        if now - self._last_flush + tick >= self.flush_every:
             self.flush(now)
 
     def flush(self, now: float = 0.0) -> None:
