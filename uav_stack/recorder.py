@@ -144,7 +144,7 @@ class TrajectoryRecorder:
         self.log = AppendLog(self.path, ",".join(TRAJECTORY_COLUMNS) + "\n", health)
         self.flush_every = flush_every
         self._last_flush = 0.0
-        self._last_row = math.nan  # wall time of the row before, s
+        self._last_row = math.inf  # wall time of the row before, s (none yet: the first row's tick counts as 0)
 
     @property
     def health(self) -> RecordHealth:
@@ -152,7 +152,7 @@ class TrajectoryRecorder:
 
     def write(self, now: float, row: tuple[Any, ...]) -> None:
         self.log.add(",".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + "\n")
-        tick = min(max(now - self._last_row, 0.0), self.flush_every) if not math.isnan(self._last_row) else 0.0
+        tick = min(max(now - self._last_row, 0.0), self.flush_every)
         self._last_row = now
         if now - self._last_flush + tick >= self.flush_every:
             self.flush(now)
