@@ -379,6 +379,30 @@ _POSE_TAG = tag(Kind.POSE)
 
 
 def encode_pose(p: Pose) -> bytes:
+    """The pose on the wire (msgpack, fixed-point integers: cm, cm/s, 1e-4 rad, ms, us).
+
+    Every UAV encodes its pose at the pose rate: a valid pose is quantised with no call but
+    ``round`` per field and checked in one expression; anything else goes the slow way, which
+    names the field (:func:`_checked_pose_fields`)."""
+    try:
+        fields = [
+            _POSE_TAG, p.uav, int(p.realm), p.seq & 0xFFFF, round(p.t_sim * 1000.0), round(p.t_wall * 1e6),
+            round(p.x * 100.0), round(p.y * 100.0), round(p.z * 100.0),
+            round(p.vx * 100.0), round(p.vy * 100.0), round(p.vz * 100.0),
+            round(math.remainder(p.yaw, math.tau) * 1e4),
+        ]
+    except (ValueError, OverflowError):  # NaN or infinite
+        fields = _checked_pose_fields(p)
+    if not (UAV_ID_MIN <= fields[1] <= UAV_ID_MAX and 0 <= fields[4] <= _UINT32 and 0 <= fields[5] <= _UINT64
+            and -_INT32 <= fields[6] <= _INT32 and -_INT32 <= fields[7] <= _INT32 and -_INT16 <= fields[8] <= _INT16
+            and -_INT16 <= fields[9] <= _INT16 and -_INT16 <= fields[10] <= _INT16 and -_INT16 <= fields[11] <= _INT16
+            and -_INT16 <= fields[12] <= _INT16):
+        fields = _checked_pose_fields(p)
+    return msgpack.packb(fields)
+
+
+def _checked_pose_fields(p: Pose) -> list[int]:
+    """The pose's wire fields, or a ValueError naming the first that the wire cannot hold."""
     try:
         fields = [
             _POSE_TAG,
@@ -399,7 +423,7 @@ def encode_pose(p: Pose) -> bytes:
         raise ValueError(f"cannot encode pose of UAV {p.uav}: {exc}") from None
     if not (UAV_ID_MIN <= p.uav <= UAV_ID_MAX) or not (0 <= fields[4] <= _UINT32) or not (0 <= fields[5] <= _UINT64):
         raise ValueError(f"cannot encode pose of UAV {p.uav}: id or timestamps out of range")
-    return msgpack.packb(fields)
+    return fields
 
 
 _POSE_FIELDS = (  # name, lo, hi of the integer fields 1..12, in wire order

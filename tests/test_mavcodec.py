@@ -254,3 +254,58 @@ def test_a_pymavlink_that_frames_or_builds_differently_switches_the_pass_off_for
 
     monkeypatch.setattr(M.MAVLink, "decode", newer_decode)
     assert not mavcodec._agrees(codec(att.crc_extra), att)
+
+
+class CountingMAVLink(MAVLink):
+    """Counts the frames pymavlink itself decodes (the compiled pass never calls ``decode``)."""
+
+    decoded = 0
+
+    def decode(self, msgbuf: bytearray) -> Any:
+        self.decoded += 1
+        return super().decode(msgbuf)
+
+
+def test_a_datagram_of_plain_frames_and_a_few_others_sends_only_the_others_to_pymavlink() -> None:
+    """A virtual FCU's datagram once a second: its plain telemetry beside BATTERY_STATUS (arrays)
+    and NAMED_VALUE_FLOAT (a string), bad frames too. Parsed as pymavlink parses the whole
+    datagram, with pymavlink decoding only the frames the compiled pass does not take."""
+    rng = random.Random(17)
+    others = [
+        lambda s: M.MAVLink_battery_status_message(0, 0, 0, 250, [3700] * 10, 10, 100, 100, 50).pack(s),
+        lambda s: M.MAVLink_named_value_float_message(12, b"rtf", 0.97).pack(s),
+        lambda s: M.MAVLink_statustext_message(6, b"hello").pack(s),
+    ]
+    for _ in range(400):
+        frames, expect_pymavlink = [], 0
+        for _ in range(rng.randint(2, 9)):
+            if rng.random() < 0.3:
+                frame = bytearray(rng.choice(others)(_sender(rng)))
+                expect_pymavlink += 1
+            else:
+                frame = bytearray(_message(rng, rng.choice(PLAIN)).pack(_sender(rng)))
+            if rng.random() < 0.1:  # a flipped bit past the length byte: a bad CRC, or a field's value
+                frame[rng.randint(2, len(frame) - 1)] ^= 1 << rng.randint(0, 7)
+            frames.append(bytes(frame))
+        data = b"".join(frames)
+        ours, theirs = CountingMAVLink(None), M.MAVLink(None)
+        ours.robust_parsing = theirs.robust_parsing = True
+        got = ours.parse_datagram(data)
+        want = theirs.parse_buffer(bytearray(data)) or []
+        assert [type(m) for m in got] == [type(m) for m in want]
+        for x, y in zip(got, want, strict=True):
+            if isinstance(x, M.MAVLink_bad_data):
+                assert bytes(x.data) == bytes(y.data) and x.reason == y.reason
+            else:
+                _attributes_equal(x, y)
+        assert ours.total_packets_received == theirs.total_packets_received
+        assert ours.total_bytes_received == theirs.total_bytes_received
+        # pymavlink decoded only the frames the compiled pass declines alone: the others, and
+        # plain frames it leaves to pymavlink (bad values, a flipped bit); never a good plain one
+        parts = mavcodec.split_frames(data)
+        if parts is None:  # a flipped signed flag: the frames no longer tile the datagram, all of it to pymavlink
+            continue
+        declined = sum(mavcodec._CODEC.decode(f) is None for f in parts)
+        assert declined >= expect_pymavlink
+        refused_unread = sum(1 for m in got if isinstance(m, M.MAVLink_bad_data) and "incompat" in m.reason)
+        assert ours.decoded == declined - refused_unread and ours.buf_len() == 0

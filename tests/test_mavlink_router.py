@@ -10,7 +10,7 @@ import pytest
 from tests.conftest import free_port, wait_for
 from uav_stack.fcu_link import FcuLink
 from uav_stack.mav import mavlink
-from uav_stack.mavlink_router import MavlinkRouter, parse_endpoint
+from uav_stack.mavlink_router import PROBE_EVERY_S, MavlinkRouter, parse_endpoint
 from uav_stack.sysid import SHARD_SIZE, allocate_sysid, uav_of
 
 SYSID = 7
@@ -288,3 +288,44 @@ def test_a_taken_ground_station_port_is_an_error_that_names_the_endpoint_and_ope
     finally:
         holder.close()
         router.close()
+
+
+def test_a_ground_station_that_is_not_running_gets_a_datagram_a_second_until_it_listens(gcs_port: int) -> None:
+    """Every UAV routes to a ground-station port by default, whether or not one runs there. While
+    the port refuses (ICMP port unreachable), the router sends one datagram a second, not one a
+    tick; QGroundControl started later sees the UAV within about a second, then gets every frame."""
+    rig = Rig([f"udpout:127.0.0.1:{gcs_port}"])
+    gcs = None
+    try:
+        hb = heartbeat(rig.fcu_mav)
+        end = time.monotonic() + 3.0
+        ticks = 0
+        while time.monotonic() < end:  # 3 s of a 20 Hz FCU stream, nobody at the port
+            rig.fcu_send(hb)
+            rig.pump(0.05)
+            ticks += 1
+        st = rig.router.stats
+        assert ticks >= 40 and st.datagrams_out <= 5, (ticks, st)  # the first, then about one a second
+        assert st.unheard >= ticks - 10 and st.bad_datagrams == 0
+
+        gcs = udp(gcs_port)  # the ground station starts
+        gcs.setblocking(False)
+        t0 = time.monotonic()
+        arrivals = []
+        while time.monotonic() - t0 < 3.0:
+            rig.fcu_send(hb)
+            rig.pump(0.05)
+            while True:
+                try:
+                    data = gcs.recv(65535)
+                except BlockingIOError:
+                    break
+                assert hb in data
+                arrivals.append(time.monotonic() - t0)
+        assert arrivals and arrivals[0] < PROBE_EVERY_S + 0.3, arrivals[:3]
+        last_second = [t for t in arrivals if t >= 2.0]
+        assert len(last_second) >= 15, len(last_second)  # the whole 20 Hz stream again
+    finally:
+        rig.close()
+        if gcs is not None:
+            gcs.close()

@@ -12,8 +12,10 @@ pymavlink builds (every attribute equal, ``tests/test_mavcodec.py``).
 * :func:`pack` gives the frame ``msg.pack(mav)`` gives and leaves the same attributes on the
   message; a message with arrays or strings, or a link that signs, goes to pymavlink.
 * :meth:`MAVLink.parse_datagram` takes the messages of a datagram in one pass when every frame
-  in it is a plain, unsigned MAVLink 2 frame with a good CRC; any other datagram goes to
-  pymavlink's parser, which names and counts whatever is wrong, as before.
+  in it is a plain, unsigned MAVLink 2 frame with a good CRC. In a datagram of MAVLink 2
+  frames end to end it takes the plain ones and hands each other frame to pymavlink alone;
+  any other datagram goes wholly to pymavlink's parser, which names and counts whatever is
+  wrong, as before.
 * :class:`MAVLink` is pymavlink's ``MAVLink`` with both: its ``*_send`` methods pack with
   :func:`pack`. The FCU's vehicles and the agent's FCU link use it.
 
@@ -127,23 +129,70 @@ class MAVLink(mavlink.MAVLink):
     def parse_datagram(self, data: bytes) -> list[Any]:
         """The messages of one datagram (it holds whole frames, so nothing carries over from the last).
 
-        Plain, unsigned MAVLink 2 frames with good CRCs, all of them, are parsed by the compiled pass;
-        any other datagram by pymavlink's ``parse_buffer``, which returns its bad data as
+        Plain, unsigned MAVLink 2 frames with good CRCs are parsed by the compiled pass: a whole
+        datagram of them at once; in a datagram of MAVLink 2 frames end to end
+        (:func:`split_frames`), each frame the pass does not take goes to pymavlink alone; any
+        other datagram wholly to pymavlink's ``parse_buffer``. pymavlink returns bad data as
         ``MAVLink_bad_data`` and may raise on some corrupt frames, as it always did.
         """
         self.buf = bytearray()
         self.buf_index = 0
         self.expected_length = mavlink.HEADER_LEN_V1 + 2
         self.have_prefix_error = False
-        msgs: list[Any] | None = _CODEC.decode(data) if _CODEC is not None else None
-        if msgs is None:
+        if _CODEC is None:
             return self.parse_buffer(data) or []
+        msgs: list[Any] | None = _CODEC.decode(data)
+        if msgs is not None:
+            self._took(data, msgs)
+            return msgs
+        frames = split_frames(data)
+        if frames is None:  # not whole MAVLink 2 frames end to end: pymavlink resyncs and names the junk
+            return self.parse_buffer(data) or []
+        out: list[Any] = []
+        for frame in frames:  # a datagram of plain frames and a few others: only the others to pymavlink
+            got = _CODEC.decode(frame)
+            if got is not None:
+                self._took(frame, got)
+            else:
+                got = self.parse_buffer(frame) or []
+                self.buf = bytearray()  # (a whole frame leaves nothing behind; a bad one neither)
+                self.buf_index = 0
+                self.expected_length = mavlink.HEADER_LEN_V1 + 2
+            out.extend(got)
+        return out
+
+    def _took(self, data: bytes, msgs: list[Any]) -> None:
+        """Count (and call back for) what the compiled pass parsed, as pymavlink's parser does."""
         self.total_bytes_received += len(data)
         self.total_packets_received += len(msgs)
         if self.callback is not None and self.callback_args is not None and self.callback_kwargs is not None:
             for m in msgs:
                 self.callback(m, *self.callback_args, **self.callback_kwargs)
-        return msgs
+
+
+def split_frames(data: bytes) -> list[bytes] | None:
+    """``data`` cut into its MAVLink 2 frames, or None unless it is nothing but MAVLink 2 frames end to end.
+
+    Why: a virtual FCU's datagram of a tick holds its 10 Hz plain messages and, once a second,
+    a few with arrays or strings (BATTERY_STATUS, HOME_POSITION, NAMED_VALUE_FLOAT) that the
+    compiled pass does not take. Cut apart, only those few go to pymavlink, rather than the
+    whole datagram (about 1 ms a second in a lone UAV). Frames are cut by pymavlink's own
+    length rule (header, payload, CRC, a signature when the signed flag is set), so pymavlink
+    parses each piece exactly as it would have parsed it within the datagram, bad frames included.
+    """
+    n, at = len(data), 0
+    frames = []
+    while at < n:
+        if n - at < mavlink.HEADER_LEN_V2 + 2 or data[at] != mavlink.PROTOCOL_MARKER_V2:
+            return None
+        end = at + mavlink.HEADER_LEN_V2 + 2 + data[at + 1]
+        if data[at + 2] & mavlink.MAVLINK_IFLAG_SIGNED:
+            end += mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+        if end > n:
+            return None
+        frames.append(data[at:end])
+        at = end
+    return frames
 
 
 def frames_plainly(cls: Any) -> bool:

@@ -32,6 +32,10 @@ Locked down (docs/security.md):
 * SETUP_SIGNING from a ground station never reaches the FCU: keys are set from files, not
   over the air.
 
+A ``udpout`` ground station that is not running (its port answers ICMP port unreachable, as
+on the same machine) gets one datagram a second instead of one a tick, until it listens
+(:meth:`UdpEndpoint.refused`, counted in ``RouterStats.unheard``).
+
 The allocation of MAVLink system ids for more than 250 UAVs is :func:`uav_stack.sysid.allocate_sysid`.
 """
 
@@ -47,7 +51,7 @@ from typing import Any
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.mav import mavlink
 from uav_stack.mavlink_signing import Signer, VerifyingParser
-from uav_stack.udp import drain, source_address_for
+from uav_stack.udp import clear_errors, drain, report_refusals, source_address_for
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,7 @@ MAX_DATAGRAM = 1400
 MAX_PEERS = 4  # server endpoints: ground stations answered at once
 PEER_TIMEOUT = 30.0  # s: a silent server-endpoint peer is forgotten
 MAX_SOURCES = 1024  # (sysid, compid) pairs remembered per channel
+PROBE_EVERY_S = 1.0  # s between the datagrams to a udpout ground station whose port refused the last one
 _M = mavlink
 
 # Commands from a ground station that move the vehicle or change its mode: when one passes
@@ -116,6 +121,7 @@ class RouterStats:
     unsigned_refused: int = 0  # unsigned frames refused (signing required)
     unsigned_accepted: int = 0  # unsigned frames let through (signing on, not required)
     unsignable: int = 0  # frames that could not be signed for a signed link (outside our dialect): not sent
+    unheard: int = 0  # frames not sent to a udpout ground station whose port refuses them (nobody listens there)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -165,6 +171,11 @@ class UdpEndpoint(Channel):
         self._out: list[bytes] = []
         self._out_len = 0
         self.rx_datagrams = 0
+        # udpout: nobody listened at the ground station's port (ICMP port unreachable) until
+        # ``absent_until`` (wall s); meanwhile its frames are dropped (RouterStats.unheard)
+        self.absent_until = 0.0
+        self.quiet = False  # dropping now: set at each poll
+        self._reports_refusals = False
 
     def open(self) -> None:
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -178,6 +189,7 @@ class UdpEndpoint(Channel):
             else:
                 self.dest = (socket.gethostbyname(self.host), self.port)
                 s.bind((self.bind or source_address_for(self.dest[0]), 0))
+                self._reports_refusals = report_refusals(s)
             s.setblocking(False)
         except OSError as exc:
             s.close()
@@ -195,15 +207,30 @@ class UdpEndpoint(Channel):
             self.sock = None
 
     def recv(self, stats: RouterStats, max_datagrams: int = 64) -> list[tuple[bytes, tuple[str, int]]]:
-        """Pending datagrams; a udpout endpoint keeps only those from its ground station."""
+        """Pending datagrams; a udpout endpoint keeps only those from its ground station (and
+        learns whether its port refused what was sent: :meth:`refused`)."""
         out = []
-        for data, a in drain(self.sock, max_datagrams):
+        if self._reports_refusals:
+            self.quiet = self.clock() < self.absent_until
+        for data, a in drain(self.sock, max_datagrams, self.refused if self._reports_refusals else None):
             if self.mode == "udpout" and a != self.dest:
                 stats.foreign_source += 1
                 continue
             self.rx_datagrams += 1
             out.append((data, a))
         return out
+
+    def refused(self) -> None:
+        """udpout: the ground station's port refused a datagram (ICMP port unreachable: no
+        ground station runs there). Its frames are dropped for :data:`PROBE_EVERY_S`, then one
+        datagram goes to see whether one listens now: QGroundControl started later sees the UAV
+        within about a second. Why: every UAV of a run routes to a ground-station port by
+        default, each tick, whether or not one runs; a datagram and the port-unreachable it
+        draws cost about 25 us of CPU, and the routing before it more."""
+        self.absent_until = self.clock() + PROBE_EVERY_S
+        self.quiet = True
+        if self.sock is not None:
+            clear_errors(self.sock)
 
     def note_peer(self, a: tuple[str, int], stats: RouterStats) -> None:
         """udpin: answer ``a`` from now on (it sent a frame we accepted); the least recently heard goes."""
@@ -241,6 +268,11 @@ class UdpEndpoint(Channel):
     def flush(self, stats: RouterStats) -> None:
         if not self._out:
             return
+        if self.quiet:
+            stats.unheard += len(self._out)
+            self._out.clear()
+            self._out_len = 0
+            return
         data = b"".join(self._out)
         self._out.clear()
         self._out_len = 0
@@ -251,7 +283,11 @@ class UdpEndpoint(Channel):
             try:
                 s.sendto(data, addr)
                 stats.datagrams_out += 1
-            except OSError:  # nobody listening, buffer full: drop, like UDP
+            except ConnectionRefusedError:  # the port refused an earlier datagram: nobody listens
+                stats.send_errors += 1
+                if self._reports_refusals:
+                    self.refused()
+            except OSError:  # buffer full: drop, like UDP
                 stats.send_errors += 1
 
 
@@ -307,6 +343,9 @@ class MavlinkRouter:
             return
         stats = self.stats
         for ep in self.endpoints:
+            if ep.quiet:  # nobody listens there (UdpEndpoint.refused)
+                stats.unheard += 1
+                continue
             verdict = ep.accepts(src, tsys, tcomp)
             if verdict == 0:
                 if ep.queue(msg, stats):

@@ -26,6 +26,8 @@ import msgspec
 log = logging.getLogger(__name__)
 
 TRAJECTORY_COLUMNS = ("t_wall", "t_sim", "x", "y", "z", "vx", "vy", "vz", "yaw", "phase", "mode", "armed", "rtf")
+# one row of TRAJECTORY_COLUMNS: s, s, m, m, m, m/s, m/s, m/s, rad, phase, mode, 0/1, RTF (-1: not measured yet)
+TRAJECTORY_ROW = ",".join(["%.3f"] * 9 + ["%s", "%s", "%d", "%.3f"]) + "\n"
 MAX_BACKLOG_BYTES = 256 * 1024  # per file: ~4 min of a trajectory at 10 Hz
 WARN_EVERY_S = 60.0
 
@@ -151,7 +153,9 @@ class TrajectoryRecorder:
         return self.log.health
 
     def write(self, now: float, row: tuple[Any, ...]) -> None:
-        self.log.add(",".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row) + "\n")
+        """Queue one row of :data:`TRAJECTORY_COLUMNS` (formatted by :data:`TRAJECTORY_ROW`, in one
+        operation: a row each tick in every UAV); flush it if the next tick would be too late."""
+        self.log.add(TRAJECTORY_ROW % row)
         tick = min(max(now - self._last_row, 0.0), self.flush_every)
         self._last_row = now
         if now - self._last_flush + tick >= self.flush_every:

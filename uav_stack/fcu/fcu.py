@@ -196,7 +196,8 @@ class VirtualFcu:
 
     # ------------------------------------------------------------ service
     def _next_tel_step(self) -> int:
-        tel = min(v.streams.next_any for v in self.vehicles)
+        vs = self.vehicles
+        tel = vs[0].streams.next_any if len(vs) == 1 else min(v.streams.next_any for v in vs)  # (a UAV's FCU has one)
         return math.ceil(tel * self.clock.physics_hz - 1e-6) if tel < math.inf else 1 << 62
 
     def _advance(self, now: float) -> None:

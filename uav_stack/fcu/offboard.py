@@ -61,18 +61,25 @@ class Setpoint:
 
     @property
     def has_velocity(self) -> bool:
-        return any(v == v and p != p for p, v in zip(self.pos, self.vel, strict=True))
+        """Some axis is velocity-controlled (a velocity and no position)."""
+        (p0, p1, p2), (v0, v1, v2) = self.pos, self.vel
+        return (v0 == v0 and p0 != p0) or (v1 == v1 and p1 != p1) or (v2 == v2 and p2 != p2)
 
 
+# (written out per axis, not as generators: a setpoint arrives every tick in every virtual UAV)
 def _masked(vals: Vec3, mask: int, bits: tuple[int, int, int]) -> Vec3:
-    a, b, c = (x if not (mask & bit) and math.isfinite(x) else math.nan for x, bit in zip(vals, bits, strict=True))
-    return (a, b, c)
+    """The axes ``mask`` does not ignore and that are finite; NaN for the others."""
+    (a, b, c), (ba, bb, bc) = vals, bits
+    isfinite, nan = math.isfinite, math.nan
+    return (a if not (mask & ba) and isfinite(a) else nan, b if not (mask & bb) and isfinite(b) else nan,
+            c if not (mask & bc) and isfinite(c) else nan)
 
 
 def _sane(sp: Setpoint) -> Setpoint | None:
     """Refuse setpoints no vehicle could follow (they would only overflow telemetry later)."""
-    far = any(abs(x) > MAX_OFFSET_M for x in sp.pos)  # NaN compares False
-    fast = any(abs(x) > MAX_SPEED for x in sp.vel)
+    (p0, p1, p2), (v0, v1, v2) = sp.pos, sp.vel
+    far = abs(p0) > MAX_OFFSET_M or abs(p1) > MAX_OFFSET_M or abs(p2) > MAX_OFFSET_M  # NaN compares False
+    fast = abs(v0) > MAX_SPEED or abs(v1) > MAX_SPEED or abs(v2) > MAX_SPEED
     odd_yaw = abs(sp.yaw) > 100.0 or abs(sp.yaw_rate) > 100.0
     return None if far or fast or odd_yaw else sp
 

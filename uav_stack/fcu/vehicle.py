@@ -345,11 +345,13 @@ class Vehicle:
     def apply_setpoint(self, sp: Setpoint) -> None:
         d, i = self.ctx.dyn, self.i
         pos = list(sp.pos)
-        for k, (p, v) in enumerate(zip(sp.pos, sp.vel, strict=True)):
-            if p != p and v != v:  # neither position nor velocity: hold that axis where it is
-                cur = float(d.pos_sp[i, k])
-                pos[k] = cur if cur == cur else float(d.pos[i, k])
-        a, b, c = (0.0 if v != v else v for v in sp.vel)
+        a, b, c = vel = sp.vel
+        if a != a or b != b or c != c:
+            for k in range(3):
+                if pos[k] != pos[k] and vel[k] != vel[k]:  # neither position nor velocity: hold that axis where it is
+                    cur = float(d.pos_sp[i, k])
+                    pos[k] = cur if cur == cur else float(d.pos[i, k])
+            a, b, c = (0.0 if a != a else a), (0.0 if b != b else b), (0.0 if c != c else c)
         self._targets(np.array(pos), (a, b, c), sp.yaw, sp.yaw_rate)
         self.guided_vel = sp.has_velocity
 
