@@ -280,8 +280,16 @@ class Inlet:
         """Samples waiting (a stamped inlet; a ring channel cannot tell without taking them)."""
         return len(self._q)
 
-    def drain(self, budget: int = DRAIN_BUDGET) -> Iterator[tuple[float, zenoh.Sample]]:
-        """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks."""
+    def drain(self, budget: int = DRAIN_BUDGET) -> Iterable[tuple[float, zenoh.Sample]]:
+        """The waiting ``(arrival time, sample)`` pairs, oldest first, at most ``budget``; never blocks.
+
+        A stamped inlet with nothing waiting gives ``()`` at once: a UAV's loop drains several
+        inlets a tick, most of them empty (commands, netem changes, swarm messages)."""
+        if self.how != "ring" and not self._q:
+            return ()
+        return self._drain(budget)
+
+    def _drain(self, budget: int) -> Iterator[tuple[float, zenoh.Sample]]:
         if self.how == "ring":
             if self._sub is None:
                 return
@@ -310,11 +318,18 @@ def drain(ring: Any, budget: int = DRAIN_BUDGET) -> Iterator[zenoh.Sample]:
         yield sample
 
 
-def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterator[Accepted[T]]:
+def receive(inlet: Inlet, accept: Accept[T], stats: NodeStats, budget: int = DRAIN_BUDGET) -> Iterable[Accepted[T]]:
     """The accepted samples waiting in ``inlet`` (at most ``budget`` drained per call): drain, run
     ``accept`` on each, count every rejection in ``stats`` and skip it, in one loop (every direct
-    pose passes here)."""
-    for at, s in inlet.drain(budget):
+    pose passes here). ``()`` at once when a stamped inlet has nothing waiting."""
+    samples = inlet.drain(budget)
+    if samples == ():
+        return ()
+    return _accepted(samples, accept, stats)
+
+
+def _accepted(samples: Iterable[tuple[float, zenoh.Sample]], accept: Accept[T], stats: NodeStats) -> Iterator[Accepted[T]]:
+    for at, s in samples:
         key, payload = str(s.key_expr), s.payload.to_bytes()
         try:
             item = accept(key, payload)

@@ -35,16 +35,19 @@ class RtfMeter:
         self._samples: deque[tuple[float, float]] = deque()
         self._first: tuple[float, float] | None = None
         self._last: tuple[float, float] | None = None
+        self._value: float | None = None  # :attr:`value` until the next sample (read several times a tick)
 
     def restart(self) -> None:
         """Forget every sample (a new run of the sim clock begins)."""
         self._samples.clear()
         self._first = self._last = None
+        self._value = None
 
     def add(self, wall: float, sim: float) -> None:
         s = self._samples
         if s and sim < s[-1][1] - REBOOT_BACKSTEP_S:
             self.restart()
+        self._value = None
         self._last = (wall, sim)
         if self._first is None:
             self._first = self._last
@@ -63,7 +66,10 @@ class RtfMeter:
     @property
     def value(self) -> float:
         """RTF over the last ``window_s`` of wall time; NaN until measured."""
-        return self._rate(self._samples[0] if self._samples else None)
+        v = self._value
+        if v is None:
+            v = self._value = self._rate(self._samples[0] if self._samples else None)
+        return v
 
     def total(self) -> float:
         """RTF since the first sample (or the last restart); NaN until measured."""

@@ -29,23 +29,19 @@ class SimClock:
     planned_wake: float = 0.0  # when the host loop was asked to come back
     phase_steps: int = 1  # a backlog is dropped in whole multiples of this many steps' wall time
     _started: bool = field(default=False, repr=False)
+    # Derived, kept as plain attributes (read several times a tick in every virtual UAV; a
+    # property is a call each time): physics_hz and target_rtf do not change after construction.
+    dt: float = field(init=False)  # sim s per step: 1 / physics_hz
+    wall_per_step: float = field(init=False)  # wall s per step: 1 / (physics_hz * target_rtf)
+    sim_time: float = field(init=False)  # sim s since start: steps / physics_hz, set as steps advance
 
     def __post_init__(self) -> None:
         if not self.physics_hz > 0 or not self.target_rtf > 0:
             raise ValueError("physics_hz and target_rtf must be positive")
         self.max_catchup_s = max(0.0, self.max_catchup_s)
-
-    @property
-    def dt(self) -> float:
-        return 1.0 / self.physics_hz
-
-    @property
-    def wall_per_step(self) -> float:
-        return 1.0 / (self.physics_hz * self.target_rtf)
-
-    @property
-    def sim_time(self) -> float:
-        return self.steps / self.physics_hz
+        self.dt = 1.0 / self.physics_hz
+        self.wall_per_step = 1.0 / (self.physics_hz * self.target_rtf)
+        self.sim_time = self.steps / self.physics_hz
 
     @property
     def started(self) -> bool:
@@ -56,6 +52,7 @@ class SimClock:
         self.next_step_wall = wall_now + self.wall_per_step
         self.planned_wake = self.next_step_wall
         self.steps = 0
+        self.sim_time = 0.0
         self.dropped_wall_s = 0.0
         self._started = True
 
@@ -87,6 +84,7 @@ class SimClock:
     def advance(self, k: int = 1) -> None:
         """Account for k steps taken."""
         self.steps += k
+        self.sim_time = self.steps / self.physics_hz
         self.next_step_wall += k * self.wall_per_step
 
     def rtf_total(self, wall_now: float) -> float:
