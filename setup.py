@@ -2,12 +2,13 @@
 
 - ``uav_stack.fcu._dynamics``: the virtual FCU's multirotor step (uav_stack/fcu/_dynamics.c);
 - ``swarmnet._intake``: poses (edge-feed batches, direct poses) into the neighbour table (swarmnet/_intake.c);
-- ``uav_stack._mavcodec``: MAVLink 2 frames of the FCU link's plain messages (uav_stack/_mavcodec.c).
+- ``uav_stack._mavcodec``: MAVLink 2 frames of the FCU link's plain messages (uav_stack/_mavcodec.c);
+- ``uav_stack._udp``: the pending datagrams of a UDP socket in one call (uav_stack/_udp.c).
 
 They are built when a C compiler and Python's headers are there (apt: gcc python3-dev; a pyenv or
 python.org Python brings its headers). Without them the build skips them (``optional=True``) and
 the same rules run in Python. A UAV reports which it runs in its status file
-(``virtual_fcu.dynamics``, ``virtual_fcu.mavlink`` and ``net.intake`` in ``uav<N>.json``).
+(``virtual_fcu.dynamics``, ``virtual_fcu.mavlink``, ``virtual_fcu.udp`` and ``net.intake`` in ``uav<N>.json``).
 """
 
 from setuptools import Extension, setup
@@ -30,6 +31,12 @@ setup(
         Extension(
             "uav_stack._mavcodec",
             ["uav_stack/_mavcodec.c"],
+            extra_compile_args=["-O2"],
+            optional=True,
+        ),
+        Extension(
+            "uav_stack._udp",
+            ["uav_stack/_udp.c"],
             extra_compile_args=["-O2"],
             optional=True,
         ),

@@ -244,11 +244,17 @@ class FcuLink:
         n = 0
         conn, udp = self.conn, self.udp
         parse = conn.parse_datagram if udp is not None else conn.mav.parse_buffer
-        while n < max_messages:
+        datagrams: list[tuple[bytes, Addr]] = []  # (UDP: read all at once, then taken one by one)
+        while n < max_messages or datagrams:  # (what was read is handled: at most a drain's 64 more)
             src: Addr | None = None
             try:
                 if udp is not None:
-                    data, src = udp.recv_from(4096)
+                    if not datagrams:
+                        datagrams = udp.recv_all()
+                        if not datagrams:
+                            break
+                        datagrams.reverse()
+                    data, src = datagrams.pop()
                 else:
                     data = conn.recv(4096)
             except (OSError, ValueError) as exc:  # a dead serial port
@@ -256,6 +262,8 @@ class FcuLink:
                 log.debug("fcu link: %s", exc)
                 break
             if not data:
+                if udp is not None:
+                    continue  # an empty datagram
                 break
             if udp is not None and src != udp.fcu and udp.fcu is not None:
                 self.counts["foreign_source"] += 1  # another local process (or host) posing as the FCU

@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import socket
 
-from uav_stack.udp import Addr, source_address_for
+from uav_stack.udp import Addr, drain, source_address_for
 
 log = logging.getLogger(__name__)
 
@@ -78,18 +78,11 @@ class FcuUdpSocket:
         host, port = self.sock.getsockname()[:2]
         return str(host), int(port)
 
-    def recv_from(self, size: int = 4096) -> tuple[bytes, Addr | None]:
-        """One datagram and its sender, or ``(b"", None)`` when none is pending."""
+    def recv_all(self, max_datagrams: int = 64) -> list[tuple[bytes, Addr]]:
+        """Every pending datagram (at most ``max_datagrams``) and its sender; errors for an
+        earlier send (ECONNREFUSED while the FCU is not up yet) are skipped, not data."""
         assert self.sock is not None
-        for _ in range(8):
-            try:
-                data, addr = self.sock.recvfrom(size)
-            except (BlockingIOError, InterruptedError):
-                break
-            except ConnectionRefusedError:  # ICMP for an earlier send (FCU not up yet): not data
-                continue
-            return data, (addr[0], addr[1])
-        return b"", None
+        return drain(self.sock, max_datagrams)
 
     def write(self, buf: bytes) -> None:
         """To the FCU only; dropped (and counted) while it is unknown (udpin before its heartbeat)."""

@@ -313,6 +313,7 @@ class MavlinkRouter:
         self.takeover: tuple[float, str] | None = None
         self._to_fcu: list[bytes] = []
         self._to_fcu_len = 0
+        self._all_quiet = False  # every endpoint dropping (as of the last poll): frames from the FCU stop here
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> MavlinkRouter:
@@ -336,6 +337,9 @@ class MavlinkRouter:
     def from_fcu(self, msg: Any) -> None:
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         self.fcu.learn(src)
+        if self._all_quiet:  # no ground station listens at any endpoint (UdpEndpoint.refused)
+            self.stats.unheard += 1
+            return
         tsys = getattr(msg, "target_system", 0)
         tcomp = getattr(msg, "target_component", 0)
         if tsys == self.own[0] and tcomp == self.own[1]:
@@ -362,6 +366,7 @@ class MavlinkRouter:
         for ep in self.endpoints:
             for data, addr in ep.recv(self.stats):
                 n += self._route_datagram(ep, data, addr)
+        self._all_quiet = bool(self.endpoints) and all(ep.quiet for ep in self.endpoints)
         if self.signing is not None:
             self._sum_signing()
         return n

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from uav_stack.fcu.dynamics import DYNAMICS
 from uav_stack.mavcodec import MAVCODEC
+from uav_stack.udp import UDP_DRAIN
 
 
 @dataclass
@@ -50,4 +51,5 @@ class FcuStats:
             "failsafes": dict(self.failsafes),
             "dynamics": DYNAMICS,  # which scalar step this process runs: "compiled" or "python"
             "mavlink": MAVCODEC,  # who frames the FCU link's plain messages: "compiled" or "pymavlink"
+            "udp": UDP_DRAIN,  # who reads the UDP sockets of the FCU and the agent's links: "compiled" or "python"
         }
