@@ -135,10 +135,7 @@ class MAVLink(mavlink.MAVLink):
         other datagram wholly to pymavlink's ``parse_buffer``. pymavlink returns bad data as
         ``MAVLink_bad_data`` and may raise on some corrupt frames, as it always did.
         """
-        self.buf = bytearray()
-        self.buf_index = 0
-        self.expected_length = mavlink.HEADER_LEN_V1 + 2
-        self.have_prefix_error = False
+        self._reset()
         if _CODEC is None:
             return self.parse_buffer(data) or []
         msgs: list[Any] | None = _CODEC.decode(data)
@@ -155,11 +152,16 @@ class MAVLink(mavlink.MAVLink):
                 self._took(frame, got)
             else:
                 got = self.parse_buffer(frame) or []
-                self.buf = bytearray()  # (a whole frame leaves nothing behind; a bad one neither)
-                self.buf_index = 0
-                self.expected_length = mavlink.HEADER_LEN_V1 + 2
+                self._reset()  # (a whole frame leaves nothing behind; a bad one neither)
             out.extend(got)
         return out
+
+    def _reset(self) -> None:
+        """pymavlink's parser as new: no partial frame carries over into the next datagram (or frame)."""
+        self.buf = bytearray()
+        self.buf_index = 0
+        self.expected_length = mavlink.HEADER_LEN_V1 + 2
+        self.have_prefix_error = False
 
     def _took(self, data: bytes, msgs: list[Any]) -> None:
         """Count (and call back for) what the compiled pass parsed, as pymavlink's parser does."""
@@ -176,7 +178,7 @@ def split_frames(data: bytes) -> list[bytes] | None:
     Why: a virtual FCU's datagram of a tick holds its 10 Hz plain messages and, once a second,
     a few with arrays or strings (BATTERY_STATUS, HOME_POSITION, NAMED_VALUE_FLOAT) that the
     compiled pass does not take. Cut apart, only those few go to pymavlink, rather than the
-    whole datagram (about 1 ms a second in a lone UAV). Frames are cut by pymavlink's own
+    whole datagram (pymavlink's decodes in a lone UAV's 46 s: 506 before, 92 after). Frames are cut by pymavlink's own
     length rule (header, payload, CRC, a signature when the signed flag is set), so pymavlink
     parses each piece exactly as it would have parsed it within the datagram, bad frames included.
     """
