@@ -168,7 +168,7 @@ class UdpEndpoint(Channel):
         self.parser: Any = VerifyingParser(signing.key, signing.require) if signing else mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.signer = Signer(signing.key, link_id) if signing else None
-        self._out: list[bytes] = []
+        self._out: list[bytes | bytearray] = []
         self._out_len = 0
         self.rx_datagrams = 0
         # udpout: nobody listened at the ground station's port (ICMP port unreachable) until
@@ -252,6 +252,7 @@ class UdpEndpoint(Channel):
 
     def queue(self, msg: Any, stats: RouterStats) -> bool:
         """Queue ``msg``'s frame (signed, on a signed link); False if it cannot be sent here."""
+        buf: bytes | bytearray | None  # pymavlink's own frames are bytearrays
         if self.signer is not None:
             buf = self.signer.sign(msg)
             if buf is None:

@@ -1,0 +1,126 @@
+"""The CPU a virtual UAV's tick spends in each of its parts, measured in the running process.
+
+Why: a UAV's loop wakes ten times a second and runs each piece of its stack once, with the
+caches that other processes evicted in between, so a piece costs several times what it costs in
+a loop of its own (``benchmarks/tick_cost.py`` measures both). A profiler that charges a
+microsecond to every call, or samples a few thousand times a second, shows where the calls
+are, not what each part of the tick costs. This meter reads the thread's CPU clock
+(``CLOCK_THREAD_CPUTIME_ID``, ns) around a fixed list of the tick's parts, about thirty calls
+per tick, and writes, at the end of the run, the calls per tick and the CPU per tick (µs) of
+each part, nested parts included in their callers.
+
+Off unless asked for: ``MRSWARM_TICK_METER=<folder>`` in a virtual UAV's environment
+(``python -m uav_stack.virtual_uav``) writes ``<folder>/tick_uav<N>.json``. It wraps bound
+methods of the live objects (an instance attribute shadows the class's method), so nothing
+changes in the code it measures; a part an object does not have is skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ENV = "MRSWARM_TICK_METER"
+SENSE = "agent: sense (FCU in, own pose out)"  # once per tick, whole or in halves: the tick counter
+
+# (label, path from the roots "fcu" and "agent", method): the parts of a tick, outermost first.
+PARTS: tuple[tuple[str, str, str], ...] = (
+    ("fcu: datagrams in (and steps due)", "fcu", "poll_io"),
+    ("fcu: service (steps, heartbeat, wake-up)", "fcu", "service"),
+    ("fcu: steps due (physics, supervisor, telemetry)", "fcu", "_advance"),
+    ("fcu: physics step (compiled)", "fcu.dyn", "step"),
+    ("fcu: supervisor (failsafes, modes)", "fcu.vehicles[0]", "tick"),
+    ("fcu: telemetry encoded and queued", "fcu.vehicles[0]", "send_due_telemetry"),
+    ("fcu: a datagram handled (setpoints, commands)", "fcu", "_on_datagram"),
+    ("fcu: datagrams sent", "fcu", "_flush"),
+    (SENSE, "agent", "_sense"),
+    ("agent: FCU link read and parsed", "agent.link", "poll"),
+    ("agent: own pose published (Zenoh put)", "agent.node", "publish_pose"),
+    ("agent: act (swarm in, control, reports)", "agent", "_act"),
+    ("agent: swarm in (node poll, commands)", "agent", "react"),
+    ("agent: control (behaviour, setpoint out)", "agent", "_control"),
+    ("agent: failsafes", "agent.failsafes", "step"),
+    ("agent: trajectory row", "agent", "_record"),
+    ("agent: counters file, flushes (1 Hz)", "agent", "write_stats"),
+    ("agent: telemetry published (2 Hz)", "agent.node", "publish_telemetry"),
+    ("agent: state published (1 Hz)", "agent.node", "publish_state"),
+    ("loop: poses of the instant expected", "agent.node", "expect_poses"),
+    ("loop: sleep until the next instant (select)", "agent.node.waker", "wait"),
+)
+
+
+def _resolve(roots: dict[str, Any], path: str) -> Any:
+    """``"fcu.vehicles[0]"`` -> that object, or None where the path ends early."""
+    head, *rest = path.split(".")
+    obj = roots.get(head)
+    for part in rest:
+        if obj is None:
+            return None
+        name, _, index = part.partition("[")
+        obj = getattr(obj, name, None)
+        if index and obj is not None:
+            obj = obj[int(index.rstrip("]"))]
+    return obj
+
+
+class TickMeter:
+    """Thread CPU per part of the tick, from :func:`attach` to :meth:`write`."""
+
+    def __init__(self) -> None:
+        self.totals: dict[str, list[int]] = {}  # label -> [calls, thread CPU ns]
+        self._t0 = time.thread_time_ns()
+        self._wall0 = time.monotonic()
+
+    def wrap(self, obj: Any, method: str, label: str) -> None:
+        fn: Callable[..., Any] = getattr(obj, method)
+        acc = self.totals.setdefault(label, [0, 0])
+        clock = time.thread_time_ns
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                acc[0] += 1
+                acc[1] += clock() - t0
+
+        setattr(obj, method, timed)
+
+    def report(self) -> dict[str, Any]:
+        """Per tick: calls and µs of thread CPU for each part, and the whole thread's."""
+        ticks = max(self.totals.get(SENSE, [0, 0])[0], 1)
+        total_ns = time.thread_time_ns() - self._t0
+        return {
+            "ticks": ticks,
+            "wall_s": round(time.monotonic() - self._wall0, 3),
+            "thread_cpu_us_per_tick": round(total_ns / ticks / 1e3, 1),
+            "parts": [{"part": label, "calls_per_tick": round(n / ticks, 3), "cpu_us_per_tick": round(ns / ticks / 1e3, 1),
+                       "cpu_us_per_call": round(ns / n / 1e3, 1) if n else None}
+                      for label, (n, ns) in self.totals.items()],
+        }
+
+    def write(self, path: Path) -> None:
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(json.dumps(self.report(), indent=1))
+        os.replace(tmp, path)
+
+
+def attach(agent: Any, fcu: Any) -> TickMeter:
+    """A meter on every part in :data:`PARTS` that ``agent`` and ``fcu`` have, from now."""
+    meter = TickMeter()
+    roots = {"agent": agent, "fcu": fcu}
+    for label, path, method in PARTS:
+        obj = _resolve(roots, path)
+        if obj is not None and callable(getattr(obj, method, None)):
+            meter.wrap(obj, method, label)
+    return meter
+
+
+def folder() -> Path | None:
+    """Where to write, from :data:`ENV`; None: the meter is off."""
+    value = os.environ.get(ENV, "")
+    return Path(value) if value else None
