@@ -2,8 +2,8 @@
 
 Two measurements, one after the other on the same machine:
 
-* **the tick, part by part**: a lone virtual UAV in the default configuration
-  (``scale.py --sizes 1 --configs default``) flies with its tick meter on
+* **the tick, part by part**: a lone virtual UAV (or ``--n`` of them, medians over the UAVs)
+  in the default configuration (``scale.py --sizes N --configs default``) flies with its tick meter on
   (``MRSWARM_TICK_METER``, uav_stack/tick_meter.py): the thread CPU (µs) per tick of each part
   of its loop, nested parts included in their callers, and of the whole loop thread;
 * **warm against paused**: a few of those parts' own work, run in this process back to back
@@ -14,6 +14,7 @@ Two measurements, one after the other on the same machine:
 
     python benchmarks/tick_cost.py --out benchmarks/results   # about 2 minutes
     # -> benchmarks/results/tick_cost.{json,csv,png}
+    python benchmarks/tick_cost.py --n 30 --out benchmarks/results   # a UAV of 30: tick_cost_n30.*
 """
 
 from __future__ import annotations
@@ -38,20 +39,34 @@ from benchmarks.output import write_results  # noqa: E402
 PAUSE_S = 0.1  # a UAV's tick period
 
 
-def fly_metered(window: float, work: Path) -> dict[str, Any]:
-    """A lone UAV's tick meter report (uav_stack/tick_meter.py) and the scale benchmark's row."""
+def fly_metered(n: int, window: float, work: Path) -> dict[str, Any]:
+    """N UAVs' tick meter reports (uav_stack/tick_meter.py), as one report of their medians per
+    part, and the scale benchmark's row."""
     meter_dir = work / "meter"
     meter_dir.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, MRSWARM_TICK_METER=str(meter_dir))
     out = work / "scale"
-    res = subprocess.run([sys.executable, "benchmarks/scale.py", "--sizes", "1", "--configs", "default",
+    res = subprocess.run([sys.executable, "benchmarks/scale.py", "--sizes", str(n), "--configs", "default",
                           "--window", str(window), "--out", str(out)], cwd=ROOT, env=env, capture_output=True,
-                         text=True, timeout=300 + window)
-    report = meter_dir / "tick_uav1.json"
-    if res.returncode != 0 or not report.exists():
-        raise SystemExit(f"the metered lone UAV did not fly:\n{res.stdout[-2000:]}\n{res.stderr[-2000:]}")
+                         text=True, timeout=600 + window)
+    reports = [json.loads(p.read_text()) for p in sorted(meter_dir.glob("tick_uav*.json"))]
+    if res.returncode != 0 or len(reports) != n:
+        raise SystemExit(f"the metered UAVs did not fly ({len(reports)} of {n} reports):\n{res.stdout[-2000:]}\n"
+                         f"{res.stderr[-2000:]}")
     row = json.loads((out / "scale.json").read_text())["rows"][0]
-    return {"meter": json.loads(report.read_text()), "cpu_pct": row["cpu_pct_median"], "rtf_min": row["rtf_min"]}
+    return {"n": n, "meter": median_report(reports), "cpu_pct": row["cpu_pct_median"], "rtf_min": row["rtf_min"]}
+
+
+def median_report(reports: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per part, the median over the UAVs of each figure (one UAV: its own report)."""
+    med = statistics.median
+    parts = []
+    for i, part in enumerate(reports[0]["parts"]):
+        each = [r["parts"][i] for r in reports]
+        parts.append({"part": part["part"], "calls_per_tick": round(med(p["calls_per_tick"] for p in each), 3),
+                      "cpu_us_per_tick": round(med(p["cpu_us_per_tick"] for p in each), 1)})
+    return {"uavs": len(reports), "ticks": med(r["ticks"] for r in reports), "parts": parts,
+            "thread_cpu_us_per_tick": round(med(r["thread_cpu_us_per_tick"] for r in reports), 1)}
 
 
 def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Callable[[], None]]:
@@ -105,7 +120,8 @@ def plot(meter: dict[str, Any], micro: list[dict[str, Any]], path: Path) -> None
     a.barh([p["part"] for p in parts], [p["cpu_us_per_tick"] for p in parts], color="tab:blue")
     a.invert_yaxis()
     a.set_xlabel("thread CPU per tick, µs (nested parts included in their callers)")
-    a.set_title(f"A lone UAV's tick: {meter['thread_cpu_us_per_tick']:.0f} µs of its loop thread")
+    who = "A lone UAV's tick" if meter["uavs"] == 1 else f"A UAV of {meter['uavs']}: its tick (medians)"
+    a.set_title(f"{who}: {meter['thread_cpu_us_per_tick']:.0f} µs of its loop thread")
     a.tick_params(axis="y", labelsize=7)
     x = range(len(micro))
     b.bar([i - 0.2 for i in x], [m["warm_us"] for m in micro], 0.4, label="back to back")
@@ -122,15 +138,16 @@ def plot(meter: dict[str, Any], micro: list[dict[str, Any]], path: Path) -> None
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--window", type=float, default=40.0, help="s of the lone UAV's measurement window")
+    ap.add_argument("--n", type=int, default=1, help="UAVs flown (the figures are their medians)")
+    ap.add_argument("--window", type=float, default=40.0, help="s of the scale benchmark's measurement window")
     ap.add_argument("--paused-calls", type=int, default=60, help="calls per part 100 ms apart")
     ap.add_argument("--out", type=Path, default=None, help="folder for tick_cost.{json,csv,png} (default: print only)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="mrswarm-tick-") as tmp:
         work = Path(tmp)
-        flight = fly_metered(args.window, work)
+        flight = fly_metered(args.n, args.window, work)
         meter = flight["meter"]
-        print(f"lone UAV: {meter['ticks']} ticks, its loop thread {meter['thread_cpu_us_per_tick']:.0f} µs per tick "
+        print(f"N = {args.n}: {meter['ticks']} ticks, the loop thread {meter['thread_cpu_us_per_tick']:.0f} µs per tick "
               f"(process {flight['cpu_pct']:.2f} % of a core, RTF min {flight['rtf_min']:.3f})")
         for p in meter["parts"]:
             print(f"  {p['part']:50s} {p['calls_per_tick']:5.2f} calls  {p['cpu_us_per_tick']:7.1f} µs")
@@ -150,8 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         rows = [{"kind": "tick", **p} for p in meter["parts"]] + [{"kind": "warm_vs_paused", **m} for m in micro]
         record = {"args": {k: str(v) for k, v in vars(args).items()}, "flight": flight, "warm_vs_paused": micro}
-        write_results(args.out, "tick_cost", record, rows)
-        plot(meter, micro, args.out / "tick_cost.png")
+        name = "tick_cost" if args.n == 1 else f"tick_cost_n{args.n}"
+        write_results(args.out, name, record, rows)
+        plot(meter, micro, args.out / f"{name}.png")
     return 0
 
 
