@@ -37,7 +37,7 @@ from uav_stack.fcu.modes import (
 from uav_stack.fcu.offboard import Setpoint, SetpointStream
 from uav_stack.fcu.params import Action, ParamStore, Settings, ardupilot_param_defs, derive_settings, px4_param_defs
 from uav_stack.fcu.stats import FcuStats
-from uav_stack.fcu.telemetry import ENCODERS, StreamSet, heartbeat
+from uav_stack.fcu.telemetry import ENCODERS, FRAMERS, StreamSet, heartbeat
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink
 from uav_stack.mavcodec import pack
@@ -153,6 +153,13 @@ class Vehicle:
         self.link.queue(buf)
         self.ctx.stats.messages_out += 1
 
+    def send_frame(self, frame: bytes) -> None:
+        """A frame already packed with this vehicle's next sequence number (telemetry.FRAMERS)."""
+        mav = self.mav
+        mav.seq = (mav.seq + 1) & 0xFF
+        self.link.queue(frame)
+        self.ctx.stats.messages_out += 1
+
     def send_heartbeat(self) -> None:
         if self.in_command:  # after the COMMAND_ACK, like PX4 (its next heartbeat shows the change)
             self.hb_after_ack = True
@@ -228,6 +235,12 @@ class Vehicle:
         for name in st.due(now):
             if name == "HEARTBEAT":
                 continue  # paced on wall time, see VirtualFcu.service
+            framer = FRAMERS.get(name)
+            if framer is not None:
+                frame = framer(self)  # the whole frame in one compiled call, when it can
+                if frame is not None:
+                    self.send_frame(frame)
+                    continue
             msg = ENCODERS[name](self)
             if msg is not None:  # None: nothing to say yet (no position before the first fix)
                 self.send(msg)
