@@ -8,8 +8,9 @@ Two measurements, one after the other on the same machine:
   of its loop, nested parts included in their callers, and of the whole loop thread;
 * **warm against paused**: a few of those parts' own work, run in this process back to back
   (warm caches, the cost a micro-benchmark shows) and 100 ms apart (as a UAV's tick runs them,
-  after other processes have run): the FCU's GLOBAL_POSITION_INT and ATTITUDE encoders, the
-  pose's encoding and the counters file's atomic replace. The ratio is what running once per
+  after other processes have run): the FCU's GLOBAL_POSITION_INT and ATTITUDE encoders (and
+  GLOBAL_POSITION_INT's compiled frame, when built), the pose's encoding and the counters
+  file's atomic replace. The ratio is what running once per
   tick costs over running in a loop.
 
     python benchmarks/tick_cost.py --out benchmarks/results   # about 2 minutes
@@ -73,7 +74,7 @@ def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Calla
     """The callables measured warm and paused, and what closes what they opened."""
     from swarmnet.messages import Pose, Realm, encode_pose
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu
-    from uav_stack.fcu.telemetry import ENCODERS
+    from uav_stack.fcu.telemetry import ENCODERS, FRAMERS
     from uav_stack.recorder import write_json_atomic
 
     fcu = VirtualFcu(FcuConfig(vehicles=[VehicleConfig(sysid=1, listen=("127.0.0.1", 0))]))
@@ -92,9 +93,18 @@ def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Calla
         clock.steps += 1  # a new step: the geodetic position is computed anew, as in flight
         return gpi(v)
 
-    return ({"GLOBAL_POSITION_INT encoded": position, "ATTITUDE encoded": lambda: att(v),
-             "pose encoded": lambda: encode_pose(pose), "counters file replaced": lambda: write_json_atomic(path, counters)},
-            fcu.close)
+    parts: dict[str, Callable[[], object]] = {"GLOBAL_POSITION_INT encoded": position}
+    framer = FRAMERS.get("GLOBAL_POSITION_INT")
+    if framer is not None:  # the compiled frame (uav_stack/fcu/_telemetry.c), its Python call included
+
+        def framed() -> object:
+            clock.steps += 1
+            return framer(v)
+
+        parts["GLOBAL_POSITION_INT framed (compiled)"] = framed
+    parts.update({"ATTITUDE encoded": lambda: att(v), "pose encoded": lambda: encode_pose(pose),
+                  "counters file replaced": lambda: write_json_atomic(path, counters)})
+    return parts, fcu.close
 
 
 def thread_us(fn: Callable[[], object], n: int, pause: float) -> float:
@@ -142,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--window", type=float, default=40.0, help="s of the scale benchmark's measurement window")
     ap.add_argument("--paused-calls", type=int, default=60, help="calls per part 100 ms apart")
     ap.add_argument("--out", type=Path, default=None, help="folder for tick_cost.{json,csv,png} (default: print only)")
+    ap.add_argument("--tag", default=None, help="output file names: <tag>.json/.csv/.png (default: tick_cost, tick_cost_n<N>)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="mrswarm-tick-") as tmp:
         work = Path(tmp)
@@ -167,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         rows = [{"kind": "tick", **p} for p in meter["parts"]] + [{"kind": "warm_vs_paused", **m} for m in micro]
         record = {"args": {k: str(v) for k, v in vars(args).items()}, "flight": flight, "warm_vs_paused": micro}
-        name = "tick_cost" if args.n == 1 else f"tick_cost_n{args.n}"
+        name = args.tag or ("tick_cost" if args.n == 1 else f"tick_cost_n{args.n}")
         write_results(args.out, name, record, rows)
         plot(meter, micro, args.out / f"{name}.png")
     return 0
