@@ -20,6 +20,7 @@ setup(
         Extension(
             "uav_stack.fcu._dynamics",
             ["uav_stack/fcu/_dynamics.c"],
+            depends=["uav_stack/fcu/_pyfloat.h"],
             # no fused multiply-add: the same rounding as the Python step, so both fly alike
             extra_compile_args=["-O2", "-ffp-contract=off"],
             optional=True,
@@ -27,6 +28,7 @@ setup(
         Extension(
             "uav_stack.fcu._telemetry",
             ["uav_stack/fcu/_telemetry.c"],
+            depends=["uav_stack/fcu/_pyfloat.h", "uav_stack/_x25crc.h"],
             extra_compile_args=["-O2", "-ffp-contract=off"],  # the same rounding as the Python encoder
             optional=True,
         ),
@@ -39,6 +41,7 @@ setup(
         Extension(
             "uav_stack._mavcodec",
             ["uav_stack/_mavcodec.c"],
+            depends=["uav_stack/_x25crc.h"],
             extra_compile_args=["-O2"],
             optional=True,
         ),

@@ -91,13 +91,19 @@ def compiled_copy(dest: Path, jobs: int) -> float:
                          timeout=3600)
     if res.returncode != 0:
         raise SystemExit(f"cythonize failed (is Cython installed, with gcc and Python's headers?):\n{res.stderr[-3000:]}")
-    for mod in HOT_MODULES:
-        src = dest / mod
-        if not list(src.parent.glob(src.stem + ".*.so")):
-            raise SystemExit(f"cythonize built no extension for {mod}")
+    for src in built(dest, HOT_MODULES, "cythonize"):
         src.unlink()  # only the compiled module can load now
         src.with_suffix(".c").unlink(missing_ok=True)
     return time.monotonic() - t0
+
+
+def built(dest: Path, modules: list[str], compiler: str) -> list[Path]:
+    """The sources of ``modules`` under ``dest``, each checked to have its compiled extension beside it."""
+    sources = [dest / mod for mod in modules]
+    for src in sources:
+        if not list(src.parent.glob(src.stem + ".*.so")):
+            raise SystemExit(f"{compiler} built no extension for {src.relative_to(dest)}")
+    return sources
 
 
 def mypyc_copy(dest: Path) -> float:
@@ -119,10 +125,7 @@ def mypyc_copy(dest: Path) -> float:
     res = subprocess.run([sys.executable, "-c", build], cwd=dest, capture_output=True, text=True, timeout=3600)
     if res.returncode != 0:
         raise SystemExit(f"mypyc failed (is mypy installed, with gcc and Python's headers?):\n{res.stdout[-3000:]}")
-    for mod in MYPYC_MODULES:
-        src = dest / mod
-        if not list(src.parent.glob(src.stem + ".*.so")):
-            raise SystemExit(f"mypyc built no extension for {mod}")
+    built(dest, MYPYC_MODULES, "mypyc")
     return time.monotonic() - t0
 
 

@@ -12,6 +12,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <string.h>
+#include "_x25crc.h"
 
 #define MAGIC_V2 0xFD
 #define HEADER_LEN 10
@@ -32,15 +33,6 @@ typedef struct {
 
 /* A spec tuple: (cls, msgid, crc_extra, unpack, pack, size, wire_names, template) */
 enum { SP_CLS, SP_ID, SP_EXTRA, SP_UNPACK, SP_PACK, SP_SIZE, SP_NAMES, SP_TEMPLATE, SP_LEN };
-
-static uint16_t crc_accumulate(uint16_t crc, const unsigned char *p, Py_ssize_t n) {
-    for (Py_ssize_t i = 0; i < n; i++) {
-        uint8_t tmp = p[i] ^ (uint8_t)(crc & 0xFF);
-        tmp ^= (uint8_t)(tmp << 4);
-        crc = (uint16_t)((crc >> 8) ^ ((uint16_t)tmp << 8) ^ ((uint16_t)tmp << 3) ^ (tmp >> 4));
-    }
-    return crc;
-}
 
 static uint16_t frame_crc(const unsigned char *frame, Py_ssize_t plen, uint8_t extra) {
     uint16_t crc = crc_accumulate(0xFFFF, frame + 1, HEADER_LEN - 1 + plen);

@@ -18,23 +18,13 @@
 #include <Python.h>
 #include <math.h>
 #include <string.h>
+#include "_pyfloat.h"
 
 #define G 9.80665
 #define PYMIN(a, b) ((b) < (a) ? (b) : (a))
 #define PYMAX(a, b) ((b) > (a) ? (b) : (a))
 
 static const double TWO_PI = 2.0 * M_PI;
-
-/* Python's float %: the result has the sign of the divisor. */
-static double py_mod(double x, double y) {
-    double m = fmod(x, y);
-    if (m != 0.0) {
-        if ((y < 0.0) != (m < 0.0)) m += y;
-    } else {
-        m = copysign(0.0, y);
-    }
-    return m;
-}
 
 /* The arrays step() reads and writes, by attribute name, with their kind:
  * 'v': (n, 3) float64, 'f': (n,) float64, 'b': (n,) bool. */

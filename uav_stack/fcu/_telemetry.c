@@ -21,6 +21,8 @@
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include "_pyfloat.h"
+#include "../_x25crc.h"
 
 #define MSG_ID 33        /* GLOBAL_POSITION_INT */
 #define CRC_EXTRA 104
@@ -33,26 +35,6 @@ static double A, B, F, E2, EP2, RAD80;
 static int configured;
 
 static const double RAD_TO_DEG = 180.0 / 3.141592653589793;  /* CPython's math.degrees factor */
-
-static uint16_t crc_accumulate(uint16_t crc, const unsigned char *p, Py_ssize_t n) {
-    for (Py_ssize_t i = 0; i < n; i++) {
-        uint8_t tmp = p[i] ^ (uint8_t)(crc & 0xFF);
-        tmp ^= (uint8_t)(tmp << 4);
-        crc = (uint16_t)((crc >> 8) ^ ((uint16_t)tmp << 8) ^ ((uint16_t)tmp << 3) ^ (tmp >> 4));
-    }
-    return crc;
-}
-
-/* Python's float % (the sign of the divisor). */
-static double py_mod(double x, double y) {
-    double m = fmod(x, y);
-    if (m != 0.0) {
-        if ((y < 0.0) != (m < 0.0)) m += y;
-    } else {
-        m = copysign(0.0, y);
-    }
-    return m;
-}
 
 /* telemetry._i32 / _i16: rounded half to even, held in range, non-finite -> 0 */
 static int32_t i32(double x) {
