@@ -147,14 +147,10 @@ class Vehicle:
         return self.dll_tripped or self.fence_breached or self.bat_level >= 2
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
-        mav = self.mav
-        buf = pack(msg, mav)
-        mav.seq = (mav.seq + 1) & 0xFF
-        self.link.queue(buf)
-        self.ctx.stats.messages_out += 1
+        self.send_frame(pack(msg, self.mav))
 
     def send_frame(self, frame: bytes) -> None:
-        """A frame already packed with this vehicle's next sequence number (telemetry.FRAMERS)."""
+        """A frame packed with this vehicle's next sequence number (by :meth:`send`, or whole by telemetry.FRAMERS)."""
         mav = self.mav
         mav.seq = (mav.seq + 1) & 0xFF
         self.link.queue(frame)
