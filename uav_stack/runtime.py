@@ -323,13 +323,12 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     agent = Agent(a, node, link, router=router)
     agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
     faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
-    meter_dir = tick_meter.folder()
-    meter = tick_meter.attach(agent, fcu) if meter_dir is not None else None
+    meter = tick_meter.attach(agent, fcu)  # None unless the environment asks for it
     try:
         run_loop(agent, stop, faults, cfg.duration)
     finally:
-        if meter is not None and meter_dir is not None:
-            meter.write(meter_dir / f"tick_uav{a.uav}.json")
+        if meter is not None:
+            meter.write(f"tick_uav{a.uav}.json")
         agent.close(time.time())
         node.close()
         link.close()

@@ -17,12 +17,13 @@ changes in the code it measures; a part an object does not have is skipped.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from uav_stack.recorder import write_json_atomic
 
 ENV = "MRSWARM_TICK_METER"
 SENSE = "agent: sense (FCU in, own pose out)"  # once per tick, whole or in halves: the tick counter
@@ -77,9 +78,10 @@ def _resolve(roots: dict[str, Any], path: str) -> Any:
 
 
 class TickMeter:
-    """Thread CPU per part of the tick, from :func:`attach` to :meth:`write`."""
+    """Thread CPU per part of the tick, from :func:`attach` to :meth:`write`, into ``folder``."""
 
-    def __init__(self) -> None:
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
         self.totals: dict[str, list[int]] = {}  # label -> [calls, thread CPU ns]
         self._t0 = time.thread_time_ns()
         self._wall0 = time.monotonic()
@@ -112,24 +114,21 @@ class TickMeter:
                       for label, (n, ns) in self.totals.items()],
         }
 
-    def write(self, path: Path) -> None:
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(self.report(), indent=1))
-        os.replace(tmp, path)
+    def write(self, name: str) -> None:
+        """The report, as ``folder/name`` (replaced whole)."""
+        write_json_atomic(self.folder / name, self.report())
 
 
-def attach(agent: Any, fcu: Any) -> TickMeter:
-    """A meter on every part in :data:`PARTS` that ``agent`` and ``fcu`` have, from now."""
-    meter = TickMeter()
+def attach(agent: Any, fcu: Any) -> TickMeter | None:
+    """A meter on every part in :data:`PARTS` that ``agent`` and ``fcu`` have, from now, writing
+    into the folder :data:`ENV` names; None when it names none (the meter is off)."""
+    value = os.environ.get(ENV, "")
+    if not value:
+        return None
+    meter = TickMeter(Path(value))
     roots = {"agent": agent, "fcu": fcu}
     for label, path, method in PARTS:
         obj = _resolve(roots, path)
         if obj is not None and callable(getattr(obj, method, None)):
             meter.wrap(obj, method, label)
     return meter
-
-
-def folder() -> Path | None:
-    """Where to write, from :data:`ENV`; None: the meter is off."""
-    value = os.environ.get(ENV, "")
-    return Path(value) if value else None
