@@ -5,8 +5,7 @@ with its own Zenoh session and a real MAVLink/UDP link between the two. The runt
 starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Every child (UAVs,
 edge router, discovery server) gets its own process group and ``PR_SET_PDEATHSIG`` (SIGTERM) before it execs, so
 it dies with the runner even when the runner is killed with SIGKILL, and :meth:`ProcessRuntime.stop` escalates
-from SIGTERM to SIGKILL, so nothing outlives the run. Each UAV process is pinned to one CPU, round-robin
-(``process.cpu_affinity``, :class:`~deploy.settings.ProcessSettings`). :meth:`ProcessRuntime.signal` and
+from SIGTERM to SIGKILL, so nothing outlives the run. :meth:`ProcessRuntime.signal` and
 :meth:`ProcessRuntime.restart` let a supervisor or a fault schedule act on one child.
 """
 
@@ -28,7 +27,6 @@ from typing import Any
 
 from msgspec.structs import replace
 
-from deploy.settings import ProcessSettings
 from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions
 from swarmnet.interest import Interest
@@ -44,36 +42,20 @@ except (OSError, AttributeError):
     _prctl = None
 
 
-def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM, cpu: int | None = None) -> Callable[[], None]:
-    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies,
-    and pins it to CPU ``cpu`` if given.
+def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies.
 
     Runs in the child between fork and exec, so no start-up race: if the parent is already gone
-    by then, the child exits at once instead of running as an orphan; and every thread the
-    program starts later inherits the CPU. A CPU that cannot be had (taken offline since the
-    runner looked) leaves the child unpinned rather than unstarted.
+    by then, the child exits at once instead of running as an orphan.
     """
 
     def set_pdeathsig() -> None:
         if _prctl is not None:
             _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-        if cpu is not None:
-            with contextlib.suppress(OSError):
-                os.sched_setaffinity(0, (cpu,))
         if os.getppid() != parent:
             os._exit(1)
 
     return set_pdeathsig
-
-
-def uav_cpus(settings: ProcessSettings) -> list[int]:
-    """The CPUs UAV processes are pinned to in turn: those this process may use (its affinity,
-    which a container's or a ``taskset``'s limit already narrows), or none to pin to
-    (``cpu_affinity: none``, or a single CPU, where pinning changes nothing)."""
-    if settings.cpu_affinity == "none" or not hasattr(os, "sched_getaffinity"):
-        return []
-    cpus = sorted(os.sched_getaffinity(0))
-    return cpus if len(cpus) > 1 else []
 
 
 def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str]]:
@@ -128,8 +110,7 @@ class Child:
 class ProcessRuntime:
     name = "process"
 
-    def __init__(self, run_dir: Path, python: str = sys.executable, log_level: str = "INFO",
-                 settings: ProcessSettings | None = None):
+    def __init__(self, run_dir: Path, python: str = sys.executable, log_level: str = "INFO"):
         self.run_dir = run_dir
         self.python = python
         self.log_level = log_level
@@ -137,10 +118,6 @@ class ProcessRuntime:
         self.keys: Path | None = None
         self.interest: Interest | None = None
         self._py, self._env = child_python(python)
-        self._cpus = uav_cpus(settings or ProcessSettings())
-        self.cpu_of: dict[str, int] = {}  # UAV process name -> the CPU it is pinned to (kept on restart)
-        if self._cpus:
-            log.info("UAV processes pinned round-robin to CPUs %s (process.cpu_affinity: spread)", self._cpus)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
@@ -268,19 +245,9 @@ class ProcessRuntime:
                 log.warning("%s: cannot open %s (%s); its output is discarded", name, log_path, exc.strerror)
                 out = subprocess.DEVNULL
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                    env=self._env, preexec_fn=die_with_parent_preexec(os.getpid(), _death_signal(name),
-                                                                                      self._cpu_for(name)))
+                                    env=self._env, preexec_fn=die_with_parent_preexec(os.getpid(), _death_signal(name)))
         old = self.children.get(name)
         self.children[name] = Child(name, proc, log_path, argv, old.starts + 1 if old else 1)
-
-    def _cpu_for(self, name: str) -> int | None:
-        """The CPU a UAV process is pinned to: the next in turn at its first start, the same at a
-        restart. Services (routers, discovery, world) are left to the scheduler."""
-        if not self._cpus or not name.startswith("uav"):
-            return None
-        if name not in self.cpu_of:
-            self.cpu_of[name] = self._cpus[len(self.cpu_of) % len(self._cpus)]
-        return self.cpu_of[name]
 
     # ---- acting on one child (supervisor, fault schedule) --------------------------------------
     def signal(self, name: str, sig: int) -> bool:

@@ -79,4 +79,4 @@ def make_runtime(scn: Scenario, run_dir: Path, log_level: str = "INFO") -> Runti
         return DockerRuntime(run_dir, log_level=log_level, settings=scn.docker, swarm=scn.swarm)
     from deploy.process_runtime import ProcessRuntime
 
-    return ProcessRuntime(run_dir, log_level=log_level, settings=scn.process)
+    return ProcessRuntime(run_dir, log_level=log_level)

@@ -7,8 +7,8 @@ so an override that breaks a rule is reported like a bad file:
 
 The types are msgspec Structs (``swarmnet.schema``). Where a section has the shape of a lower
 layer's settings it is that type: ``network.netem`` is :class:`~swarmnet.netem.config.NetemSpec`,
-``network.discovery`` is :class:`~discovery.options.DiscoveryService`, ``process`` is
-:class:`~deploy.settings.ProcessSettings`, ``docker`` is :class:`~deploy.settings.ContainerSettings`.
+``network.discovery`` is :class:`~discovery.options.DiscoveryService`, ``docker`` is
+:class:`~deploy.settings.ContainerSettings`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import yaml
 from msgspec import Meta, field
 from msgspec.structs import force_setattr, replace
 
-from deploy.settings import ContainerSettings, ProcessSettings
+from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against
 from swarmnet.interest import Interest
@@ -331,7 +331,6 @@ class Scenario(Config, kw_only=True, frozen=True):
     uavs: tuple[Uav, ...] | None = None
     gcs: Gcs = field(default_factory=Gcs)
     runtime: Literal["process", "docker"] = "process"
-    process: ProcessSettings = field(default_factory=ProcessSettings)  # UAV processes: CPU affinity
     docker: ContainerSettings = field(default_factory=ContainerSettings)
     failsafe: FailsafeConfig = field(default_factory=FailsafeConfig)  # companion failsafes (docs/reliability.md)
     faults: tuple[FaultSpec, ...] = ()  # chaos: faults injected during the mission (docs/reliability.md)

@@ -76,11 +76,6 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     assert {st["virtual_fcu"]["mavlink"] for st in status} == {"compiled"}
     assert {st["virtual_fcu"]["udp"] for st in status} == {"compiled"}
     assert {st["virtual_fcu"]["telemetry"] for st in status} == {"compiled"}
-    # each UAV process ran pinned to one CPU, the four spread over the CPUs the run could use
-    cpus = sorted(os.sched_getaffinity(0))
-    if len(cpus) > 1:
-        pinned = [st["cpus"] for st in sorted(status, key=lambda st: st["uav"])]
-        assert all(len(c) == 1 for c in pinned) and {c[0] for c in pinned} == set(cpus[:4])
     takeoff = summary["takeoff"]
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000

@@ -322,8 +322,6 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     node = open_node(a, stop, tap_zenoh_log)
     agent = Agent(a, node, link, router=router)
     agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
-    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-    agent.stats_sources["cpus"] = lambda: cpus  # where it may run: one CPU when pinned (process.cpu_affinity)
     faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
     meter = tick_meter.attach(agent, fcu)  # None unless the environment asks for it
     try:
