@@ -17,8 +17,9 @@ A variant is code, environment or both:
 * neither: an A/A run, which measures the method's own spread.
 
 B flies the odd UAVs in even rounds and the even UAVs in odd rounds, so that a UAV's place in the
-swarm does not count as B's. Per round: the median CPU (% of one core, over ``--window`` s, as
-benchmarks/scale.py measures it) and RSS of each half, their ratio B/A, and each half's slowest
+swarm does not count as B's. Per round: the median CPU of each half (% of one core, over
+``--window`` s, from the scheduler's nanosecond account of each process's threads; the ratio of
+benchmarks/scale.py's clock-tick figures beside it), their ratio B/A, each half's RSS and slowest
 RTF. Writes ``<tag>.json``, ``<tag>.csv`` and ``<tag>.png`` into ``--out``.
 
     python benchmarks/paired.py --n 10 --rounds 4 --b-env PYTHONMALLOC=malloc --tag paired_malloc
@@ -32,6 +33,7 @@ import os
 import statistics
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -46,23 +48,55 @@ from benchmarks.scale import CONFIGS, Sampler, scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
 
 
+def thread_ns(pid: int) -> dict[int, int] | None:
+    """CPU time (ns) each thread of process ``pid`` has run so far, by thread id, from the
+    scheduler's own account (``/proc/<pid>/task/*/schedstat``); None if the process is gone.
+    Nanoseconds rather than the 10 ms clock ticks of ``cpu_times()``: 40 s of a UAV at 2 % are 80
+    ticks, so one tick is more than 1 % of the reading."""
+    out: dict[int, int] = {}
+    for stat in Path(f"/proc/{pid}/task").glob("*/schedstat"):
+        try:
+            out[int(stat.parent.name)] = int(stat.read_text().split()[0])
+        except (OSError, ValueError, IndexError):  # a thread that ended meanwhile
+            pass
+    return out or None
+
+
+def window_ns(before: dict[int, int], after: dict[int, int]) -> int:
+    """CPU time (ns) a process's threads ran between two :func:`thread_ns` readings. A thread
+    started in between counts from its start; one that ended in between is missed (a UAV's
+    threads live as long as it does)."""
+    return sum(ns - before.get(tid, 0) for tid, ns in after.items())
+
+
 class PairedSampler(Sampler):
     """:class:`~benchmarks.scale.Sampler`, also keeping each UAV process's environment as the window
-    opens: the proof that each half flew what it was meant to."""
+    opens (the proof that each half flew what it was meant to) and its CPU in nanoseconds
+    (:func:`thread_ns`) over the same window, in ``result[name]["cpu_pct_ns"]``."""
 
     def __init__(self, warmup: float, window: float):
         super().__init__(warmup, window)
         self.environ: dict[str, dict[str, str]] = {}
+        self._ns0: dict[str, tuple[float, dict[int, int]]] = {}
 
     def __call__(self, exp: Experiment, elapsed: float) -> None:
+        opened, closed = self.t_start is not None, self.t_end is not None
         super().__call__(exp, elapsed)
-        if self.start and not self.environ:
-            for name, (_cpu, proc) in self.start.items():
-                if name.startswith("uav"):
-                    try:
-                        self.environ[name] = proc.environ()
-                    except Exception:  # noqa: BLE001 - gone, or not ours to read: left unchecked
-                        pass
+        uavs = {name: proc for name, (_cpu, proc) in self.start.items() if name.startswith("uav")}
+        if not opened and self.t_start is not None:
+            for name, proc in uavs.items():
+                ns = thread_ns(proc.pid)
+                if ns is not None:
+                    self._ns0[name] = (time.monotonic(), ns)
+                try:
+                    self.environ[name] = proc.environ()
+                except Exception:  # noqa: BLE001 - gone, or not ours to read: left unchecked
+                    pass
+        if not closed and self.t_end is not None:
+            for name, (t0, ns0) in self._ns0.items():
+                ns = thread_ns(uavs[name].pid)
+                if ns is not None and name in self.result:
+                    self.result[name]["cpu_pct_ns"] = 100.0 * window_ns(ns0, ns) / 1e9 / (time.monotonic() - t0)
 
 
 def check_halves(environ: dict[str, dict[str, str]], rnd: int, b_env: dict[str, str], b_tree: Path | None) -> None:
@@ -107,12 +141,13 @@ def fly_round(rnd: int, args: argparse.Namespace, b_env: dict[str, str], b_tree:
     summary = exp.run().to_dict()
     check_halves(sampler.environ, rnd, b_env, b_tree)
     rtf = summary.get("rtf", {}).get("per_uav", {})
-    halves: dict[str, dict[str, list[float]]] = {"a": {"cpu": [], "rss": [], "rtf": []}, "b": {"cpu": [], "rss": [], "rtf": []}}
+    halves: dict[str, dict[str, list[float]]] = {k: {"cpu": [], "ticks": [], "rss": [], "rtf": []} for k in ("a", "b")}
     for name, r in sampler.result.items():
         if not name.startswith("uav"):
             continue
         h = halves["b" if b_flies(name, rnd) else "a"]
-        h["cpu"].append(r["cpu_pct"])
+        h["cpu"].append(r.get("cpu_pct_ns", r["cpu_pct"]))
+        h["ticks"].append(r["cpu_pct"])
         h["rss"].append(r["rss_mb"])
         if name[3:] in rtf:
             h["rtf"].append(rtf[name[3:]])
@@ -121,7 +156,8 @@ def fly_round(rnd: int, args: argparse.Namespace, b_env: dict[str, str], b_tree:
     a, b = (statistics.median(halves[k]["cpu"]) for k in ("a", "b"))
     row = {
         "round": rnd, "b_uavs": "odd" if rnd % 2 == 0 else "even", "n_a": len(halves["a"]["cpu"]), "n_b": len(halves["b"]["cpu"]),
-        "cpu_pct_a": round(a, 3), "cpu_pct_b": round(b, 3), "ratio_b_a": round(b / a, 4),
+        "cpu_pct_a": round(a, 4), "cpu_pct_b": round(b, 4), "ratio_b_a": round(b / a, 4),
+        "ratio_b_a_ticks": round(statistics.median(halves["b"]["ticks"]) / statistics.median(halves["a"]["ticks"]), 4),
         "rss_mb_a": round(statistics.median(halves["a"]["rss"]), 1), "rss_mb_b": round(statistics.median(halves["b"]["rss"]), 1),
         "rtf_min_a": min(halves["a"]["rtf"], default=None), "rtf_min_b": min(halves["b"]["rtf"], default=None),
         "checked_uavs": len(sampler.environ),
