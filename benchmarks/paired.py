@@ -82,9 +82,10 @@ class PairedSampler(Sampler):
     def __call__(self, exp: Experiment, elapsed: float) -> None:
         opened, closed = self.t_start is not None, self.t_end is not None
         super().__call__(exp, elapsed)
-        uavs = {name: proc for name, (_cpu, proc) in self.start.items() if name.startswith("uav")}
-        if not opened and self.t_start is not None:
-            for name, proc in uavs.items():
+        if not opened and self.t_start is not None:  # the window has just opened
+            for name, (_cpu, proc) in self.start.items():
+                if not name.startswith("uav"):
+                    continue
                 ns = thread_ns(proc.pid)
                 if ns is not None:
                     self._ns0[name] = (time.monotonic(), ns)
@@ -92,9 +93,9 @@ class PairedSampler(Sampler):
                     self.environ[name] = proc.environ()
                 except Exception:  # noqa: BLE001 - gone, or not ours to read: left unchecked
                     pass
-        if not closed and self.t_end is not None:
+        if not closed and self.t_end is not None:  # the window has just closed
             for name, (t0, ns0) in self._ns0.items():
-                ns = thread_ns(uavs[name].pid)
+                ns = thread_ns(self.start[name][1].pid)
                 if ns is not None and name in self.result:
                     self.result[name]["cpu_pct_ns"] = 100.0 * window_ns(ns0, ns) / 1e9 / (time.monotonic() - t0)
 
@@ -155,7 +156,8 @@ def fly_round(rnd: int, args: argparse.Namespace, b_env: dict[str, str], b_tree:
         raise SystemExit(f"round {rnd}: no measurement ({summary.get('aborted')}); see {summary.get('run_dir')}")
     a, b = (statistics.median(halves[k]["cpu"]) for k in ("a", "b"))
     row = {
-        "round": rnd, "b_uavs": "odd" if rnd % 2 == 0 else "even", "n_a": len(halves["a"]["cpu"]), "n_b": len(halves["b"]["cpu"]),
+        "round": rnd, "b_uavs": "odd" if b_flies("uav1", rnd) else "even",
+        "n_a": len(halves["a"]["cpu"]), "n_b": len(halves["b"]["cpu"]),
         "cpu_pct_a": round(a, 4), "cpu_pct_b": round(b, 4), "ratio_b_a": round(b / a, 4),
         "ratio_b_a_ticks": round(statistics.median(halves["b"]["ticks"]) / statistics.median(halves["a"]["ticks"]), 4),
         "rss_mb_a": round(statistics.median(halves["a"]["rss"]), 1), "rss_mb_b": round(statistics.median(halves["b"]["rss"]), 1),

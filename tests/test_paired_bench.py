@@ -24,7 +24,7 @@ time.sleep(30)
 """
 
 
-def test_run_ns_counts_the_cpu_of_every_thread_of_a_process() -> None:
+def test_thread_ns_counts_the_cpu_of_every_thread_of_a_process() -> None:
     proc = subprocess.Popen([sys.executable, "-c", BURNER], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == "done"
