@@ -91,6 +91,12 @@ class TransportTuning:
     # Batches are allocated only when used, so an idle link costs nothing more.
     queue_commands: int = 16  # interactive priorities: commands, acknowledgements (rare, bursty)
     queue_data: int = 8  # data priorities: poses, telemetry
+    # Zenoh's shared-memory transport between processes of one host (on in Zenoh 1.x by default).
+    # Off: a session with it on runs a task that wakes its process ten times a second (the SHM
+    # "handoff" reactor) whatever the traffic, which cost a lone UAV about a tenth of its CPU side
+    # by side (docs/benchmarks.md); it only carries payloads of 3 kB or more (Zenoh's threshold),
+    # where a pose is 48 bytes; and its buffers in /dev/shm lie outside the links' TLS.
+    shared_memory: bool = False
 
     def apply(self, cfg: dict[str, Any]) -> dict[str, Any]:
         cfg.setdefault("transport", {})
@@ -99,6 +105,7 @@ class TransportTuning:
         queue = {"size": {"control": 2, "real_time": 2, "interactive_high": c, "interactive_low": c, "data_high": d,
                           "data": d, "data_low": 2, "background": 2}}
         cfg["transport"]["link"] = {"tx": {"lease": self.lease_ms, "batch_size": self.batch_size, "queue": queue}}
+        cfg["transport"]["shared_memory"] = {"enabled": self.shared_memory}
         return cfg
 
 
