@@ -94,8 +94,10 @@ class TransportTuning:
     # Zenoh's shared-memory transport between processes of one host (on in Zenoh 1.x by default).
     # Off: a session with it on runs a task that wakes its process ten times a second (the SHM
     # "handoff" reactor) whatever the traffic, which cost a lone UAV about a tenth of its CPU side
-    # by side (docs/benchmarks.md); it only carries payloads of 3 kB or more (Zenoh's threshold),
-    # where a pose is 48 bytes; and its buffers in /dev/shm lie outside the links' TLS.
+    # by side; it carries only payloads of 3 kB or more (Zenoh's threshold; a pose is 48 bytes),
+    # such as the edge feed's batches of more than about 60 poses, and with it on a UAV of 100 had
+    # 19 MB more RSS and lost 3.5 times as many poses (docs/benchmarks.md); and a payload it
+    # carries lies in a buffer in /dev/shm, outside the link's TLS.
     shared_memory: bool = False
 
     def apply(self, cfg: dict[str, Any]) -> dict[str, Any]:
