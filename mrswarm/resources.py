@@ -5,8 +5,10 @@ has (exit 2, with the estimate); ``--force`` runs it anyway. The figures are wha
 ``benchmarks/scale.py`` measured per virtual UAV process on a 2-core VM, rounded up:
 
 * CPU: 4 % of one core per UAV with the default direct pose feed (the peer mesh saturated two
-  cores at 50 UAVs), 2.5 % with the edge feed or in client mode (2.16 % measured at 50 UAVs);
-  a slower target RTF does not make a UAV cheaper (its loop still runs at 10 Hz).
+  cores at 50 UAVs), 2.5 % with the edge feed or in client mode (2.16 % measured at 50 UAVs
+  when this was set, 1.6-2.1 % since, as the VM's speed moved; at 100 UAVs the two cores are
+  saturated and poses arrive late, so the margin stays); a slower target RTF does not make a
+  UAV cheaper (its loop still runs at 10 Hz).
 * Memory: 60 MB RSS per UAV process (53.5-59.7 MB measured), 75 MB per container (+13 MB for
   its containerd shim), plus 300 MB for the runner, the edge router and the discovery server.
 
