@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 from uav_stack.recorder import (
@@ -15,6 +18,7 @@ from uav_stack.recorder import (
     TRAJECTORY_COLUMNS,
     AppendLog,
     RecordHealth,
+    SwappedJsonFile,
     TrajectoryRecorder,
     write_json_atomic,
 )
@@ -76,3 +80,116 @@ def test_no_trajectory_row_waits_a_second_before_it_is_on_disk(tmp_path: Path) -
         worst = max(worst, now + 0.1 - (on_disk[-1] if on_disk else t0))
     rec.close()
     assert 0.9 <= worst < 1.0 + 0.01, worst  # under a second (the ticks' own jitter aside), and not far under
+
+
+READER = r"""
+import json, sys, time
+path, end = sys.argv[1], time.monotonic() + float(sys.argv[2])
+seen, bad = [], 0
+while time.monotonic() < end:
+    try:
+        with open(path, "rb") as f:
+            seen.append(json.loads(f.read())["seq"])
+    except FileNotFoundError:
+        continue
+    except ValueError:
+        bad += 1
+print(json.dumps({"reads": len(seen), "bad": bad, "in_order": seen == sorted(seen), "last": seen[-1] if seen else None}))
+"""
+
+
+def test_a_swapped_counters_file_is_always_whole_for_a_reader_and_allocates_nothing(tmp_path: Path) -> None:
+    """The counters file a UAV replaces every second: a reader in another process, reading it as
+    fast as it can while it is replaced thousands of times a second, only ever gets a whole
+    version, in order; the two files trade names (two inodes in turn, a new one only for a
+    reader caught holding the spare); closing leaves the file with its last version and removes
+    the spare."""
+    path = tmp_path / "uav7.json"
+    counters = SwappedJsonFile(path)
+    health = RecordHealth()
+    alone = set()
+    for seq in range(100):  # nobody reading: two files in turn, none new
+        assert counters.write({"seq": seq, "pad": "x" * 3000}, health, 0.0)
+        alone.add(os.stat(path).st_ino)
+    assert counters.swapping, "this file system refused the swap: the test cannot tell it works"
+    assert len(alone) == 2 and counters.fresh_spares == 0, alone
+    reader = subprocess.Popen([sys.executable, "-c", READER, str(path), "2.0"], stdout=subprocess.PIPE, text=True)
+    inodes = set()
+    while reader.poll() is None and seq < 200_000:
+        seq += 1
+        # versions of different lengths: a shorter one must not keep the tail of a longer one
+        assert counters.write({"seq": seq, "pad": "x" * (3000 - 7 * (seq % 300))}, health, float(seq))
+        inodes.add(os.stat(path).st_ino)
+    out = json.loads(reader.communicate(timeout=30)[0])
+    assert out["reads"] > 100 and out["bad"] == 0 and out["in_order"], out
+    assert len(inodes) <= 2 + counters.fresh_spares  # a new file only for a reader caught holding the spare
+    assert (tmp_path / ".uav7.json.spare").exists()
+    counters.close()
+    assert json.loads(path.read_text())["seq"] == seq
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["uav7.json"] and health.files_not_written == 0
+
+
+def test_a_swapped_file_comes_back_when_its_folder_is_emptied_and_counts_what_it_cannot_write(tmp_path: Path) -> None:
+    """Someone deletes the run's files under a flying UAV: the next write puts the counters file
+    back; while its folder cannot hold it, each write is counted, and none raises."""
+    run = tmp_path / "run"
+    run.mkdir()
+    counters = SwappedJsonFile(run / "uav1.json")
+    health = RecordHealth()
+    for k in range(3):
+        assert counters.write({"uav": 1, "k": k}, health, float(k))
+    for p in run.iterdir():
+        p.unlink()
+    assert counters.write({"uav": 1, "k": 3}, health, 3.0)
+    assert json.loads((run / "uav1.json").read_text()) == {"uav": 1, "k": 3}
+    assert counters.write({"uav": 1, "k": 4}, health, 4.0)  # and it swaps again
+    assert json.loads((run / "uav1.json").read_text()) == {"uav": 1, "k": 4}
+    for p in run.iterdir():
+        p.unlink()
+    run.rmdir()
+    run.write_text("a file where the run folder was\n")
+    assert not counters.write({"uav": 1, "k": 5}, health, 5.0)
+    assert not counters.write({"uav": 1, "k": 6}, health, 6.0)
+    assert health.files_not_written == 2 and health.errors
+    run.unlink()
+    run.mkdir()
+    assert counters.write({"uav": 1, "k": 7}, health, 7.0)
+    assert json.loads((run / "uav1.json").read_text()) == {"uav": 1, "k": 7}
+    counters.close()
+    assert [p.name for p in run.iterdir()] == ["uav1.json"]
+
+
+HOLDER = r"""
+import json, sys
+f = open(sys.argv[1], "rb")
+first = f.read()
+print("opened", flush=True)
+sys.stdin.readline()  # held open while the file is replaced many times
+f.seek(0)
+print(json.dumps({"same": f.read() == first, "seq": json.loads(first)["seq"]}), flush=True)
+"""
+
+
+def test_a_reader_that_holds_the_counters_file_open_keeps_its_version(tmp_path: Path) -> None:
+    """A slow reader (a script that opens the file, then pauses) must not see it change under
+    it: the file it holds becomes the spare after the next swap, and the writer, finding it
+    still open, writes into a new spare instead."""
+    path = tmp_path / "uav2.json"
+    counters = SwappedJsonFile(path)
+    for seq in range(3):
+        assert counters.write({"seq": seq, "pad": "y" * (500 + seq)})
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    assert holder.stdout is not None and holder.stdin is not None
+    assert holder.stdout.readline().strip() == "opened"
+    for seq in range(3, 13):
+        assert counters.write({"seq": seq, "pad": "z" * (9 - seq % 7)})
+    holder.stdin.write("\n")
+    holder.stdin.flush()
+    out = json.loads(holder.stdout.readline())
+    holder.wait(timeout=10)
+    assert out == {"same": True, "seq": 2}
+    assert counters.swapping and counters.fresh_spares == 1
+    assert json.loads(path.read_text())["seq"] == 12
+    counters.close()
+    assert [p.name for p in tmp_path.iterdir()] == ["uav2.json"]

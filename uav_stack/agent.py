@@ -35,7 +35,7 @@ from uav_stack.geo import LocalFrame
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import AgeWindow, PoseAgeLog
-from uav_stack.recorder import RecordHealth, TrajectoryRecorder, links_file_name, write_json_atomic
+from uav_stack.recorder import RecordHealth, SwappedJsonFile, TrajectoryRecorder, links_file_name
 from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
@@ -159,7 +159,11 @@ class Agent(OverridesMixin):
         self.recorder: TrajectoryRecorder | None = None
         self.age_window = AgeWindow(node.stats.ages)
         self.age_log: PoseAgeLog | None = None
+        self.counters_file: SwappedJsonFile | None = None  # uav<N>.json, every second
+        self.links_file: SwappedJsonFile | None = None  # age_links_uav<N>.json, every LINK_STATS_EVERY s
         if cfg.record_dir:
+            self.counters_file = SwappedJsonFile(Path(cfg.record_dir) / f"uav{cfg.uav}.json")
+            self.links_file = SwappedJsonFile(Path(cfg.record_dir) / links_file_name(cfg.uav))
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv", health=self.records)
             self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node, health=self.records)
 
@@ -562,14 +566,12 @@ class Agent(OverridesMixin):
         own (every LINK_STATS_EVERY s and at the end: with 49 neighbours they are 90 % of the
         bytes, and every reader of the counters file would re-read them each second), the
         trajectory's flush, the pose ages' second."""
-        if self.cfg.record_dir:
-            folder = Path(self.cfg.record_dir)
+        if self.counters_file is not None and self.links_file is not None:
             if final or now >= self._next_link_stats:
                 self._next_link_stats = now + LINK_STATS_EVERY
-                write_json_atomic(folder / links_file_name(self.cfg.uav),
-                                  {"uav": self.cfg.uav, "written_at": now,
-                                   "transport_age_links": self.node.stats.ages.links_dict()}, self.records, now)
-            write_json_atomic(folder / f"uav{self.cfg.uav}.json", self.stats(now, links=False), self.records, now)
+                self.links_file.write({"uav": self.cfg.uav, "written_at": now,
+                                       "transport_age_links": self.node.stats.ages.links_dict()}, self.records, now)
+            self.counters_file.write(self.stats(now, links=False), self.records, now)
         if self.recorder is not None:
             self.recorder.flush(now)
         ages = self.age_window.sample()
@@ -578,6 +580,9 @@ class Agent(OverridesMixin):
 
     def close(self, now: float) -> None:
         self.write_stats(now, final=True)
+        for f in (self.counters_file, self.links_file):
+            if f is not None:
+                f.close()
         if self.recorder is not None:
             self.recorder.close(now)
         if self.age_log is not None:

@@ -14,10 +14,14 @@ the oldest (counted) beyond that.
 
 from __future__ import annotations
 
+import ctypes
 import errno
+import fcntl
 import logging
 import math
 import os
+import signal
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -204,3 +208,143 @@ def write_json_atomic(path: str | Path, data: dict[str, Any], health: RecordHeal
         except OSError:
             pass
         return False
+
+
+def _renameat2() -> Any:
+    """libc's ``renameat2`` (Linux, glibc 2.28 or later), or None."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+    fn.restype = ctypes.c_int
+    return fn
+
+
+_RENAMEAT2 = _renameat2()
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2  # (linux/fs.h) the two names trade their files in one step
+
+
+class SwappedJsonFile:
+    """A JSON file replaced whole every second or so (a UAV's counters file), as
+    :func:`write_json_atomic` replaces it, with a third of the kernel's work.
+
+    Why: :func:`write_json_atomic` creates a file and renames it over the last one, so every
+    second the file system allocates one inode and frees another: in a UAV that cost about
+    400 µs of CPU a second, 100 µs when the two files below are reused (docs/benchmarks.md).
+    Here two files stay open: the new content is written into the spare (``.<name>.spare``,
+    beside the file), and the two names then trade files in one step (``renameat2`` with
+    ``RENAME_EXCHANGE``: Linux 3.15 and later; ext4, xfs, btrfs, tmpfs), so nothing is
+    allocated or freed.
+
+    What a reader sees is what :func:`write_json_atomic` gives: one whole version, never a mix,
+    and never a change under it while it holds the file open, however long. The spare is the
+    file that was named two versions ago; before writing into it, a lease (``F_SETLEASE``, which
+    the kernel grants only while no other process has the file open) makes sure that no reader
+    still holds it. If one does, a fresh spare is made for that write and the reader keeps its
+    version. Where the swap or the lease is refused (another OS, another file system) the file is
+    written by :func:`write_json_atomic` from then on. :meth:`close` removes the spare.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.spare = self.path.with_name(f".{self.path.name}.spare")
+        self._fds: tuple[int, int] | None = None  # (the spare's file, the named file's), both open
+        self.swapping = _RENAMEAT2 is not None  # False: write_json_atomic each time
+        self.fresh_spares = 0  # spares made anew because a reader still held the old one
+
+    def write(self, data: dict[str, Any], health: RecordHealth | None = None, now: float = 0.0) -> bool:
+        """Replace the file with ``data`` as JSON; False, counted, if it could not be written."""
+        if self._fds is None or not self.swapping:
+            ok = write_json_atomic(self.path, data, health, now)
+            if ok and self.swapping and self._fds is None:
+                self._open()
+            return ok
+        try:
+            self._swap(_encode(data))
+            return True
+        except OSError as exc:
+            self._close_fds()
+            if exc.errno in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTTY):  # no swap or lease here
+                self.swapping = False
+            return write_json_atomic(self.path, data, health, now)  # counts it, if that fails too
+
+    def _open_file(self, path: Path, flags: int) -> int:
+        fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | flags, 0o644)
+        try:
+            # a lease broken (someone opening the spare by its name while it is written) signals
+            # the holder: SIGURG, ignored unless handled, instead of SIGIO, which would end the process
+            fcntl.fcntl(fd, fcntl.F_SETSIG, signal.SIGURG)
+        except OSError:
+            os.close(fd)
+            raise
+        return fd
+
+    def _open(self) -> None:
+        """Both files open, the named one just written by :func:`write_json_atomic`."""
+        try:
+            spare = self._open_file(self.spare, os.O_CREAT)
+        except OSError:
+            self.swapping = False
+            return
+        try:
+            named = self._open_file(self.path, 0)
+        except OSError:
+            os.close(spare)
+            return  # (tried again at the next write)
+        self._fds = (spare, named)
+
+    def _lease(self, fd: int) -> bool:
+        """A write lease on ``fd``'s file: True once no other process has it open (then released
+        by :meth:`_swap`), False while one does."""
+        try:
+            fcntl.fcntl(fd, fcntl.F_SETLEASE, fcntl.F_WRLCK)
+            return True
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EBUSY):
+                return False
+            raise
+
+    def _swap(self, blob: bytes) -> None:
+        spare, named = self._fds  # type: ignore[misc]
+        if not self._lease(spare):  # a reader still holds this version: it keeps it, a new spare takes over
+            self._fds = None
+            os.close(spare)
+            self.spare.unlink(missing_ok=True)
+            spare = self._open_file(self.spare, os.O_CREAT | os.O_EXCL)
+            self._fds = (spare, named)
+            self.fresh_spares += 1
+            if not self._lease(spare):
+                raise OSError(errno.EAGAIN, "a new spare file was opened by another process")
+        try:
+            if os.pwrite(spare, blob, 0) != len(blob):
+                raise OSError(errno.ENOSPC, "short write")
+            os.ftruncate(spare, len(blob))
+        finally:
+            fcntl.fcntl(spare, fcntl.F_SETLEASE, fcntl.F_UNLCK)
+        if _RENAMEAT2(_AT_FDCWD, os.fsencode(self.spare), _AT_FDCWD, os.fsencode(self.path), _RENAME_EXCHANGE) != 0:
+            err = ctypes.get_errno()
+            raise OSError(err, os.strerror(err))
+        self._fds = (named, spare)  # the spare is the named file now, and the other way round
+
+    def _close_fds(self) -> None:
+        if self._fds is not None:
+            for fd in self._fds:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+            self._fds = None
+
+    def close(self) -> None:
+        """Close both files and remove the spare (the named file stays)."""
+        had = self._fds is not None
+        self._close_fds()
+        if had:
+            try:
+                self.spare.unlink(missing_ok=True)
+            except OSError:
+                pass
