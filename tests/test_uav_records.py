@@ -9,9 +9,13 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+
+import pytest
 
 from uav_stack.recorder import (
     MAX_BACKLOG_BYTES,
@@ -82,6 +86,15 @@ def test_no_trajectory_row_waits_a_second_before_it_is_on_disk(tmp_path: Path) -
     assert 0.9 <= worst < 1.0 + 0.01, worst  # under a second (the ticks' own jitter aside), and not far under
 
 
+@pytest.fixture
+def sigio_ignored() -> Iterator[None]:
+    """As in a UAV process (uav_stack.runtime.StopFlag.install): SIGIO ignored, so the counters
+    file may be swapped (uav_stack.recorder._sigio_harmless)."""
+    before = signal.signal(signal.SIGIO, signal.SIG_IGN)
+    yield
+    signal.signal(signal.SIGIO, before)
+
+
 READER = r"""
 import json, sys, time
 path, end = sys.argv[1], time.monotonic() + float(sys.argv[2])
@@ -98,7 +111,7 @@ print(json.dumps({"reads": len(seen), "bad": bad, "in_order": seen == sorted(see
 """
 
 
-def test_a_swapped_counters_file_is_always_whole_for_a_reader_and_allocates_nothing(tmp_path: Path) -> None:
+def test_a_swapped_counters_file_is_always_whole_for_a_reader_and_allocates_nothing(tmp_path: Path, sigio_ignored: None) -> None:
     """The counters file a UAV replaces every second: a reader in another process, reading it as
     fast as it can while it is replaced thousands of times a second, only ever gets a whole
     version, in order; the two files trade names (two inodes in turn, a new one only for a
@@ -129,7 +142,8 @@ def test_a_swapped_counters_file_is_always_whole_for_a_reader_and_allocates_noth
     assert sorted(p.name for p in tmp_path.iterdir()) == ["uav7.json"] and health.files_not_written == 0
 
 
-def test_a_swapped_file_comes_back_when_its_folder_is_emptied_and_counts_what_it_cannot_write(tmp_path: Path) -> None:
+def test_a_swapped_file_comes_back_when_its_folder_is_emptied_and_counts_what_it_cannot_write(
+        tmp_path: Path, sigio_ignored: None) -> None:
     """Someone deletes the run's files under a flying UAV: the next write puts the counters file
     back; while its folder cannot hold it, each write is counted, and none raises."""
     run = tmp_path / "run"
@@ -170,7 +184,7 @@ print(json.dumps({"same": f.read() == first, "seq": json.loads(first)["seq"]}), 
 """
 
 
-def test_a_reader_that_holds_the_counters_file_open_keeps_its_version(tmp_path: Path) -> None:
+def test_a_reader_that_holds_the_counters_file_open_keeps_its_version(tmp_path: Path, sigio_ignored: None) -> None:
     """A slow reader (a script that opens the file, then pauses) must not see it change under
     it: the file it holds becomes the spare after the next swap, and the writer, finding it
     still open, writes into a new spare instead."""
@@ -193,3 +207,17 @@ def test_a_reader_that_holds_the_counters_file_open_keeps_its_version(tmp_path: 
     assert json.loads(path.read_text())["seq"] == 12
     counters.close()
     assert [p.name for p in tmp_path.iterdir()] == ["uav2.json"]
+
+
+def test_where_sigio_would_end_the_process_the_file_is_replaced_the_classic_way(tmp_path: Path) -> None:
+    before = signal.signal(signal.SIGIO, signal.SIG_DFL)
+    try:
+        counters = SwappedJsonFile(tmp_path / "uav3.json")
+        assert not counters.swapping
+        for k in range(5):
+            assert counters.write({"k": k})
+        counters.close()
+    finally:
+        signal.signal(signal.SIGIO, before)
+    assert json.loads((tmp_path / "uav3.json").read_text()) == {"k": 4}
+    assert [p.name for p in tmp_path.iterdir()] == ["uav3.json"]

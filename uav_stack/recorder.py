@@ -228,6 +228,20 @@ _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2  # (linux/fs.h) the two names trade their files in one step
 
 
+def _sigio_harmless() -> bool:
+    """SIGIO is ignored or handled in this process (a UAV process ignores it: uav_stack.runtime).
+
+    Why: the kernel signals a lease's holder when another process opens the file while the lease
+    is held. :class:`SwappedJsonFile` holds one for microseconds and asks for SIGURG (ignored by
+    default) instead, yet under a reader that opens the file thousands of times a second the
+    holder was seen to get SIGIO about once per 600 000 swaps, whose default action ends the
+    process. So the swap is used only where SIGIO cannot."""
+    try:
+        return signal.getsignal(signal.SIGIO) not in (signal.SIG_DFL, None)
+    except (AttributeError, ValueError):
+        return False
+
+
 class SwappedJsonFile:
     """A JSON file replaced whole every second or so (a UAV's counters file), as
     :func:`write_json_atomic` replaces it, with a third of the kernel's work.
@@ -245,15 +259,17 @@ class SwappedJsonFile:
     file that was named two versions ago; before writing into it, a lease (``F_SETLEASE``, which
     the kernel grants only while no other process has the file open) makes sure that no reader
     still holds it. If one does, a fresh spare is made for that write and the reader keeps its
-    version. Where the swap or the lease is refused (another OS, another file system) the file is
-    written by :func:`write_json_atomic` from then on. :meth:`close` removes the spare.
+    version. Where the swap or the lease is refused (another OS, another file system), or SIGIO
+    would end the process (:func:`_sigio_harmless`), the file is written by
+    :func:`write_json_atomic`. :meth:`close` removes the spare.
     """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.spare = self.path.with_name(f".{self.path.name}.spare")
         self._fds: tuple[int, int] | None = None  # (the spare's file, the named file's), both open
-        self.swapping = _RENAMEAT2 is not None  # False: write_json_atomic each time
+        # False: write_json_atomic each time (and where SIGIO would end the process: see _sigio_harmless)
+        self.swapping = _RENAMEAT2 is not None and _sigio_harmless()
         self.fresh_spares = 0  # spares made anew because a reader still held the old one
 
     def write(self, data: dict[str, Any], health: RecordHealth | None = None, now: float = 0.0) -> bool:

@@ -53,6 +53,9 @@ class StopFlag:
     def install(self) -> StopFlag:
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)
+        # no part of a UAV process uses signal-driven I/O, and SIGIO's default ends the process: the
+        # lease the counters file takes (uav_stack.recorder.SwappedJsonFile) can raise one
+        signal.signal(signal.SIGIO, signal.SIG_IGN)
         return self
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
