@@ -210,10 +210,10 @@ class SwarmNode:
             clock = self.clock
 
             def inlet(key: str, size: int, how: How, wakes: bool = False, weigh: Callable[[zenoh.Sample], int] | None = None,
-                      **options: Any) -> Inlet:
+                      lazy: bool = False, **options: Any) -> Inlet:
                 if not self.arrival_stamps and not wakes:
                     how = "ring"  # an observer: the drain's time will do
-                into = Inlet(size, self.waker if wakes else None, clock, how, weigh)
+                into = Inlet(size, self.waker if wakes else None, clock, how, weigh, lazy)
                 self._subscribers.append(subscribe(s, key, into, **options))
                 return into
             if ident.role == "uav":
@@ -230,7 +230,7 @@ class SwarmNode:
                 counts = ident.role == "uav" and not self.near_feed
                 count = self.intake.count
                 feed = inlet(k.pose_feed, 256, "thread",
-                             weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None)
+                             weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None, lazy=counts)
                 if counts and feed.how == "thread":
                     self._pose_inlet = feed
                 streams.append((_BATCH, feed, _as_received))
@@ -238,7 +238,8 @@ class SwarmNode:
                     streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), _as_received))
             else:
                 self._pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                poses = inlet(k.all_poses, self.ring_size, "thread", allowed_origin=zenoh.Locality.REMOTE)
+                poses = inlet(k.all_poses, self.ring_size, "thread", lazy=ident.role == "uav",
+                              allowed_origin=zenoh.Locality.REMOTE)
                 if poses.how == "thread":
                     self._pose_inlet = poses
                 streams.append((POSE, poses, _as_received))
@@ -402,8 +403,13 @@ class SwarmNode:
         if self.session is None:
             return inbox
         self._apply_netem_sets(now, max_samples)  # first, so a change applies to what this poll drains
+        waiting = self._pose_inlet if self._pose_inlet is not None and not self._pose_inlet.started else None
+        if waiting is not None:
+            waiting.poke()  # a pose came before its sender's token: the inlet's thread starts now
         self._take_in(self._arrivals(max_samples), now, inbox)
         self._track_liveliness(inbox, max_samples)
+        if waiting is not None and inbox.joined and self.alive_uavs() - {self.identity.uav}:
+            waiting.start()  # the first other UAV: its poses are stamped as they arrive from now on
         if self._links is not None:
             self._links.poll()
         self.neighbours.expire(now)

@@ -147,10 +147,10 @@ class Inlet:
     """
 
     __slots__ = ("_q", "_sub", "waker", "clock", "how", "size", "weigh", "_thread", "_lock", "_since", "_short",
-                 "_quorum_waker", "__weakref__")
+                 "_quorum_waker", "lazy", "__weakref__")
 
     def __init__(self, size: int, waker: Waker | None = None, clock: Callable[[], float] = time.time, how: How = "callback",
-                 weigh: Callable[[zenoh.Sample], int] | None = None):
+                 weigh: Callable[[zenoh.Sample], int] | None = None, lazy: bool = False):
         if waker is not None and how == "ring":
             raise ValueError("a ring inlet is drained by its owner: it cannot wake it")
         self._q: deque[tuple[float, zenoh.Sample]] = deque(maxlen=size)
@@ -165,6 +165,8 @@ class Inlet:
         self._since = math.inf  # wall time (s) from which arrivals count towards the expectation
         self._short = 0  # arrivals still expected before the quorum waker is notified (0: none armed)
         self._quorum_waker: Waker | None = None
+        # a "thread" inlet whose thread waits for start() or a sample found by poke(): see poke()
+        self.lazy = lazy and how == "thread"
 
     @property
     def stamped(self) -> bool:
@@ -190,12 +192,54 @@ class Inlet:
 
     def attach(self, subscriber: Any) -> None:
         """The subscriber declared with :meth:`handler`: drained through it ("ring"), or by the
-        inlet's thread, started here ("thread"), which ends when the subscription does."""
+        inlet's thread, started here ("thread"; a lazy inlet's by :meth:`start` or :meth:`poke`),
+        which ends when the subscription does."""
         self._sub = subscriber
-        if self.how == "thread":
-            self._thread = threading.Thread(target=self._receive, args=(subscriber.handler,), name="swarmnet-inlet",
-                                            daemon=True)
-            self._thread.start()
+        if not self.lazy:
+            self.start()
+
+    @property
+    def started(self) -> bool:
+        """Samples are taken as they arrive: the inlet's thread runs, or it needs none."""
+        return self.how != "thread" or self._thread is not None
+
+    def start(self) -> None:
+        """Start the inlet's thread (a "thread" inlet, once attached); nothing if it runs already."""
+        if self.how != "thread" or self._thread is not None or self._sub is None:
+            return
+        self._thread = threading.Thread(target=self._receive, args=(self._sub.handler,), name="swarmnet-inlet",
+                                        daemon=True)
+        self._thread.start()
+
+    def poke(self) -> bool:
+        """A lazy inlet whose thread has not started: whatever its channel holds is queued,
+        stamped now, and the thread started if there was any. True once the thread runs.
+
+        Why: a blocked ``recv`` of zenoh-python wakes every 100 ms to look for signals, so an
+        inlet's thread costs a UAV ten wake-ups a second even when nothing comes: 5 % of a lone
+        UAV's CPU (docs/benchmarks.md). A UAV's pose inlet therefore starts its thread when the
+        first other UAV joins (:class:`~swarmnet.node.SwarmNode`), and the owner pokes it once a
+        tick until then, so that a pose that came before the join waits at most a tick. Such a pose
+        is stamped when poked, not when it arrived: its transport age is then up to a tick too long.
+        """
+        if self.started:
+            return True
+        if self._sub is None:
+            return False
+        take = self._sub.handler.try_recv
+        try:
+            sample = take()
+            if sample is None:
+                return False
+            burst = [(self.clock(), sample)]
+            while (more := take()) is not None:
+                burst.append((self.clock(), more))
+        except zenoh.ZError:  # the subscription or the session ended
+            return False
+        with self._lock:
+            self._q.extend(burst)
+        self.start()
+        return True
 
     def join(self, timeout: float) -> bool:
         """Wait at most ``timeout`` s for the inlet's thread to end, once its subscription or

@@ -293,3 +293,49 @@ def test_the_edge_feed_forwards_each_pose_within_its_window_and_batches_those_th
     assert sum(sizes) == 60  # every pose, once
     assert len(sizes) < 60  # in fewer batches than poses
     assert statistics.median(waits) <= 0.005 + 0.005  # sent when its window closed, not 40 ms later
+
+
+def _inlet_threads() -> int:
+    return sum(1 for t in threading.enumerate() if t.name == "swarmnet-inlet" and t.is_alive())
+
+
+def test_a_uav_alone_runs_no_receive_thread_until_another_uav_is_there(rendezvous: Rendezvous) -> None:
+    """A blocked receive of zenoh-python wakes ten times a second, so a UAV's pose inlet starts
+    its thread only with the first other UAV: alone, none runs. A UAV that joins starts it at its
+    liveliness token, before its first pose; a pose that comes with no token (here a plain
+    session's) starts it at the next poll, and is heard."""
+    base = _inlet_threads()
+    a = SwarmNode(NodeIdentity("alpha", 1), rendezvous).open()
+    try:
+        for _ in range(10):
+            a.poll()
+            time.sleep(0.05)
+        assert a._pose_inlet is not None and not a._pose_inlet.started and _inlet_threads() == base
+        with zenoh.open(to_zenoh(rendezvous.zenoh_config())) as s:
+            pose = Pose(uav=7, realm=Realm.VIRTUAL, seq=1, t_sim=1.0, t_wall=time.time(), x=1.0, y=2.0, z=5.0,
+                        vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+
+            def heard() -> bool:
+                pose.t_wall = time.time()
+                s.put(SwarmKeys("alpha").pose(7), encode_pose(pose))
+                time.sleep(0.05)
+                a.poll()
+                return 7 in a.neighbours
+
+            assert wait_for(heard, 10.0, period=0.05)
+        assert a._pose_inlet.started and _inlet_threads() == base + 1
+    finally:
+        a.close()
+    assert wait_for(lambda: _inlet_threads() == base, 5.0)
+
+    a = SwarmNode(NodeIdentity("alpha", 1), rendezvous).open()
+    b = SwarmNode(NodeIdentity("alpha", 2), rendezvous).open()
+    try:
+        assert wait_for(lambda: (a.poll(), 2 in a.alive_uavs())[1], 10.0)
+        assert a._pose_inlet is not None and a._pose_inlet.started  # at b's token, no pose yet
+        assert 2 not in a.neighbours
+        hear_a_round(a, b)
+        assert a.stats.ages.transport.max < 1.0  # stamped as they arrived
+    finally:
+        a.close()
+        b.close()
