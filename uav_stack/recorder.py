@@ -244,11 +244,12 @@ def _sigio_harmless() -> bool:
 
 class SwappedJsonFile:
     """A JSON file replaced whole every second or so (a UAV's counters file), as
-    :func:`write_json_atomic` replaces it, with a third of the kernel's work.
+    :func:`write_json_atomic` replaces it, for half the CPU.
 
     Why: :func:`write_json_atomic` creates a file and renames it over the last one, so every
-    second the file system allocates one inode and frees another: in a UAV that cost about
-    400 µs of CPU a second, 100 µs when the two files below are reused (docs/benchmarks.md).
+    second the file system allocates one inode and frees another: about 445 µs of CPU per write
+    once a second (150 µs back to back), against 215 µs (27 µs) when the two files below are
+    reused (docs/benchmarks.md).
     Here two files stay open: the new content is written into the spare (``.<name>.spare``,
     beside the file), and the two names then trade files in one step (``renameat2`` with
     ``RENAME_EXCHANGE``: Linux 3.15 and later; ext4, xfs, btrfs, tmpfs), so nothing is
