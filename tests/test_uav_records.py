@@ -221,3 +221,30 @@ def test_where_sigio_would_end_the_process_the_file_is_replaced_the_classic_way(
         signal.signal(signal.SIGIO, before)
     assert json.loads((tmp_path / "uav3.json").read_text()) == {"k": 4}
     assert [p.name for p in tmp_path.iterdir()] == ["uav3.json"]
+
+
+def test_no_descriptor_is_left_open_when_a_fresh_spare_cannot_be_made(tmp_path: Path, sigio_ignored: None) -> None:
+    """A reader holds the spare, and its name has become a folder: the fresh spare cannot be
+    made. The write still lands (the temporary-file way), and no file descriptor is left open."""
+    path = tmp_path / "uav4.json"
+    counters = SwappedJsonFile(path)
+    fds_before = len(os.listdir("/proc/self/fd"))
+    for seq in range(3):
+        assert counters.write({"seq": seq})
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    assert holder.stdout is not None and holder.stdin is not None
+    assert holder.stdout.readline().strip() == "opened"
+    assert counters.write({"seq": 3})  # the held version becomes the spare
+    counters.spare.unlink()
+    counters.spare.mkdir()  # (the holder keeps its file)
+    assert counters.write({"seq": 4}) and counters.write({"seq": 5})
+    holder.stdin.write("\n")
+    holder.stdin.flush()
+    assert json.loads(holder.stdout.readline()) == {"same": True, "seq": 2}
+    holder.wait(timeout=10)
+    holder.stdin.close()
+    holder.stdout.close()
+    assert json.loads(path.read_text())["seq"] == 5
+    counters.close()
+    assert len(os.listdir("/proc/self/fd")) == fds_before

@@ -328,10 +328,14 @@ class SwappedJsonFile:
     def _swap(self, blob: bytes) -> None:
         spare, named = self._fds  # type: ignore[misc]
         if not self._lease(spare):  # a reader still holds this version: it keeps it, a new spare takes over
-            self._fds = None
+            self._fds = None  # (rebuilt below; should that fail, only the named file is left to close)
             os.close(spare)
-            self.spare.unlink(missing_ok=True)
-            spare = self._open_file(self.spare, os.O_CREAT | os.O_EXCL)
+            try:
+                self.spare.unlink(missing_ok=True)
+                spare = self._open_file(self.spare, os.O_CREAT | os.O_EXCL)
+            except OSError:
+                os.close(named)
+                raise
             self._fds = (spare, named)
             self.fresh_spares += 1
             if not self._lease(spare):
