@@ -168,6 +168,7 @@ class SwarmNode:
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
         self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
+        self._members: tuple[int, ...] | None = None  # members(), kept with _alive_uavs
         self.session: zenoh.Session | None = None
         # readable when a command or a netem change arrived: the owner's loop waits on it
         self.waker = Waker()
@@ -738,4 +739,15 @@ class SwarmNode:
                     if tail.isdigit():
                         out.add(int(tail))
             self._alive_uavs = out
+            self._members = None
         return set(self._alive_uavs)
+
+    def members(self) -> tuple[int, ...]:
+        """The swarm's UAV ids in order: :meth:`alive_uavs` and the node's own. The same tuple
+        until a token appears or disappears (a cooperative mission splits its work by it every tick)."""
+        if self._alive_uavs is None or self._members is None:
+            alive = self.alive_uavs()
+            if self._own_uav is not None:
+                alive.add(self._own_uav)
+            self._members = tuple(sorted(alive))
+        return self._members

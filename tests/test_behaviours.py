@@ -248,6 +248,27 @@ def test_message_age_extrapolates_and_inflates():
     assert abs(r.velocity[1]) > abs(fresh.velocity[1]) + 0.05
 
 
+def test_bad_neighbours_are_ignored_and_the_closest_is_reported_out_of_range_too():
+    """Views with a non-finite position, velocity or age (or older than ``forget_after``) change
+    nothing; a neighbour beyond ``neighbour_range`` makes no constraint but is still the closest
+    reported, with its inflation; a negative age (a clock ahead of ours) counts as fresh."""
+    ca = CollisionAvoidance(SAFETY, VMAX, neighbour_range=20.0, forget_after=5.0, response_time=0.0, max_inflation=20.0)
+    me = me_at((0, 0), (5, 0))
+    near = NeighbourView(2, (12.0, 1.0), (-5.0, 0.0), 0.1)
+    good = ca.adjust(me, (5.0, 0.0), [near])
+    nan, inf = math.nan, math.inf
+    bad = [NeighbourView(3, (nan, 0.0), (0.0, 0.0), 0.1), NeighbourView(4, (1.0, 0.0), (inf, 0.0), 0.1),
+           NeighbourView(5, (1.0, 0.0), (0.0, 0.0), nan), NeighbourView(6, (1.0, 0.0), (0.0, 0.0), -inf),
+           NeighbourView(7, (1.0, 0.0), (0.0, 0.0), inf), NeighbourView(8, (1.0, 0.0), (0.0, 0.0), 5.5),
+           NeighbourView(1, (1.0, 0.0), (0.0, 0.0), 0.0)]  # our own id
+    assert ca.adjust(me, (5.0, 0.0), bad + [near] + bad) == good
+    far = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, (40.0, 0.0), (-5.0, 0.0), 0.5)])
+    assert far.considered == 0 and not far.active
+    assert far.closest == pytest.approx(37.5) and far.inflation == pytest.approx(10.0 * 0.5)
+    ahead = ca.adjust(me, (5.0, 0.0), [NeighbourView(2, (12.0, 1.0), (-5.0, 0.0), -0.2)])
+    assert ahead == ca.adjust(me, (5.0, 0.0), [NeighbourView(2, (12.0, 1.0), (-5.0, 0.0), 0.0)])
+
+
 def test_inflation_bounded_stale_growth_and_forgetting():
     ca = CollisionAvoidance(SAFETY, VMAX, stale_after=1.0, forget_after=5.0, max_inflation=4.0, response_time=0.0)
     assert ca.inflation(0.2, 10.0) == pytest.approx(2.0)

@@ -209,3 +209,21 @@ def test_the_observer_applies_the_same_key_rule_to_telemetry(rendezvous: Rendezv
         assert sorted(obs.uavs) == [6] and obs.uavs[6].telemetry is not None
         assert obs.stats.rejected["key_mismatch"] == 1 and obs.stats.rejected["malformed"] == 1
         assert obs.stats.received["telemetry"] == 1
+
+
+def test_members_follow_the_swarms_tokens(rendezvous: Rendezvous) -> None:
+    """A cooperative mission splits its work by ``members()`` every tick: the UAVs whose token is
+    there and the node's own, in order, kept between ticks and new as soon as a UAV joins or leaves."""
+    a = SwarmNode(NodeIdentity("alpha", 5), rendezvous).open()
+    b = SwarmNode(NodeIdentity("alpha", 2), rendezvous).open()
+    c = SwarmNode(NodeIdentity("alpha", 9), rendezvous).open()
+    try:
+        assert wait_for(lambda: (a.poll(), a.members() == (2, 5, 9))[1], 10.0), a.members()
+        assert a.members() is a.members()  # the same tuple while nobody joins or leaves
+        c.close()
+        assert wait_for(lambda: (a.poll(), a.members() == (2, 5))[1], 10.0), a.members()
+        b.close()
+        assert wait_for(lambda: (a.poll(), a.members() == (5,))[1], 10.0), a.members()
+    finally:
+        for n in (a, b, c):
+            n.close()

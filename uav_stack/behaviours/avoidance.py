@@ -211,36 +211,46 @@ class CollisionAvoidance:
             pref = self.zones.steer(pref, zone_planes)
         v_a = me.vel if is_finite(me.vel) else (0.0, 0.0)
         px, py = me.pos
+        vax, vay = v_a
 
-        closest, closest_infl = math.inf, 0.0
+        # Every neighbour passes through this loop each tick (up to 49 at N = 50), most of them
+        # out of range: names bound once, and the inflation worked out only for those in range
+        # and, after the loop, for the closest.
+        me_uav, forget, in_range, stale = me.uav, self.forget_after, self.neighbour_range, self.stale_after
+        isfinite, hypot = math.isfinite, math.hypot
+        closest, closest_age, closest_rv = math.inf, 0.0, 0.0
         cons: list[_Constraint] = []
         for nb in neighbours:
-            if nb.uav == me.uav:
+            if nb.uav == me_uav:
                 continue
-            age = nb.age if math.isfinite(nb.age) else math.inf
+            age = nb.age
+            if not -math.inf < age <= forget:  # too old, or NaN
+                continue
             if age < 0.0:
                 age = 0.0  # clock skew: treat as fresh
-            if age > self.forget_after or not (is_finite(nb.pos) and is_finite(nb.vel)):
-                continue
+            bx, by = nb.pos
             bvx, bvy = nb.vel
-            xx = nb.pos[0] + bvx * age - px
-            xy = nb.pos[1] + bvy * age - py
-            d = math.hypot(xx, xy)
-            rvx, rvy = v_a[0] - bvx, v_a[1] - bvy
-            infl = self.inflation(age, math.hypot(rvx, rvy))
-            if d < closest:
-                closest, closest_infl = d, infl
-            if d > self.neighbour_range:
+            if not (isfinite(bx) and isfinite(by) and isfinite(bvx) and isfinite(bvy)):
                 continue
-            share = 0.5 if (nb.reciprocal and age <= self.stale_after) else 1.0
+            xx = bx + bvx * age - px
+            xy = by + bvy * age - py
+            d = hypot(xx, xy)
+            rvx, rvy = vax - bvx, vay - bvy
+            if d < closest:
+                closest, closest_age, closest_rv = d, age, hypot(rvx, rvy)
+            if d > in_range:
+                continue
+            infl = self.inflation(age, hypot(rvx, rvy))
+            share = 0.5 if (nb.reciprocal and age <= stale) else 1.0
             plane = self._half_plane(
-                me.uav, v_a, (xx, xy), (rvx, rvy), self.safety_distance + infl, share, nb.uav
+                me_uav, v_a, (xx, xy), (rvx, rvy), self.safety_distance + infl, share, nb.uav
             )
             # the neighbour's own speed towards us, relative to a fifth of our top speed
             closing = -(bvx * xx + bvy * xy) / d if d > 1e-9 else 0.0
             oncoming = min(max(closing / (0.2 * self.max_speed), 0.0), 1.0)
             cons.append(_Constraint(d, plane, oncoming))
 
+        closest_infl = self.inflation(closest_age, closest_rv) if closest < math.inf else 0.0
         if not cons and not hard:
             return AvoidanceResult(pref, pref != clipped, closest, closest_infl)
         if len(cons) > self.max_neighbours:
