@@ -104,8 +104,12 @@ class NeighbourTable:
     def remove(self, uav: int) -> None:
         self._table.pop(uav, None)
 
+    def snapshot(self) -> list[Neighbour]:
+        """Every neighbour, in a list of its own (the table may change while it is used)."""
+        return list(self._table.values())
+
     def __iter__(self) -> Iterator[Neighbour]:
-        return iter(list(self._table.values()))
+        return iter(self.snapshot())
 
     def __len__(self) -> int:
         return len(self._table)

@@ -424,7 +424,7 @@ class SwarmNode:
         earlier than an arrival.
         """
         now = self.clock() if now is None else now
-        out = list(self.neighbours)
+        out = self.neighbours.snapshot()
         ages = []
         for n in out:
             if not n.used:
