@@ -449,7 +449,7 @@ class SwarmNode:
             return None
         self._expected_since = instant
         since = instant - 1.5 * self.pose_period
-        count = sum(1 for n in self.neighbours if n.last_recv >= since)
+        count = len([n for n in self.neighbours.snapshot() if n.last_recv >= since])  # (a list: faster than a generator)
         if count:
             inlet.expect(count, instant, self.waker)
         return count

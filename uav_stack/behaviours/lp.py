@@ -29,8 +29,11 @@ from uav_stack.behaviours.base import Vec2
 EPS = 1e-9
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class HalfPlane:
+    """Treat as immutable. Not ``frozen``: avoidance makes one per neighbour in range every tick,
+    and the solver more, and a frozen dataclass's ``__init__`` costs 2.5 times as much."""
+
     point: Vec2
     normal: Vec2  # unit, into the permitted side
 
