@@ -5,7 +5,8 @@ Two measurements, one after the other on the same machine:
 * **the tick, part by part**: a lone virtual UAV (or ``--n`` of them, medians over the UAVs)
   in the default configuration (``scale.py --sizes N --configs default``) flies with its tick meter on
   (``MRSWARM_TICK_METER``, uav_stack/tick_meter.py): the thread CPU (µs) per tick of each part
-  of its loop, nested parts included in their callers, and of the whole loop thread;
+  of its loop, nested parts included in their callers, and of the whole loop thread; and the
+  CPU per tick of the process's other threads (Zenoh's runtime, the pose inlet's);
 * **warm against paused**: a few of those parts' own work, run in this process back to back
   (warm caches, the cost a micro-benchmark shows) and 100 ms apart (as a UAV's tick runs them,
   after other processes have run): the FCU's GLOBAL_POSITION_INT and ATTITUDE encoders (and
@@ -66,8 +67,10 @@ def median_report(reports: list[dict[str, Any]]) -> dict[str, Any]:
         each = [r["parts"][i] for r in reports]
         parts.append({"part": part["part"], "calls_per_tick": round(med(p["calls_per_tick"] for p in each), 3),
                       "cpu_us_per_tick": round(med(p["cpu_us_per_tick"] for p in each), 1)})
+    threads = {k: round(med(r["threads_us_per_tick"][k] for r in reports), 1) for k in reports[0].get("threads_us_per_tick", {})}
     return {"uavs": len(reports), "ticks": med(r["ticks"] for r in reports), "parts": parts,
-            "thread_cpu_us_per_tick": round(med(r["thread_cpu_us_per_tick"] for r in reports), 1)}
+            "thread_cpu_us_per_tick": round(med(r["thread_cpu_us_per_tick"] for r in reports), 1),
+            "threads_us_per_tick": threads}
 
 
 def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Callable[[], None]]:
@@ -160,6 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         meter = flight["meter"]
         print(f"N = {args.n}: {meter['ticks']} ticks, the loop thread {meter['thread_cpu_us_per_tick']:.0f} µs per tick "
               f"(process {flight['cpu_pct']:.2f} % of a core, RTF min {flight['rtf_min']:.3f})")
+        print("  threads, µs of CPU per tick: " + ", ".join(f"{k} {v:.0f}" for k, v in meter["threads_us_per_tick"].items())
+              + " (the loop's; Zenoh's runtime; the interpreter's other threads: the pose inlet's)")
         for p in meter["parts"]:
             print(f"  {p['part']:50s} {p['calls_per_tick']:5.2f} calls  {p['cpu_us_per_tick']:7.1f} µs")
         fns, close = parts_under_test(work)

@@ -47,6 +47,13 @@ def test_the_meter_accounts_for_a_flying_uavs_ticks(tmp_path: Path, router: str,
     assert parts["agent: own pose published (Zenoh put)"]["calls_per_tick"] > 0.5
     assert parts["agent: counters file, flushes (1 Hz)"]["calls_per_tick"] == pytest.approx(0.1, abs=0.03)
 
+    # the scheduler's account of the loop thread agrees with the thread's own CPU clock, and
+    # Zenoh's runtime threads (the session with the router) ran beside it
+    threads = report["threads_us_per_tick"]
+    assert set(threads) == {"loop", "python", "zenoh"}
+    assert threads["loop"] == pytest.approx(report["thread_cpu_us_per_tick"], rel=0.1)
+    assert threads["zenoh"] > 0 and threads["python"] >= 0
+
     # the parts that run one after the other in the loop fit within the loop thread's CPU
     outer = ["fcu: datagrams in (and steps due)", "fcu: service (steps, heartbeat, wake-up)", tick_meter.SENSE,
              "agent: act (swarm in, control, reports)", "loop: poses of the instant expected",

@@ -18,6 +18,7 @@ changes in the code it measures; a part an object does not have is skipped.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -77,14 +78,53 @@ def _resolve(roots: dict[str, Any], path: str) -> Any:
     return obj
 
 
+def threads_cpu_ns() -> dict[int, tuple[str, int]]:
+    """Each thread of this process: its name (``comm``) and the CPU (ns) it has run so far, from
+    the scheduler's own account (``/proc/self/task/*/schedstat``), by thread id. Empty where
+    there is no such file (not Linux)."""
+    out: dict[int, tuple[str, int]] = {}
+    try:
+        tasks = list(Path("/proc/self/task").iterdir())
+    except OSError:
+        return out
+    for task in tasks:
+        try:
+            out[int(task.name)] = ((task / "comm").read_text().strip(), int((task / "schedstat").read_text().split()[0]))
+        except (OSError, ValueError, IndexError):  # a thread that ended meanwhile
+            pass
+    return out
+
+
+def thread_kind(tid: int, comm: str, loop_tid: int, loop_comm: str) -> str:
+    """``"loop"`` (the thread the meter measures), ``"python"`` (another thread of the interpreter:
+    a pose inlet's, which keeps the process's name) or ``"zenoh"`` (Zenoh's runtime, whose threads
+    carry names of their own: ``app-0``, ``rx-0``, ...)."""
+    if tid == loop_tid:
+        return "loop"
+    return "python" if comm == loop_comm else "zenoh"
+
+
 class TickMeter:
-    """Thread CPU per part of the tick, from :func:`attach` to :meth:`write`, into ``folder``."""
+    """Thread CPU per part of the tick, from :func:`attach` to :meth:`write`, into ``folder``;
+    and the CPU per tick of the process's other threads (Zenoh's, the pose inlet's) beside it."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
         self.totals: dict[str, list[int]] = {}  # label -> [calls, thread CPU ns]
         self._t0 = time.thread_time_ns()
         self._wall0 = time.monotonic()
+        self._loop_tid = threading.get_native_id()
+        self._threads0 = threads_cpu_ns()
+
+    def threads(self, ticks: int) -> dict[str, float]:
+        """µs of CPU per tick since the meter started, by :func:`thread_kind`; a thread started
+        since counts from its start."""
+        loop_comm = self._threads0.get(self._loop_tid, ("", 0))[0]
+        out = {"loop": 0.0, "python": 0.0, "zenoh": 0.0}
+        for tid, (comm, ns) in threads_cpu_ns().items():
+            kind = thread_kind(tid, comm, self._loop_tid, loop_comm)
+            out[kind] += (ns - self._threads0.get(tid, (comm, 0))[1]) / ticks / 1e3
+        return {k: round(v, 1) for k, v in out.items()}
 
     def wrap(self, obj: Any, method: str, label: str) -> None:
         fn: Callable[..., Any] = getattr(obj, method)
@@ -109,6 +149,7 @@ class TickMeter:
             "ticks": ticks,
             "wall_s": round(time.monotonic() - self._wall0, 3),
             "thread_cpu_us_per_tick": round(total_ns / ticks / 1e3, 1),
+            "threads_us_per_tick": self.threads(ticks),  # the loop's, again, from the scheduler; Zenoh's; other Python
             "parts": [{"part": label, "calls_per_tick": round(n / ticks, 3), "cpu_us_per_tick": round(ns / ticks / 1e3, 1),
                        "cpu_us_per_call": round(ns / n / 1e3, 1) if n else None}
                       for label, (n, ns) in self.totals.items()],
