@@ -46,6 +46,7 @@ from benchmarks.commits import checkout, remove  # noqa: E402
 from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import CONFIGS, Sampler, scenario_for  # noqa: E402
 from mrswarm.experiment import Experiment  # noqa: E402
+from uav_stack.tick_meter import threads_cpu_ns  # noqa: E402
 
 
 def thread_ns(pid: int) -> dict[int, int] | None:
@@ -53,13 +54,7 @@ def thread_ns(pid: int) -> dict[int, int] | None:
     scheduler's own account (``/proc/<pid>/task/*/schedstat``); None if the process is gone.
     Nanoseconds rather than the 10 ms clock ticks of ``cpu_times()``: 40 s of a UAV at 2 % are 80
     ticks, so one tick is more than 1 % of the reading."""
-    out: dict[int, int] = {}
-    for stat in Path(f"/proc/{pid}/task").glob("*/schedstat"):
-        try:
-            out[int(stat.parent.name)] = int(stat.read_text().split()[0])
-        except (OSError, ValueError, IndexError):  # a thread that ended meanwhile
-            pass
-    return out or None
+    return {tid: ns for tid, (_comm, ns) in threads_cpu_ns(pid).items()} or None
 
 
 def window_ns(before: dict[int, int], after: dict[int, int]) -> int:

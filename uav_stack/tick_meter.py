@@ -78,13 +78,13 @@ def _resolve(roots: dict[str, Any], path: str) -> Any:
     return obj
 
 
-def threads_cpu_ns() -> dict[int, tuple[str, int]]:
-    """Each thread of this process: its name (``comm``) and the CPU (ns) it has run so far, from
-    the scheduler's own account (``/proc/self/task/*/schedstat``), by thread id. Empty where
-    there is no such file (not Linux)."""
+def threads_cpu_ns(pid: int | str = "self") -> dict[int, tuple[str, int]]:
+    """Each thread of process ``pid`` (default: this one): its name (``comm``) and the CPU (ns) it
+    has run so far, from the scheduler's own account (``/proc/<pid>/task/*/schedstat``), by thread
+    id. Empty where there is no such file (not Linux, or the process is gone)."""
     out: dict[int, tuple[str, int]] = {}
     try:
-        tasks = list(Path("/proc/self/task").iterdir())
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
     except OSError:
         return out
     for task in tasks:
