@@ -284,20 +284,21 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
         instant = next_sense
         next_sense = next_grid_instant(now_m, period)
         instant = max(instant, next_sense - period)  # its own instant, unless more than a period late
-        # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
-        whole = node.expect_poses(time.time() - (now_m - instant)) == 0  # (the instant's wall time)
-        if not whole:
-            next_act = instant + 0.5 * period
-        if fcu is None:
-            pass
-        elif whole:
-            fcu.poll_io()
-            fcu.service()
-        else:  # the position of the instant, and nothing else, before the pose leaves (VirtualFcu.poll_position)
-            fcu.poll_position()
-        (agent.step if whole else agent.sense)(time.time())
-        if fcu is not None and whole:
-            fcu.poll_io()
+        instant_wall = time.time() - (now_m - instant)
+        if not node.neighbours:  # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
+            if fcu is not None:
+                fcu.poll_io()
+                fcu.service()
+            agent.step(time.time())
+            if fcu is not None:
+                fcu.poll_io()
+        else:
+            if fcu is not None:
+                fcu.poll_position()  # the position of the instant, and nothing else, before the pose leaves
+            agent.sense(time.time())
+            # armed once the pose has left (the instant's poses already in count); nobody heard at
+            # the instant before: act at once
+            next_act = now_m if node.expect_poses(instant_wall) == 0 else instant + 0.5 * period
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
 
