@@ -46,7 +46,8 @@ from benchmarks.output import write_results  # noqa: E402
 RUN_TIMEOUT_S = 900.0  # one scale.py run at one N and one configuration (N = 50: about 3 minutes)
 FIELDS = ("cpu_pct_median", "cpu_pct_max", "rss_mb_median", "rtf_mean", "rtf_min", "pose_age_p50_ms", "transport_age_p50_ms",
           "transport_age_p99_ms", "use_age_p50_ms", "use_age_p99_ms", "all_airborne_s",
-          "pose_age_p99_ms", "pose_loss", "collisions")
+          "pose_age_p99_ms", "pose_loss", "collisions", "pose_sent_after_instant_p50_ms", "pose_sent_after_instant_p90_ms",
+          "instant_spread_p50_ms", "feed_batches_per_instant")
 
 
 def checkout(commit: str, where: Path, pythons: list[str]) -> Path:

@@ -192,6 +192,7 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
         "runner_cpu_pct": round(sampler.result.get("runner", {}).get("cpu_pct", math.nan), 2),
         "collisions": summary.get("separation", {}).get("collisions"),
         **pose_traffic(Path(summary["run_dir"]), n, interest["radius_m"]),
+        **pose_instants(Path(summary["run_dir"]), n),
         "wall_s": round(time.time() - t0, 1),
         "run_dir": summary.get("run_dir"),
     }
@@ -223,6 +224,52 @@ def pose_traffic(run: Path, n: int, radius: float) -> dict[str, Any]:
     return {"poses_rx_per_uav_s": round(statistics.median(rates), 1) if rates else None,
             "full_feed_ratio": round((n - 1) * sent / got, 2) if got else None,
             "within_radius_mean": round(within, 2)}
+
+
+def pose_instants(run: Path, n: int) -> dict[str, Any]:
+    """When the poses of an instant leave, and in how many edge-feed batches they arrive.
+
+    With aligned ticks every UAV publishes at the same instants (whole multiples of the pose
+    period since the Unix epoch); on a loaded machine they queue for the cores, so their poses
+    leave spread after it, and the edge feed carries the spread in more batches (each a wake-up
+    of every UAV). From the flight record (every pose's sender stamp, ``t_wall``): how long after
+    its instant a pose left (p50 / p90 over all poses, ms) and how far apart an instant's first
+    and last pose left (p50 over instants heard from at least 80 % of the UAVs, ms); from the
+    UAVs' status files: edge-feed batches per instant (median over UAVs: batches received over
+    instants' worth of poses, ``(N - 1)`` poses an instant; None without the edge feed)."""
+    import json
+
+    import msgspec
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from mrswarm.analysis import load_stats
+    from uav_stack.config import AgentConfig
+
+    period = 1.0 / next(f.default for f in msgspec.structs.fields(AgentConfig) if f.name == "pose_rate_hz")
+    offsets: list[float] = []
+    instants: dict[int, list[float]] = {}
+    record = run / "run.mcap"
+    if record.exists():
+        with open(record, "rb") as f:
+            for _schema, channel, message in make_reader(f).iter_messages():
+                if not channel.topic.endswith("/pose"):
+                    continue
+                t = float(json.loads(message.data)["t_wall"])
+                k = math.floor(t / period + 1e-9)
+                offset = t - k * period
+                offsets.append(offset)
+                instants.setdefault(k, []).append(offset)
+    spreads = [max(v) - min(v) for v in instants.values() if len(v) >= 0.8 * n and n > 1]
+    per_instant = []
+    for s in load_stats(run).values():
+        rx = s.get("net", {}).get("received", {})
+        if rx.get("pose_batch") and rx.get("pose") and n > 1:
+            per_instant.append(rx["pose_batch"] / (rx["pose"] / (n - 1)))
+    ms = lambda q, v: round(1000.0 * float(np.percentile(v, q)), 2) if v else None  # noqa: E731
+    return {"pose_sent_after_instant_p50_ms": ms(50, offsets), "pose_sent_after_instant_p90_ms": ms(90, offsets),
+            "instant_spread_p50_ms": ms(50, spreads),
+            "feed_batches_per_instant": round(statistics.median(per_instant), 2) if per_instant else None}
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:

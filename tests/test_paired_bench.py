@@ -60,3 +60,32 @@ def test_commits_fly_first_in_turn_so_that_the_order_costs_every_side_alike() ->
     assert rounds[1] == rounds[3] == [(2, sides[2]), (1, sides[1]), (0, sides[0])]
     for k in range(len(sides)):  # each side's place, summed over a pair of rounds, is the same
         assert sum([i for i, _ in r].index(k) for r in rounds[:2]) == len(sides) - 1
+
+
+def test_pose_instants_reads_when_the_poses_of_an_instant_left(tmp_path) -> None:
+    """scale.py's pose_instants, on a flight record written as mrswarm's recorder writes poses:
+    three UAVs whose poses leave 1, 3 and 9 ms after each instant, and their status files."""
+    import json
+
+    from mcap.writer import Writer
+
+    from benchmarks.scale import pose_instants
+
+    with open(tmp_path / "run.mcap", "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema("pose", "jsonschema", b"{}")
+        channels = {u: w.register_channel(f"/uav/{u}/pose", "json", schema) for u in (1, 2, 3)}
+        for k in range(100, 120):  # twenty instants, 0.1 s apart
+            for u, after in ((1, 0.001), (2, 0.003), (3, 0.009)):
+                t = k * 0.1 + after
+                w.add_message(channels[u], int(t * 1e9), json.dumps({"uav": u, "t_wall": t}).encode(), int(t * 1e9))
+        w.finish()
+    for u, (batches, poses) in {1: (30, 40), 2: (20, 40), 3: (40, 40)}.items():  # 1.5, 1.0, 2.0 batches an instant
+        (tmp_path / f"uav{u}.json").write_text(json.dumps({"uav": u, "net": {"received": {"pose_batch": batches,
+                                                                                          "pose": poses}}}))
+    got = pose_instants(tmp_path, 3)
+    assert abs(got["pose_sent_after_instant_p50_ms"] - 3.0) < 0.01
+    assert 3.0 < got["pose_sent_after_instant_p90_ms"] <= 9.0
+    assert abs(got["instant_spread_p50_ms"] - 8.0) < 0.01
+    assert got["feed_batches_per_instant"] == 1.5
