@@ -205,34 +205,32 @@ class Agent(OverridesMixin):
 
     def sense(self, now: float) -> None:
         """The first half of a tick whose halves run apart (``network.align_ticks``): the FCU's
-        position in, the own pose out, and nothing else, so that the pose leaves as early as it
-        can (every UAV of the swarm wakes at this instant and waits for the cores).
-        :meth:`act` follows once the swarm's poses of the same instant are in
-        (uav_stack.runtime)."""
-        self._sense_pose(now)
+        messages in, the own pose out. :meth:`act` follows once the swarm's poses of the same
+        instant are in (uav_stack.runtime). What ground stations sent the FCU leaves now, not then."""
+        self._sense(now)
         if self.router is not None:
-            self.router.flush()  # the position to ground stations now, not then
+            self.router.flush()
 
     def act(self, now: float) -> None:
         """The second half of a tick whose halves run apart: the FCU's messages that came
-        meanwhile, the rest of the sense half (:meth:`_sense_rest`), then what arrived from the
-        swarm, control, setpoints and reports."""
+        meanwhile, then what arrived from the swarm, control, setpoints and reports."""
         self.link.poll()
-        self._sense_rest(now)
         self._act(now, self._update_own())
 
     def _sense(self, now: float) -> bool:
-        """FCU in, pose out, then the rest of the sense (ground stations, payload); True if the
-        own position is known."""
-        have_pos = self._sense_pose(now)
-        self._sense_rest(now)
-        return have_pos
-
-    def _sense_pose(self, now: float) -> bool:
         """FCU in, pose out; True if the own position is known."""
         link, node = self.link, self.node
         link.poll()
+        link.service()
+        router = self.router
+        if router is not None:
+            router.poll()  # ground stations -> FCU (sent by router.flush(): in sense, or in _act)
+            if router.takeover is not None:
+                self._gcs_takeover = router.takeover[1]
+                router.takeover = None
         have_pos = self._update_own()
+        if self.payload is not None:
+            self.payload.poll(now)  # sensor readings that arrived: the behaviour reads the latest
         st = link.state
         # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
         # anything else, so that its stamp (when the position was read) is its publication time.
@@ -246,19 +244,6 @@ class Agent(OverridesMixin):
                 t_wall=st.position_at,
             )
         return have_pos
-
-    def _sense_rest(self, now: float) -> None:
-        """What the sense half does besides the pose: the FCU link's heartbeat and retries,
-        ground stations' traffic to the FCU, the payload's readings."""
-        self.link.service()
-        router = self.router
-        if router is not None:
-            router.poll()  # ground stations -> FCU (sent by router.flush(): in sense, or in _act)
-            if router.takeover is not None:
-                self._gcs_takeover = router.takeover[1]
-                router.takeover = None
-        if self.payload is not None:
-            self.payload.poll(now)  # sensor readings that arrived: the behaviour reads the latest
 
     def _act(self, now: float, have_pos: bool) -> None:
         """Swarm in, control and reports out."""

@@ -234,12 +234,9 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
     """:func:`run_loop` on the wall clock's grid: each tick in two halves, sense then act.
 
     At each instant of the grid (whole multiples of ``period`` s since the Unix epoch, found
-    again every tick, so that a step of the wall clock moves the grid, never bursts it) the FCU's
-    position of that instant, and nothing else of its step (:meth:`VirtualFcu.poll_position
-    <uav_stack.fcu.fcu.VirtualFcu.poll_position>`), and :meth:`Agent.sense`: the own pose leaves,
-    as every other UAV's does at that instant, as early as it can. Then :meth:`Agent.act`, after
-    the rest of the FCU's step (its supervisor tick, its other telemetry, the datagrams the agent
-    sent it): the control sees the others' poses of that instant rather than
+    again every tick, so that a step of the wall clock moves the grid, never bursts it) the FCU
+    and :meth:`Agent.sense`: the own pose leaves, as every other UAV's does at that instant.
+    Then :meth:`Agent.act`: the control sees the others' poses of that instant rather than
     those of the instant before. It acts as soon as they have arrived, one from each neighbour
     heard at the instant before, directly or in the edge feed's batches
     (:meth:`SwarmNode.expect_poses`; through a netem shim, when the shim releases the last of
@@ -275,8 +272,7 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
             next_act = math.inf
             node.stop_expecting_poses()
             if fcu is not None:
-                fcu.poll_io()  # the step held at the instant finished first (its supervisor tick, its other telemetry)
-                fcu.service()
+                fcu.poll_io()
             agent.act(time.time())
             if fcu is not None:
                 fcu.poll_io()  # the setpoints just sent: applied now
@@ -284,21 +280,17 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
         instant = next_sense
         next_sense = next_grid_instant(now_m, period)
         instant = max(instant, next_sense - period)  # its own instant, unless more than a period late
-        instant_wall = time.time() - (now_m - instant)
-        if not node.neighbours:  # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it
-            if fcu is not None:
-                fcu.poll_io()
-                fcu.service()
-            agent.step(time.time())
-            if fcu is not None:
-                fcu.poll_io()
-        else:
-            if fcu is not None:
-                fcu.poll_position()  # the position of the instant, and nothing else, before the pose leaves
-            agent.sense(time.time())
-            # armed once the pose has left (the instant's poses already in count); nobody heard at
-            # the instant before: act at once
-            next_act = now_m if node.expect_poses(instant_wall) == 0 else instant + 0.5 * period
+        # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it; a
+        # UAV that has no neighbour at all skips counting them (a lone UAV's tick is ~1 ms of CPU)
+        whole = not node.neighbours or node.expect_poses(time.time() - (now_m - instant)) == 0  # (the instant's wall time)
+        if not whole:
+            next_act = instant + 0.5 * period
+        if fcu is not None:
+            fcu.poll_io()
+            fcu.service()
+        (agent.step if whole else agent.sense)(time.time())
+        if fcu is not None:
+            fcu.poll_io()
         if os.getppid() != parent:  # re-parented: the launcher is gone
             break
 

@@ -126,9 +126,6 @@ class SimFaults:
             return
         self.fcu.poll_io()
 
-    def poll_position(self) -> None:
-        self.fcu.poll_position()  # (nothing it sends leaves while the link is cut: see _update)
-
     def service(self, now: float | None = None) -> float:
         self._update(time.time())
         return self.fcu.service(now)

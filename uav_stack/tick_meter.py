@@ -31,20 +31,17 @@ SENSE = "agent: sense (FCU in, own pose out)"  # once per tick, whole or in halv
 
 # (label, path from the roots "fcu" and "agent", method): the parts of a tick, outermost first.
 PARTS: tuple[tuple[str, str, str], ...] = (
-    ("fcu: the instant's position out (steps due, position streams)", "fcu", "poll_position"),
     ("fcu: datagrams in (and steps due)", "fcu", "poll_io"),
     ("fcu: service (steps, heartbeat, wake-up)", "fcu", "service"),
     ("fcu: steps due (physics, supervisor, telemetry)", "fcu", "_advance"),
     ("fcu: physics step (compiled)", "fcu.dyn", "step"),
     ("fcu: supervisor (failsafes, modes)", "fcu.vehicles[0]", "tick"),
     ("fcu: telemetry encoded and queued", "fcu.vehicles[0]", "send_due_telemetry"),
-    ("fcu: position streams encoded and queued (aligned ticks)", "fcu.vehicles[0]", "send_due_position"),
     ("fcu: a datagram handled (setpoints, commands)", "fcu", "_on_datagram"),
     ("fcu: datagrams sent", "fcu", "_flush"),
-    (SENSE, "agent", "_sense_pose"),
+    (SENSE, "agent", "_sense"),
     ("agent: FCU link read and parsed", "agent.link", "poll"),
     ("agent: own pose published (Zenoh put)", "agent.node", "publish_pose"),
-    ("agent: sense, the rest (FCU link service, ground stations, payload)", "agent", "_sense_rest"),
     ("agent: act (swarm in, control, reports)", "agent", "_act"),
     ("agent: swarm in (node poll, commands)", "agent", "react"),
     ("agent: swarm in: node poll (poses into the table)", "agent.node", "poll"),

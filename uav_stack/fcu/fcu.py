@@ -94,7 +94,6 @@ class VirtualFcu:
         self._batch_steps = max(1, int(config.max_step_batch_s * config.physics_hz + 1e-9))
         self._next_hb_wall = math.inf
         self._next_peer_check = 0.0
-        self._held: int | None = None  # a step whose supervisor tick and other telemetry wait (poll_position)
         self._opened = False
 
     # ----------------------------------------------------------- lifecycle
@@ -143,25 +142,6 @@ class VirtualFcu:
         self.close()
 
     # ---------------------------------------------------------------- I/O
-    def poll_position(self) -> None:
-        """The steps due by now, and at a step where telemetry is due only the position streams
-        (:data:`~uav_stack.fcu.telemetry.POSITION_STREAMS`); the rest of that step (its supervisor
-        tick, its other telemetry) and the datagrams waiting are left to the next :meth:`poll_io`
-        or :meth:`service`, which finish that step first, at its own sim time.
-
-        Why: with aligned ticks (uav_stack.runtime) every UAV of the swarm wakes at the same
-        instant and publishes its pose once its FCU's position of that instant is in; until the
-        last UAV has published, the others wait for the cores. So every microsecond a UAV spends
-        before its pose leaves spreads the swarm's poses of the instant wider (16 ms at p50 for
-        50 UAVs on 2 cores), and the edge feed then carries them in more batches, each of which
-        wakes every UAV (docs/benchmarks.md). Nothing of the held step changes: no physics step
-        runs before it is finished, and a position does not depend on its supervisor tick.
-        """
-        if not self._opened:
-            raise RuntimeError("VirtualFcu.open() first")
-        self._advance(self._wall(), position_first=True)
-        self._flush()
-
     def poll_io(self, ready_fds: Iterable[int] | None = None) -> None:
         """Read and handle every pending datagram (optionally only on the given fds)."""
         if ready_fds is None:
@@ -220,16 +200,12 @@ class VirtualFcu:
         tel = vs[0].streams.next_any if len(vs) == 1 else min(v.streams.next_any for v in vs)  # (a UAV's FCU has one)
         return math.ceil(tel * self.clock.physics_hz - 1e-6) if tel < math.inf else 1 << 62
 
-    def _advance(self, now: float, position_first: bool = False) -> None:
+    def _advance(self, now: float) -> None:
         """Run the physics steps due by ``now``; supervisor ticks and telemetry at their steps.
 
-        Steps between two such events are handed to the dynamics as one multi-step call. With
-        ``position_first`` (:meth:`poll_position`) the first such event sends the position
-        streams only and holds the rest of its step, and no later step runs, until the next call.
+        Steps between two such events are handed to the dynamics as one multi-step call.
         """
         clock, dyn, vehicles = self.clock, self.dyn, self.vehicles
-        if self._held is not None:
-            self._finish_held()
         n = clock.due_steps(now)
         dt = clock.dt
         sup = self._sup_every
@@ -240,40 +216,19 @@ class VirtualFcu:
             clock.advance(k)
             n -= k
             sim = clock.sim_time
-            if position_first and (clock.steps % sup == 0 or clock.steps >= self._next_tel_step()):
+            if clock.steps % sup == 0:
                 for v in vehicles:
                     try:
-                        v.send_due_position(sim)
+                        v.tick(sim)
                     except Exception:
-                        self._handler_error(v, "telemetry")
-                self._held = clock.steps
-                break
-            self._step_events(clock.steps, sim)
-        self.stats.physics_steps = clock.steps
-        self.stats.dropped_wall_s = clock.dropped_wall_s
-
-    def _step_events(self, steps: int, sim: float) -> None:
-        """What falls at a step after its physics: the supervisor tick (every ``_sup_every``
-        steps), then the telemetry due."""
-        vehicles = self.vehicles
-        if steps % self._sup_every == 0:
+                        self._handler_error(v, "supervisor")
             for v in vehicles:
                 try:
-                    v.tick(sim)
+                    v.send_due_telemetry(sim)
                 except Exception:
-                    self._handler_error(v, "supervisor")
-        for v in vehicles:
-            try:
-                v.send_due_telemetry(sim)
-            except Exception:
-                self._handler_error(v, "telemetry")
-
-    def _finish_held(self) -> None:
-        """The step :meth:`poll_position` held: its supervisor tick and the rest of its telemetry,
-        at its sim time (no step has run since)."""
-        held, self._held = self._held, None
-        if held is not None and held == self.clock.steps:
-            self._step_events(held, self.clock.sim_time)
+                    self._handler_error(v, "telemetry")
+        self.stats.physics_steps = clock.steps
+        self.stats.dropped_wall_s = clock.dropped_wall_s
 
     def _flush(self) -> None:
         dirty = self._dirty

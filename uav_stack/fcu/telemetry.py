@@ -353,10 +353,6 @@ def global_position_int_frame(v: Vehicle) -> bytes | None:
 
 
 # Streams some of whose messages a compiled call frames whole: name -> frame or None (then the encoder)
-# The streams a companion's pose is made of: with aligned ticks they leave at the instant,
-# before the rest of the step's telemetry (VirtualFcu.poll_position).
-POSITION_STREAMS: tuple[str, ...] = ("GLOBAL_POSITION_INT",)
-
 FRAMERS: dict[str, Callable[[Vehicle], bytes | None]] = (
     {"GLOBAL_POSITION_INT": global_position_int_frame} if _FRAMER is not None else {})
 
@@ -417,18 +413,6 @@ class StreamSet:
     def interval_us(self, name: str) -> int:
         iv = self.interval.get(name, 0.0)
         return int(round(iv * 1e6)) if iv > 0 else -1
-
-    def take(self, name: str, now: float) -> bool:
-        """Whether stream ``name`` is due at ``now`` (sim s); if so, it is counted as sent, as
-        :meth:`due` counts what it returns."""
-        t = self.next_due.get(name, math.inf)
-        if now + 1e-9 < t:
-            return False
-        iv = self.interval[name]
-        nt = t + iv
-        self.next_due[name] = nt if nt > now else now + iv
-        self.next_any = min(self.next_due.values())
-        return True
 
     def due(self, now: float) -> list[str]:
         if now + 1e-9 < self.next_any:

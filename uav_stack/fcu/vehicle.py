@@ -37,7 +37,7 @@ from uav_stack.fcu.modes import (
 from uav_stack.fcu.offboard import Setpoint, SetpointStream
 from uav_stack.fcu.params import Action, ParamStore, Settings, ardupilot_param_defs, derive_settings, px4_param_defs
 from uav_stack.fcu.stats import FcuStats
-from uav_stack.fcu.telemetry import ENCODERS, FRAMERS, POSITION_STREAMS, StreamSet, heartbeat
+from uav_stack.fcu.telemetry import ENCODERS, FRAMERS, StreamSet, heartbeat
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink
 from uav_stack.mavcodec import pack
@@ -229,29 +229,17 @@ class Vehicle:
         if now + 1e-9 < st.next_any:
             return
         for name in st.due(now):
-            if name != "HEARTBEAT":  # paced on wall time, see VirtualFcu.service
-                self._send_stream(name)
-
-    def send_due_position(self, now: float) -> None:
-        """The position streams due at ``now`` (sim s), ahead of the step's other telemetry
-        (:meth:`VirtualFcu.poll_position <uav_stack.fcu.fcu.VirtualFcu.poll_position>`)."""
-        st = self.streams
-        if now + 1e-9 < st.next_any:
-            return
-        for name in POSITION_STREAMS:
-            if st.take(name, now):
-                self._send_stream(name)
-
-    def _send_stream(self, name: str) -> None:
-        framer = FRAMERS.get(name)
-        if framer is not None:
-            frame = framer(self)  # the whole frame in one compiled call, when it can
-            if frame is not None:
-                self.send_frame(frame)
-                return
-        msg = ENCODERS[name](self)
-        if msg is not None:  # None: nothing to say yet (no position before the first fix)
-            self.send(msg)
+            if name == "HEARTBEAT":
+                continue  # paced on wall time, see VirtualFcu.service
+            framer = FRAMERS.get(name)
+            if framer is not None:
+                frame = framer(self)  # the whole frame in one compiled call, when it can
+                if frame is not None:
+                    self.send_frame(frame)
+                    continue
+            msg = ENCODERS[name](self)
+            if msg is not None:  # None: nothing to say yet (no position before the first fix)
+                self.send(msg)
 
     # --------------------------------------------------------------- settings
     def apply_settings(self) -> None:
