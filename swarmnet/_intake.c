@@ -17,7 +17,6 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
-#include <structmember.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -188,9 +187,6 @@ typedef struct {
     PyObject *pose_descr[N_POSE];           /* the slots' member descriptors */
     PyObject *neighbour_name[N_NEIGHBOUR];  /* interned attribute names */
     PyObject *neighbour_descr[N_NEIGHBOUR];
-    Py_ssize_t pose_off[N_POSE];            /* each slot's offset in a Pose, -1 if not a plain object slot */
-    Py_ssize_t neighbour_off[N_NEIGHBOUR];  /* the same in a Neighbour */
-    int fast_slots;                         /* every offset update() writes through is known */
     Batch batch;                            /* scratch: the batch being taken (owner's thread only) */
 } Intake;
 
@@ -219,13 +215,6 @@ static PyObject *slot_descriptor(PyTypeObject *type, const char *name) {
     return d;
 }
 
-/* The offset of the object slot a member descriptor reads, or -1 if it is not one. */
-static Py_ssize_t slot_offset(PyObject *d) {
-    if (Py_TYPE(d) != &PyMemberDescr_Type) return -1;
-    PyMemberDef *m = ((PyMemberDescrObject *)d)->d_member;
-    return (m->type == T_OBJECT_EX && !(m->flags & READONLY)) ? m->offset : -1;
-}
-
 static int Intake_init(Intake *self, PyObject *args, PyObject *kwds) {
     static char *kwlist[] = {"pose_type", "neighbour_type", "realms", "batch_tag", "pose_tag", NULL};
     PyObject *pose_type, *neighbour_type, *realms;
@@ -247,16 +236,10 @@ static int Intake_init(Intake *self, PyObject *args, PyObject *kwds) {
     self->pose_tag = pose_tag;
     for (int i = 0; i < N_POSE; i++)
         if ((self->pose_descr[i] = slot_descriptor(self->pose_type, POSE_FIELDS[i])) == NULL) return -1;
-    for (int i = 0; i < N_POSE; i++) self->pose_off[i] = slot_offset(self->pose_descr[i]);
     for (int i = 0; i < N_NEIGHBOUR; i++) {
         if ((self->neighbour_name[i] = PyUnicode_InternFromString(NEIGHBOUR_FIELDS[i])) == NULL) return -1;
         if ((self->neighbour_descr[i] = slot_descriptor(self->neighbour_type, NEIGHBOUR_FIELDS[i])) == NULL) return -1;
-        self->neighbour_off[i] = slot_offset(self->neighbour_descr[i]);
     }
-    self->fast_slots = self->neighbour_off[N_POSE_] >= 0 && self->neighbour_off[N_LAST_RECV] >= 0 &&
-                       self->neighbour_off[N_INTERVAL] >= 0;
-    for (int i = 0; i < N_POSE; i++)
-        if (self->pose_off[i] < 0) self->fast_slots = 0;
     return 0;
 }
 
@@ -291,56 +274,6 @@ static PyObject *make_pose(Intake *self, const WirePose *w) {
         return NULL;
     }
     return pose;
-}
-
-/* Why the next three: a UAV of 50 takes in about 500 poses a second, and each made a new Pose
- * with nine new floats and dropped the one it replaced, a tick's worth of allocations and frees
- * spread over the heap, which the caches of a UAV among fifty processes do not hold. A Pose that
- * nothing but its Neighbour holds, and a float that nothing but its slot holds, cannot be seen
- * changing by anyone: they are rewritten in place instead. One held elsewhere (a snapshot of the
- * table, a view the avoidance kept) is replaced as before, so it never changes under its holder. */
-
-/* Slot `off` of `obj` set to the float `v`: the float it holds rewritten in place when the slot
- * holds its only reference, else a new float. 0 ok, -1 error. */
-static int slot_float(PyObject *obj, Py_ssize_t off, double v) {
-    PyObject **slot = (PyObject **)((char *)obj + off);
-    PyObject *f = *slot;
-    if (f != NULL && PyFloat_CheckExact(f) && Py_REFCNT(f) == 1) {
-        ((PyFloatObject *)f)->ob_fval = v;
-        return 0;
-    }
-    PyObject *nf = PyFloat_FromDouble(v);
-    if (nf == NULL) return -1;
-    *slot = nf;
-    Py_XDECREF(f);
-    return 0;
-}
-
-/* Slot `off` of `obj` set to `v` (a new reference, taken also on failure). 0 ok, -1 error. */
-static int slot_set(PyObject *obj, Py_ssize_t off, PyObject *v) {
-    if (v == NULL) return -1;
-    PyObject **slot = (PyObject **)((char *)obj + off);
-    PyObject *old = *slot;
-    *slot = v;
-    Py_XDECREF(old);
-    return 0;
-}
-
-/* `pose` (a Pose only its Neighbour holds) rewritten with the wire fields, as make_pose makes one. */
-static int refresh_pose(Intake *self, PyObject *pose, const WirePose *w) {
-    const Py_ssize_t *off = self->pose_off;
-    PyObject *realm = PyTuple_GET_ITEM(self->realms, w->realm);
-    Py_INCREF(realm);
-    if (slot_set(pose, off[P_UAV], PyLong_FromLongLong(w->uav)) < 0 || slot_set(pose, off[P_REALM], realm) < 0 ||
-        slot_set(pose, off[P_SEQ], PyLong_FromLongLong(w->seq)) < 0 ||
-        slot_float(pose, off[P_T_SIM], (double)w->t_sim_ms / 1000.0) < 0 ||
-        slot_float(pose, off[P_T_WALL], (double)w->t_wall_us / 1e6) < 0 ||
-        slot_float(pose, off[P_X], (double)w->x / 100.0) < 0 || slot_float(pose, off[P_Y], (double)w->y / 100.0) < 0 ||
-        slot_float(pose, off[P_Z], (double)w->z / 100.0) < 0 || slot_float(pose, off[P_VX], (double)w->vx / 100.0) < 0 ||
-        slot_float(pose, off[P_VY], (double)w->vy / 100.0) < 0 || slot_float(pose, off[P_VZ], (double)w->vz / 100.0) < 0 ||
-        slot_float(pose, off[P_YAW], (double)w->yaw / 1e4) < 0)
-        return -1;
-    return 0;
 }
 
 /* The neighbour's attribute i: through its slot when it is a Neighbour, by name otherwise. */
@@ -472,28 +405,16 @@ static int update(Intake *self, PyObject *table, const WirePose *w, double at, P
     }
     if (nadd(self, n, N_LOST, diff - 1) < 0 || nadd(self, n, N_RECEIVED, 1) < 0) goto fail_n;
     double gap = t_wall - old_t_wall;
-    int here = Py_TYPE(n) == self->neighbour_type && self->fast_slots; /* its slots written directly */
     if (gap > 0.0) {
         double iv;
         if (nget_double(self, n, N_INTERVAL, &iv) < 0) goto fail_n;
         iv = iv == 0.0 ? gap : iv + RATE_ALPHA * (gap - iv);
-        if (here ? slot_float(n, self->neighbour_off[N_INTERVAL], iv) < 0
-                 : nset(self, n, N_INTERVAL, PyFloat_FromDouble(iv)) < 0)
-            goto fail_n;
+        if (nset(self, n, N_INTERVAL, PyFloat_FromDouble(iv)) < 0) goto fail_n;
     }
-    if (here) {
-        PyObject *pose = *(PyObject **)((char *)n + self->neighbour_off[N_POSE_]); /* borrowed */
-        if (pose != NULL && Py_TYPE(pose) == self->pose_type && Py_REFCNT(pose) == 1) {
-            if (refresh_pose(self, pose, w) < 0) goto fail_n;
-        } else if (slot_set(n, self->neighbour_off[N_POSE_], make_pose(self, w)) < 0) {
-            goto fail_n;
-        }
-        if (slot_float(n, self->neighbour_off[N_LAST_RECV], at) < 0 || nset(self, n, N_USED, Py_NewRef(Py_False)) < 0)
-            goto fail_n;
-    } else if (nset(self, n, N_POSE_, make_pose(self, w)) < 0 || nset(self, n, N_LAST_RECV, PyFloat_FromDouble(at)) < 0 ||
-               nset(self, n, N_USED, Py_NewRef(Py_False)) < 0) { /* nset takes each new reference, also when it fails */
+    /* nset takes each new reference, also when it fails */
+    if (nset(self, n, N_POSE_, make_pose(self, w)) < 0 || nset(self, n, N_LAST_RECV, PyFloat_FromDouble(at)) < 0 ||
+        nset(self, n, N_USED, Py_NewRef(Py_False)) < 0)
         goto fail_n;
-    }
     Py_DECREF(n);
     Py_DECREF(key);
     return note_taken(w, at, srcs, ages) < 0 ? -1 : 1;
