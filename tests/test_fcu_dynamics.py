@@ -227,3 +227,41 @@ def test_compiled_step_names_a_bad_array() -> None:
     d.wind = np.zeros((2, 3))
     d.step(DT, 1)
     assert np.isfinite(d.pos).all()
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_one_vehicles_values_read_and_targets_written_alike_with_or_without_the_compiled_step(n: int) -> None:
+    """What the FCU's telemetry, setpoints and failsafes read and write of one vehicle: the same
+    through the compiled step's views as through numpy, also after an array was replaced."""
+    from uav_stack.fcu import dynamics
+
+    rng = np.random.default_rng(7)
+    assert dynamics.DYNAMICS == "compiled"  # scripts/test installs gcc: the compiled views run here
+    for _ in range(20):
+        fast, slow = MultirotorArray(n), MultirotorArray(n)
+        slow.compiled_step = None
+        for a in (fast, slow):  # the views made by a step, then any state
+            a.step(0.02, 3)
+        for name in dynamics.FIELDS:  # any state, NaN and the limits too
+            arr = getattr(fast, name)
+            vals = rng.random(arr.shape) > 0.5 if arr.dtype == np.bool_ else rng.normal(0.0, 50.0, arr.shape)
+            if arr.dtype != np.bool_:
+                vals.flat[rng.integers(vals.size)] = rng.choice([math.nan, math.inf, -0.0, 1e308])
+            arr[...] = vals
+            getattr(slow, name)[...] = vals
+        for k, name in enumerate(dynamics.FIELDS):
+            for i in range(n):
+                got, want = fast.get(k, i), slow.get(k, i)
+                assert type(got) is type(want) and np.array_equal(np.asarray(got), np.asarray(want), equal_nan=True), name
+                assert np.array_equal(np.asarray(want), getattr(slow, name)[i], equal_nan=True)
+        i = int(rng.integers(n))
+        pos, vel = tuple(rng.normal(0.0, 10.0, 3)), (math.nan, float(rng.normal()), 0.5)
+        for a in (fast, slow):
+            a.set_targets(i, pos, vel, math.nan, 0.25)
+        for name in ("pos_sp", "vel_ff", "yaw_sp", "yaw_rate_sp"):
+            assert np.array_equal(getattr(fast, name), getattr(slow, name), equal_nan=True), name
+    fast.pos = fast.pos.copy()  # another array under the same name: read from it, not the old view
+    fast.pos[0] = (1.0, 2.0, 3.0)
+    assert fast.get(dynamics.POS, 0) == (1.0, 2.0, 3.0)
+    with pytest.raises(IndexError):
+        fast.get(dynamics.POS, n)

@@ -250,8 +250,82 @@ static PyObject *step(Stepper *st, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* The kept view of field k of `obj` (exported again, with every other, when the attribute now
+ * holds another array), and vehicle i checked against it. 0 ok, -1 error. */
+static int field_ready(Stepper *st, PyObject *obj, int k, Py_ssize_t i) {
+    PyObject *arr = PyObject_GetAttr(obj, field_names[k]);
+    if (arr == NULL) return -1;
+    int same = arr == st->objs[k] && st->n > 0;
+    Py_DECREF(arr);
+    if (!same) {
+        PyObject *nobj = PyObject_GetAttr(obj, name_n);
+        if (nobj == NULL) return -1;
+        Py_ssize_t nv = PyLong_AsSsize_t(nobj);
+        Py_DECREF(nobj);
+        if (nv < 1) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "MultirotorArray.n must be >= 1");
+            return -1;
+        }
+        if (stepper_views(st, obj, nv) < 0) return -1;
+    }
+    if (i < 0 || i >= st->n) {
+        PyErr_Format(PyExc_IndexError, "vehicle %zd of %zd", i, st->n);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(get_doc,
+"Stepper().get(arr, k, i) -> float | bool | (float, float, float)\n\n"
+"Vehicle i's value of field k (FIELDS[k]) of the MultirotorArray ``arr``: what float(arr.<field>[i]),\n"
+"bool(...) or tuple(arr.<field>[i].tolist()) give, without numpy's indexing.");
+
+static PyObject *get(Stepper *st, PyObject *args) {
+    PyObject *obj;
+    int k;
+    Py_ssize_t i;
+    if (!PyArg_ParseTuple(args, "Oin:get", &obj, &k, &i)) return NULL;
+    if (k < 0 || k >= N_FIELDS) return PyErr_Format(PyExc_IndexError, "field %d of %d", k, N_FIELDS);
+    if (field_ready(st, obj, k, i) < 0) return NULL;
+    switch (FIELDS[k].kind) {
+    case 'v': {
+        const double *v = (const double *)st->views[k].buf + 3 * i;
+        return Py_BuildValue("(ddd)", v[0], v[1], v[2]);
+    }
+    case 'b':
+        return PyBool_FromLong(((const char *)st->views[k].buf)[i] != 0);
+    default:
+        return PyFloat_FromDouble(((const double *)st->views[k].buf)[i]);
+    }
+}
+
+PyDoc_STRVAR(set_targets_doc,
+"Stepper().set_targets(arr, i, px, py, pz, vx, vy, vz, yaw, yaw_rate)\n\n"
+"Vehicle i's position setpoint (m, NED; NaN: that axis free), velocity feed-forward (m/s), yaw\n"
+"setpoint and yaw-rate setpoint (rad, rad/s; NaN: none) written into ``arr``'s pos_sp, vel_ff,\n"
+"yaw_sp and yaw_rate_sp, as the four numpy assignments of Vehicle._targets write them.");
+
+static PyObject *set_targets(Stepper *st, PyObject *args) {
+    PyObject *obj;
+    Py_ssize_t i;
+    double px, py, pz, vx, vy, vz, yaw, yaw_rate;
+    if (!PyArg_ParseTuple(args, "Ondddddddd:set_targets", &obj, &i, &px, &py, &pz, &vx, &vy, &vz, &yaw, &yaw_rate))
+        return NULL;
+    if (field_ready(st, obj, F_POS_SP, i) < 0 || field_ready(st, obj, F_VEL_FF, i) < 0 ||
+        field_ready(st, obj, F_YAW_SP, i) < 0 || field_ready(st, obj, F_YAW_RATE_SP, i) < 0)
+        return NULL;
+    double *p = (double *)st->views[F_POS_SP].buf + 3 * i, *v = (double *)st->views[F_VEL_FF].buf + 3 * i;
+    p[0] = px; p[1] = py; p[2] = pz;
+    v[0] = vx; v[1] = vy; v[2] = vz;
+    ((double *)st->views[F_YAW_SP].buf)[i] = yaw;
+    ((double *)st->views[F_YAW_RATE_SP].buf)[i] = yaw_rate;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef stepper_methods[] = {
     {"step", (PyCFunction)step, METH_VARARGS, step_doc},
+    {"get", (PyCFunction)get, METH_VARARGS, get_doc},
+    {"set_targets", (PyCFunction)set_targets, METH_VARARGS, set_targets_doc},
     {NULL, NULL, 0, NULL},
 };
 
@@ -282,6 +356,17 @@ PyMODINIT_FUNC PyInit__dynamics(void) {
     if (PyType_Ready(&StepperType) < 0) return NULL;
     PyObject *m = PyModule_Create(&module);
     if (m == NULL) return NULL;
+    PyObject *names = PyTuple_New(N_FIELDS);
+    if (names == NULL) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    for (int k = 0; k < N_FIELDS; k++) PyTuple_SET_ITEM(names, k, Py_NewRef(field_names[k]));
+    if (PyModule_AddObject(m, "FIELDS", names) < 0) {  /* the field index of get(): Stepper's order */
+        Py_DECREF(names);
+        Py_DECREF(m);
+        return NULL;
+    }
     Py_INCREF(&StepperType);
     if (PyModule_AddObject(m, "Stepper", (PyObject *)&StepperType) < 0) {
         Py_DECREF(&StepperType);

@@ -41,6 +41,16 @@ _COMPILED = compiled_module("uav_stack.fcu._dynamics")
 DYNAMICS = "compiled" if _COMPILED is not None else "python"
 """Which scalar step this process runs: ``"compiled"`` or ``"python"`` (in a UAV's status file)."""
 
+# The arrays :meth:`MultirotorArray.get` reads, by index (the compiled Stepper's order: its FIELDS).
+FIELDS = ("pos", "vel", "acc", "pos_sp", "vel_ff", "wind", "armed", "landed", "ground_z", "vxy_max", "vz_up", "vz_dn",
+          "acc_hor", "tilt_acc", "yaw_rate_max", "yaw_sp", "yaw_rate_sp", "yaw", "yaw_rate", "roll", "pitch",
+          "roll_rate", "pitch_rate", "battery", "endurance_s")
+POS, VEL, LANDED, YAW, YAW_RATE, ROLL, PITCH, ROLL_RATE, PITCH_RATE, BATTERY = (
+    FIELDS.index(f) for f in ("pos", "vel", "landed", "yaw", "yaw_rate", "roll", "pitch", "roll_rate", "pitch_rate", "battery"))
+if _COMPILED is not None and tuple(_COMPILED.FIELDS) != FIELDS:  # a stale build: its indices would mislead
+    _COMPILED = None
+    DYNAMICS = "python"
+
 
 @dataclass
 class MultirotorParams:
@@ -132,6 +142,40 @@ class MultirotorArray:
         self._bz = 0.5 * min(p.acc_up, p.acc_dn)  # vertical braking deceleration of the profile
         self._2bz = 2.0 * self._bz
         self._stepper: Any = None  # the compiled step's views of these arrays, made at the first step
+
+    # ------------------------------------------------------------------ one vehicle's values
+    # Why: the virtual FCU's steady tick reads and writes a dozen of these (telemetry, the
+    # setpoint, the failsafes), and numpy's indexing, run once per tick with the caches cold,
+    # costs several times the same work on Python floats (docs/benchmarks.md, 2026-11-29): with
+    # the compiled step these go through its views of the arrays instead.
+    def get(self, k: int, i: int) -> Any:
+        """Vehicle ``i``'s value of field ``FIELDS[k]``: a float, a bool (armed, landed) or an
+        (x, y, z) tuple of floats (pos, vel, acc, pos_sp, vel_ff, wind), the units of the field."""
+        st = self._stepper
+        if st is None and self.compiled_step is not None and self.n <= self.scalar_max:
+            st = self._stepper = self.compiled_step.Stepper()
+        if st is not None:
+            return st.get(self, k, i)
+        a = getattr(self, FIELDS[k])
+        if a.ndim == 2:
+            return tuple(a[i].tolist())
+        return bool(a[i]) if a.dtype == np.bool_ else float(a[i])
+
+    def set_targets(self, i: int, pos: Any, vel: Any, yaw: float, yaw_rate: float) -> None:
+        """Vehicle ``i``'s position setpoint (m, NED; NaN: that axis free), velocity feed-forward
+        (m/s, NED), yaw setpoint (rad) and yaw-rate setpoint (rad/s; NaN: none)."""
+        st = self._stepper
+        if st is None and self.compiled_step is not None and self.n <= self.scalar_max:
+            st = self._stepper = self.compiled_step.Stepper()
+        if st is not None:
+            px, py, pz = pos
+            vx, vy, vz = vel
+            st.set_targets(self, i, px, py, pz, vx, vy, vz, yaw, yaw_rate)
+            return
+        self.pos_sp[i] = pos
+        self.vel_ff[i] = vel
+        self.yaw_sp[i] = yaw
+        self.yaw_rate_sp[i] = yaw_rate
 
     # ------------------------------------------------------------------ helpers
     def stop_point(self, i: int) -> np.ndarray:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 from uav_stack.fcu import mission_transfer
 from uav_stack.fcu.commands import MavCommand, handle_command
+from uav_stack.fcu.dynamics import POS, YAW
 from uav_stack.fcu.manual import from_manual_control
 from uav_stack.fcu.offboard import decode_global, decode_local
 from uav_stack.fcu.vehicle import ACCEPTED, Vehicle
@@ -95,7 +96,7 @@ def on_param_set(v: Vehicle, m: mavlink.MAVLink_message) -> None:
 # ------------------------------------------------------------------- setpoints
 def on_set_position_target_local_ned(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     d = v.ctx.dyn
-    sp = decode_local(m, d.pos[v.i].copy(), float(d.yaw[v.i]))
+    sp = decode_local(m, d.get(POS, v.i), d.get(YAW, v.i))
     if sp is not None:
         v.on_setpoint(sp)
 

@@ -94,7 +94,7 @@ def _add(a: Vec3 | np.ndarray, b: Vec3) -> Vec3:
     return (float(a[0]) + b[0], float(a[1]) + b[1], float(a[2]) + b[2])
 
 
-def decode_local(msg: mavlink.MAVLink_message, pos_now: np.ndarray, yaw_now: float) -> Setpoint | None:
+def decode_local(msg: mavlink.MAVLink_message, pos_now: Vec3 | np.ndarray, yaw_now: float) -> Setpoint | None:
     """SET_POSITION_TARGET_LOCAL_NED -> LOCAL_NED setpoint; None for unsupported frames."""
     frame = msg.coordinate_frame
     if frame not in LOCAL_FRAMES:

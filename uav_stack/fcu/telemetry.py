@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from swarmnet.compiled import compiled_module
 from uav_stack import geo
+from uav_stack.fcu.dynamics import BATTERY, LANDED, PITCH, PITCH_RATE, POS, ROLL, ROLL_RATE, VEL, YAW, YAW_RATE
 from uav_stack.mav import mavlink
 
 if TYPE_CHECKING:
@@ -91,7 +92,7 @@ def global_position_int(v: Vehicle) -> mavlink.MAVLink_message | None:
         return None  # no global position before the first fix (PX4 sends none either)
     lat, lon, alt = v.reported_geodetic()
     d = v.ctx.dyn
-    vn, ve, vd = d.vel[v.i].tolist()
+    vn, ve, vd = d.get(VEL, v.i)
     m = _reuse(v, "GLOBAL_POSITION_INT", lambda: v.mav.global_position_int_encode(0, 0, 0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
     m.lat = _i32(lat * 1e7)
@@ -99,7 +100,7 @@ def global_position_int(v: Vehicle) -> mavlink.MAVLink_message | None:
     m.alt = _i32(alt * 1000.0)
     m.relative_alt = _i32((alt - v.home.alt) * 1000.0)
     m.vx, m.vy, m.vz = _i16(vn * 100.0), _i16(ve * 100.0), _i16(vd * 100.0)
-    m.hdg = _cdeg_heading(float(d.yaw[v.i]))
+    m.hdg = _cdeg_heading(d.get(YAW, v.i))
     return m
 
 
@@ -109,10 +110,10 @@ def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message | None:
     d = v.ctx.dyn
     m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
-    x, y, z = d.pos[v.i].tolist()
+    x, y, z = d.get(POS, v.i)
     ex, ey, ez = v.position_error
     m.x, m.y, m.z = x + ex, y + ey, z + ez
-    m.vx, m.vy, m.vz = d.vel[v.i].tolist()
+    m.vx, m.vy, m.vz = d.get(VEL, v.i)
     return m
 
 
@@ -120,8 +121,9 @@ def attitude(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     m = _reuse(v, "ATTITUDE", lambda: v.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
-    m.roll, m.pitch, m.yaw = float(d.roll[i]), float(d.pitch[i]), float(d.yaw[i])
-    m.rollspeed, m.pitchspeed, m.yawspeed = float(d.roll_rate[i]), float(d.pitch_rate[i]), float(d.yaw_rate[i])
+    get = d.get
+    m.roll, m.pitch, m.yaw = get(ROLL, i), get(PITCH, i), get(YAW, i)
+    m.rollspeed, m.pitchspeed, m.yawspeed = get(ROLL_RATE, i), get(PITCH_RATE, i), get(YAW_RATE, i)
     return m
 
 
@@ -191,7 +193,7 @@ def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
     cells = v.ctx.dyn.params.battery_cells
     cell_mv = int(volts * 1000 / cells)
     voltages = [cell_mv] * min(cells, 10) + [65535] * (10 - min(cells, 10))
-    soc = float(v.ctx.dyn.battery[v.i])
+    soc = v.ctx.dyn.get(BATTERY, v.i)
     cap = v.ctx.dyn.params.battery_capacity_mah
     s = v.settings
     if soc <= s.bat_emerg:
@@ -223,7 +225,7 @@ def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
         return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
                                         65535, 65535, 0, 65535, 0)  # fmt: skip
     lat, lon, alt = v.reported_geodetic()
-    vn, ve, _ = v.ctx.dyn.vel[v.i].tolist()
+    vn, ve, _ = v.ctx.dyn.get(VEL, v.i)
     gs = math.hypot(vn, ve)
     cog = _cdeg_heading(math.atan2(ve, vn)) if gs > 0.1 else 65535
     return v.mav.gps_raw_int_encode(
@@ -248,10 +250,12 @@ def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
 
 def vfr_hud(v: Vehicle) -> mavlink.MAVLink_message:
     _, _, alt = v.geodetic()
-    vn, ve, vd = v.ctx.dyn.vel[v.i].tolist()
+    d, i = v.ctx.dyn, v.i
+    vn, ve, vd = d.get(VEL, i)
     gs = math.hypot(vn, ve)
-    throttle = 0 if not v.armed else (15 if v.ctx.dyn.landed[v.i] else 50)
-    heading = int(math.degrees(float(v.ctx.dyn.yaw[v.i])) % 360) if math.isfinite(float(v.ctx.dyn.yaw[v.i])) else 0
+    throttle = 0 if not v.armed else (15 if d.get(LANDED, i) else 50)
+    yaw = d.get(YAW, i)
+    heading = int(math.degrees(yaw) % 360) if math.isfinite(yaw) else 0
     return v.mav.vfr_hud_encode(gs, gs, heading, throttle, alt, -vd)
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import VehicleConfig
-from uav_stack.fcu.dynamics import G, MultirotorArray
+from uav_stack.fcu.dynamics import BATTERY, LANDED, POS, G, MultirotorArray
 from uav_stack.fcu.link import DatagramParser, UdpLink
 from uav_stack.fcu.manual import CENTRED, Sticks, StickStream, command
 from uav_stack.fcu.mission import MissionItem, MissionRun
@@ -136,7 +136,7 @@ class Vehicle:
 
     @property
     def landed(self) -> bool:
-        return bool(self.ctx.dyn.landed[self.i])
+        return bool(self.ctx.dyn.get(LANDED, self.i))
 
     @property
     def fence_enabled(self) -> bool:
@@ -169,7 +169,7 @@ class Vehicle:
     def geodetic(self) -> tuple[float, float, float]:
         step = self.ctx.clock.steps
         if self._geo_cache[0] != step:
-            n, e, dn = self.ctx.dyn.pos[self.i].tolist()
+            n, e, dn = self.ctx.dyn.get(POS, self.i)
             self._geo_cache = (step, self.frame.to_geodetic(e, n, -dn))
         return self._geo_cache[1]
 
@@ -190,7 +190,7 @@ class Vehicle:
 
     def battery_readings(self) -> tuple[float, float, int]:
         d, i = self.ctx.dyn, self.i
-        soc = float(d.battery[i])
+        soc = d.get(BATTERY, i)
         volts = d.params.voltage(soc)
         amps = 0.0
         if self.armed:
@@ -208,7 +208,7 @@ class Vehicle:
         return bool(s.stick_input) and self.sticks.fresh(self.now, s.rc_loss_t)
 
     def prearm_ok(self) -> bool:
-        return self.gps_ok and float(self.ctx.dyn.battery[self.i]) > self.settings.bat_emerg
+        return self.gps_ok and self.ctx.dyn.get(BATTERY, self.i) > self.settings.bat_emerg
 
     def offboard_ready(self) -> bool:
         """PX4 entry rule for OFFBOARD (see offboard.py; SIM_OFB_STREAM_T = 0 relaxes it)."""
@@ -285,13 +285,9 @@ class Vehicle:
         return True
 
     # --------------------------------------------------------------- guidance
-    def _targets(self, pos: np.ndarray, vel: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    def _targets(self, pos: np.ndarray | tuple[float, float, float], vel: tuple[float, float, float] = (0.0, 0.0, 0.0),
                  yaw: float = NAN, yaw_rate: float = NAN) -> None:  # fmt: skip
-        d, i = self.ctx.dyn, self.i
-        d.pos_sp[i] = pos
-        d.vel_ff[i] = vel
-        d.yaw_sp[i] = yaw
-        d.yaw_rate_sp[i] = yaw_rate
+        self.ctx.dyn.set_targets(self.i, pos, vel, yaw, yaw_rate)
 
     def _start_hold(self, target: np.ndarray | None = None, yaw: float = NAN) -> None:
         self.phase = P_HOLD
@@ -361,7 +357,7 @@ class Vehicle:
                     cur = float(d.pos_sp[i, k])
                     pos[k] = cur if cur == cur else float(d.pos[i, k])
             a, b, c = (0.0 if a != a else a), (0.0 if b != b else b), (0.0 if c != c else c)
-        self._targets(np.array(pos), (a, b, c), sp.yaw, sp.yaw_rate)
+        self._targets((pos[0], pos[1], pos[2]), (a, b, c), sp.yaw, sp.yaw_rate)
         self.guided_vel = sp.has_velocity
 
     def on_setpoint(self, sp: Setpoint) -> None:
@@ -565,7 +561,7 @@ class Vehicle:
                 self.dll_tripped = False
                 self.statustext(M.MAV_SEVERITY_INFO, "GCS connection regained")
         # battery
-        soc = float(d.battery[i])
+        soc = d.get(BATTERY, i)
         level = 3 if soc <= s.bat_emerg else 2 if soc <= s.bat_crit else 1 if soc <= s.bat_low else 0
         if level > self.bat_level:
             self.bat_level = level
@@ -576,7 +572,7 @@ class Vehicle:
                 self.failsafe(act, f"battery {name}")
         # geofence cylinder around home
         if self.fence_enabled and flying:
-            p = d.pos[i]
+            p = d.get(POS, i)
             hor = math.hypot(p[0] - self.home_ned[0], p[1] - self.home_ned[1])
             ver = self.home_ned[2] - p[2]
             out = (s.gf_hor > 0 and hor > s.gf_hor) or (s.gf_ver > 0 and ver > s.gf_ver)
