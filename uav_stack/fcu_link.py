@@ -188,7 +188,6 @@ class FcuLink:
         self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
         self._next_heartbeat = 0.0
-        self._setpoint: Any = None  # the velocity setpoint's message, kept and refilled each tick
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
@@ -422,14 +421,10 @@ class FcuLink:
     def send_velocity_ned(self, vn: float, ve: float, vd: float) -> None:
         """Velocity setpoint (OFFBOARD/GUIDED); stream it at >= 2 Hz or the FCU fails safe."""
         boot_ms = int(self.state.position_boot_s * 1000) & 0xFFFFFFFF
-        m = self._setpoint
-        if m is None:  # one message refilled each tick: pymavlink builds a message in Python (three __init__)
-            m = self._setpoint = mavlink.MAVLink_set_position_target_local_ned_message(
-                0, 0, mavlink.MAV_COMP_ID_AUTOPILOT1, mavlink.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY_MASK,
-                0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-            )
-        m.time_boot_ms, m.target_system, m.vx, m.vy, m.vz = boot_ms, self.target, vn, ve, vd
-        self.conn.mav.send(m)
+        self.conn.mav.set_position_target_local_ned_send(
+            boot_ms, self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, mavlink.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY_MASK,
+            0, 0, 0, vn, ve, vd, 0, 0, 0, 0, 0,
+        )
         self.counts["tx_setpoints"] += 1
 
 
