@@ -8,6 +8,7 @@ path (pyserial, stream framing) is exercised for real.
 from __future__ import annotations
 
 import json
+import math
 import os
 import select
 import socket
@@ -146,3 +147,30 @@ def test_standalone_agent_flies_a_standalone_fcu(tmp_path: Path, router: str) ->
                     p.wait(10)
                 except subprocess.TimeoutExpired:
                     p.kill()
+
+
+def test_the_velocity_setpoint_leaves_as_pymavlink_frames_it_tick_after_tick() -> None:
+    """What the agent sends its FCU ten times a second, through the compiled framing: exactly the
+    frames pymavlink's own ``set_position_target_local_ned_send`` writes, tick after tick."""
+    from uav_stack.fcu_link import VELOCITY_ONLY_MASK
+    from uav_stack.mav import mavlink
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(2.0)
+    link = FcuLink(f"udpout:127.0.0.1:{rx.getsockname()[1]}", source_system=42, source_component=191, target_system=7).open()
+    try:
+        ref = mavlink.MAVLink(None, 42, 191)
+        for k, (vn, ve, vd) in enumerate([(1.5, -2.0, 0.0), (0.0, 0.25, -1.0), (math.nan, 3.0, 0.5)] * 100):
+            link.state.position_boot_s = 0.1 * k
+            ref.seq = link.conn.mav.seq
+            link.send_velocity_ned(vn, ve, vd)
+            want = ref.set_position_target_local_ned_encode(
+                int(link.state.position_boot_s * 1000) & 0xFFFFFFFF, 7, mavlink.MAV_COMP_ID_AUTOPILOT1,
+                mavlink.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY_MASK, 0, 0, 0, vn, ve, vd, 0, 0, 0, 0, 0).pack(ref)
+            got = rx.recv(2048)
+            assert got == want, k
+        assert link.counts["tx_setpoints"] == 300
+    finally:
+        link.close()
+        rx.close()
