@@ -1,6 +1,7 @@
 """The compiled pieces of mrswarm, all optional: everything else is in pyproject.toml.
 
-- ``uav_stack.fcu._dynamics``: the virtual FCU's multirotor step (uav_stack/fcu/_dynamics.c);
+- ``uav_stack.fcu._dynamics``: the virtual FCU's multirotor step, and one vehicle's values read and targets
+  written without numpy's indexing (uav_stack/fcu/_dynamics.c);
 - ``uav_stack.fcu._telemetry``: the virtual FCU's GLOBAL_POSITION_INT frame (uav_stack/fcu/_telemetry.c);
 - ``swarmnet._intake``: poses (edge-feed batches, direct poses) into the neighbour table (swarmnet/_intake.c);
 - ``uav_stack._mavcodec``: MAVLink 2 frames of the FCU link's plain messages (uav_stack/_mavcodec.c);
