@@ -143,6 +143,15 @@ class MultirotorArray:
         self._2bz = 2.0 * self._bz
         self._stepper: Any = None  # the compiled step's views of these arrays, made at the first step
 
+    def _compiled(self) -> Any:
+        """The compiled step's Stepper, which keeps views of these arrays (made at first use); None
+        when it was not built or the fleet takes the vectorised path (more than ``scalar_max``)."""
+        if self.compiled_step is None or self.n > self.scalar_max:
+            return None
+        if self._stepper is None:
+            self._stepper = self.compiled_step.Stepper()
+        return self._stepper
+
     # ------------------------------------------------------------------ one vehicle's values
     # Why: the virtual FCU's steady tick reads and writes a dozen of these (telemetry, the
     # setpoint, the failsafes), and numpy's indexing, run once per tick with the caches cold,
@@ -151,9 +160,7 @@ class MultirotorArray:
     def get(self, k: int, i: int) -> Any:
         """Vehicle ``i``'s value of field ``FIELDS[k]``: a float, a bool (armed, landed) or an
         (x, y, z) tuple of floats (pos, vel, acc, pos_sp, vel_ff, wind), the units of the field."""
-        st = self._stepper
-        if st is None and self.compiled_step is not None and self.n <= self.scalar_max:
-            st = self._stepper = self.compiled_step.Stepper()
+        st = self._compiled()
         if st is not None:
             return st.get(self, k, i)
         a = getattr(self, FIELDS[k])
@@ -164,9 +171,7 @@ class MultirotorArray:
     def set_targets(self, i: int, pos: Any, vel: Any, yaw: float, yaw_rate: float) -> None:
         """Vehicle ``i``'s position setpoint (m, NED; NaN: that axis free), velocity feed-forward
         (m/s, NED), yaw setpoint (rad) and yaw-rate setpoint (rad/s; NaN: none)."""
-        st = self._stepper
-        if st is None and self.compiled_step is not None and self.n <= self.scalar_max:
-            st = self._stepper = self.compiled_step.Stepper()
+        st = self._compiled()
         if st is not None:
             px, py, pz = pos
             vx, vy, vz = vel
@@ -213,13 +218,12 @@ class MultirotorArray:
         if n < 1:
             return
         if self.n <= self.scalar_max:
-            if self.compiled_step is not None:
+            st = self._compiled()
+            if st is not None:
                 prm = self.params
-                if self._stepper is None:
-                    self._stepper = self.compiled_step.Stepper()
-                self._stepper.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
-                               prm.drag, prm.acc_up, prm.acc_dn, prm.landed_alt, prm.landed_speed,
-                               prm.battery_idle_fraction, prm.tau_att)
+                st.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
+                        prm.drag, prm.acc_up, prm.acc_dn, prm.landed_alt, prm.landed_speed,
+                        prm.battery_idle_fraction, prm.tau_att)
             else:
                 self._step_scalar(dt, n)
         else:
