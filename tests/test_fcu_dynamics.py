@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from uav_stack.fcu import dynamics
 from uav_stack.fcu.dynamics import G, MultirotorArray, MultirotorParams
 
 DT = 0.02
@@ -233,8 +234,6 @@ def test_compiled_step_names_a_bad_array() -> None:
 def test_one_vehicles_values_read_and_targets_written_alike_with_or_without_the_compiled_step(n: int) -> None:
     """What the FCU's telemetry, setpoints and failsafes read and write of one vehicle: the same
     through the compiled step's views as through numpy, also after an array was replaced."""
-    from uav_stack.fcu import dynamics
-
     rng = np.random.default_rng(7)
     assert dynamics.DYNAMICS == "compiled"  # scripts/test installs gcc: the compiled views run here
     for _ in range(20):

@@ -25,8 +25,9 @@ from tests.conftest import free_port, wait_for
 from tests.fcu_helpers import FcuThread
 from uav_stack.autopilot import PX4_PROFILE
 from uav_stack.fcu import FcuConfig, VehicleConfig
-from uav_stack.fcu_link import FcuLink
+from uav_stack.fcu_link import VELOCITY_ONLY_MASK, FcuLink
 from uav_stack.geo import GeoPoint
+from uav_stack.mav import mavlink
 
 HOME = GeoPoint(46.6167, 14.2650, 446.0)
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,9 +153,6 @@ def test_standalone_agent_flies_a_standalone_fcu(tmp_path: Path, router: str) ->
 def test_the_velocity_setpoint_leaves_as_pymavlink_frames_it_tick_after_tick() -> None:
     """What the agent sends its FCU ten times a second, through the compiled framing: exactly the
     frames pymavlink's own ``set_position_target_local_ned_send`` writes, tick after tick."""
-    from uav_stack.fcu_link import VELOCITY_ONLY_MASK
-    from uav_stack.mav import mavlink
-
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(2.0)
