@@ -22,9 +22,6 @@
 #include <stdint.h>
 #include <time.h>
 
-/* attribute and method names, interned once (a lookup by a C string makes a new str each call) */
-static PyObject *s_payload, *s_to_bytes, *s_short, *s_since, *s_quorum_waker, *s_notify;
-
 /* time.time()'s value: CLOCK_REALTIME in ns, as a double of seconds the way CPython converts it */
 static double wall_now(void) {
     struct timespec ts;
@@ -57,9 +54,9 @@ static int stamp(const Rules *r, double *at) {
 static long long weight_of(const Rules *r, PyObject *sample) {
     if (r->weigh == NULL) return 1;
     if (r->fast_count != NULL) {
-        PyObject *payload = PyObject_GetAttr(sample, s_payload);
+        PyObject *payload = PyObject_GetAttrString(sample, "payload");
         if (payload == NULL) return -1;
-        PyObject *data = PyObject_CallMethodNoArgs(payload, s_to_bytes);
+        PyObject *data = PyObject_CallMethod(payload, "to_bytes", NULL);
         Py_DECREF(payload);
         if (data == NULL) return -1;
         PyObject *n = PyObject_CallFunctionObjArgs(r->fast_count, data, r->me, NULL);
@@ -113,23 +110,23 @@ static int add(const Rules *r, PyObject *burst, PyObject *sample, double *at) {
 }
 
 /* queue and count a burst under the inlet's lock; the quorum waker to notify (new reference) in *reached */
-static int queue_burst(PyObject *inlet, const Rules *r, PyObject *extend, PyObject *acquire, PyObject *release,
-                       PyObject *burst, double at, PyObject **reached) {
+static int queue_burst(PyObject *inlet, const Rules *r, PyObject *extend, PyObject *lock, PyObject *burst, double at,
+                       PyObject **reached) {
     *reached = NULL;
-    PyObject *ok = PyObject_CallNoArgs(acquire);
+    PyObject *ok = PyObject_CallMethod(lock, "acquire", NULL);
     if (ok == NULL) return -1;
     Py_DECREF(ok);
     int rc = -1;
     PyObject *res = PyObject_CallOneArg(extend, burst);
     if (res == NULL) goto release;
     Py_DECREF(res);
-    PyObject *short_o = PyObject_GetAttr(inlet, s_short);
+    PyObject *short_o = PyObject_GetAttrString(inlet, "_short");
     if (short_o == NULL) goto release;
     long long short_n = PyLong_AsLongLong(short_o);
     Py_DECREF(short_o);
     if (short_n == -1 && PyErr_Occurred()) goto release;
     if (short_n) {
-        PyObject *since_o = PyObject_GetAttr(inlet, s_since);
+        PyObject *since_o = PyObject_GetAttrString(inlet, "_since");
         if (since_o == NULL) goto release;
         double since = PyFloat_AsDouble(since_o);
         Py_DECREF(since_o);
@@ -139,11 +136,11 @@ static int queue_burst(PyObject *inlet, const Rules *r, PyObject *extend, PyObje
             if (short_n < 0) short_n = 0;
             PyObject *v = PyLong_FromLongLong(short_n);
             if (v == NULL) goto release;
-            int set = PyObject_SetAttr(inlet, s_short, v);
+            int set = PyObject_SetAttrString(inlet, "_short", v);
             Py_DECREF(v);
             if (set < 0) goto release;
             if (short_n == 0) {
-                *reached = PyObject_GetAttr(inlet, s_quorum_waker);
+                *reached = PyObject_GetAttrString(inlet, "_quorum_waker");
                 if (*reached == NULL) goto release;
             }
         }
@@ -153,7 +150,7 @@ release:;
     /* released whatever happened, the exception (if any) kept across the call */
     PyObject *et, *ev, *tb;
     PyErr_Fetch(&et, &ev, &tb);
-    PyObject *done = PyObject_CallNoArgs(release);
+    PyObject *done = PyObject_CallMethod(lock, "release", NULL);
     if (done == NULL) {
         if (et != NULL) {
             PyErr_Clear();
@@ -170,7 +167,7 @@ release:;
 
 static int notify(PyObject *waker) {
     if (waker == NULL || waker == Py_None) return 0;
-    PyObject *res = PyObject_CallMethodNoArgs(waker, s_notify);
+    PyObject *res = PyObject_CallMethod(waker, "notify", NULL);
     if (res == NULL) return -1;
     Py_DECREF(res);
     return 0;
@@ -188,8 +185,8 @@ static PyObject *receive(PyObject *mod, PyObject *args) {
     PyObject *inlet, *channel, *closed, *fast_count, *me;
     int wall_clock;
     if (!PyArg_ParseTuple(args, "OOOpOO", &inlet, &channel, &closed, &wall_clock, &fast_count, &me)) return NULL;
-    PyObject *recv = NULL, *try_recv = NULL, *q = NULL, *extend = NULL, *lock = NULL, *acquire = NULL, *release = NULL,
-             *clock = NULL, *weigh = NULL, *waker = NULL;
+    PyObject *recv = NULL, *try_recv = NULL, *q = NULL, *extend = NULL, *lock = NULL, *clock = NULL, *weigh = NULL,
+             *waker = NULL;
     PyObject *result = NULL;
     Rules r = {NULL, NULL, NULL, me};
     if ((recv = PyObject_GetAttrString(channel, "recv")) == NULL) goto out;
@@ -197,8 +194,6 @@ static PyObject *receive(PyObject *mod, PyObject *args) {
     if ((q = PyObject_GetAttrString(inlet, "_q")) == NULL) goto out;
     if ((extend = PyObject_GetAttrString(q, "extend")) == NULL) goto out;
     if ((lock = PyObject_GetAttrString(inlet, "_lock")) == NULL) goto out;
-    if ((acquire = PyObject_GetAttrString(lock, "acquire")) == NULL) goto out;
-    if ((release = PyObject_GetAttrString(lock, "release")) == NULL) goto out;
     if ((waker = PyObject_GetAttrString(inlet, "waker")) == NULL) goto out;
     if ((weigh = PyObject_GetAttrString(inlet, "weigh")) == NULL) goto out;
     if (!wall_clock && (clock = PyObject_GetAttrString(inlet, "clock")) == NULL) goto out;
@@ -244,7 +239,7 @@ static PyObject *receive(PyObject *mod, PyObject *args) {
             }
         }
         PyObject *reached = NULL;
-        int rc = queue_burst(inlet, &r, extend, acquire, release, burst, at, &reached);
+        int rc = queue_burst(inlet, &r, extend, lock, burst, at, &reached);
         Py_DECREF(burst);
         if (rc < 0) goto out;
         rc = notify(reached);
@@ -257,8 +252,6 @@ out:
     Py_XDECREF(q);
     Py_XDECREF(extend);
     Py_XDECREF(lock);
-    Py_XDECREF(acquire);
-    Py_XDECREF(release);
     Py_XDECREF(clock);
     Py_XDECREF(weigh);
     Py_XDECREF(waker);
@@ -275,12 +268,4 @@ static struct PyModuleDef receive_module = {
     "An inlet's receive thread in one compiled loop (see swarmnet/receive.py).", -1, receive_methods,
 };
 
-PyMODINIT_FUNC PyInit__receive(void) {
-    if ((s_payload = PyUnicode_InternFromString("payload")) == NULL) return NULL;
-    if ((s_to_bytes = PyUnicode_InternFromString("to_bytes")) == NULL) return NULL;
-    if ((s_short = PyUnicode_InternFromString("_short")) == NULL) return NULL;
-    if ((s_since = PyUnicode_InternFromString("_since")) == NULL) return NULL;
-    if ((s_quorum_waker = PyUnicode_InternFromString("_quorum_waker")) == NULL) return NULL;
-    if ((s_notify = PyUnicode_InternFromString("notify")) == NULL) return NULL;
-    return PyModule_Create(&receive_module);
-}
+PyMODINIT_FUNC PyInit__receive(void) { return PyModule_Create(&receive_module); }
