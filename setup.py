@@ -4,7 +4,6 @@
   written without numpy's indexing (uav_stack/fcu/_dynamics.c);
 - ``uav_stack.fcu._telemetry``: the virtual FCU's GLOBAL_POSITION_INT frame (uav_stack/fcu/_telemetry.c);
 - ``swarmnet._intake``: poses (edge-feed batches, direct poses) into the neighbour table (swarmnet/_intake.c);
-- ``swarmnet._receive``: the loop of an inlet's receive thread (swarmnet/_receive.c);
 - ``uav_stack._mavcodec``: MAVLink 2 frames of the FCU link's plain messages (uav_stack/_mavcodec.c);
 - ``uav_stack._udp``: the pending datagrams of a UDP socket in one call (uav_stack/_udp.c).
 
@@ -12,7 +11,7 @@ They are built when a C compiler and Python's headers are there (apt: gcc python
 python.org Python brings its headers). Without them the build skips them (``optional=True``) and
 the same rules run in Python. A UAV reports which it runs in its status file
 (``virtual_fcu.dynamics``, ``virtual_fcu.telemetry``, ``virtual_fcu.mavlink``, ``virtual_fcu.udp`` and
-``net.intake`` and ``net.receive`` in ``uav<N>.json``).
+``net.intake`` in ``uav<N>.json``).
 """
 
 from setuptools import Extension, setup
@@ -38,12 +37,6 @@ setup(
             "swarmnet._intake",
             ["swarmnet/_intake.c"],
             extra_compile_args=["-O2", "-ffp-contract=off"],  # the same rounding as the Python rules
-            optional=True,
-        ),
-        Extension(
-            "swarmnet._receive",
-            ["swarmnet/_receive.c"],
-            extra_compile_args=["-O2"],
             optional=True,
         ),
         Extension(

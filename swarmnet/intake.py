@@ -80,21 +80,3 @@ class PoseIntake:
             if n >= 0:
                 return n
         return batched_pose_count(payload, exclude)
-
-
-class BatchPoseCount:
-    """The pose inlet's ``weigh`` on the edge feed: how many poses of UAVs other than ``me`` a
-    sample carries (:meth:`PoseIntake.count`), so that :meth:`~swarmnet.receive.Inlet.expect`
-    counts poses, not batches. ``fast_count`` is the compiled count, which the compiled receive
-    loop (``swarmnet/_receive.c``) calls without going through Python; None without it."""
-
-    __slots__ = ("intake", "me", "fast_count")
-
-    def __init__(self, intake: PoseIntake, me: int):
-        self.intake = intake
-        self.me = me
-        fast = intake._fast  # noqa: SLF001 - its own compiled twin
-        self.fast_count = fast.count if fast is not None else None
-
-    def __call__(self, sample: Any) -> int:
-        return self.intake.count(sample.payload.to_bytes(), self.me)

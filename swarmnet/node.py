@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
-from swarmnet.intake import BatchPoseCount, PoseIntake
+from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
@@ -229,8 +229,9 @@ class SwarmNode:
                 # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
                 # spatial interest, whose far poses come at a lower rate on a feed of their own
                 counts = ident.role == "uav" and not self.near_feed
-                feed = inlet(k.pose_feed, 256, "thread", weigh=BatchPoseCount(self.intake, me) if counts else None,
-                             lazy=counts)
+                count = self.intake.count
+                feed = inlet(k.pose_feed, 256, "thread",
+                             weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None, lazy=counts)
                 if counts and feed.how == "thread":
                     self._pose_inlet = feed
                 streams.append((_BATCH, feed, _as_received))

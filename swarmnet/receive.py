@@ -40,13 +40,8 @@ from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import zenoh
 
-from swarmnet.compiled import compiled_module
 from swarmnet.messages import Rejected
 from swarmnet.stats import NodeStats
-
-_COMPILED = compiled_module("swarmnet._receive")
-RECEIVE = "compiled" if _COMPILED is not None else "python"
-"""Which loop an inlet's thread runs: ``"compiled"`` (``swarmnet/_receive.c``) or ``"python"``."""
 
 T = TypeVar("T")
 Accept = Callable[[str, bytes], T]  # (key, payload) -> message, or raises Rejected
@@ -212,8 +207,8 @@ class Inlet:
         """Start the inlet's thread (a "thread" inlet, once attached); nothing if it runs already."""
         if self.how != "thread" or self._thread is not None or self._sub is None:
             return
-        loop = self._receive if _COMPILED is None else self._receive_compiled
-        self._thread = threading.Thread(target=loop, args=(self._sub.handler,), name="swarmnet-inlet", daemon=True)
+        self._thread = threading.Thread(target=self._receive, args=(self._sub.handler,), name="swarmnet-inlet",
+                                        daemon=True)
         self._thread.start()
 
     def poke(self) -> bool:
@@ -324,16 +319,6 @@ class Inlet:
                 reached.notify()
             if notify is not None:
                 notify()
-
-    def _receive_compiled(self, channel: Any) -> None:
-        """:meth:`_receive`, the same loop compiled (``swarmnet/_receive.c``): with the caches cold,
-        as each of a UAV's two or three wake-ups a tick finds them, the Python loop cost about 9 %
-        of a UAV of 50's CPU (docs/benchmarks.md). A ``weigh`` with a ``fast_count`` (a compiled
-        count, :class:`~swarmnet.intake.BatchPoseCount`) is counted through it."""
-        weigh = self.weigh
-        assert _COMPILED is not None
-        _COMPILED.receive(self, channel, zenoh.ZError, self.clock is time.time, getattr(weigh, "fast_count", None),
-                          getattr(weigh, "me", 0))
 
     def __len__(self) -> int:
         """Samples waiting (a stamped inlet; a ring channel cannot tell without taking them)."""

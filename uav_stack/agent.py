@@ -24,7 +24,6 @@ from typing import TYPE_CHECKING, Any
 
 from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
-from swarmnet.receive import RECEIVE
 from uav_stack.behaviours.avoidance import CollisionAvoidance
 from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
@@ -549,10 +548,9 @@ class Agent(OverridesMixin):
             "fcu_link": dict(self.link.counts),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
             # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake);
-            # "receive": the loop of the pose inlet's thread, "compiled" or "python" (swarmnet.receive);
             # "zenoh_runtime": the process's ZENOH_RUNTIME ("": Zenoh's defaults; swarmnet.connectivity.lean_zenoh_runtime)
             "net": {**self.node.stats.to_dict(links), "intake": "compiled" if self.node.intake.compiled else "python",
-                    "receive": RECEIVE, "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
+                    "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}
