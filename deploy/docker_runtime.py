@@ -161,7 +161,7 @@ class DockerRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
@@ -181,7 +181,7 @@ class DockerRuntime:
             service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
         self.discovery = service
         plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery",
-                            secured=keys is not None)
+                            secured=keys is not None, feed_window=feed_window)
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)

@@ -117,6 +117,7 @@ class ProcessRuntime:
         self.children: dict[str, Child] = {}
         self.keys: Path | None = None
         self.interest: Interest | None = None
+        self.feed_window: float | None = None  # s, the edge routers' pose-feed window (None: their default)
         self._py, self._env = child_python(python)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
@@ -125,7 +126,7 @@ class ProcessRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
@@ -137,6 +138,7 @@ class ProcessRuntime:
         """
         self.keys = keys
         self.interest = interest  # spatial interest of every edge router's pose feed (docs/scale.md)
+        self.feed_window = feed_window
         if connectivity == "discovery":
             net = self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
             return replace(net, interest=interest)
@@ -165,6 +167,8 @@ class ProcessRuntime:
             argv += ["--insecure"]
         if pose_feed == "edge":
             argv += ["--feed", swarm]
+            if self.feed_window is not None:
+                argv += ["--feed-window-ms", f"{self.feed_window * 1000.0:g}"]
             if self.interest is not None:
                 argv += self.interest.argv()
         self._spawn(name, argv)

@@ -58,7 +58,7 @@ class NetworkPlan:
 
 def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct",
                  swarm: str = "*", discovery: DiscoveryService | None = None, with_router: bool = False,
-                 secured: bool = False) -> NetworkPlan:
+                 secured: bool = False, feed_window: float | None = None) -> NetworkPlan:
     """The services and the UAVs' network config for a connectivity.
 
     ``discovery`` (for ``connectivity: discovery``) must carry a key: the runtime draws one
@@ -68,6 +68,7 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
     Zenoh clients of the router). UAV-to-UAV data still flows peer to peer.
     ``secured``: every Zenoh link mutual TLS under the roster's access control, each container
     reading its credentials from :data:`KEYS_IN_CONTAINER` (the runtime puts them there).
+    ``feed_window``: the edge pose feed's batch window, s (None: the router's default).
     """
     scheme = "tls" if secured else "tcp"
     creds = Credentials(keys=KEYS_IN_CONTAINER) if secured else None  # each UAV speaks as its own uav-<id>
@@ -75,6 +76,8 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
     router_argv += ["--keys", KEYS_IN_CONTAINER] if secured else ["--insecure"]
     if pose_feed == "edge":
         router_argv += ["--feed", swarm]
+        if feed_window is not None:
+            router_argv += ["--feed-window-ms", f"{feed_window * 1000.0:g}"]
     router = Service("router", tuple(router_argv), ROUTER_PORT, identity="edge" if secured else None)
     if connectivity == "rendezvous":
 

@@ -26,6 +26,7 @@ from msgspec.structs import force_setattr, replace
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against
+from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
@@ -58,6 +59,7 @@ MAX_COVERAGE_CELLS = 1_000_000  # analysis and live coverage grids (memory: mrsw
 RESOLVE_TIMEOUT_S = 5.0
 
 Rtf = Annotated[float, Meta(gt=0.0, le=1.0, description="target real-time factor of the virtual FCU")]
+FeedWindowMs = Annotated[float, Meta(ge=0.0, le=1000.0, description="ms a pose may wait at the edge for a batch")]
 Port = Annotated[int, Meta(ge=1, le=65535)]
 Coord = Annotated[float, Meta(ge=-MAX_OFFSET_M, le=MAX_OFFSET_M, description="m from the origin")]
 Heading = Annotated[float, Meta(ge=-360.0, le=360.0, description="degrees from north")]
@@ -192,6 +194,10 @@ class Network(Config, frozen=True):
     pose_feed: PoseFeed | None = None  # default: direct, or edge above MESH_MAX_UAVS UAVs or with interest
     lease_s: LeaseS = 3.0  # a node silent this long is gone; raise it on an overloaded machine (docs/scale.md)
     interest: Interest | None = None  # spatial interest (docs/scale.md); needs pose_feed: edge
+    # the edge feed's batch window, ms: a pose waits at most this long at the edge for others to
+    # share its batch (0: forward at once). Fewer batches per instant cost every UAV less CPU
+    # (docs/scale.md); with pose_feed: direct it is not used
+    feed_window_ms: FeedWindowMs = DEFAULT_WINDOW * 1000.0
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
     security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off

@@ -15,8 +15,10 @@ import zenoh
 
 from discovery.rendezvous import serve
 from swarmnet.connectivity import Rendezvous, to_zenoh
+from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Pose, Realm, decode_pose, decode_pose_batch, encode_pose
+from swarmnet.messages import Pose, PoseBatch, Realm, decode_pose, decode_pose_batch, encode_pose, encode_pose_batch
+from swarmnet.neighbours import NeighbourTable
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
 from swarmnet.receive import How, Inlet, Waker, subscribe
@@ -229,6 +231,56 @@ def test_an_expectation_is_armed_safely_while_samples_pour_in(rendezvous: Rendez
             th.join(5.0)
             sub.undeclare()
             assert inlet.join(2.0)
+            waker.close()
+
+
+def test_the_pose_inlet_counts_the_neighbours_poses_in_batches_and_wakes_at_the_last(rendezvous: Rendezvous) -> None:
+    """On the edge feed the pose inlet's thread counts the poses in each batch of UAVs other than
+    its owner's (as a UAV's node weighs them), a payload that is no batch as none, stamps with the
+    inlet's clock, and wakes the owner on the batch that completes the instant; a count that
+    fails counts nothing and the thread goes on."""
+    me = 7
+    intake = PoseIntake(NeighbourTable())
+
+    def batch(*uavs: int) -> bytes:
+        poses = [encode_pose(Pose(u, Realm.VIRTUAL, 1, 0.0, time.time(), 0.0, float(u), 5.0, 0.0, 0.0, 0.0, 0.0))
+                 for u in uavs]
+        return encode_pose_batch(PoseBatch(1, time.time(), list(uavs), poses))
+
+    skew = 1000.0  # the inlet's own clock, a thousand seconds ahead of the wall's
+    with zenoh.open(to_zenoh(rendezvous.zenoh_config())) as s:
+        waker = Waker()
+        inlet = Inlet(64, None, lambda: time.time() + skew, "thread",
+                      weigh=lambda sample: intake.count(sample.payload.to_bytes(), me))
+        sub = subscribe(s, "t/feed", inlet)
+        try:
+            since = time.time() + skew
+            inlet.expect(5, since, waker)  # five poses of others, as a UAV with five neighbours
+            s.put("t/feed", batch(1, me, 2))  # two of others (its own pose is no neighbour's)
+            s.put("t/feed", b"not a batch")  # none
+            assert wait_for(lambda: len(inlet) == 2, 3.0)
+            assert not waker.wait(0.2) and not inlet.expectation_met
+            s.put("t/feed", batch(3, 4))  # four
+            assert wait_for(lambda: len(inlet) == 3, 3.0)
+            assert not waker.wait(0.2) and not inlet.expectation_met
+            t_last = time.time()
+            s.put("t/feed", batch(me, 5))  # five: the instant's last
+            assert waker.wait(3.0) and inlet.expectation_met
+            arrivals = list(inlet.drain())
+            assert len(arrivals) == 4 and all(since <= at <= time.time() + skew for at, _ in arrivals)
+            assert arrivals[-1][0] >= t_last + skew
+            assert arrivals[1][1].payload.to_bytes() == b"not a batch"
+            failing = Inlet(64, None, time.time, "thread", weigh=lambda sample: 1 // 0)
+            sub2 = subscribe(s, "t/bad", failing)
+            failing.expect(1, time.time(), waker)
+            s.put("t/bad", batch(1))
+            s.put("t/bad", batch(2))
+            assert wait_for(lambda: len(failing) == 2, 3.0) and not failing.expectation_met
+            sub2.undeclare()
+            assert failing.join(2.0)
+        finally:
+            sub.undeclare()
+            assert inlet.join(2.0)  # the thread leaves once its channel is closed
             waker.close()
 
 
