@@ -7,7 +7,7 @@ source: ``zenoh/src/net/protocol/gossip.rs``). Client-mode nodes (UAVs behind ca
 route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
-the poses that arrive within a short window (``--feed-window-ms``, 5 ms by default; 0 forwards
+the poses that arrive within a short window (``--feed-window-ms``, 3 ms by default; 0 forwards
 at once) leave as one batch, instead of a message per neighbour.
 
 With ``--keys DIR`` (the swarm's key directory, or the router's bundle of it) every link is

@@ -175,6 +175,14 @@ class Security(Config, frozen=True):
         return self.mode == "mtls"
 
 
+LARGE_FLEET_FEED_WINDOW_MS = 5.0
+"""The edge feed's batch window (ms) a scenario of more than :data:`MESH_MAX_UAVS` UAVs takes unless
+it sets ``network.feed_window_ms``. There the machine's CPU is what runs out, and every batch wakes
+every UAV's Zenoh and pose-inlet threads: at N = 50 on 2 cores a 5 ms window carried an instant's
+poses in 1.7 batches instead of 2.4 and cost each UAV 5.4 % less CPU (every round lower), for
+1.6 ms more transport age (p50) and 1.8 ms less age at use, poses used as fresh as before
+(docs/benchmarks.md, 2026-11-29). Smaller swarms keep the feed's 3 ms, the lower latency."""
+
 MESH_MAX_UAVS = 25
 """Up to this many UAVs on one machine (every swarm of the airspace counted), the default network
 is the peer mesh with a message per pose; above it, client mode through the edge router with the
@@ -195,9 +203,9 @@ class Network(Config, frozen=True):
     lease_s: LeaseS = 3.0  # a node silent this long is gone; raise it on an overloaded machine (docs/scale.md)
     interest: Interest | None = None  # spatial interest (docs/scale.md); needs pose_feed: edge
     # the edge feed's batch window, ms: a pose waits at most this long at the edge for others to
-    # share its batch (0: forward at once). Fewer batches per instant cost every UAV less CPU
-    # (docs/scale.md); with pose_feed: direct it is not used
-    feed_window_ms: FeedWindowMs = DEFAULT_WINDOW * 1000.0
+    # share its batch (0: forward at once); with pose_feed: direct it is not used. Default: 3, or
+    # LARGE_FLEET_FEED_WINDOW_MS above MESH_MAX_UAVS UAVs (sized_for)
+    feed_window_ms: FeedWindowMs | None = None
     netem: NetemSpec | None = None  # netem shim: per-link impairments (docs/netem.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)
     security: Security | bool = field(default_factory=Security)  # `security: off` (false) is short for mode off
@@ -230,7 +238,8 @@ class Network(Config, frozen=True):
         Up to :data:`MESH_MAX_UAVS`: the peer mesh (``discovery``, ``peer``, ``direct``), the
         lowest latency. Above it, every pose to every UAV costs more CPU than the machine has, so
         the unset choices become client mode through the edge router (``rendezvous``) and the
-        edge pose feed: one link and one batch per window per UAV. ``needs_discovery`` (faults
+        edge pose feed: one link and one batch per window per UAV, the window
+        :data:`LARGE_FLEET_FEED_WINDOW_MS` wide rather than 3 ms. ``needs_discovery`` (faults
         on the discovery server) keeps the peer topology. A choice the scenario made is kept;
         client mode always means ``rendezvous``.
         """
@@ -240,7 +249,10 @@ class Network(Config, frozen=True):
             mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
         connectivity = self.connectivity or ("rendezvous" if mode == "client" else "discovery")
         feed = self.pose_feed or ("edge" if big or self.interest is not None else "direct")
-        return replace(self, connectivity=connectivity, mode=mode, pose_feed=feed)
+        window = self.feed_window_ms
+        if window is None:
+            window = LARGE_FLEET_FEED_WINDOW_MS if big else DEFAULT_WINDOW * 1000.0
+        return replace(self, connectivity=connectivity, mode=mode, pose_feed=feed, feed_window_ms=window)
 
     @property
     def secured(self) -> Security:

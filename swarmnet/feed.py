@@ -10,13 +10,14 @@ the UAV of its key) and keeps the latest per UAV. Agents with ``pose_feed: edge`
 to ``mrs/<swarm>/feed/poses`` only.
 
 **When a batch leaves.** A pose arriving at an idle feed opens a *window*; when it closes
-(``window`` s later, 5 ms by default) the poses received meanwhile leave as one ``PoseBatch``
+(``window`` s later, 3 ms by default) the poses received meanwhile leave as one ``PoseBatch``
 per swarm, at most one per UAV. A pose therefore waits at most ``window`` at the edge, and a
-UAV's download is bounded by one batch per window whatever N is (at most 200 messages a
-second at 5 ms, against 10 (N-1) with direct poses). Each batch wakes every receiving UAV's
+UAV's download is bounded by one batch per window whatever N is (at most 333 messages a
+second at 3 ms, against 10 (N-1) with direct poses). Each batch wakes every receiving UAV's
 Zenoh and pose-inlet threads: with aligned ticks a 5 ms window carries an instant of 50 UAVs'
-poses in 1.6 batches instead of 2.4 at 3 ms, for several % less CPU per UAV and about a
-millisecond more transport age (docs/benchmarks.md, 2026-11-29). ``window=0`` forwards at once: what
+poses in 1.7 batches instead of 2.4 at 3 ms, for about 5 % less CPU per UAV and 1.6 ms more
+transport age (docs/benchmarks.md, 2026-11-29), which is why a scenario of more than 25 UAVs
+takes 5 ms (``network.feed_window_ms``). ``window=0`` forwards at once: what
 arrived while the previous batch was being sent leaves together.
 
 **No Python on the router's receive threads.** The feed runs in the edge router, whose Zenoh
@@ -53,7 +54,7 @@ from swarmnet.messages import PoseBatch, Rejected, accept_pose, encode_pose_batc
 from swarmnet.receive import DRAIN_BUDGET
 from swarmnet.stats import NodeStats
 
-DEFAULT_WINDOW = 0.005  # s a pose may wait at the edge for others to share its batch (network.feed_window_ms)
+DEFAULT_WINDOW = 0.003  # s a pose may wait at the edge for others to share its batch
 MAX_WINDOW = 1.0  # s
 
 

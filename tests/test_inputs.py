@@ -43,6 +43,7 @@ def assert_usage_error(res: subprocess.CompletedProcess[str], *needles: str) -> 
     ("faults=[{at: 5, kind: kill_uav, uav: 9}]", "faults.0.uav", "UAV 9 is not in the fleet"),
     ("faults=[{at: 5, kind: gps_jump, uav: 1, duration: 2}]", "faults.0.offset", "required for gps_jump"),
     ("faults=[{at: 25, kind: kill_router}]", "faults.0.at", "not within the mission"),
+    ("network.feed_window_ms=-1", "network.feed_window_ms", "must be a number in [0, 1000]"),
 ])
 def test_bad_values_name_the_file_and_field(tmp_path: Path, override: str, field: str, what: str) -> None:
     sets = ["--set", override]

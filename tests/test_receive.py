@@ -351,6 +351,21 @@ def _inlet_threads() -> int:
     return sum(1 for t in threading.enumerate() if t.name == "swarmnet-inlet" and t.is_alive())
 
 
+def test_a_scenarios_feed_window_reaches_the_edge_router_of_its_run(tmp_path: Path) -> None:
+    """``network.feed_window_ms`` is handed to the run's edge router (the process runtime), which
+    says the window it batches with."""
+    from deploy.process_runtime import ProcessRuntime
+
+    rt = ProcessRuntime(tmp_path)
+    try:
+        rt.start_network(mode="client", pose_feed="edge", swarm="win", feed_window=0.0025)
+        log = tmp_path / "logs" / "router.log"
+        assert wait_for(lambda: "window 2.5 ms" in (log.read_text() if log.exists() else ""), 20.0), \
+            log.read_text() if log.exists() else "no router log"
+    finally:
+        rt.stop(grace=5.0)
+
+
 def test_a_uav_alone_runs_no_receive_thread_until_another_uav_is_there(rendezvous: Rendezvous) -> None:
     """A blocked receive of zenoh-python wakes ten times a second, so a UAV's pose inlet starts
     its thread only with the first other UAV: alone, none runs. A UAV that joins starts it at its
