@@ -11,7 +11,7 @@ A UAV process's threads, by role: ``loop`` (the UAV's main thread: virtual FCU, 
 the Python thread with the most samples), ``inlet`` (its other Python threads: the pose
 inlet's), ``zenoh`` (Zenoh's runtime, ``app-0``; a UAV runs all of Zenoh on it). The UAV
 processes are those with that one Zenoh thread (a router's Zenoh has ``rx-``, ``tx-`` and ``acc-``
-threads too) and a share of samples like the others'.
+threads too) and a share of samples within ten times the others'.
 
     apt-get install linux-perf                  # Debian; perf must run as root
     python benchmarks/fleet_threads.py --n 50 --out benchmarks/results
@@ -61,7 +61,7 @@ def roles(rows: list[tuple[str, int, int, str, str]]) -> tuple[dict[int, str], l
     if not with_zenoh:
         return {}, []
     typical = sorted(per_pid[p] for p in with_zenoh)[len(with_zenoh) // 2]
-    uavs = [p for p in with_zenoh if typical / 4 <= per_pid[p] <= typical * 4]
+    uavs = [p for p in with_zenoh if typical / 10 <= per_pid[p] <= typical * 10]
     by_thread: dict[int, collections.Counter[tuple[int, str]]] = collections.defaultdict(collections.Counter)
     for comm, pid, tid, _, _ in rows:
         if pid in uavs:
