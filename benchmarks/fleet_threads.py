@@ -33,7 +33,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.output import write_results  # noqa: E402
+from benchmarks.output import plot_shares, write_results  # noqa: E402
 
 ZENOH_THREAD = "app-0"
 ROUTER_THREADS = ("rx-", "tx-", "acc-", "net-")
@@ -100,18 +100,9 @@ def analyse(rows: list[tuple[str, int, int, str, str]], seconds: float, freq: in
 
 
 def plot(result: dict[str, Any], path: Path, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    libs = result["libraries_pct"][:16][::-1]
-    fig, ax = plt.subplots(figsize=(9, 5.5))
-    ax.barh([f"{r['role']}: {r['library'][:40]}" for r in libs], [r["pct"] for r in libs], color="tab:blue")
-    ax.set_xlabel("% of the UAVs' CPU samples")
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    libs = result["libraries_pct"][:16]
+    plot_shares(path, [f"{r['role']}: {r['library'][:40]}" for r in libs], [r["pct"] for r in libs],
+                "% of the UAVs' CPU samples", title)
 
 
 def main(argv: list[str] | None = None) -> int:

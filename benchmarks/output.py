@@ -40,3 +40,20 @@ def write_results(out: Path, name: str, record: Any, rows: list[dict[str, Any]],
         w.writerows(rows)
 
     _replace(out / f"{name}.csv", table)
+
+
+def plot_shares(path: Path, labels: list[str], values: list[float], xlabel: str, title: str, height: float = 5.5) -> None:
+    """A horizontal bar chart of shares (the largest first, at the top), as the profiling
+    benchmarks draw where the CPU goes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, height))
+    ax.barh(labels[::-1], values[::-1], color="tab:blue")
+    ax.set_xlabel(xlabel)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -38,7 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.output import write_results  # noqa: E402
+from benchmarks.output import plot_shares, write_results  # noqa: E402
 
 _PY_FRAME = re.compile(r"py::([^:\s]+):(\S+)")
 WARMUP_S = 30.0  # s from the launch to the first sample: processes up, takeoff, mission started
@@ -100,19 +100,9 @@ def profile(args: argparse.Namespace, work: Path) -> tuple[collections.Counter[t
 
 
 def plot(rows: list[dict[str, Any]], path: Path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    top = rows[:25][::-1]
-    fig, ax = plt.subplots(figsize=(9, 7))
-    ax.barh([f"{r['function']} ({Path(r['file']).name})" for r in top], [r["share_pct"] for r in top], color="tab:blue")
-    ax.set_xlabel("% of the main thread's samples (innermost Python function)")
-    ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    top = rows[:25]
+    plot_shares(path, [f"{r['function']} ({Path(r['file']).name})" for r in top], [r["share_pct"] for r in top],
+                "% of the main thread's samples (innermost Python function)", title, height=7)
 
 
 def main(argv: list[str] | None = None) -> int:
