@@ -15,7 +15,7 @@ per swarm, at most one per UAV. A pose therefore waits at most ``window`` at the
 UAV's download is bounded by one batch per window whatever N is (at most 333 messages a
 second at 3 ms, against 10 (N-1) with direct poses). Each batch wakes every receiving UAV's
 Zenoh and pose-inlet threads: with aligned ticks a 5 ms window carries an instant of 50 UAVs'
-poses in 1.7 batches instead of 2.4 at 3 ms, for about 5 % less CPU per UAV and 1.6 ms more
+poses in 1.7 batches instead of 2.4 at 3 ms, for 2–5 % less CPU per UAV and 1.6 ms more
 transport age (docs/benchmarks.md, 2026-11-29), which is why a scenario of more than 25 UAVs
 takes 5 ms (``network.feed_window_ms``). ``window=0`` forwards at once: what
 arrived while the previous batch was being sent leaves together.
