@@ -28,7 +28,7 @@ from typing import Any
 from msgspec.structs import replace
 
 from discovery.netutil import free_port, wait_tcp
-from discovery.options import DiscoveryService, ProxyOptions
+from discovery.options import DiscoveryService, ProxyOptions, pose_feed_argv
 from swarmnet.interest import Interest
 from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
@@ -166,9 +166,7 @@ class ProcessRuntime:
         else:
             argv += ["--insecure"]
         if pose_feed == "edge":
-            argv += ["--feed", swarm]
-            if self.feed_window is not None:
-                argv += ["--feed-window-ms", f"{self.feed_window * 1000.0:g}"]
+            argv += pose_feed_argv(swarm, self.feed_window)
             if self.interest is not None:
                 argv += self.interest.argv()
         self._spawn(name, argv)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from discovery.options import DiscoveryService, ProxyOptions
+from discovery.options import DiscoveryService, ProxyOptions, pose_feed_argv
 from swarmnet.security.credentials import Credentials
 from uav_stack.config import NetworkConfig, PoseFeed, ZenohMode
 
@@ -75,9 +75,7 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
     router_argv = ["python3", "-m", "discovery.rendezvous", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}"]
     router_argv += ["--keys", KEYS_IN_CONTAINER] if secured else ["--insecure"]
     if pose_feed == "edge":
-        router_argv += ["--feed", swarm]
-        if feed_window is not None:
-            router_argv += ["--feed-window-ms", f"{feed_window * 1000.0:g}"]
+        router_argv += pose_feed_argv(swarm, feed_window)
     router = Service("router", tuple(router_argv), ROUTER_PORT, identity="edge" if secured else None)
     if connectivity == "rendezvous":
 

@@ -5,6 +5,7 @@
 * :class:`ProxyOptions`: a node's side (``NetworkConfig.discovery`` of a UAV process, or the
   flags of ``mrswarm agent``): which server, which key, what to advertise. The node's
   :class:`~discovery.proxy.BeaconDiscovery` is built from it.
+* :func:`pose_feed_argv`: the edge router's pose-feed arguments, as the runtimes start it.
 
 Light imports only (msgspec, no zenoh): a scenario or a UAV config names these types.
 """
@@ -64,3 +65,12 @@ class ProxyOptions(Config, frozen=True):
         if len(key.encode()) < MIN_KEY_LEN:
             raise ConfigError("key_file", f"{self.key_file} holds a key shorter than {MIN_KEY_LEN} characters")
         return key
+
+
+def pose_feed_argv(swarm: str, window: float | None = None) -> list[str]:
+    """The edge router's arguments (``mrswarm router``, discovery/rendezvous.py) for the pose feed of
+    ``swarm`` batching within ``window`` s (None: the router's default), for the runtimes that start it."""
+    argv = ["--feed", swarm]
+    if window is not None:
+        argv += ["--feed-window-ms", f"{window * 1000.0:g}"]
+    return argv

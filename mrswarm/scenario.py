@@ -180,8 +180,9 @@ LARGE_FLEET_FEED_WINDOW_MS = 5.0
 it sets ``network.feed_window_ms``. There the machine's CPU is what runs out, and every batch wakes
 every UAV's Zenoh and pose-inlet threads: at N = 50 on 2 cores a 5 ms window carried an instant's
 poses in 1.7 batches instead of 2.4 and cost each UAV 2–5 % less CPU (5.4 % with every round
-lower, then 2.2 % in a second run), for 1.6 ms more transport age (p50) and 1.8 ms less age at use, poses used as fresh as before
-(docs/benchmarks.md, 2026-11-29). Smaller swarms keep the feed's 3 ms, the lower latency."""
+lower, then 2.2 % in a second run), for 1.6 ms more transport age (p50) and 1.8 ms less age at
+use: poses used as fresh as before (docs/benchmarks.md, 2026-11-29). Smaller swarms keep the
+feed's 3 ms, the lower latency."""
 
 MESH_MAX_UAVS = 25
 """Up to this many UAVs on one machine (every swarm of the airspace counted), the default network
