@@ -49,7 +49,7 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
     sec = net.secured
     keys = (Path(sec.keys).resolve() if sec.keys else STACK_KEYS) if sec.enabled else None
     plan = network_plan(*net.topology, scn.swarm, service, with_router=True,
-                        secured=keys is not None)
+                        secured=keys is not None, feed_window=net.feed_window_s)
     netcfg = plan.uav_network({s.name: s.name for s in plan.services})
     cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[:uavs]
     if autostart:

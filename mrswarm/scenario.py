@@ -233,6 +233,13 @@ class Network(Config, frozen=True):
         assert c is not None and m is not None and f is not None, "a Network outside a Scenario: call sized_for first"
         return c, m, f
 
+    @property
+    def feed_window_s(self) -> float:
+        """The edge feed's batch window, s, as :meth:`sized_for` chose it (a scenario's network always has one)."""
+        w = self.feed_window_ms
+        assert w is not None, "a Network outside a Scenario: call sized_for first"
+        return w / 1000.0
+
     def sized_for(self, uavs: int, needs_discovery: bool = False) -> Network:
         """This network with every unset choice made for ``uavs`` UAVs on one machine.
 

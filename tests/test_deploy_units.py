@@ -66,6 +66,14 @@ def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
     assert "secrets" not in insecure and "--insecure" in insecure["services"]["router"]["command"]
 
 
+def test_a_deployed_edge_router_batches_with_the_scenarios_feed_window() -> None:
+    """``network.feed_window_ms`` reaches the edge router of a Swarm stack as it does a local run's."""
+    fleet = swarm_fleet(load_scenario(COVERAGE, ["network.pose_feed=edge", "network.feed_window_ms=4"]), 2)
+    (router,) = [s for s in fleet.plan.services if s.name == "router"]
+    argv = list(router.argv)
+    assert argv[argv.index("--feed-window-ms") + 1] == "4"
+
+
 EXAMPLE_KEY = "network.discovery.key=example-key-regenerate-for-real-deployments"
 
 
