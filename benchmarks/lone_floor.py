@@ -76,6 +76,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.output import write_results  # noqa: E402
 from deploy.process_runtime import wait_file  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
+from discovery.options import pose_feed_argv  # noqa: E402
 from mrswarm.run_keys import throwaway_keys  # noqa: E402
 from swarmnet.feed import DEFAULT_WINDOW  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
@@ -398,8 +399,8 @@ def measure_fleet(args: argparse.Namespace, work: Path, routers: list[subprocess
     for w in args.feed_window_ms:  # a router per window, each with its own stats file
         endpoints[w] = endpoint = f"tls/127.0.0.1:{free_port()}"
         stats = work / f"router-{w:g}.json"
-        routers.append(start_router(endpoint, ["--keys", str(keys), "--stats", str(stats)], "--feed", SWARM,
-                                    "--feed-window-ms", f"{w:g}"))
+        routers.append(start_router(endpoint, ["--keys", str(keys), "--stats", str(stats)],
+                                    *pose_feed_argv(SWARM, w / 1000.0)))
         wait_file(stats, timeout=20.0, proc=routers[-1])
         for v in args.variants:
             if not v.startswith("uav"):
