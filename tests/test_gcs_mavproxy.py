@@ -9,6 +9,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sysconfig
 import threading
 import time
 from pathlib import Path
@@ -24,7 +25,8 @@ from tests.gcs_helpers import HOME, ROOT, gcs, run_dir, start_run, start_virtual
 
 pytestmark = pytest.mark.e2e
 SCENARIO = ROOT / "tests" / "scenarios" / "gcs_mavproxy.yaml"
-MAVPROXY = shutil.which("mavproxy.py")
+# beside the interpreter (the checkout's .venv/bin, also when that venv is not activated), else on PATH
+MAVPROXY = shutil.which("mavproxy.py", path=os.pathsep.join([sysconfig.get_path("scripts"), os.environ.get("PATH", "")]))
 
 
 def _free_udp_block(n: int) -> int:

@@ -23,6 +23,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sysconfig
 import threading
 import time
 from pathlib import Path
@@ -40,7 +41,8 @@ from uav_stack.mav import mavlink as M
 from uav_stack.mavlink_signing import write_key_file
 
 pytestmark = pytest.mark.e2e
-MAVPROXY = shutil.which("mavproxy.py")
+# beside the interpreter (the checkout's .venv/bin, also when that venv is not activated), else on PATH
+MAVPROXY = shutil.which("mavproxy.py", path=os.pathsep.join([sysconfig.get_path("scripts"), os.environ.get("PATH", "")]))
 UAV = 3  # MAVLink sysid 3 (uav_stack.sysid.allocate_sysid)
 ARDUPILOT_LAND, ARDUPILOT_RTL = 9, 6
 

@@ -109,8 +109,8 @@ def test_frames_are_forwarded_byte_for_byte_both_ways(gcs_port: int) -> None:
         hb = heartbeat(rig.fcu_mav)
         pos = mavlink.MAVLink_global_position_int_message(1000, 473977420, 85455940, 500000, 12000, 1, 2, 3,
                                                           9000).pack(rig.fcu_mav)
-        # a frame of a message outside our dialect (an ArduPilot-only id) is still routed, untouched
-        unknown = bytes([0xFD, 3, 0, 0, 42, SYSID, 1, 0x0C, 0x2B, 0x00, 1, 2, 3, 0xAA, 0xBB])
+        # a frame of a message outside our dialect (id 48879, which no dialect defines) is still routed, untouched
+        unknown = bytes([0xFD, 3, 0, 0, 42, SYSID, 1, 0xEF, 0xBE, 0x00, 1, 2, 3, 0xAA, 0xBB])
         rig.fcu_send(hb, pos, unknown)
         rig.pump()
         got = b"".join(recv_all(gcs))

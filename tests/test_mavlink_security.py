@@ -295,7 +295,7 @@ def test_signer_keeps_the_sender_and_makes_mavlink1_frames_mavlink2() -> None:
     got = VerifyingParser(KEY, require=True).parse_buffer(signed)[0]
     assert got.get_type() == "HEARTBEAT" and (got.get_srcSystem(), got.get_srcComponent(), got.get_seq()) == (4, 1, msg.get_seq())
     # a message outside our dialect: its CRC seed is unknown, so it cannot be signed (and is not sent signed-wrong)
-    unknown = M.MAVLink(None).parse_buffer(bytes([0xFD, 3, 0, 0, 42, 7, 1, 0x0C, 0x2B, 0x00, 1, 2, 3, 0xAA, 0xBB]))[0]
+    unknown = M.MAVLink(None).parse_buffer(bytes([0xFD, 3, 0, 0, 42, 7, 1, 0xEF, 0xBE, 0x00, 1, 2, 3, 0xAA, 0xBB]))[0]
     assert isinstance(unknown, M.MAVLink_unknown) and Signer(KEY).sign(unknown) is None
 
 

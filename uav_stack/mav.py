@@ -4,8 +4,11 @@ Import ``mavutil`` and ``mavlink`` from here, never from pymavlink directly, so 
 process frames MAVLink 2 (message ids > 255) and loads the same dialect.
 
 * ``MAVLINK20`` must be set before ``mavutil`` is imported, otherwise it frames MAVLink 1.
-* The dialect defaults to ``common`` (every message PX4 and our virtual FCU use). pymavlink's
-  own default, ``all``, costs several MB per process; set ``MAVLINK_DIALECT`` to override.
+* The dialect is mrswarm's own (``uav_stack.dialect``): pymavlink's ``all`` (common, ArduPilot's
+  messages, development) plus the ids PX4 1.16 sends that pymavlink lacks (EVENT and its kin),
+  so a message from either autopilot parses as itself, never as ``UNKNOWN_<id>``. It costs about
+  3 MB of RSS per process more than ``common``. ``MAVLINK_DIALECT`` set to one of pymavlink's
+  own dialects overrides it.
 * ``mavutil`` imports ``pymavlink.dialects.v10.all`` only so PyInstaller bundles it; that
   import alone costs about 4 MB of RSS per process, which matters when a swarm runs 50
   agents on one machine. We pre-register an empty module under that name; nothing in
@@ -27,8 +30,16 @@ import os
 import sys
 import types
 
+from uav_stack import dialect
+
 os.environ["MAVLINK20"] = "1"
-os.environ.setdefault("MAVLINK_DIALECT", "common")
+# mavutil loads the dialect that MAVLINK_DIALECT names when it is imported. Ours is registered as
+# pymavlink.dialects.v20.mrswarm first, and the variable is put back afterwards: a child process
+# (MAVProxy, a test's tool) would look for a dialect of that name among pymavlink's own.
+_asked = os.environ.get("MAVLINK_DIALECT")
+if _asked in (None, dialect.NAME):
+    dialect.load()
+    os.environ["MAVLINK_DIALECT"] = dialect.NAME
 sys.modules.setdefault("pymavlink.dialects.v10.all", types.ModuleType("pymavlink.dialects.v10.all"))
 
 
@@ -49,6 +60,8 @@ for _name in ("ssl", "hashlib"):
 
 from pymavlink import mavutil  # noqa: E402
 
+if _asked is None:
+    del os.environ["MAVLINK_DIALECT"]
 mavlink = mavutil.mavlink
 assert mavlink is not None, "pymavlink did not load a dialect"
 
