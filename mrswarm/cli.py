@@ -54,11 +54,14 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
     from mrswarm.scenario import ScenarioError, load_scenario
     from mrswarm.summary_table import print_summary
 
+    notes: list[str] = []
     try:
-        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
+        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []), notes)
     except ScenarioError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
+    for note in notes:  # a shortened mission: what of its schedule it leaves out
+        console.print(f"[yellow]note:[/] {args.scenario}: {note}", highlight=False, soft_wrap=True)
     problem = check_resources(scn)
     if problem and not args.force:
         console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False, soft_wrap=True)

@@ -9,6 +9,7 @@ the field. ``mrswarm results`` then runs as a user would, as a real subprocess.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -105,6 +106,39 @@ def test_head_on_summary_reports_the_collision_where_and_when_it_happened(head_o
             "network", "processes", "duration_s", "plot", "aborted"} <= set(on_disk)
     assert "coverage" not in on_disk and on_disk["aborted"] is None and on_disk["processes"] == {"uav1": 0, "uav2": 0}
     assert sorted(p.name for p in head_on_dir.iterdir() if p.name.startswith(".")) == []
+
+
+def test_two_uavs_below_the_safety_distance_are_an_incident_with_the_pair_the_minimum_and_the_duration(tmp_path: Path) -> None:
+    """Head-on along y = +-1.5 m: they pass 3 m apart, no collision, but 0.8 s closer than the 5 m safety distance
+    (4 m of closing at 10 m/s)."""
+    run_dir = tmp_path / "near-miss-run"
+    scn = save_scenario(run_dir, ROOT / "scenarios" / "head_on.yaml")
+    t = T0 + np.arange(0.0, 10.0, 0.1)
+    x = -20.0 + 5.0 * (t - T0)
+    for uav, sign in ((1, 1.0), (2, -1.0)):
+        record(run_dir, uav, np.stack([sign * x, np.full_like(t, 1.5 * sign), np.full_like(t, 10.0)], axis=1),
+               [AgentPhase.MISSION] * len(t), t)
+    RunInfo(scenario=scn.name, started=T0 - 20, mission_start=T0).write(run_dir / "run.json")
+    s = rebuild_results(run_dir)
+    assert s.separation and s.separation.collisions == 0 and s.separation.min_m == pytest.approx(3.0, abs=0.01)
+    (inc,) = s.incidents
+    assert inc.kind == "below_safety_distance" and inc.pair == [1, 2] and inc.uav == 1
+    assert inc.min_m == pytest.approx(3.0, abs=0.01) and inc.min_at_s == pytest.approx(4.0, abs=0.1)
+    assert inc.duration_s == pytest.approx(0.8, abs=0.15) and inc.t_s == pytest.approx(3.6, abs=0.15)
+    assert s.safety_events == 1  # `mrswarm run` exits with 3
+    on_disk = json.loads((run_dir / "summary.json").read_text())["incidents"][0]
+    assert {k: on_disk[k] for k in ("kind", "pair", "min_m")} == {"kind": "below_safety_distance", "pair": [1, 2], "min_m": 3.0}
+    assert "z_m" not in on_disk  # a pair's incident has no one height
+    # printed in words: the pair, when, for how long, how close
+    from rich.console import Console
+
+    from mrswarm.summary_table import print_summary
+
+    console = Console(width=300, record=True)
+    print_summary(console, s)
+    text = console.export_text()
+    assert re.search(r"UAVs 1 and 2 below the safety distance at 3\.[67] s for 0\.[789] s \(closest 3\.0 m\)", text), text
+    assert "0.8 s below the 5 m safety distance" in text
 
 
 def test_coverage_summary_counts_only_cells_seen_while_working(tmp_path: Path) -> None:
