@@ -11,7 +11,6 @@ Fast enough for a behaviour test: a 120 s mission of eight UAVs in seconds.
 
 from __future__ import annotations
 
-import math
 import random
 from dataclasses import dataclass
 from pathlib import Path
