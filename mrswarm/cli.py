@@ -103,6 +103,10 @@ def _results(args: argparse.Namespace) -> int:
     from mrswarm.summary_table import print_summary
 
     console = Console()
+    if args.run_dir is None:  # no folder named: the recent runs, to pick one
+        from mrswarm.results import list_runs
+
+        return list_runs(console, Path("results"))
     path = Path(args.run_dir)
     try:
         if path.is_file():  # a recording (docs/recording.md): its run folder first
@@ -163,8 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 
-    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap)")
-    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
+    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap); "
+                                       "alone: list the recent runs in ./results")
+    p.add_argument("run_dir", nargs="?", default=None,
+                   help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
     p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 

@@ -72,5 +72,5 @@ def safety_incident(pair: tuple[int, int], t_s: float, duration_s: float, min_m:
     at the closest."""
     return Incident(uav=pair[0], kind="below_safety_distance", t_s=round(t_s, 2), pair=list(pair), min_m=round(min_m, 2),
                     duration_s=round(duration_s, 2), min_at_s=round(min_at_s, 2),
-                    detail=f"UAVs {pair[0]} and {pair[1]} {min_m:.1f} m apart at the closest (safety distance {safety_m:g} m), "
+                    detail=f"UAVs {pair[0]} and {pair[1]} {min_m:.2f} m apart at the closest (safety distance {safety_m:g} m), "
                            f"{duration_s:.1f} s below it")

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from mrswarm.gcs.session import format_ids
 from mrswarm.summary import Incident, RunSummary
-from mrswarm.wording import id_list, plural
+from mrswarm.wording import id_list, metres, plural
 from mrswarm.world_summary import WorldSummary
 
 
@@ -25,7 +25,7 @@ def _separation_rows(s: RunSummary) -> list[tuple[str, str]]:
     if sep.min_m is None:
         closest = "never two UAVs airborne at once"
     else:
-        closest = f"{sep.min_m:.1f} m" + (f" (UAVs {sep.min_pair[0]} and {sep.min_pair[1]}" if sep.min_pair else " (")
+        closest = metres(sep.min_m) + (f" (UAVs {sep.min_pair[0]} and {sep.min_pair[1]}" if sep.min_pair else " (")
         closest += f" at {sep.min_at_s:.1f} s)" if sep.min_at_s is not None else ")"
     below = sep.time_below_safety_s
     closest += (f"; {below:.1f} s below the {sep.safety_distance_m:g} m safety distance" if below > 0
@@ -39,7 +39,7 @@ def _separation_rows(s: RunSummary) -> list[tuple[str, str]]:
 def _incident(i: Incident) -> str:
     if i.kind == "below_safety_distance" and i.pair and i.min_m is not UNSET and i.duration_s is not UNSET:
         return f"UAVs {i.pair[0]} and {i.pair[1]} below the safety distance at {i.t_s:.1f} s for {i.duration_s:.1f} s " \
-               f"(closest {i.min_m:.1f} m)"
+               f"(closest {metres(i.min_m)})"
     return f"UAV {i.uav} {i.kind.replace('_', ' ')} at {i.t_s:.1f} s"
 
 

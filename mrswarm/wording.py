@@ -27,3 +27,8 @@ def id_list(ids: list[int] | tuple[int, ...]) -> str:
     if not ids:
         return "no UAV"
     return "UAVs " + ", ".join(str(u) for u in ids[:-1]) + f" and {ids[-1]}"
+
+
+def metres(v: float) -> str:
+    """A distance: to the centimetre under 10 m (4.96 m is not 5.0 m next to a 5 m safety distance), else 0.1 m."""
+    return f"{v:.2f} m" if abs(v) < 10.0 else f"{v:.1f} m"

@@ -9,6 +9,7 @@ the field. ``mrswarm results`` then runs as a user would, as a real subprocess.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -137,7 +138,7 @@ def test_two_uavs_below_the_safety_distance_are_an_incident_with_the_pair_the_mi
     console = Console(width=300, record=True)
     print_summary(console, s)
     text = console.export_text()
-    assert re.search(r"UAVs 1 and 2 below the safety distance at 3\.[67] s for 0\.[789] s \(closest 3\.0 m\)", text), text
+    assert re.search(r"UAVs 1 and 2 below the safety distance at 3\.[67] s for 0\.[789] s \(closest 3\.00 m\)", text), text
     assert "0.8 s below the 5 m safety distance" in text
 
 
@@ -216,3 +217,19 @@ def test_mrswarm_results_rebuilds_the_summary_from_the_cli(head_on_dir: Path, tm
 def test_the_analysis_does_not_load_matplotlib() -> None:
     code = "import sys, mrswarm.analysis, mrswarm.results; sys.exit(int('matplotlib' in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=60).returncode == 0
+
+
+def test_mrswarm_results_alone_lists_the_recent_runs_with_their_outcome(head_on_dir: Path, tmp_path: Path) -> None:
+    cwd = tmp_path / "work"
+    (cwd / "results").mkdir(parents=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "200"}
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "results"], cwd=cwd, capture_output=True, text=True, timeout=60,
+                         env=env)
+    assert res.returncode == 0 and "no run folders in results/" in res.stdout, res.stdout + res.stderr
+    rebuild_results(head_on_dir)
+    shutil.move(str(head_on_dir), cwd / "results" / head_on_dir.name)
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "results"], cwd=cwd, capture_output=True, text=True, timeout=60,
+                         env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert f"results/{head_on_dir.name}" in res.stdout
+    assert "2 UAVs, 10 s, closest 0.60 m, 1 collision, 1 incident" in res.stdout, res.stdout
