@@ -458,6 +458,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     t_last = float(max(tr.t[-1] for tr in tracks.values()))
     t0 = info.mission_start or t_first
     t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
+    if info.mission_start and info.all_done_at is not None:  # the mission ended early: its end, not the shutdown after it
+        t_end = min(t_end, t0 + info.all_done_at)
     grid, pos, ids = resample(tracks, t_first, t_last)
     in_mission = (grid >= t0) & (grid <= t_end)
     sep = separation(grid, pos, ids, fl.collision_distance, fl.safety_distance, in_mission)

@@ -61,7 +61,7 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
                 net.pose_age_over_time.plot_error = "skipped: the run was asked to stop fast"
             else:
                 try:
-                    plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [])
+                    plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [], data.t_end - data.t0)
                     net.pose_age_over_time.plot = str(path)
                 except Exception as exc:  # a plotting failure must not lose the numbers
                     net.pose_age_over_time.plot_error = repr(exc)

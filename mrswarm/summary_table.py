@@ -167,8 +167,9 @@ def world_rows(w: WorldSummary, duration: float | None = None) -> list[tuple[str
         rate = f", {d.rate_hz_median:.1f} Hz" if d.rate_hz_median is not None else ""
         delay = (f"delay p50 {d.delay_ms_p50:.0f} ms" if d.delay_ms_p50 is not None else "delay not measured")
         wait = f", then {d.wait_ms_p50:.0f} ms to the UAV's next control tick (p50)" if d.wait_ms_p50 is not None else ""
+        tick = f", plus up to one {d.world_tick_ms:g} ms world tick and the transport" if d.world_tick_ms is not None else ""
         rows.append((f"sensor {name}", f"{plural(d.received, 'reading')}{rate}, {delay} (configured latency "
-                                       f"{1000 * d.latency_s:.0f} ms){wait}"))
+                                       f"{1000 * d.latency_s:.0f} ms{tick}){wait}"))
     if w.service is not None:
         cpu = f"CPU {w.service.cpu_percent:.1f} % of one core" if w.service.cpu_percent is not None else "CPU not measured"
         rows.append(("world service", f"{cpu}, {plural(w.service.uavs_tracked, 'UAV')} tracked"))

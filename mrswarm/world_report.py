@@ -115,7 +115,8 @@ def sensor_report(scn: Scenario, stats: dict[int, dict[str, Any]]) -> dict[str, 
                                         rate_hz_median=float(np.median(rates)) if rates else None,
                                         delay_ms_p50=ms(h.percentile(50)), delay_ms_p99=ms(h.percentile(99)),
                                         latency_s=spec.latency_s, wait_ms_p50=ms(wait.percentile(50)) if wait.n else None,
-                                        wait_ms_p99=ms(wait.percentile(99)) if wait.n else None)
+                                        wait_ms_p99=ms(wait.percentile(99)) if wait.n else None,
+                                        world_tick_ms=round(1000.0 / scn.world.tick_hz, 2))
     return out
 
 

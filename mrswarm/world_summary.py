@@ -23,6 +23,7 @@ class SensorDelivery(Struct):
     latency_s: float  # what the sensor's configuration asks for
     wait_ms_p50: float | None = None  # arrival to the control tick that took the reading in (None: a run before it was kept)
     wait_ms_p99: float | None = None
+    world_tick_ms: float | None = None  # the world service's tick (world.tick_hz): a reading is released up to one late
 
 
 class PlumeReport(Struct):
