@@ -161,6 +161,14 @@ def separation_over_time(ax: Any, scenario: Scenario, data: RunData, series: np.
 def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
     """The map and the separation/coverage over time -> ``path`` (PNG)."""
     plt = _pyplot()
+    fig = run_figure(scenario, data)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def run_figure(scenario: Scenario, data: RunData) -> Any:
+    """The figure of :func:`plot_run` (a matplotlib Figure; the caller closes it)."""
+    plt = _pyplot()
     extent = map_extent(data, scenario)
     fig, ax, ax2 = map_and_time(plt, extent)
     cov, t0 = data.coverage, data.t0
@@ -212,15 +220,20 @@ def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
         handles += ax3.get_legend_handles_labels()[0]
     legend_below(ax2, handles, ncol=3)
     ax2.set_title("separation" + (" and coverage" if cov is not None else "") + " over the mission", fontsize=10)
+    return fig
+
+
+def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> None:
+    """Transport age and age at use (top) and age of information (bottom) per second of the mission -> ``path`` (PNG)."""
+    plt = _pyplot()
+    fig = pose_age_figure(age, changes, t_end)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> None:
-    """Transport age and age at use (top) and age of information (bottom) per second of the mission -> ``path`` (PNG).
-
-    Only the mission (0 to ``t_end`` s, the analysed end): before it the UAVs are starting, and the last second
-    of a run holds its shutdown, whose ages say nothing about the swarm."""
+def pose_age_figure(age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> Any:
+    """The figure of :func:`plot_pose_age`: only the mission (0 to ``t_end`` s, the analysed end), since before it
+    the UAVs are starting and the last second of a run holds its shutdown, whose ages say nothing of the swarm."""
     plt = _pyplot()
     fig = plt.figure(figsize=(11, 7.2), layout="constrained")
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
@@ -258,5 +271,4 @@ def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange], t_
     handles = ax1.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
     fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=2, frameon=False, fontsize=8)
     ax1.set_title(f"pose age over the mission ({len(age.series)} UAVs; thin lines: each UAV, per second)", fontsize=10)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    return fig

@@ -89,6 +89,14 @@ def _plume_layer(ax: Any, scn: Scenario, extent: tuple[float, float, float, floa
 def plot_world(path: Path, scn: Scenario, data: RunData) -> None:
     """The world map with the trajectories and the world's outcome over time -> ``path`` (PNG)."""
     plt = _pyplot()
+    fig = world_figure(scn, data)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def world_figure(scn: Scenario, data: RunData) -> Any:
+    """The figure of :func:`plot_world` (a matplotlib Figure; the caller closes it)."""
+    plt = _pyplot()
     wd = data.world
     w = scn.world
     assert w is not None
@@ -147,8 +155,7 @@ def plot_world(path: Path, scn: Scenario, data: RunData) -> None:
     legend_below(ax, (lines if len(ids) <= MAX_LEGEND else []) + others + fire_keys,
                  ncol=min(len(lines) + len(others) + len(fire_keys), 6))
     _over_time(ax2, scn, data)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    return fig
 
 
 def _over_time(ax: Any, scn: Scenario, data: RunData) -> None:
