@@ -118,7 +118,7 @@ def test_the_page_is_served_to_loopback_names_only_and_its_socket_to_its_own_pag
     assert hello["swarm"] == "webt" and "kill" not in hello["verbs"]
     # the run's fixed layer and the trails from its start, for a page opened mid-run
     scene = hello["scene"]
-    assert scene["area"] == [0, 100, 0, 100] and scene["hub"] == [-25, 50, 15]  # the fire's forest, the hub
+    assert scene["area"] == [0, 100, 0, 100] and scene["area_label"] == "forest" and scene["hub"] == [-25, 50, 15]
     assert scene["zones"] == [{"name": "village", "kind": "no_fly", "polygon": [[5, 35], [15, 35], [15, 65], [5, 65]]}]
     trail = hello["trails"]["1"]
     recorded = [pt for pt in trail if pt[1] == 50.0]

@@ -71,10 +71,10 @@ def scene_of(run_dir: Path) -> dict[str, Any]:
     m = scn.mission
     w = scn.world
     if m.area is not None:
-        out["area"] = list(m.area.as_tuple())
+        out["area"], out["area_label"] = list(m.area.as_tuple()), "search area" if m.type == "plume" else "mission area"
     elif w is not None and w.fire is not None:
         a = w.fire.area
-        out["area"] = [a.x_min, a.x_max, a.y_min, a.y_max]
+        out["area"], out["area_label"] = [a.x_min, a.x_max, a.y_min, a.y_max], "forest"
     if w is not None and w.zones:
         out["zones"] = [{"name": z.name, "kind": z.kind, "polygon": [list(p) for p in z.polygon]} for z in w.zones]
     if m.wildfire is not None:

@@ -114,7 +114,7 @@
       const a = toScreen(sc.area[0], sc.area[3]), b = toScreen(sc.area[1], sc.area[2]);
       ctx.setLineDash([6, 4]); ctx.strokeStyle = "#8fa3b8"; ctx.lineWidth = 1.2;
       ctx.strokeRect(a.x, a.y, b.x - a.x, b.y - a.y); ctx.setLineDash([]);
-      ctx.fillStyle = "#8fa3b8"; ctx.font = "11px system-ui, sans-serif"; ctx.fillText("mission area", a.x + 4, a.y + 13);
+      ctx.fillStyle = "#8fa3b8"; ctx.font = "11px system-ui, sans-serif"; ctx.fillText(sc.area_label || "mission area", a.x + 4, a.y + 13);
     }
     for (const z of sc.zones || []) {
       if (!z.polygon.length) continue;
