@@ -269,7 +269,8 @@ class Experiment:
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
-        kind = ("container" if self.runtime.name == "docker" else "process") + ("s" if len(configs) != 1 else "")
+        one = len(configs) == 1
+        kind = ("container" if one else "containers") if self.runtime.name == "docker" else ("process" if one else "processes")
         fleet = f"{len(configs)} virtual UAV {kind}" + (f" and {len(agents)} UAV{'s' if len(agents) > 1 else ''} with an "
                                                          "external flight controller" if agents else "")
         self._say(f"[bold]{scn.name}[/]: {fleet}, results in {self.run_dir}")
