@@ -13,6 +13,7 @@ wrote, and the summary counts the external UAV's separation and encounter.
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -300,3 +301,29 @@ def test_a_companion_that_never_comes_ends_the_wait_in_time_saying_what_to_start
         assert "UAV 1" in s["aborted"] and s["external_uavs"][0]["trajectory"] == "none"
     finally:
         run.cleanup()
+
+
+@pytest.mark.e2e
+def test_ctrl_c_mid_mission_lands_the_external_uav_before_stopping_its_agent(tmp_path: Path) -> None:
+    """A real UAV is not left in the air by a stopped run: on the first Ctrl-C the runner lands it, then stops every process."""
+    port = free_udp_port()
+    scn = load_scenario(EXTERNAL)
+    fcu = start_fcu(port, (scn.origin.lat, scn.origin.lon, scn.origin.alt))
+    run = BackgroundRun(EXTERNAL, tmp_path / "out", sets=[f"uavs.0.fcu=udpin:127.0.0.1:{port}", "gcs.mavlink=false"])
+    try:
+        run.wait_mission(timeout=120, after=2.0)
+        run.signal(signal.SIGINT)
+        code = run.wait(120)
+        assert code == 130, run.output[-3000:]
+        out = " ".join(run.output.split())
+        assert "landing UAV 1 (external flight controller) before stopping (stop again to skip)" in out, out[-3000:]
+        assert "external UAVs on the ground" in out
+        run_dir = run.run_dir()
+        assert run_dir is not None
+        last = (run_dir / "uav1.csv").read_text().splitlines()[-1].split(",")
+        assert last[9] == "landed" and float(last[4]) < 0.5, last  # phase, z
+        s = json.loads((run_dir / "summary.json").read_text())
+        assert s["interrupted"] and s["external_uavs"][0]["trajectory"] == "agent"
+    finally:
+        run.cleanup()
+        stop(fcu)
