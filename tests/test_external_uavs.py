@@ -12,6 +12,7 @@ wrote, and the summary counts the external UAV's separation and encounter.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import signal
 import socket
@@ -24,6 +25,8 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from websockets.asyncio.client import connect
+from websockets.typing import Origin
 
 from mrswarm.recorder.capture import Sample
 from mrswarm.recorder.export import export_jsonl
@@ -33,7 +36,7 @@ from mrswarm.results import rebuild_results
 from mrswarm.scenario import ScenarioError, load_scenario
 from mrswarm.summary import RunInfo
 from swarmnet.messages import AgentState, Pose, Realm, encode_pose, encode_state
-from tests.conftest import wait_for
+from tests.conftest import free_port, wait_for
 from tests.run_helpers import BackgroundRun
 from uav_stack.config import NetworkConfig
 from uav_stack.phases import AgentPhase
@@ -198,6 +201,35 @@ def stop(proc: subprocess.Popen[str]) -> None:
             proc.wait(5)
 
 
+def web_map_uavs(run_dir: Path, want: set[int], timeout: float = 40.0) -> dict[int, dict[str, Any]]:
+    """The UAVs ``mrswarm gcs web --run`` shows (its WebSocket's state pushes), once all of ``want`` are in one."""
+    port = free_port()
+    web = subprocess.Popen([sys.executable, "-m", "mrswarm", "gcs", "web", "--run", str(run_dir), "--port", str(port),
+                            "--duration", str(timeout + 20)],
+                           cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+    async def read() -> dict[int, dict[str, Any]]:
+        deadline = time.monotonic() + timeout
+        last: dict[int, dict[str, Any]] = {}
+        while time.monotonic() < deadline:
+            try:
+                async with connect(f"ws://127.0.0.1:{port}/ws", origin=Origin(f"http://127.0.0.1:{port}")) as ws:
+                    while time.monotonic() < deadline:
+                        m = json.loads(await asyncio.wait_for(ws.recv(), 5.0))
+                        if m["type"] == "state":
+                            last = {int(u["id"]): u for u in m["uavs"]}
+                            if want <= set(last):
+                                return last
+            except (TimeoutError, OSError):
+                await asyncio.sleep(0.3)  # not serving yet
+        return last
+
+    try:
+        return asyncio.run(read())
+    finally:
+        stop(web)
+
+
 def recorded_poses(run_dir: Path, uav: int) -> list[dict[str, Any]]:
     out = run_dir / "poses.jsonl"
     export_jsonl(run_dir / "run.mcap", out)
@@ -234,10 +266,13 @@ def test_fig8_with_an_external_fcu_counts_it_in_separation_encounter_trajectory_
     fcu = start_fcu(port, (scn.origin.lat, scn.origin.lon, scn.origin.alt))
     run = BackgroundRun(EXTERNAL, tmp_path / "out", sets=[f"uavs.0.fcu=udpin:127.0.0.1:{port}", "gcs.mavlink=false"])
     try:
-        code = run.wait(240)
-        assert code == 0, run.output[-3000:]
+        run.wait_mission(timeout=150)
         run_dir = run.run_dir()
         assert run_dir is not None
+        shown = web_map_uavs(run_dir, {1, 2})  # the live map, as a ground station opens it during the run
+        assert {u: v["realm"] for u, v in shown.items()} == {1: "physical", 2: "virtual"}, shown
+        code = run.wait(240)
+        assert code == 0, run.output[-3000:]
         assert f"UAV 1: agent against the external flight controller udpin:127.0.0.1:{port}" in run.output
         check_head_on_summary(run_dir, "runner", "agent")
         rows = (run_dir / "uav1.csv").read_text().splitlines()  # its agent's own trajectory, in the run folder
