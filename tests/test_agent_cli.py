@@ -4,6 +4,7 @@ for a companion computer."""
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ from mrswarm.gcs.cli import build_parser
 from mrswarm.scenario import load_scenario
 from uav_stack.cli_args import ArgumentParser, join_dash_values
 from uav_stack.config import NetworkConfig, fcu_url_problem
-from uav_stack.runtime import parse_agent
+from uav_stack.runtime import parse_agent, setup_logging
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ["--fcu", "udpin:127.0.0.1:14540", "--swarm", "alpha", "--uav", "3", "--connect", "tcp/127.0.0.1:7447", "--insecure"]
@@ -55,7 +56,8 @@ def test_only_values_are_joined_to_their_option_never_flags_or_positionals() -> 
 
 
 @pytest.mark.parametrize("argv,flag", [
-    (["--swarm", "alpha", "--uav", "3", "--origin", "47,8,500", "--insecure", "--connect", "tcp/127.0.0.1:1"], "--fcu is required"),
+    (["--swarm", "alpha", "--uav", "3", "--origin", "47,8,500", "--insecure", "--connect", "tcp/127.0.0.1:1"],
+     "--fcu is required"),
     ([*BASE[:6], "--insecure", "--origin", "-35.36,149.16,584"], "no way to the swarm: give --connect"),
     ([*BASE, "--origin", "-95,149.16,584"], "--origin -95,149.16,584: latitude -95 is outside -90..90"),
     ([*BASE, "--origin", "47,8"], "--origin 47,8: expected LAT,LON,ALT"),
@@ -125,3 +127,32 @@ def test_fcu_connection_strings() -> None:
     for bad, what in (("", "empty"), ("127.0.0.1:14540", "unknown scheme"), ("udpin:14540", "HOST:PORT"),
                       ("tcp:127.0.0.1:99999", "not a port number"), ("serial:", "no serial device")):
         assert what in fcu_url_problem(bad), bad
+
+
+def test_the_folders_a_field_user_names_are_made(tmp_path: Path) -> None:
+    """The key directory and a UAV's bundle (``mrswarm keys``), and the agent's log file, each in folders that do
+    not exist yet."""
+    from mrswarm.keys_cli import main as keys_main
+
+    kd = tmp_path / "lab" / "keys" / "alpha"
+    assert keys_main(["init", "--swarm", "alpha", "--dir", str(kd)]) == 0
+    assert keys_main(["issue", "--dir", str(kd), "uav-3"]) == 0
+    usb = tmp_path / "media" / "usb" / "uav-3"
+    assert keys_main(["bundle", "--dir", str(kd), "uav-3", "--out", str(usb)]) == 0
+    assert {p.name for p in usb.iterdir()} == {"ca.pem", "roster.json", "uav-3.alpha.pem", "uav-3.alpha.key"}
+    cfg, _ = parse_agent([*BASE[:-1], "--origin", "47,8,500", "--keys", str(usb)])  # the bundle is what the agent takes
+    assert cfg.network.security is not None and cfg.network.security.keys == str(usb)
+    log = tmp_path / "var" / "log" / "mrswarm" / "uav3.log"
+    root = logging.getLogger()
+    saved = root.handlers[:]
+    root.handlers = []
+    try:
+        setup_logging("INFO", str(log))
+        logging.getLogger("uav_stack.test").info("hello")
+        for h in root.handlers:
+            h.flush()
+    finally:
+        for h in root.handlers:
+            h.close()
+        root.handlers = saved
+    assert "hello" in log.read_text()
