@@ -12,6 +12,11 @@ are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.
 Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
 recorded; a second one stops faster (mrswarm/signals.py).
 
+A UAV whose flight controller is external (``uavs[].fcu``: a real autopilot, a SITL) gets only
+its agent, started first (``Runtime.start_agent``), or, with ``agent: companion``, the
+configuration its companion computer's agent reads, and the run waits for it; each has its own
+wait (``wait_s``). Before the processes stop, every external UAV off the ground is landed.
+
 A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
 services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
 on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
