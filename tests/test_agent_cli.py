@@ -156,3 +156,13 @@ def test_the_folders_a_field_user_names_are_made(tmp_path: Path) -> None:
             h.close()
         root.handlers = saved
     assert "hello" in log.read_text()
+
+
+def test_a_swarm_the_agent_cannot_join_is_one_error_line_not_a_traceback() -> None:
+    """Past the usage checks: a listen address that is not this machine's (TEST-NET-1, nothing is sent) fails the node."""
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpin:127.0.0.1:0", "--swarm", "alpha",
+                          "--uav", "1", "--origin", "-35.36,149.16,584", "--insecure", "--connect", "tcp/127.0.0.1:9",
+                          "--listen", "tcp/192.0.2.1:7447"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 1, res.stderr
+    assert "ERROR uav_stack.runtime: network: cannot join swarm 'alpha' through tcp/127.0.0.1:9" in res.stderr, res.stderr
+    assert "Traceback" not in res.stderr

@@ -371,7 +371,20 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
     except LinkOpenError as exc:
         log.error("%s", exc)
         return 2
-    node = open_node(cfg, stop, tap_zenoh_log)
+    import zenoh
+
+    try:
+        node = open_node(cfg, stop, tap_zenoh_log)
+    except zenoh.ZError as exc:  # the swarm unreachable for OPEN_TIMEOUT_S, or refused: one line, not a traceback
+        link.close()
+        if router is not None:
+            router.close()
+        if stop.stopped:
+            return 0
+        net = cfg.network
+        via = f"the discovery server {net.discovery.server}" if net.discovery is not None else ", ".join(net.endpoints)
+        log.error("network: cannot join swarm %r through %s: %s", cfg.swarm, via, str(exc).splitlines()[0] if str(exc) else exc)
+        return 1
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
