@@ -5,6 +5,7 @@ for a companion computer."""
 from __future__ import annotations
 
 import logging
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -160,7 +161,10 @@ def test_the_folders_a_field_user_names_are_made(tmp_path: Path) -> None:
 
 def test_a_swarm_the_agent_cannot_join_is_one_error_line_not_a_traceback() -> None:
     """Past the usage checks: a listen address that is not this machine's (TEST-NET-1, nothing is sent) fails the node."""
-    res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", "udpin:127.0.0.1:0", "--swarm", "alpha",
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", "--fcu", f"udpin:127.0.0.1:{port}", "--swarm", "alpha",
                           "--uav", "1", "--origin", "-35.36,149.16,584", "--insecure", "--connect", "tcp/127.0.0.1:9",
                           "--listen", "tcp/192.0.2.1:7447"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 1, res.stderr
