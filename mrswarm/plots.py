@@ -49,13 +49,15 @@ def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
         ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "k--", lw=1)
     cmap = plt.get_cmap("tab20")
     rtf_of = {u.id: u.rtf for u in scenario.uav_list()}
+    external = {u.id: u.realm_name for u in scenario.external_uavs()}
     for k, u in enumerate(ids):
         p = pos[k]
-        label = f"UAV {u}" + (f" (RTF {rtf_of[u]:g})" if rtf_of.get(u, 1.0) != 1.0 else "")
+        label = f"UAV {u}" + (f" ({external[u]}, external FCU)" if u in external else
+                              f" (RTF {rtf_of[u]:g})" if rtf_of.get(u, 1.0) != 1.0 else "")
         ax.plot(p[:, 0], p[:, 1], "-", lw=1.1, color=cmap(k % 20), label=label if len(ids) <= 12 else None)
         tr = data.tracks[u]
         ax.plot(tr.xyz[0, 0], tr.xyz[0, 1], "o", color=cmap(k % 20), ms=4)
-    for uav in scenario.uav_list():
+    for uav in scenario.all_uavs():
         if uav.goal is not None:
             ax.plot(*uav.goal, "x", color="k", ms=8)
     if len(ids) == 2 and np.isfinite(min_sep).any():  # closest approach of a head-on encounter

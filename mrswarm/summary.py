@@ -371,6 +371,17 @@ class Security(Struct):
     refused_by_router: dict[str, int]  # the edge router's: tls_handshake, non_member_link (process runtime)
 
 
+class ExternalUav(Struct):
+    """A UAV whose flight controller is external (a real autopilot, a SITL; docs/scenarios.md): counted like any other."""
+
+    uav: int
+    realm: str  # physical or virtual (a SITL may be flown as a virtual UAV)
+    fcu: str  # its flight controller's connection string, as the scenario gives it
+    agent: str  # runner: its agent ran on this machine; companion: on the UAV's companion computer
+    trajectory: str  # agent: its own uav<N>.csv; recording: the poses it shared, from run.mcap; none: neither
+    detail: str = ""
+
+
 class RunSummary(Struct):
     """``summary.json``: the outcome of one run, computed from the files its UAVs recorded."""
 
@@ -401,6 +412,7 @@ class RunSummary(Struct):
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
+    external_uavs: list[ExternalUav] | UnsetType = UNSET  # only with UAVs whose flight controller is external
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property

@@ -370,7 +370,7 @@ def test_an_agent_whose_port_is_taken_stops_with_one_line_naming_it(taker: str) 
     setting = "fcu" if taker == "fcu" else "gcs.mavlink_endpoints"
     try:
         res = subprocess.run([sys.executable, "-m", "mrswarm", "agent", *link, "--swarm", "a",
-                              "--uav", "1", "--insecure", "--origin", "47,8,500"],
+                              "--uav", "1", "--insecure", "--origin", "47,8,500", "--connect", "tcp/127.0.0.1:9"],
                              cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert res.returncode == 2, res.stderr
         assert f"{setting}: udpin:127.0.0.1:{taken}: cannot listen on 127.0.0.1:{taken}: Address already in use" in res.stderr, \

@@ -43,6 +43,34 @@ ActuatorType = Literal["spray"]
 ZoneKind = Literal["no_fly", "obstacle"]
 
 
+# the schemes of a flight controller's connection string: pymavlink's, plus serial:<device>[:<baud>]
+FCU_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "serial")
+
+
+def fcu_url_problem(url: str) -> str:
+    """"" if ``url`` is a flight controller's connection string the agent can open, else what is wrong with it.
+
+    Accepted: ``udpin:HOST:PORT``, ``udpout:HOST:PORT`` (``udp:`` is ``udpin:``), ``tcp:HOST:PORT``,
+    ``tcpin:HOST:PORT``, ``udpbcast:HOST:PORT``, ``serial:<device>[:<baud>]`` and a bare serial
+    device (``/dev/ttyACM0``)."""
+    if not url:
+        return "empty: a MAVLink connection string such as udpin:127.0.0.1:14540 or serial:/dev/ttyACM0:921600"
+    if url.startswith("/dev/"):
+        return ""
+    scheme, sep, rest = url.partition(":")
+    if not sep or scheme not in FCU_SCHEMES:
+        return f"unknown scheme {scheme + ':' if sep else url!r}; use one of {', '.join(s + ':' for s in FCU_SCHEMES)} " \
+               "or a serial device (/dev/ttyACM0)"
+    if scheme == "serial":
+        return "" if rest.lstrip("/") else "no serial device; use serial:/dev/ttyACM0:921600"
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host:
+        return f"expected {scheme}:HOST:PORT"
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        return f"port {port!r} is not a port number (1-65535)"
+    return ""
+
+
 class NetworkConfig(Config, frozen=True):
     """How the node reaches its swarm (``swarmnet.connectivity``, docs/discovery.md)."""
 
