@@ -66,11 +66,14 @@ def observer_network(net: NetworkConfig, keys: Path | None) -> NetworkConfig:
     return replace(net, security=own)
 
 
-def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None) -> list[VirtualUavConfig]:
-    """Every UAV process of every swarm."""
-    out = scn.virtual_uav_configs(nets[scn.swarm], record_dir)
+def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None,
+                mavlink_key: Path | None = None) -> list[VirtualUavConfig]:
+    """Every UAV process of every swarm; ``mavlink_key``: the MAVLink signing passphrase file when
+    it is not in the UAVs' key directories (Scenario.virtual_uav_configs)."""
+    key = str(mavlink_key) if mavlink_key is not None else None
+    out = scn.virtual_uav_configs(nets[scn.swarm], record_dir, mavlink_key=key)
     for o in scn.other_swarms:
-        out += scn.virtual_uav_configs(nets[o.swarm], record_dir, other=o)
+        out += scn.virtual_uav_configs(nets[o.swarm], record_dir, other=o, mavlink_key=key)
     return out
 
 

@@ -18,25 +18,27 @@ The whole attack on a real virtual UAV process is tests/test_mavlink_attack.py.
 
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from swarmnet.schema import ConfigError, convert
 from tests.conftest import free_port, wait_for
 from tests.fcu_helpers import FcuThread, MavClient
 from tests.spoof_flood import udp_packet
-from tests.test_mavlink_router import COMPANION, SYSID, Rig, heartbeat, packer, parse, recv_all, udp
+from tests.test_mavlink_router import SYSID, Rig, heartbeat, packer, parse, recv_all, udp
 from uav_stack.config import GcsConfig, MavlinkSigning
 from uav_stack.fcu.config import FcuConfig, VehicleConfig
 from uav_stack.fcu_link import FcuLink
 from uav_stack.geo import GeoPoint
 from uav_stack.mav import mavlink as M
-from uav_stack.mavlink_router import LOCKED, MAX_PEERS, MavlinkRouter, SigningPolicy
+from uav_stack.mavlink_router import LOCKED, MAX_PEERS, SigningPolicy
 from uav_stack.mavlink_signing import (
     Signer,
     SigningKeyError,
@@ -308,7 +310,8 @@ def test_without_a_key_the_router_is_telemetry_only(gcs_port: int) -> None:
         rig.pump(0.1)
         assert {m.get_type() for m in parse(recv_all(gcs))} == {"HEARTBEAT"}  # telemetry to QGC's port, unsigned
         disarm = M.MAVLink_command_long_message(SYSID, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
-        gcs.sendto(disarm.pack(signing_gcs(None)) + disarm.pack(signing_gcs(KEY)), rig.router.addresses()[f"udpout:127.0.0.1:{gcs_port}"])
+        to = rig.router.addresses()[f"udpout:127.0.0.1:{gcs_port}"]
+        gcs.sendto(disarm.pack(signing_gcs(None)) + disarm.pack(signing_gcs(KEY)), to)
         watcher.sendto(heartbeat(signing_gcs(None), gcs=True), ("127.0.0.1", listen))
         assert rig.fcu_received() == []
         st = rig.router.stats
@@ -438,18 +441,76 @@ def test_an_fcu_link_that_cannot_open_names_the_setting_and_the_link() -> None:
         FcuLink("serial:/dev/mrswarm-no-such-tty:57600").open()
 
 
-def test_scenario_signing_reaches_every_uav_and_needs_the_routers() -> None:
+def test_scenario_signing_reaches_every_uav_and_unsigned_is_asked_for_by_name() -> None:
     from mrswarm.scenario import ScenarioError, parse_scenario
     from uav_stack.config import NetworkConfig
 
     base = {"name": "x", "duration": 10, "origin": {"lat": 47, "lon": 8, "alt": 400}, "fleet": {"count": 2},
             "mission": {"type": "coverage", "area": {"x_min": -10, "x_max": 10, "y_min": -10, "y_max": 10}}}
+    default = parse_scenario(base).virtual_uav_configs(NetworkConfig(), None)  # routers on, locked, the run's key
+    assert {(c.agent.gcs.signing, c.agent.gcs.allow_unsigned) for c in default} == {(MavlinkSigning(), False)}
+    runs = parse_scenario(base).virtual_uav_configs(NetworkConfig(), None, mavlink_key="/run/mavlink.key")
+    assert {c.agent.gcs.signing for c in runs} == {MavlinkSigning(key_file="/run/mavlink.key")}
     s = parse_scenario({**base, "gcs": {"mavlink": True, "listen_base": 24600, "signing": {"key_file": "/k"}}})
-    assert {c.agent.gcs.signing for c in s.virtual_uav_configs(NetworkConfig(), None)} == {MavlinkSigning(key_file="/k")}
+    assert {c.agent.gcs.signing for c in s.virtual_uav_configs(NetworkConfig(), None, mavlink_key="/r")} == \
+        {MavlinkSigning(key_file="/k")}
+    s = parse_scenario({**base, "gcs": {"allow_unsigned": True}})
+    assert {c.agent.gcs.allow_unsigned for c in s.virtual_uav_configs(NetworkConfig(), None)} == {True}
     with pytest.raises(ScenarioError, match=r"gcs\.signing: .*gcs\.mavlink: true"):
         parse_scenario({**base, "gcs": {"mavlink": False, "signing": {"key_file": "/k"}}})  # routers are on by default
-    with pytest.raises(ScenarioError, match=r"gcs\.signing\.requir: unknown field"):
-        parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "requir": False}}})
+    with pytest.raises(ScenarioError, match=r"gcs\.allow_unsigned: .*gcs\.mavlink: true"):
+        parse_scenario({**base, "gcs": {"mavlink": False, "allow_unsigned": True}})
+    with pytest.raises(ScenarioError, match=r"gcs\.signing\.require: unknown field"):  # gcs.allow_unsigned says it now
+        parse_scenario({**base, "gcs": {"mavlink": True, "signing": {"key_file": "/k", "require": False}}})
+
+
+def test_the_key_is_made_with_the_swarms_keys_bundled_for_uavs_and_ground_stations_and_printed(tmp_path: Path) -> None:
+    from swarmnet.security.credentials import Credentials
+    from uav_stack.config import AgentConfig, NetworkConfig
+
+    def keys(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "mrswarm", "keys", *args], cwd=ROOT, capture_output=True, text=True,
+                              timeout=60)
+
+    d = tmp_path / "alpha"
+    assert keys("init", "--swarm", "alpha", "--dir", str(d)).returncode == 0
+    assert keys("issue", "--dir", str(d), "uav-3", "gcs-1", "ctl").returncode == 0
+    key_file = d / "mavlink.key"
+    assert (key_file.stat().st_mode & 0o777) == 0o600
+    passphrase = key_file.read_text().strip()
+    res = keys("mavlink", "--dir", str(d))
+    assert res.returncode == 0, res.stderr
+    assert f'--cmd="signing key {passphrase}"' in res.stdout and "MAVLink 2 Signing" in res.stdout
+    assert key_from_passphrase(passphrase).hex() in res.stdout  # what QGroundControl and MAVProxy derive
+    for who, has in (("uav-3", True), ("gcs-1", True), ("ctl", False)):
+        assert keys("bundle", "--dir", str(d), who, "--out", str(tmp_path / who)).returncode == 0
+        assert (tmp_path / who / "mavlink.key").is_file() == has, who
+    assert (tmp_path / "uav-3" / "mavlink.key").read_text().strip() == passphrase
+    # the agent finds it in its bundle, or where gcs.signing.key_file says
+    agent = AgentConfig(swarm="alpha", uav=3, origin=HOME, fcu="udpout:127.0.0.1:9",
+                        network=NetworkConfig(security=Credentials(keys=str(tmp_path / "uav-3"))))
+    assert agent.mavlink_key_file() == tmp_path / "uav-3" / "mavlink.key"
+    explicit = msgspec.structs.replace(agent, gcs=msgspec.structs.replace(agent.gcs, signing=MavlinkSigning(key_file="/k")))
+    assert explicit.mavlink_key_file() == Path("/k")
+    bare = AgentConfig(swarm="alpha", uav=3, origin=HOME, fcu="udpout:127.0.0.1:9")
+    assert bare.mavlink_key_file() is None  # no key: the router is telemetry only
+    # a new one, and rotate makes one too (a stolen UAV had the old)
+    res = keys("mavlink", "--dir", str(d), "--new", "--json")
+    assert res.returncode == 0 and (new := key_file.read_text().strip()) != passphrase
+    assert json.loads(res.stdout)["passphrase"] == new
+    assert keys("rotate", "--dir", str(d)).returncode == 0 and key_file.read_text().strip() != new
+    # a bundle cannot make one (no CA), and a directory without one says how to make it
+    res = keys("mavlink", "--dir", str(tmp_path / "uav-3"), "--new")
+    assert res.returncode == 2 and "no CA here" in res.stderr and "Traceback" not in res.stderr
+    res = keys("mavlink", "--dir", str(tmp_path / "ctl"))
+    assert res.returncode == 2 and "mrswarm keys mavlink --dir" in res.stderr and "--new" in res.stderr
+    # a run's key, from its network.json
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "network.json").write_text(json.dumps({"swarm": "alpha", "endpoints": [],
+                                                  "mavlink": {"mode": "signed", "key_file": str(key_file)}}))
+    res = keys("mavlink", "--run", str(run))
+    assert res.returncode == 0 and f"signing key {key_file.read_text().strip()}" in res.stdout, res.stderr
 
 
 @pytest.mark.parametrize("taker", ["gcs", "fcu"])

@@ -82,14 +82,17 @@ def read_key_file(path: str | Path) -> bytes:
 
 
 def write_key_file(path: str | Path) -> Path:
-    """A new random passphrase (256 bits) in ``path``, readable by its owner only (0600)."""
-    import os
+    """A new random passphrase (256 bits, as ``mrswarm keys`` makes them) in ``path``, which must
+    not exist yet, readable by its owner only (0600)."""
     import secrets
 
+    passphrase = secrets.token_urlsafe(32)
+    while passphrase.startswith("-"):  # a command line would read it as an option
+        passphrase = secrets.token_urlsafe(32)
     p = Path(path)
     fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w") as f:
-        f.write(secrets.token_urlsafe(32) + "\n")
+        f.write(passphrase + "\n")
     return p
 
 

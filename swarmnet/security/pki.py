@@ -67,10 +67,14 @@ def write_private(path: Path, data: bytes) -> None:
 
 def write_passphrase(path: Path) -> Path:
     """A new random passphrase in ``path`` (0600, replacing any): 256 bits as 43 URL-safe
-    characters, which MAVProxy (``signing key``) and QGroundControl take as typed."""
+    characters, which MAVProxy (``signing key``) and QGroundControl take as typed (never one
+    that starts with ``-``, which a command line would read as an option)."""
     import secrets
 
-    write_private(path, (secrets.token_urlsafe(32) + "\n").encode("ascii"))
+    passphrase = secrets.token_urlsafe(32)
+    while passphrase.startswith("-"):
+        passphrase = secrets.token_urlsafe(32)
+    write_private(path, (passphrase + "\n").encode("ascii"))
     return path
 
 
