@@ -57,7 +57,7 @@ from typing import Any
 
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.mav import mavlink
-from uav_stack.mavlink_signing import REFUSED_REASONS, Signer, VerifyingParser
+from uav_stack.mavlink_signing import REFUSED_REASONS, Signer, VerifyingParser, is_signed
 from uav_stack.udp import clear_errors, drain, report_refusals, source_address_for
 
 log = logging.getLogger(__name__)
@@ -439,6 +439,8 @@ class MavlinkRouter:
             if isinstance(m, mavlink.MAVLink_bad_data):
                 bad = bad or m.reason not in REFUSED_REASONS  # refused by the policy: counted by the parser
                 continue
+            if not ep.verifying and not is_signed(m.get_msgbuf()):
+                self.stats.unsigned_accepted += 1  # (a verifying parser counts its own)
             self._route_from_gcs(ep, m)
             n += 1
         if bad or (not msgs and data):
