@@ -96,7 +96,7 @@ def mavlink_row(mode: str, refused: dict[str, int], accepted: dict[str, int]) ->
     """What the UAVs' MAVLink routers accepted from ground stations, in one line."""
     if mode == "off":
         return "no routers (gcs.mavlink: false)"
-    said = {"signed": "commands only signed with the key", "telemetry-only": "[yellow]telemetry only: no signing key[/]",
+    said = {"signed": "commands only when signed with the key", "telemetry-only": "[yellow]telemetry only: no signing key[/]",
             "unsigned-allowed": "[yellow]unsigned commands accepted (gcs.allow_unsigned)[/]"}.get(mode, escape(mode))
     nonzero = ", ".join(f"{k} {v}" for k, v in refused.items() if v)
     routed = accepted.get("to_fcu", 0)
