@@ -513,6 +513,26 @@ def test_the_key_is_made_with_the_swarms_keys_bundled_for_uavs_and_ground_statio
     assert res.returncode == 0 and f"signing key {key_file.read_text().strip()}" in res.stdout, res.stderr
 
 
+def test_an_agents_policy_is_signed_with_a_key_telemetry_only_without_and_unsigned_only_by_name(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    from uav_stack.config import AgentConfig
+    from uav_stack.runtime import signing_policy
+
+    key_file = write_key_file(tmp_path / "mavlink.key")
+
+    def agent(**gcs: object) -> AgentConfig:
+        return AgentConfig(swarm="a", uav=1, origin=HOME, fcu="udpout:127.0.0.1:9",
+                           gcs=GcsConfig(mavlink_endpoints=("udpout:127.0.0.1:14550",), **gcs))  # type: ignore[arg-type]
+
+    with caplog.at_level("WARNING", logger="uav_stack.runtime"):
+        signed = signing_policy(agent(signing=MavlinkSigning(key_file=str(key_file))))
+        assert (signed.mode, signed.key) == ("signed", read_key_file(key_file)) and not caplog.records
+        assert signing_policy(agent()).mode == "telemetry-only"
+        assert "no command is accepted" in caplog.records[-1].getMessage()
+        assert signing_policy(agent(allow_unsigned=True)).mode == "unsigned-allowed"
+        assert "unsigned ground-station commands accepted (gcs.allow_unsigned)" in caplog.records[-1].getMessage()
+
+
 @pytest.mark.parametrize("taker", ["gcs", "fcu"])
 def test_an_agent_whose_port_is_taken_stops_with_one_line_naming_it(taker: str) -> None:
     """``mrswarm agent`` with a udpin ground-station endpoint, or a udpin FCU link, on a port
