@@ -275,8 +275,7 @@ class UdpEndpoint(Channel):
         without the key). Listeners make room only for each other, never for a peer."""
         if self.mode != "udpin":
             return
-        if a in self.peers:
-            self.peers[a] = self.clock()
+        if a in self.peers:  # a ground station stays one by its accepted frames
             return
         if a not in self.listeners and len(self.listeners) >= MAX_LISTENERS:
             del self.listeners[min(self.listeners, key=self.listeners.__getitem__)]
