@@ -35,6 +35,7 @@ from mrswarm.summary import (
     Goal,
     LinkAge,
     LinkAges,
+    Mavlink,
     Network,
     PoseAge,
     Rtf,
@@ -450,6 +451,24 @@ def security_report(run_dir: Path, mode: str, stats: dict[int, dict[str, Any]]) 
     return Security(mode=mode, refused_by_uavs=uavs, refused_by_router=router)
 
 
+MAVLINK_REFUSED = ("unsigned_refused", "unsigned_commands_refused", "bad_signature", "replayed", "unknown_id_refused",
+                   "setup_signing_dropped", "foreign_source", "spoofed_own_id")
+MAVLINK_ACCEPTED = ("signed", "unsigned_accepted", "to_fcu")
+
+
+def mavlink_report(mode: str, stats: dict[int, dict[str, Any]]) -> Mavlink:
+    """What the UAVs' MAVLink routers accepted and refused, summed over the UAVs."""
+    refused = dict.fromkeys(MAVLINK_REFUSED, 0)
+    accepted = dict.fromkeys(MAVLINK_ACCEPTED, 0)
+    for s in stats.values():
+        rt = s.get("mavlink_router") or {}
+        for out in (refused, accepted):
+            for k in out:
+                v = rt.get(k, 0)
+                out[k] += int(v) if isinstance(v, int) else 0
+    return Mavlink(mode=mode, refused=refused, accepted=accepted)
+
+
 def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
     """The summary of a finished (or interrupted, or aborted) run, and the series its figures need.
 
@@ -482,6 +501,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         summary.records = errors
     if info.security is not None:
         summary.security = security_report(run_dir, info.security, stats)
+    if info.mavlink is not None:
+        summary.mavlink = mavlink_report(info.mavlink, stats)
     if not tracks:
         summary.error = "no trajectory was recorded"
         return summary, None

@@ -108,6 +108,8 @@ class Experiment:
         self.run_dir.mkdir(parents=True)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
         self.keys = self._credentials()
+        self.mavlink_key_file: Path | None = None  # the passphrase the routers use (network.json names it)
+        self.mavlink_key = self._mavlink_key()
         self.swarm_keys = {scenario.swarm: self.keys, **other_swarm_credentials(scenario, self.run_dir, self.keys is not None)}
         self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
@@ -142,6 +144,39 @@ class Experiment:
             return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names)
         except KeysError as exc:
             raise RuntimeError(f"network.security.keys: {exc}") from None
+
+    def _mavlink_key(self) -> Path | None:
+        """The MAVLink signing passphrase of the UAVs' routers when it is not in their key directories
+        (docs/security.md): the scenario's ``gcs.signing.key_file``, else, with ``network.security:
+        off``, a throw-away one in ``<run>/mavlink.key``. With the run's key directory, its
+        ``mavlink.key`` (None here). Says in ``run.json`` what the routers accept."""
+        from swarmnet.security.roster import MAVLINK_KEY_FILE
+        from uav_stack.mavlink_signing import SigningKeyError, read_key_file, write_key_file
+
+        g = self.scn.gcs
+        if not g.mavlink:
+            self.run_info.mavlink = "off"
+            return None
+        path: Path | None = None
+        if g.signing is not None and g.signing.key_file is not None:
+            path = Path(g.signing.key_file)
+            try:
+                read_key_file(path)
+            except SigningKeyError as exc:
+                raise RuntimeError(f"gcs.signing.key_file: {exc}") from None
+        elif self.keys is None:
+            path = write_key_file(self.run_dir / MAVLINK_KEY_FILE)
+        key = path if path is not None else (self.keys / MAVLINK_KEY_FILE if self.keys is not None else None)
+        if key is None or not key.is_file():
+            self.console.print(f"[yellow]warning: no MAVLink signing key ({key}): the UAVs' MAVLink routers send "
+                               "telemetry and accept no command; `mrswarm keys mavlink --dir DIR --new` makes one[/]")
+            key = None
+        self.run_info.mavlink = "unsigned-allowed" if g.allow_unsigned else "signed" if key is not None else "telemetry-only"
+        if g.allow_unsigned:
+            self.console.print("[yellow]warning: gcs.allow_unsigned: the UAVs' MAVLink routers accept unsigned commands: "
+                               "any process that reaches their endpoints (on this machine: any) can command every UAV[/]")
+        self.mavlink_key_file = key
+        return path
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
@@ -243,6 +278,8 @@ class Experiment:
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
                                         "security": {"mode": "mtls", "keys": str(self.keys)} if self.keys else {"mode": "off"}}
+        if self.mavlink_key_file is not None:  # `mrswarm keys mavlink --run <dir>` prints it for QGroundControl and MAVProxy
+            network_info["mavlink"] = {"mode": self.run_info.mavlink, "key_file": str(self.mavlink_key_file.resolve())}
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
@@ -260,8 +297,8 @@ class Experiment:
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))
-        configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
-        agents = external_agents(scn, nets, record_dir=str(self.run_dir))
+        configs = uav_configs(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
+        agents = external_agents(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
         self.ids = ids = [a.uav for a in agents] + [c.agent.uav for c in configs]
         for a in agents:  # first: a real autopilot may take its time to be ready (GPS lock, EKF)
             self.signals.check()
@@ -281,8 +318,11 @@ class Experiment:
         self._say(f"[bold]{scn.name}[/]: {fleet}, results in {self.run_dir}")
         self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         if scn.gcs.mavlink and scn.gcs.port is not None:
-            self._say(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
-                      "(system id = UAV id up to 240, docs/gcs.md)")
+            self._say(f"MAVLink: QGroundControl or MAVProxy on udp {scn.gcs.host}:{scn.gcs.port} (system id = UAV id up to "
+                      "240, docs/gcs.md); " + {
+                          "signed": f"commands signed with the key: mrswarm keys mavlink --run {self.run_dir}",
+                          "unsigned-allowed": "[yellow]unsigned commands accepted (gcs.allow_unsigned)[/]",
+                      }.get(str(self.run_info.mavlink), "telemetry only (no signing key)"))
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);

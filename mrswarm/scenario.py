@@ -386,8 +386,11 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
-    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
+    # the MAVLink signing key of every router's ground-station links (docs/security.md); None: the run's own
+    # (mavlink.key in its key directory, made with its certificates)
     signing: MavlinkSigning | None = None
+    # route unsigned frames from ground stations too (MAVSDK cannot sign): any local process can command every UAV
+    allow_unsigned: bool = False
     # the run also ends once every UAV is on the ground, however it got there (a ground station's land --all, a
     # takeover); by default only the duration or the mission's own end (every UAV done, or landed by its mission) end it
     landing_ends_run: bool = False
@@ -395,6 +398,8 @@ class Gcs(Config, frozen=True):
     def __post_init__(self) -> None:
         if self.signing is not None and not self.mavlink:
             raise ConfigError("signing", "signs the MAVLink routers' links: set gcs.mavlink: true too")
+        if self.allow_unsigned and not self.mavlink:
+            raise ConfigError("allow_unsigned", "opens the MAVLink routers' links: set gcs.mavlink: true too")
 
 
 class Scenario(Config, kw_only=True, frozen=True):
@@ -557,12 +562,14 @@ class Scenario(Config, kw_only=True, frozen=True):
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None,
-                            other: OtherSwarm | None = None) -> list[VirtualUavConfig]:
+                            other: OtherSwarm | None = None, mavlink_key: str | None = None) -> list[VirtualUavConfig]:
         """One UAV process's configuration per virtual UAV of the scenario's swarm (or of ``other``), on
-        the network the runtime started (the external ones: :meth:`external_agent_configs`)."""
+        the network the runtime started (the external ones: :meth:`external_agent_configs`). Their MAVLink
+        signing key: ``gcs.signing``, else ``mavlink_key`` (a run without key directory makes one), else
+        ``mavlink.key`` in their key directory."""
         frame = LocalFrame(self.origin.point())
         out = []
-        for u, agent in self._agent_configs(network, record_dir, other):
+        for u, agent in self._agent_configs(network, record_dir, other, mavlink_key):
             if u.external:
                 continue
             lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)
@@ -571,12 +578,12 @@ class Scenario(Config, kw_only=True, frozen=True):
         return out
 
     def external_agent_configs(self, network: NetworkConfig, record_dir: str | None,
-                               other: OtherSwarm | None = None) -> list[AgentConfig]:
+                               other: OtherSwarm | None = None, mavlink_key: str | None = None) -> list[AgentConfig]:
         """The agent's configuration of every UAV whose flight controller is external (``uavs[].fcu``), for
         ``mrswarm agent --config``: the runner's own (``agent: runner``, recording into ``record_dir``)
         or a companion computer's (``agent: companion``, recording where its ``--record-dir`` says)."""
         return [replace(agent, record_dir=record_dir if u.agent == "runner" else None)
-                for u, agent in self._agent_configs(network, record_dir, other) if u.external]
+                for u, agent in self._agent_configs(network, record_dir, other, mavlink_key) if u.external]
 
     def external_uavs(self) -> list[Uav]:
         """Every UAV of the airspace whose flight controller is external."""
@@ -588,7 +595,7 @@ class Scenario(Config, kw_only=True, frozen=True):
         return GeoPoint(lat, lon, alt)
 
     def _agent_configs(self, network: NetworkConfig, record_dir: str | None,
-                       other: OtherSwarm | None) -> list[tuple[Uav, AgentConfig]]:
+                       other: OtherSwarm | None, mavlink_key: str | None) -> list[tuple[Uav, AgentConfig]]:
         origin = self.origin.point()
         fl = self.flight
         m = self.mission if other is None or other.mission is None else other.mission
@@ -617,7 +624,8 @@ class Scenario(Config, kw_only=True, frozen=True):
                                           zones=w.zones if w is not None else ()),
                 network=network,
                 gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
-                              signing=self.gcs.signing),
+                              signing=self.gcs.signing or MavlinkSigning(key_file=mavlink_key),
+                              allow_unsigned=self.gcs.allow_unsigned),
                 failsafe=self.failsafe,
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),

@@ -79,6 +79,8 @@ class RunInfo(Struct):
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
     write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
+    # the UAVs' MAVLink routers: "signed", "telemetry-only", "unsigned-allowed" or "off" (no routers); None: an older run
+    mavlink: str | None = None
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -382,6 +384,14 @@ class ExternalUav(Struct):
     detail: str = ""
 
 
+class Mavlink(Struct):
+    """What the UAVs' MAVLink routers took from ground stations (docs/security.md, "MAVLink")."""
+
+    mode: str  # "signed": commands signed with the key only; "telemetry-only" (no key); "unsigned-allowed"; "off"
+    refused: dict[str, int]  # summed over UAVs: unsigned_refused (of which unsigned_commands_refused), bad_signature, ...
+    accepted: dict[str, int]  # summed over UAVs: signed frames, unsigned_accepted, to_fcu (frames routed to the FCUs)
+
+
 class RunSummary(Struct):
     """``summary.json``: the outcome of one run, computed from the files its UAVs recorded."""
 
@@ -400,6 +410,7 @@ class RunSummary(Struct):
     network: Network | UnsetType = UNSET
     world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
+    mavlink: Mavlink | UnsetType = UNSET  # left out for runs from before the routers were locked
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png

@@ -32,6 +32,7 @@ from uav_stack.cli_args import ArgumentParser
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig, fcu_url_problem
 from uav_stack.fcu_link import FcuLink, LinkOpenError
 from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
+from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
 if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
     from uav_stack.fcu import VirtualFcu
@@ -122,9 +123,33 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
     return open_retrying(node.open, timeout, f"UAV {cfg.uav}", lambda: stop.stopped)
 
 
+def signing_policy(cfg: AgentConfig) -> SigningPolicy:
+    """What the router's ground-station endpoints accept (docs/security.md), said in the log when
+    it is not "signed": commands signed with the swarm's MAVLink key, by default; without a key,
+    telemetry only; every frame with ``gcs.allow_unsigned``. A key file that cannot be read
+    (:func:`check_signing_key` said so at start; it went since) leaves the router telemetry only."""
+    path = cfg.mavlink_key_file()
+    key = None
+    if path is not None:
+        try:
+            key = read_key_file(path)
+        except SigningKeyError as exc:
+            log.error("gcs.signing.key_file: %s", exc)
+    policy = SigningPolicy(key, cfg.gcs.allow_unsigned)
+    if not cfg.gcs.mavlink_endpoints:
+        return policy
+    if policy.allow_unsigned:
+        log.warning("MAVLink: unsigned ground-station commands accepted (gcs.allow_unsigned): any process that reaches %s "
+                    "can command this UAV (docs/security.md)", ", ".join(cfg.gcs.mavlink_endpoints))
+    elif key is None:
+        log.warning("MAVLink: no signing key (gcs.signing.key_file, or mavlink.key in the UAV's key directory): ground "
+                    "stations get telemetry, and no command is accepted (docs/security.md)")
+    return policy
+
+
 def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
-    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known.
+    (:func:`signing_policy`). ``target_system``: the FCU's sysid, if known.
 
     Raises :class:`~uav_stack.fcu_link.LinkOpenError`, naming the setting and the link, when a
     ground-station socket or the FCU link cannot be opened (a ``udpin`` port another process
@@ -133,10 +158,8 @@ def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) 
     link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
     router = None
     if cfg.gcs.mavlink_endpoints:
-        sg = cfg.gcs.signing
-        signing = SigningPolicy(sg.read_key(), sg.require) if sg is not None else None
         router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
-                               bind=cfg.gcs.bind, signing=signing).open()
+                               bind=cfg.gcs.bind, signing=signing_policy(cfg)).open()
         link.on_message = router.from_fcu
     try:
         link.open()
@@ -149,11 +172,12 @@ def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) 
 
 def check_signing_key(cfg: AgentConfig, ap: argparse.ArgumentParser) -> None:
     """A MAVLink signing key file that cannot be used: a usage error naming the field, before anything starts."""
-    if cfg.gcs.signing is not None:
+    path = cfg.mavlink_key_file()
+    if cfg.gcs.mavlink_endpoints and path is not None:
         try:
-            cfg.gcs.signing.read_key()
-        except ConfigError as exc:
-            ap.error(f"gcs.signing.{exc}")
+            read_key_file(path)
+        except SigningKeyError as exc:
+            ap.error(f"gcs.signing.key_file: {exc}")
 
 
 def tick_hz_for(cfg: AgentConfig) -> float:
@@ -492,10 +516,11 @@ def agent_parser() -> argparse.ArgumentParser:
     ap.add_argument("--mavlink-bind", default=None, metavar="ADDR",
                     help="local address of the udpout ground-station endpoints (default: the one that routes to each)")
     ap.add_argument("--mavlink-key-file", default=None, metavar="FILE",
-                    help="sign the ground-station links with this passphrase file and refuse unsigned frames "
-                         "(MAVProxy: signing key <passphrase>)")
+                    help="the MAVLink signing passphrase: ground stations that sign with it may command (default: "
+                         "mavlink.key in --keys; without one, telemetry only; `mrswarm keys mavlink` prints it)")
     ap.add_argument("--mavlink-allow-unsigned", action="store_true",
-                    help="with --mavlink-key-file: still accept unsigned frames (counted)")
+                    help="also route unsigned frames from ground stations (MAVSDK cannot sign): anyone who reaches "
+                         "an endpoint can command this UAV")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--zones", default=None, metavar="FILE",
                     help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
@@ -654,11 +679,10 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
             ap.error("--discovery needs --discovery-key-file")
         net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
                                                          "advertise": args.advertise})
-    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind}
+    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind,
+                           "allow_unsigned": args.mavlink_allow_unsigned}
     if args.mavlink_key_file:
-        gcs["signing"] = {"key_file": args.mavlink_key_file, "require": not args.mavlink_allow_unsigned}
-    elif args.mavlink_allow_unsigned:
-        ap.error("--mavlink-allow-unsigned needs --mavlink-key-file")
+        gcs["signing"] = {"key_file": args.mavlink_key_file}
     out = {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
            "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
            "network": net, "gcs": gcs}
