@@ -52,7 +52,7 @@ from swarmnet.interest import Interest
 from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -246,6 +246,12 @@ class DockerRuntime:
                   ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
                   uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True,
                   identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm))
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """Not here: the containers' network has no way out to a flight controller on the host (a scenario with
+        an external one is refused with runtime docker)."""
+        raise RuntimeError(f"UAV {cfg.uav}'s flight controller is external ({cfg.fcu}): the container runtime runs "
+                           "virtual UAVs only; use runtime: process")
 
     def _bundle(self, identity: NodeName) -> Path:
         """The credentials of one container: a bundle of the run's key directory, in <run>/secrets/<cn>."""

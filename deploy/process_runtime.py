@@ -1,7 +1,8 @@
 """The process runtime: every virtual UAV is its own OS process on this machine.
 
 Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
-with its own Zenoh session and a real MAVLink/UDP link between the two. The runtime also
+with its own Zenoh session and a real MAVLink/UDP link between the two. A UAV whose flight
+controller is external (a real autopilot, a SITL) gets only its agent (``mrswarm agent``). The runtime also
 starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Every child (UAVs,
 edge router, discovery server) gets its own process group and ``PR_SET_PDEATHSIG`` (SIGTERM) before it execs, so
 it dies with the runner even when the runner is killed with SIGKILL, and :meth:`ProcessRuntime.stop` escalates
@@ -31,7 +32,7 @@ from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions, pose_feed_argv
 from swarmnet.interest import Interest
 from swarmnet.security.credentials import Credentials
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -237,6 +238,17 @@ class ProcessRuntime:
             f"uav{cfg.agent.uav}",
             [*self._py, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
         )
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """The agent of a UAV whose flight controller is external: ``mrswarm agent --config`` against
+        ``cfg.fcu``, a child like a UAV process (``uav<id>``: its own process group, dies with the runner)."""
+        path = self.run_dir / "config" / f"uav{cfg.uav}.json"
+        path.write_text(cfg.to_json())
+        path.chmod(0o600)  # it holds the discovery key
+        argv = [*self._py, "-m", "mrswarm", "agent", "--config", str(path), "--log-level", self.log_level]
+        if cfg.network.security is None:  # the run asked for it by name (network.security: off)
+            argv.append("--insecure")
+        self._spawn(f"uav{cfg.uav}", argv)
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"

@@ -20,7 +20,8 @@ and deploys it with ``docker stack deploy``:
 * on a secured swarm (docs/security.md), the credentials as Swarm secrets from the swarm's key
   directory, mounted in ``/run/secrets`` (never in the image): the router gets the CA
   certificate, the roster and ``edge``'s key pair; the ``uav`` service every UAV's pair of the
-  fleet, since Swarm hands secrets per service, not per replica (each replica uses its own).
+  fleet, since Swarm hands secrets per service, not per replica (each replica uses its own), and
+  the swarm's MAVLink signing key.
 
 Other edge servers join with ``docker swarm join`` and replicas spread over them
 (``docs/deploy.md``). The stack's name is ``mrswarm-<swarm>``; ``down`` runs ``docker stack rm``
@@ -46,7 +47,7 @@ from deploy.services import ROUTER_PORT, NetworkPlan, edge_service
 from deploy.settings import ContainerSettings
 from swarmnet.schema import to_builtins
 from swarmnet.security.identity import NodeName
-from swarmnet.security.roster import CA_CERT_FILE, ROSTER_FILE
+from swarmnet.security.roster import CA_CERT_FILE, MAVLINK_KEY_FILE, ROSTER_FILE
 from uav_stack.config import VirtualUavConfig
 
 FLEET_PATH = "/etc/mrswarm/fleet.json"
@@ -95,6 +96,9 @@ def _secrets(fleet: Fleet, name: str, common_labels: dict[str, str]) -> tuple[di
             cn = NodeName.in_swarm(svc.identity, fleet.swarm).cn
             pairs[svc.name] = [*base, f"{cn}.pem", f"{cn}.key"]
     pairs["uav"] = [*base, *(f"{NodeName.uav(c.agent.uav, fleet.swarm).cn}.{ext}" for c in fleet.uavs for ext in ("pem", "key"))]
+    # the MAVLink signing key: the stack's own directory always has one (ensure_keys); a swarm's, if it was made
+    if not fleet.keys.is_absolute() or (fleet.keys / MAVLINK_KEY_FILE).is_file():
+        pairs["uav"].append(MAVLINK_KEY_FILE)
     files = sorted({f for fs in pairs.values() for f in fs})
     top = {_secret(f): {"file": f"{fleet.keys / f}" if fleet.keys.is_absolute() else f"./{fleet.keys / f}",
                         "name": f"{name}-{f}", "labels": common_labels} for f in files}

@@ -2,7 +2,9 @@
 
 Inputs, written by the UAVs while flying (uav_stack/recorder.py): ``uav<N>.csv`` trajectories
 (wall and simulated time, FCU position in the swarm frame, agent phase, RTF) and ``uav<N>.json``
-counters; by the runner: ``run.json``. Separation and coverage come from the UAVs' own
+counters; by the runner: ``run.json``. A UAV whose flight controller is external and whose agent
+recorded elsewhere (on its companion computer) gets the poses it shared, from the flight recording.
+Every UAV recorded counts, whether the scenario lists it or not. Separation and coverage come from the UAVs' own
 flight-controller positions, not from the poses they exchanged, so network impairments cannot
 hide a collision. Positions are resampled on a common 10 Hz grid of wall time.
 
@@ -29,9 +31,11 @@ from mrswarm.summary import (
     CollisionPair,
     Coverage,
     Encounter,
+    ExternalUav,
     Goal,
     LinkAge,
     LinkAges,
+    Mavlink,
     Network,
     PoseAge,
     Rtf,
@@ -309,20 +313,81 @@ def goals_report(scenario: Scenario, tracks: dict[int, Track]) -> dict[str, Goal
 
 
 def encounter_report(scenario: Scenario, grid: np.ndarray, pos: np.ndarray, ids: list[int],
-                     per_step: np.ndarray) -> Encounter | None:
-    """Where two UAVs flying at each other met: the midpoint at their closest approach (None: never both airborne)."""
-    k = int(np.argmin(per_step))
-    if not np.isfinite(per_step[k]):
+                     tracks: dict[int, Track]) -> Encounter | None:
+    """Where two UAVs flying at each other met: the midpoint at their closest approach (None: never both
+    airborne, or not two UAVs to pair).
+
+    The pair: the scenario's two UAVs if both were recorded, else the two UAVs of the run folder (a
+    scenario of one virtual UAV, with a real UAV's records beside it). Each UAV's start is where the
+    scenario spawned it if this run simulated its flight controller, else its first recorded position
+    (an external UAV stands where its autopilot is, a UAV the scenario does not list where it was)."""
+    planned = [u.id for u in scenario.all_uavs()]
+    pair = [u for u in planned if u in ids] if len(planned) == 2 else []
+    if len(pair) != 2:
+        pair = list(ids) if len(ids) == 2 else []
+    if len(pair) != 2:
         return None
-    a, b = pos[0, k, :2], pos[1, k, :2]
-    mid = (a + b) / 2
-    starts = {u.id: np.array(u.start) for u in scenario.all_uavs()}
+    i, j = ids.index(pair[0]), ids.index(pair[1])
+    d = np.linalg.norm(pos[i] - pos[j], axis=1)
+    airborne = (pos[i, :, 2] > AIRBORNE_Z) & (pos[j, :, 2] > AIRBORNE_Z)
+    d = np.where(airborne & ~np.isnan(d), d, np.inf)
+    k = int(np.argmin(d))
+    if not np.isfinite(d[k]):
+        return None
+    mid = (pos[i, k, :2] + pos[j, k, :2]) / 2
+    spawned = {u.id: np.array(u.start) for u in scenario.all_uavs() if not u.external}
+
+    def start(u: int) -> np.ndarray:
+        return spawned[u] if u in spawned else tracks[u].xyz[0, :2]
+
     return Encounter(
         time_wall=float(grid[k]),
-        separation_m=float(per_step[k]),
+        separation_m=float(d[k]),
         meeting_point=[round(float(mid[0]), 2), round(float(mid[1]), 2)],
-        distance_from_start_m={str(u): round(float(np.linalg.norm(mid - starts[u])), 2) for u in ids},
+        distance_from_start_m={str(u): round(float(np.linalg.norm(mid - start(u))), 2) for u in pair},
     )
+
+
+def tracks_from_recording(run_dir: Path, uavs: list[int]) -> dict[int, Track]:
+    """The trajectories of ``uavs`` from the run's flight recording (``run.mcap``): the poses each UAV
+    shared with the swarm (the FCU's position as its agent published it, at its pose rate). For an
+    external UAV whose agent recorded elsewhere (on its companion computer). Empty without a recording."""
+    path = run_dir / "run.mcap"
+    if not uavs or not path.is_file():
+        return {}
+    import tempfile
+
+    from mrswarm.recorder.export import export_csv
+
+    with tempfile.TemporaryDirectory(prefix="mrswarm-tracks-") as tmp:
+        export_csv(path, Path(tmp))
+        tracks = load_tracks(Path(tmp))
+    return {u: tr for u, tr in tracks.items() if u in uavs}
+
+
+def external_report(scenario: Scenario, run_dir: Path, tracks: dict[int, Track]) -> list[ExternalUav]:
+    """Every UAV whose flight controller is external, and where its trajectory comes from; the ones without
+    their own ``uav<N>.csv`` get the poses they shared, from the recording, into ``tracks``."""
+    external = scenario.external_uavs()
+    missing = [u.id for u in external if u.id not in tracks]
+    error = ""
+    try:
+        from_recording = tracks_from_recording(run_dir, missing)
+    except Exception as exc:  # noqa: BLE001 - a bad recording must not lose the other numbers
+        from_recording, error = {}, f"the recording could not be read: {exc}"
+    tracks.update(from_recording)
+    out = []
+    for u in external:
+        if u.id in from_recording:
+            source, detail = "recording", "the poses it shared, from run.mcap (its agent recorded elsewhere)"
+        elif u.id in tracks:
+            source, detail = "agent", f"uav{u.id}.csv, written by its agent"
+        else:
+            source = "none"
+            detail = error or (f"no uav{u.id}.csv and no poses in a recording: copy uav{u.id}.csv from its companion "
+                               "into the run folder, then `mrswarm results`")
+        out.append(ExternalUav(uav=u.id, realm=u.realm_name, fcu=u.fcu or "", agent=u.agent, trajectory=source, detail=detail))
+    return out
 
 
 def rtf_report(tracks: dict[int, Track], t0: float, t1: float) -> Rtf:
@@ -422,6 +487,24 @@ def security_report(run_dir: Path, mode: str, stats: dict[int, dict[str, Any]]) 
     return Security(mode=mode, refused_by_uavs=uavs, refused_by_router=router)
 
 
+MAVLINK_REFUSED = ("unsigned_refused", "unsigned_commands_refused", "bad_signature", "replayed", "unknown_id_refused",
+                   "setup_signing_dropped", "foreign_source", "spoofed_own_id")
+MAVLINK_ACCEPTED = ("signed", "unsigned_accepted", "to_fcu")
+
+
+def mavlink_report(mode: str, stats: dict[int, dict[str, Any]]) -> Mavlink:
+    """What the UAVs' MAVLink routers accepted and refused, summed over the UAVs."""
+    refused = dict.fromkeys(MAVLINK_REFUSED, 0)
+    accepted = dict.fromkeys(MAVLINK_ACCEPTED, 0)
+    for s in stats.values():
+        rt = s.get("mavlink_router") or {}
+        for out in (refused, accepted):
+            for k in out:
+                v = rt.get(k, 0)
+                out[k] += int(v) if isinstance(v, int) else 0
+    return Mavlink(mode=mode, refused=refused, accepted=accepted)
+
+
 def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
     """The summary of a finished (or interrupted, or aborted) run, and the series its figures need.
 
@@ -430,6 +513,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     UAV recorded a trajectory (the summary then carries ``error``).
     """
     tracks = load_tracks(run_dir)
+    external = external_report(scenario, run_dir, tracks) if scenario.external_uavs() else None
     stats = load_stats(run_dir)
     fl = scenario.flight
     summary = RunSummary(
@@ -442,6 +526,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         aborted=info.aborted,
         stop_signals=list(info.stop_signals),
     )
+    if external is not None:
+        summary.external_uavs = external
     t_ref = info.mission_start or info.started
     summary.lost_uavs = lost_uavs(info, t_ref)
     summary.services = service_outages(info, t_ref)
@@ -451,6 +537,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         summary.records = errors
     if info.security is not None:
         summary.security = security_report(run_dir, info.security, stats)
+    if info.mavlink is not None:
+        summary.mavlink = mavlink_report(info.mavlink, stats)
     if not tracks:
         summary.error = "no trajectory was recorded"
         return summary, None
@@ -493,8 +581,8 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         )
     if m.type == "goto":
         summary.goals = goals_report(scenario, tracks)
-        if len(ids) == 2:
-            summary.encounter = encounter_report(scenario, grid, pos, ids, sep.per_step)
+        if len(ids) == 2 or len(scenario.all_uavs()) == 2:
+            summary.encounter = encounter_report(scenario, grid, pos, ids, tracks)
     for u, tr in sorted(tracks.items()):
         if tr.vz is not None and tr.armed is not None:
             summary.incidents += find_incidents(u, tr.t, tr.xyz[:, 2], tr.vz, tr.armed, t0)

@@ -12,6 +12,11 @@ are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.
 Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
 recorded; a second one stops faster (mrswarm/signals.py).
 
+A UAV whose flight controller is external (``uavs[].fcu``: a real autopilot, a SITL) gets only
+its agent, started first (``Runtime.start_agent``), or, with ``agent: companion``, the
+configuration its companion computer's agent reads, and the run waits for it; each has its own
+wait (``wait_s``). Before the processes stop, every external UAV off the ground is landed.
+
 A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
 services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
 on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
@@ -49,6 +54,7 @@ from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import Supervisor, uav_of
 from mrswarm.wording import plural
 from mrswarm.world_setup import (
+    external_agents,
     open_observer,
     other_swarm_credentials,
     other_swarm_keys,
@@ -59,7 +65,7 @@ from mrswarm.world_setup import (
 )
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
-from uav_stack.config import NetworkConfig
+from uav_stack.config import AgentConfig, NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
@@ -72,6 +78,10 @@ TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slo
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
+LAND_SPEED = 0.5  # m/s: the slowest final descent of an autopilot's landing (ArduCopter's LAND_SPEED), for its wait
+LAND_MARGIN_S = 30.0  # s on top of that to land the external UAVs at the end of a run
+LAND_RESEND_S = 2.0  # an external UAV that does not show its landing is sent 'land' again this often
+ON_GROUND = frozenset({AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED})
 
 
 class RunAborted(RuntimeError):
@@ -99,6 +109,8 @@ class Experiment:
         self.run_dir.mkdir(parents=True)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
         self.keys = self._credentials()
+        self.mavlink_key_file: Path | None = None  # the passphrase the routers use (network.json names it)
+        self.mavlink_key = self._mavlink_key()
         self.swarm_keys = {scenario.swarm: self.keys, **other_swarm_credentials(scenario, self.run_dir, self.keys is not None)}
         self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
@@ -134,6 +146,39 @@ class Experiment:
         except KeysError as exc:
             raise RuntimeError(f"network.security.keys: {exc}") from None
 
+    def _mavlink_key(self) -> Path | None:
+        """The MAVLink signing passphrase of the UAVs' routers when it is not in their key directories
+        (docs/security.md): the scenario's ``gcs.signing.key_file``, else, with ``network.security:
+        off``, a throw-away one in ``<run>/mavlink.key``. With the run's key directory, its
+        ``mavlink.key`` (None here). Says in ``run.json`` what the routers accept."""
+        from swarmnet.security.roster import MAVLINK_KEY_FILE
+        from uav_stack.mavlink_signing import SigningKeyError, read_key_file, write_key_file
+
+        g = self.scn.gcs
+        if not g.mavlink:
+            self.run_info.mavlink = "off"
+            return None
+        path: Path | None = None
+        if g.signing is not None and g.signing.key_file is not None:
+            path = Path(g.signing.key_file)
+            try:
+                read_key_file(path)
+            except SigningKeyError as exc:
+                raise RuntimeError(f"gcs.signing.key_file: {exc}") from None
+        elif self.keys is None:
+            path = write_key_file(self.run_dir / MAVLINK_KEY_FILE)
+        key = path if path is not None else (self.keys / MAVLINK_KEY_FILE if self.keys is not None else None)
+        if key is None or not key.is_file():
+            self.console.print(f"[yellow]warning: no MAVLink signing key ({key}): the UAVs' MAVLink routers send "
+                               "telemetry and accept no command; `mrswarm keys mavlink --dir DIR --new` makes one[/]")
+            key = None
+        self.run_info.mavlink = "unsigned-allowed" if g.allow_unsigned else "signed" if key is not None else "telemetry-only"
+        if g.allow_unsigned:
+            self.console.print("[yellow]warning: gcs.allow_unsigned: the UAVs' MAVLink routers accept unsigned commands: "
+                               "any process that reaches their endpoints (on this machine: any) can command every UAV[/]")
+        self.mavlink_key_file = key
+        return path
+
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
         own_signals = not self.signals.installed
@@ -163,7 +208,12 @@ class Experiment:
                 self.signals.restore()
 
     def _stop_all(self) -> None:
-        """Stop every child (faster after a second signal) and write run.json; never raises on a dead observer."""
+        """Land the external UAVs, stop every child (faster after a second signal) and write run.json; never
+        raises on a dead observer."""
+        try:
+            self._land_external()
+        except Exception as exc:  # noqa: BLE001 - stopping must go on
+            self._say(f"[yellow]landing the external UAVs failed:[/] {escape(str(exc))}")
         if self.observer is not None:
             try:
                 self.observer.close()
@@ -229,6 +279,8 @@ class Experiment:
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
                                         "security": {"mode": "mtls", "keys": str(self.keys)} if self.keys else {"mode": "off"}}
+        if self.mavlink_key_file is not None:  # `mrswarm keys mavlink --run <dir>` prints it for QGroundControl and MAVProxy
+            network_info["mavlink"] = {"mode": self.run_info.mavlink, "key_file": str(self.mavlink_key_file.resolve())}
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
@@ -246,8 +298,12 @@ class Experiment:
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))
-        configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
-        self.ids = ids = [c.agent.uav for c in configs]
+        configs = uav_configs(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
+        agents = external_agents(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
+        self.ids = ids = [a.uav for a in agents] + [c.agent.uav for c in configs]
+        for a in agents:  # first: a real autopilot may take its time to be ready (GPS lock, EKF)
+            self.signals.check()
+            self._start_external(a)
         for c in configs:
             self.signals.check()
             self.runtime.start_uav(c)
@@ -256,12 +312,18 @@ class Experiment:
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
-        kind = "containers" if self.runtime.name == "docker" else "processes"
-        self._say(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
+        one = len(configs) == 1
+        kind = ("container" if one else "containers") if self.runtime.name == "docker" else ("process" if one else "processes")
+        fleet = f"{len(configs)} virtual UAV {kind}" + (f" and {len(agents)} UAV{'s' if len(agents) > 1 else ''} with an "
+                                                         "external flight controller" if agents else "")
+        self._say(f"[bold]{scn.name}[/]: {fleet}, results in {self.run_dir}")
         self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         if scn.gcs.mavlink and scn.gcs.port is not None:
-            self._say(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
-                      "(system id = UAV id up to 240, docs/gcs.md)")
+            self._say(f"MAVLink: QGroundControl or MAVProxy on udp {scn.gcs.host}:{scn.gcs.port} (system id = UAV id up to "
+                      "240, docs/gcs.md); " + {
+                          "signed": f"commands signed with the key: mrswarm keys mavlink --run {self.run_dir}",
+                          "unsigned-allowed": "[yellow]unsigned commands accepted (gcs.allow_unsigned)[/]",
+                      }.get(str(self.run_info.mavlink), "telemetry only (no signing key)"))
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
@@ -271,11 +333,12 @@ class Experiment:
         except zenoh.ZError as exc:  # the edge router never accepted the runner: every UAV is stopped, the run says why
             raise RunAborted(f"the runner could not join the swarm: {exc}") from None
         n = len(ids)
-        slowest = min(c.target_rtf for c in configs)
+        slowest = min([c.target_rtf for c in configs] or [1.0])
+        ready_own = {u.id: u.wait_s for u in scn.external_uavs()}  # each external UAV its own wait
         with self.display:
             self.progress.stage = RunStage.WAITING
             self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n,
-                             stall=READY_STALL_S, cap=READY_TIMEOUT_BASE + READY_TIMEOUT_CAP_PER_UAV * n)
+                             stall=READY_STALL_S, cap=READY_TIMEOUT_BASE + READY_TIMEOUT_CAP_PER_UAV * n, own=ready_own)
             self.progress.stage = RunStage.TAKING_OFF
             takeoff = self._command("takeoff", ids, {AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD,
                                                      AgentPhase.HOVER})
@@ -283,7 +346,9 @@ class Experiment:
             self.run_info.takeoff_acked_s = takeoff.duration
             self.run_info.takeoff_by_state = len(takeoff.by_state)
             climb = scn.flight.altitude / CLIMB_RATE / slowest
-            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb + command_deadline(n))
+            hover_s = TAKEOFF_MARGIN + climb + command_deadline(n)
+            # a real autopilot may take longer to arm and climb (pre-arm checks, its own climb rate)
+            self._wait_phase(ids, {AgentPhase.HOVER}, hover_s, own={u: hover_s + TAKEOFF_MARGIN for u in ready_own})
             self.run_info.all_airborne_s = time.time() - takeoff.sent_at
             self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
@@ -375,27 +440,131 @@ class Experiment:
         return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float, stall: float | None = None,
-                    cap: float | None = None) -> None:
+                    cap: float | None = None, own: dict[int, float] | None = None) -> None:
         """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s.
 
         With ``stall`` (s), the wait goes on past ``timeout`` while more UAVs keep reaching the
         phases, until none has for ``stall`` s, and never past ``cap`` s: on a loaded machine a
-        large swarm gets ready slowly but surely, a stuck one is still given up on."""
+        large swarm gets ready slowly but surely, a stuck one is still given up on. ``own``: UAVs
+        with a wait of their own (s from now; the external ones), which the others' deadline does not end."""
+        own = own or {}
         t0 = time.time()
         deadline = t0 + timeout
         hard = t0 + max(timeout, cap if cap is not None else timeout)
         best = 0
-        while time.time() < deadline:
-            self._tick()
+        while True:
+            now = time.time()
             active = [u for u in ids if u in self._active_ids()]
-            there = sum(1 for u in active if self._phase_of(u) in phases)
-            if active and there == len(active):
+            behind = [u for u in active if self._phase_of(u) not in phases]
+            if active and not behind:
                 return
+            late = [u for u in behind if (now >= deadline if u not in own else now >= t0 + own[u])]
+            if late:
+                break
+            there = len(active) - len(behind)
             if stall is not None and there > best:  # progress: allow another ``stall`` s from now
                 best = there
-                deadline = min(max(deadline, time.time() + stall), hard)
-        behind = {u: str(self._phase_of(u) or "?") for u in ids if self._phase_of(u) not in phases}
-        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
+                deadline = min(max(deadline, now + stall), hard)
+            waiting = [u for u in behind if u in own]
+            if waiting:
+                u = waiting[0]
+                self.progress.detail = f"{there}/{len(active)} {'/'.join(sorted(phases))}; UAV {u} ({self._external_what(u)}): " \
+                                       f"{max(0.0, t0 + own[u] - now):.0f} s left"
+            self._tick()
+        behind = [u for u in ids if self._phase_of(u) not in phases]
+        said = {u: str(self._phase_of(u) or "?") for u in behind}
+        why = "".join(f"; UAV {u} ({self._external_what(u)}): {self._external_hint(u)}" for u in behind if u in own)
+        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {said}{why}")
+
+    # ---- UAVs whose flight controller is external (docs/scenarios.md, "Physical and external UAVs") ------------------
+    def _start_external(self, cfg: AgentConfig) -> None:
+        """Its agent: a process on this machine against its flight controller (``agent: runner``), or
+        its configuration written for its companion computer, whose agent the run waits for."""
+        u = next(u for u in self.scn.external_uavs() if u.id == cfg.uav)
+        home = self.scn.start_geodetic(u)
+        where = f"its start ({u.start[0]:g}, {u.start[1]:g}) is {home.lat:.6f},{home.lon:.6f},{home.alt:g}"
+        if u.agent == "runner":
+            self.runtime.start_agent(cfg)
+            self._say(f"UAV {u.id}: agent against the external flight controller {u.fcu} (realm {u.realm}; {where}); "
+                      f"log: {self.run_dir / 'logs' / f'uav{u.id}.log'}")
+            return
+        self._companion_config(cfg)
+        self._say(f"UAV {u.id}: its agent runs on its companion computer ({where}). Waiting up to {u.wait_s:g} s for it; "
+                  f"start it there with:\n    {self._companion_command(u.id)}")
+
+    def _companion_config(self, cfg: AgentConfig) -> Path:
+        """``<run>/config/uav<N>.json``, the configuration ``mrswarm agent --config`` reads on the companion (0600: it
+        holds the discovery key)."""
+        path = self.run_dir / "config" / f"uav{cfg.uav}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, cfg.to_json().encode())
+        path.chmod(0o600)
+        return path
+
+    def _companion_command(self, uav: int) -> str:
+        """The command line that starts a companion's agent with the configuration this run wrote for it."""
+        insecure = " --insecure" if not self.scn.network.secured.enabled else ""
+        return f"mrswarm agent --config {self.run_dir / 'config' / f'uav{uav}.json'}{insecure}"
+
+    def _external_what(self, uav: int) -> str:
+        u = next((u for u in self.scn.external_uavs() if u.id == uav), None)
+        if u is None:
+            return "virtual"
+        return f"external FCU {u.fcu}" if u.agent == "runner" else "agent on its companion computer"
+
+    def _external_hint(self, uav: int) -> str:
+        """What to do about an external UAV that is late: what its agent says, and where to look."""
+        u = next(u for u in self.scn.external_uavs() if u.id == uav)
+        v = self.observer.uavs.get(uav) if self.observer is not None else None
+        if v is None or v.state is None:
+            if u.agent == "companion":
+                return (f"its agent never joined the swarm: start `{self._companion_command(uav)}` on its companion "
+                        f"computer, or raise uavs[].wait_s ({u.wait_s:g} s)")
+            return f"its agent never joined the swarm (see {self.run_dir / 'logs' / f'uav{uav}.log'})"
+        said = f"its agent says {v.state.detail!r}" if v.state.detail else f"its agent is in {v.state.phase}"
+        where = f"see {self.run_dir / 'logs' / f'uav{uav}.log'}" if u.agent == "runner" else "see its log on the companion"
+        return f"{said} ({where}; uavs[].wait_s is {u.wait_s:g} s)"
+
+    def _land_external(self) -> None:
+        """Before their agents stop: every external UAV off the ground is sent ``land`` (again every
+        :data:`LAND_RESEND_S` s until its phase shows it), and the run waits until each is down, at
+        most the mission altitude at :data:`LAND_SPEED` plus :data:`LAND_MARGIN_S`. A second stop
+        signal ends the wait; a UAV still up then is left to its autopilot's own failsafe."""
+        obs = self.observer
+        flying = [u.id for u in self.scn.external_uavs() if u.id in self.ids and u.id not in self.lost]
+        if obs is None or not flying or self.signals.fast:
+            return
+        obs.poll()
+        up = [u for u in flying if self._phase_of(u) is not None and self._phase_of(u) not in ON_GROUND]
+        if not up:
+            return
+        self.progress.stage = RunStage.STOPPING
+        self._say(f"landing UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} (external flight controller) before "
+                  "stopping" + (" (stop again to skip)" if self.signals.requested else ""))
+        t0 = time.time()
+        deadline = t0 + self.scn.flight.altitude / LAND_SPEED + LAND_MARGIN_S
+        sent: dict[int, float] = {}
+        while up and time.time() < deadline and not self.signals.fast:
+            now = time.time()
+            resend = [u for u in up if self._phase_of(u) not in (AgentPhase.LANDING, AgentPhase.LANDED)
+                      and now - sent.get(u, 0.0) >= LAND_RESEND_S]
+            if resend:
+                obs.command("land", resend)
+                sent.update({u: now for u in resend})
+            time.sleep(TICK)
+            obs.poll()
+            up = [u for u in up if self._phase_of(u) not in ON_GROUND]
+            self.progress.detail = f"landing {len(up)} external UAV(s), {deadline - time.time():.0f} s left"
+            try:
+                self.display.refresh(obs)
+            except OSError:
+                self.console.quiet = True
+        if up:
+            self._say(f"[yellow]UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} not on the ground after "
+                      f"{time.time() - t0:.0f} s ({', '.join(str(self._phase_of(u)) for u in up)}): its autopilot's own "
+                      "failsafe takes over once its agent stops[/]")
+        else:
+            self._say(f"external UAVs on the ground after {time.time() - t0:.0f} s")
 
     def _tick(self) -> None:
         """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""

@@ -111,11 +111,13 @@ def draw_tracks(ax: Any, data: RunData, scenario: Scenario, colors: Sequence[Any
     ids = data.ids
     colors = colors or uav_colors(len(ids))
     rtf_of = {u.id: u.rtf for u in scenario.all_uavs()}
+    external = {u.id: u.realm_name for u in scenario.external_uavs()}
     halo = [pe.Stroke(linewidth=2.6, foreground="white", alpha=0.8), pe.Normal()]
     lines = []
     for k, u in enumerate(ids):
         p = data.pos[k]
-        label = labels[k] if labels is not None else f"UAV {u}" + (f" (RTF {rtf_of[u]:g})" if rtf_of.get(u, 1.0) != 1.0 else "")
+        label = labels[k] if labels is not None else f"UAV {u}" + (
+            f" ({external[u]}, external FCU)" if u in external else f" (RTF {rtf_of[u]:g})" if rtf_of.get(u, 1.0) != 1.0 else "")
         (line,) = ax.plot(p[:, 0], p[:, 1], "-", lw=1.3, color=colors[k], label=label, path_effects=halo, zorder=5)
         lines.append(line)
         tr = data.tracks[u]

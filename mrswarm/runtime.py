@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING, Protocol
 
 from discovery.options import DiscoveryService
 from swarmnet.interest import Interest
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 if TYPE_CHECKING:
     from mrswarm.scenario import Scenario
 
 
 class Runtime(Protocol):
-    """Starts a swarm's network services and its virtual UAVs, and stops them all."""
+    """Starts a swarm's network services, its virtual UAVs and the agents of its external ones, and stops them all."""
 
     name: str  # "process" or "docker"
 
@@ -49,6 +49,11 @@ class Runtime(Protocol):
 
     def start_uav(self, cfg: VirtualUavConfig) -> None:
         """Start one virtual UAV (FCU + agent) with this configuration."""
+        ...
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """Start the agent of a UAV whose flight controller is external (``mrswarm agent`` against
+        ``cfg.fcu``, named ``uav<id>`` like a virtual UAV), on this machine."""
         ...
 
     def pids(self) -> dict[str, int]:

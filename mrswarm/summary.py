@@ -79,6 +79,8 @@ class RunInfo(Struct):
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
     write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
+    # the UAVs' MAVLink routers: "signed", "telemetry-only", "unsigned-allowed" or "off" (no routers); None: an older run
+    mavlink: str | None = None
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -376,6 +378,25 @@ class Security(Struct):
     refused_by_router: dict[str, int]  # the edge router's: tls_handshake, non_member_link (process runtime)
 
 
+class ExternalUav(Struct):
+    """A UAV whose flight controller is external (a real autopilot, a SITL; docs/scenarios.md): counted like any other."""
+
+    uav: int
+    realm: str  # physical or virtual (a SITL may be flown as a virtual UAV)
+    fcu: str  # its flight controller's connection string, as the scenario gives it
+    agent: str  # runner: its agent ran on this machine; companion: on the UAV's companion computer
+    trajectory: str  # agent: its own uav<N>.csv; recording: the poses it shared, from run.mcap; none: neither
+    detail: str = ""
+
+
+class Mavlink(Struct):
+    """What the UAVs' MAVLink routers took from ground stations (docs/security.md, "MAVLink")."""
+
+    mode: str  # "signed": commands signed with the key only; "telemetry-only" (no key); "unsigned-allowed"; "off"
+    refused: dict[str, int]  # summed over UAVs: unsigned_refused (of which unsigned_commands_refused), bad_signature, ...
+    accepted: dict[str, int]  # summed over UAVs: signed frames, unsigned_accepted, to_fcu (frames routed to the FCUs)
+
+
 class RunSummary(Struct):
     """``summary.json``: the outcome of one run, computed from the files its UAVs recorded."""
 
@@ -394,6 +415,7 @@ class RunSummary(Struct):
     network: Network | UnsetType = UNSET
     world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
+    mavlink: Mavlink | UnsetType = UNSET  # left out for runs from before the routers were locked
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png
@@ -406,6 +428,7 @@ class RunSummary(Struct):
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
+    external_uavs: list[ExternalUav] | UnsetType = UNSET  # only with UAVs whose flight controller is external
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property

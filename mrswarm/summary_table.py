@@ -117,6 +117,8 @@ def summary_table(s: RunSummary) -> Table:
             t.add_row("security", "mutual TLS, access control; refused: "
                       + (", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sorted(refused.items())) if any(refused.values())
                          else "nothing"))
+    if mav := s.mavlink:
+        t.add_row("MAVLink", mavlink_row(mav.mode, mav.refused, mav.accepted))
     if w := s.world:
         for row in world_rows(w, duration):
             t.add_row(*row)
@@ -130,6 +132,17 @@ def summary_table(s: RunSummary) -> Table:
     if s.aborted:
         t.add_row("aborted", s.aborted)
     return t
+
+
+def mavlink_row(mode: str, refused: dict[str, int], accepted: dict[str, int]) -> str:
+    """What the UAVs' MAVLink routers accepted from ground stations, in one line."""
+    if mode == "off":
+        return "no routers (gcs.mavlink: false)"
+    said = {"signed": "commands only when signed with the key", "telemetry-only": "[yellow]telemetry only: no signing key[/]",
+            "unsigned-allowed": "[yellow]unsigned commands accepted (gcs.allow_unsigned)[/]"}.get(mode, escape(mode))
+    nonzero = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in refused.items() if v)
+    routed = accepted.get("to_fcu", 0)
+    return f"{said}; {plural(routed, 'frame')} to the FCUs; refused: {nonzero or 'nothing'}"
 
 
 def world_rows(w: WorldSummary, duration: float | None = None) -> list[tuple[str, str]]:

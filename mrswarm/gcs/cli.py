@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+from uav_stack.cli_args import ArgumentParser
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -36,7 +37,7 @@ def _targets(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description="Ground station: live swarm telemetry and overrides (docs/gcs.md).")
+    ap = ArgumentParser(prog=prog, description="Ground station: live swarm telemetry and overrides (docs/gcs.md).")
     sub = ap.add_subparsers(dest="sub", required=True, metavar="SUBCOMMAND")
 
     p = sub.add_parser("nodes", help="who is alive: id, role, realm, version, address, last seen")
@@ -84,7 +85,7 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
         if verb == "goto":
             p.add_argument("xyz", nargs="*", type=float, metavar="X Y Z", help="m east, north, up from the swarm origin")
             p.add_argument("--geo", metavar="LAT,LON,ALT",
-                           help="a geodetic target instead: degrees, degrees, m above sea level (negative: --geo=-33.9,...)")
+                           help="a geodetic target instead: degrees, degrees, m above sea level (e.g. --geo -33.9,151.2,50)")
         if verb == "kill":
             p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
 

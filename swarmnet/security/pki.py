@@ -7,9 +7,12 @@ node is (:mod:`swarmnet.security.identity`). The key directory holds::
     ca.key            the CA's private key (0600): keep it off the UAVs
     roster.json       who was issued a certificate, who was revoked
     <cn>.pem, <cn>.key  one certificate and private key (0600) per node, e.g. uav-3.alpha.pem
+    mavlink.key       the swarm's MAVLink 2 signing passphrase (0600): UAVs' MAVLink routers
+                      take commands only from ground stations that sign with it (docs/security.md)
 
-A node needs only ``ca.pem``, ``roster.json`` and its own pair: :meth:`KeyDir.bundle` copies
-those into a directory of their own for a UAV's companion computer or a container.
+A node needs only ``ca.pem``, ``roster.json`` and its own pair, and a UAV or a ground station
+``mavlink.key`` too: :meth:`KeyDir.bundle` copies those into a directory of their own for a
+UAV's companion computer or a container.
 
 Keys are ECDSA P-256 (small, fast handshakes, supported by Zenoh's TLS). Certificates carry
 the CN as a DNS name too (TLS libraries verify names against the subject alternative names),
@@ -39,7 +42,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from swarmnet.security.identity import NodeName
-from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, Issued, Revoked, Roster
+from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, MAVLINK_KEY_FILE, Issued, Revoked, Roster
 
 CA_DAYS = 5 * 365  # the CA outlives many node certificates
 NODE_DAYS = 90  # short-lived: expiry is the revocation Zenoh does enforce (close_link_on_expiration)
@@ -60,6 +63,19 @@ def write_private(path: Path, data: bytes) -> None:
     finally:
         os.close(fd)
     os.replace(tmp, path)
+
+
+def write_passphrase(path: Path) -> Path:
+    """A new random passphrase in ``path`` (0600, replacing any): 256 bits as 43 URL-safe
+    characters, which MAVProxy (``signing key``) and QGroundControl take as typed (never one
+    that starts with ``-``, which a command line would read as an option)."""
+    import secrets
+
+    passphrase = secrets.token_urlsafe(32)
+    while passphrase.startswith("-"):
+        passphrase = secrets.token_urlsafe(32)
+    write_private(path, (passphrase + "\n").encode("ascii"))
+    return path
 
 
 def _new_key() -> ec.EllipticCurvePrivateKey:
@@ -100,6 +116,16 @@ class KeyDir:
         return self.path / f"{name.cn}.key"
 
     @property
+    def mavlink_key_path(self) -> Path:
+        return self.path / MAVLINK_KEY_FILE
+
+    def new_mavlink_key(self) -> Path:
+        """A new MAVLink signing passphrase for the swarm (the old one stops working once each
+        UAV has the new one); needs the CA, as only the swarm's own directory may change it."""
+        self._ca()
+        return write_passphrase(self.mavlink_key_path)
+
+    @property
     def roster(self) -> Roster:
         from swarmnet.schema import ConfigError
 
@@ -131,6 +157,7 @@ class KeyDir:
         kd.path.chmod(0o700)
         serial = kd._write_ca(swarm, days)
         Roster(swarm=swarm, ca_serial=serial).save(kd.path)
+        write_passphrase(kd.mavlink_key_path)
         return kd
 
     def _write_ca(self, swarm: str, days: int) -> str:
@@ -157,12 +184,14 @@ class KeyDir:
         return format(cert.serial_number, "x")
 
     def rotate(self, days: int = CA_DAYS, node_days: int = NODE_DAYS) -> list[NodeName]:
-        """A new CA, and a new certificate for every member: every older certificate, revoked or
-        not, stops working at once. Revoked names may be issued again afterwards. Returns the
-        re-issued identities (hand each its new bundle)."""
+        """A new CA, a new certificate for every member and a new MAVLink signing key: every
+        older certificate, revoked or not, and the old MAVLink key stop working at once. Revoked
+        names may be issued again afterwards. Returns the re-issued identities (hand each its
+        new bundle)."""
         old = self.roster
         members = old.names()
         serial = self._write_ca(old.swarm, days)
+        write_passphrase(self.mavlink_key_path)
         roster = Roster(swarm=old.swarm, ca_serial=serial)
         roster.save(self.path)
         for cn in old.revoked:  # their certificates no longer chain to the CA: delete the leftovers
@@ -239,7 +268,8 @@ class KeyDir:
         msgspec.structs.replace(roster, **changes).save(self.path)
 
     def bundle(self, name: NodeName, out: str | Path) -> Path:
-        """Copy what node ``name`` needs (CA certificate, roster, its own pair) into directory ``out``."""
+        """Copy what node ``name`` needs (CA certificate, roster, its own pair, and for a UAV or a
+        ground station the MAVLink signing key) into directory ``out``."""
         roster = self.roster
         if not roster.is_member(name.cn):
             raise KeysError(f"{name.cn} is not a member of swarm {roster.swarm!r} (issue it first)")
@@ -250,4 +280,6 @@ class KeyDir:
         roster.save(dest)
         shutil.copyfile(self.cert_path(name), dest / self.cert_path(name).name)
         write_private(dest / self.key_path(name).name, self.key_path(name).read_bytes())
+        if name.role in ("uav", "gcs") and self.mavlink_key_path.is_file():
+            write_private(dest / MAVLINK_KEY_FILE, self.mavlink_key_path.read_bytes())
         return dest
