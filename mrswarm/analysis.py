@@ -17,14 +17,14 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
-from mrswarm.incidents import find_incidents
+from mrswarm.incidents import find_incidents, safety_incident
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
 from mrswarm.summary import (
@@ -53,6 +53,7 @@ from uav_stack.recorder import links_file_name
 GRID_HZ = 10.0  # resampling rate of the trajectories
 AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
 GOAL_RADIUS = 2.0  # m (horizontal): a goto UAV this close to its goal has reached it
+BREACH_GAP_S = 1.0  # s: a pair back above the safety distance for less than this is one incident, not two
 CELL_CHUNK = 2_000_000  # cells x points per coverage step held in memory at once (~32 MB of float64 pairs)
 
 
@@ -81,6 +82,20 @@ class SeparationSteps:
     collisions: int
     collision_pairs: list[CollisionPair]
     onsets: list[tuple[float, int, int]]  # (wall time, uav, uav) of every collision onset
+    breaches: list[Breach] = field(default_factory=list)  # stretches of a pair below the safety distance (in the window)
+
+
+@dataclass
+class Breach:
+    """Two UAVs closer than the safety distance: from ``start`` to ``end`` (grid indices, ``end`` included),
+    ``steps`` grid steps below it (shorter gaps than :data:`BREACH_GAP_S` joined), at least ``min`` m apart."""
+
+    pair: tuple[int, int]
+    start: int
+    end: int
+    steps: int
+    min: float
+    min_at: int
 
 
 @dataclass
@@ -179,14 +194,31 @@ def resample(tracks: dict[int, Track], t0: float, t1: float) -> tuple[np.ndarray
     return grid, pos, ids
 
 
-def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_distance: float) -> SeparationSteps:
-    """Minimum pairwise 3-D distance between airborne UAVs, per time step and overall."""
+def breaches_of(pair: tuple[int, int], d: np.ndarray, below: np.ndarray) -> list[Breach]:
+    """The stretches where ``below`` holds for one pair (``d``: its distance per grid step), gaps shorter than
+    :data:`BREACH_GAP_S` joined."""
+    idx = np.nonzero(below)[0]
+    if not len(idx):
+        return []
+    cuts = np.nonzero(np.diff(idx) > BREACH_GAP_S * GRID_HZ)[0]
+    out = []
+    for run in np.split(idx, cuts + 1):
+        k = int(run[np.argmin(d[run])])
+        out.append(Breach(pair=pair, start=int(run[0]), end=int(run[-1]), steps=len(run), min=float(d[k]), min_at=k))
+    return out
+
+
+def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_distance: float,
+               safety_distance: float | None = None, window: np.ndarray | None = None) -> SeparationSteps:
+    """Minimum pairwise 3-D distance between airborne UAVs, per time step and overall; with ``safety_distance``,
+    every stretch of a pair below it within ``window`` (a mask of the grid; default: all of it)."""
     n = len(ids)
     min_t = np.full(len(grid), np.inf)
     best: tuple[float, int | None, int | None, float | None] = (math.inf, None, None, None)
     collisions = 0
     pairs_below: list[CollisionPair] = []
     onset_times: list[tuple[float, int, int]] = []
+    breaches: list[Breach] = []
     for i in range(n):
         for j in range(i + 1, n):
             d = np.linalg.norm(pos[i] - pos[j], axis=1)
@@ -203,6 +235,9 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
             if onsets:
                 collisions += onsets
                 pairs_below.append(CollisionPair(pair=[ids[i], ids[j]], onsets=onsets, min=float(d[k])))
+            if safety_distance is not None:
+                near = d < safety_distance
+                breaches += breaches_of((ids[i], ids[j]), d, near if window is None else near & window)
     return SeparationSteps(
         per_step=min_t,
         min=best[0] if best[0] != math.inf else None,
@@ -211,6 +246,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
         collisions=collisions,
         collision_pairs=pairs_below,
         onsets=sorted(onset_times),
+        breaches=sorted(breaches, key=lambda b: (b.start, b.pair)),
     )
 
 
@@ -510,9 +546,11 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     t_last = float(max(tr.t[-1] for tr in tracks.values()))
     t0 = info.mission_start or t_first
     t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
+    if info.mission_start and info.all_done_at is not None:  # the mission ended early: its end, not the shutdown after it
+        t_end = min(t_end, t0 + info.all_done_at)
     grid, pos, ids = resample(tracks, t_first, t_last)
-    sep = separation(grid, pos, ids, fl.collision_distance)
     in_mission = (grid >= t0) & (grid <= t_end)
+    sep = separation(grid, pos, ids, fl.collision_distance, fl.safety_distance, in_mission)
     sep_mission = sep.per_step[in_mission]
     finite = sep_mission[np.isfinite(sep_mission)]
     summary.separation = Separation(
@@ -548,6 +586,9 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     for u, tr in sorted(tracks.items()):
         if tr.vz is not None and tr.armed is not None:
             summary.incidents += find_incidents(u, tr.t, tr.xyz[:, 2], tr.vz, tr.armed, t0)
+    summary.incidents += [safety_incident(b.pair, float(grid[b.start] - t0), b.steps / GRID_HZ, b.min,
+                                          float(grid[b.min_at] - t0), fl.safety_distance) for b in sep.breaches]
+    summary.incidents.sort(key=lambda i: i.t_s)
     if info.faults:
         working = working_mask(tracks, grid, pos, ids)
         area = m.area.as_tuple() if m.area is not None else None

@@ -54,11 +54,14 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
     from mrswarm.scenario import ScenarioError, load_scenario
     from mrswarm.summary_table import print_summary
 
+    notes: list[str] = []
     try:
-        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
+        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []), notes)
     except ScenarioError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
+    for note in notes:  # a shortened mission: what of its schedule it leaves out
+        console.print(f"[yellow]note:[/] {args.scenario}: {note}", highlight=False, soft_wrap=True)
     problem = check_resources(scn)
     if problem and not args.force:
         console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False, soft_wrap=True)
@@ -100,6 +103,10 @@ def _results(args: argparse.Namespace) -> int:
     from mrswarm.summary_table import print_summary
 
     console = Console()
+    if args.run_dir is None:  # no folder named: the recent runs, to pick one
+        from mrswarm.results import list_runs
+
+        return list_runs(console, Path("results"))
     path = Path(args.run_dir)
     try:
         if path.is_file():  # a recording (docs/recording.md): its run folder first
@@ -160,8 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 
-    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap)")
-    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
+    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap); "
+                                       "alone: list the recent runs in ./results")
+    p.add_argument("run_dir", nargs="?", default=None,
+                   help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
     p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 

@@ -52,6 +52,7 @@ from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import Supervisor, uav_of
+from mrswarm.wording import plural
 from mrswarm.world_setup import (
     external_agents,
     open_observer,
@@ -349,7 +350,7 @@ class Experiment:
             # a real autopilot may take longer to arm and climb (pre-arm checks, its own climb rate)
             self._wait_phase(ids, {AgentPhase.HOVER}, hover_s, own={u: hover_s + TAKEOFF_MARGIN for u in ready_own})
             self.run_info.all_airborne_s = time.time() - takeoff.sent_at
-            self.progress.detail = f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff"
+            self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
             self._command("start", ids, set(WORKING))
             start = time.time()
@@ -420,7 +421,7 @@ class Experiment:
 
         def show(r: CommandRound) -> None:
             done = len(r.targets) - len(r.missing) - len(r.gone)
-            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({r.sends} sends)"
+            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({plural(r.sends, 'send')})"
             self.display.refresh(self.observer)
 
         def tick() -> None:
@@ -434,8 +435,8 @@ class Experiment:
         if r.missing:
             raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
                              f"({r.sends} sends)")
-        self.progress.detail = f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms " \
-                               f"({r.sends} sends)"
+        self.progress.reached(f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms "
+                              f"({plural(r.sends, 'send')})")
         return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float, stall: float | None = None,

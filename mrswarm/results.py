@@ -10,11 +10,13 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from mrswarm.analysis import analyse_run
 from mrswarm.plots import plot_pose_age, plot_run
 from mrswarm.scenario import Scenario, ScenarioError, load_scenario
 from mrswarm.summary import LinkAge, RunInfo, RunSummary
+from mrswarm.wording import metres, plural
 
 
 class ResultsError(Exception):
@@ -59,7 +61,7 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
                 net.pose_age_over_time.plot_error = "skipped: the run was asked to stop fast"
             else:
                 try:
-                    plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [])
+                    plot_pose_age(path, data.pose_age, net.netem.changes if net.netem else [], data.t_end - data.t0)
                     net.pose_age_over_time.plot = str(path)
                 except Exception as exc:  # a plotting failure must not lose the numbers
                     net.pose_age_over_time.plot_error = repr(exc)
@@ -92,3 +94,57 @@ def rebuild_results(run_dir: Path) -> RunSummary:
     except ScenarioError as exc:
         raise ResultsError(str(exc)) from None
     return summarise_run(run_dir, scenario)
+
+
+RECENT = 15  # runs listed by `mrswarm results` without a folder
+
+
+def run_outcome(run_dir: Path) -> str:
+    """One line of what a run folder's summary.json says: its outcome in words."""
+    try:
+        s = RunSummary.load(run_dir / "summary.json")
+    except FileNotFoundError:
+        return "no summary yet (flying, or stopped hard: mrswarm results DIR writes it)"
+    except (OSError, ValueError) as exc:
+        return f"summary.json unreadable ({exc.__class__.__name__})"
+    if s.aborted:
+        return f"aborted: {s.aborted}"
+    if s.error:
+        return s.error
+    parts = [f"{s.uavs_recorded} UAVs"]
+    if s.duration_s:
+        parts.append(f"{s.duration_s:.0f} s")
+    if s.coverage:
+        parts.append(f"coverage {100 * s.coverage.final:.1f} %")
+    sep = s.separation
+    if sep and sep.min_m is not None:
+        parts.append(f"closest {metres(sep.min_m)}")
+    if s.safety_events:
+        parts.append(f"{plural(sep.collisions if sep else 0, 'collision')}, {plural(len(s.incidents), 'incident')}")
+    else:
+        parts.append("no collision or incident")
+    if s.interrupted:
+        parts.append("interrupted")
+    return ", ".join(parts)
+
+
+def list_runs(console: Any, root: Path, limit: int = RECENT) -> int:
+    """``mrswarm results`` alone: the newest run folders under ``root``, each with its outcome; exit code 0."""
+    runs = sorted((d for d in root.glob("*") if (d / "run.json").exists() or (d / "scenario.yaml").exists()),
+                  key=lambda d: d.stat().st_mtime, reverse=True) if root.is_dir() else []
+    if not runs:
+        console.print(f"no run folders in {root}/ (`mrswarm run` writes them there; with --out, elsewhere). "
+                      "`mrswarm results DIR` rebuilds one's summary and figures.", highlight=False, soft_wrap=True)
+        return 0
+    from rich.table import Table
+
+    t = Table(title=f"recent runs in {root}/ (newest first; `mrswarm results DIR` rebuilds one)", show_edge=False,
+              title_justify="left")
+    for col in ("run folder", "outcome"):
+        t.add_column(col, overflow="fold")
+    for d in runs[:limit]:
+        t.add_row(str(d), run_outcome(d))
+    console.print(t)
+    if len(runs) > limit:
+        console.print(f"and {len(runs) - limit} older", highlight=False)
+    return 0

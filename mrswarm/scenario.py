@@ -25,7 +25,7 @@ from msgspec.structs import force_setattr, replace
 
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
-from mrswarm.faults import FaultSpec, check_against
+from mrswarm.faults import FaultSpec, check_against, fit_to_duration
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
@@ -737,7 +737,10 @@ def read_scenario_text(path: Path) -> str:
                             "a scenario is a YAML file") from None
 
 
-def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: list[str] | None = None, notes: list[str] | None = None) -> Scenario:
+    """The scenario file with ``--set`` overrides, validated. A ``duration`` override shortens the schedule too:
+    the faults that no longer fit are left out, and ``notes`` (if given) gets a sentence for each, and for a
+    timed world event that will not come (:func:`shortened`)."""
     path = Path(path)
     text = read_scenario_text(path)
     try:
@@ -748,7 +751,24 @@ def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scena
         raise ScenarioError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{path}: a scenario must be a YAML mapping, got {type(data).__name__}")
+    shorter = False
     for o in overrides or []:
         key, value = parse_override(o)
         _set_path(data, key, value)
-    return parse_scenario(data, str(path))
+        shorter = shorter or key == "duration"
+    said = fit_to_duration(data, data["duration"]) if shorter and isinstance(data.get("duration"), int | float) else []
+    scn = parse_scenario(data, str(path))
+    if shorter:
+        said += shortened(scn)
+    if notes is not None:
+        notes += said
+    return scn
+
+
+def shortened(scn: Scenario) -> list[str]:
+    """What a shortened mission will not see besides its faults: a wind turn after its end."""
+    w = scn.world
+    if w is not None and w.wind.turn_after_s is not None and w.wind.turn_after_s >= scn.duration:
+        return [f"world.wind.turn_after_s: the wind turns at {w.wind.turn_after_s:g} s, after the {scn.duration:g} s mission: "
+                "it will not turn"]
+    return []

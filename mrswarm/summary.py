@@ -347,14 +347,19 @@ class FailsafeEvent(Struct):
 
 
 class Incident(Struct):
-    """A UAV that fell or hit the ground (mrswarm/incidents.py): counted beside collisions."""
+    """A UAV that fell or hit the ground, or two UAVs closer than the safety distance (mrswarm/incidents.py):
+    counted beside collisions."""
 
-    uav: int
-    kind: str  # ground_impact, uncontrolled_descent, motors_stopped_in_air
+    uav: int  # below_safety_distance: the first of the pair
+    kind: str  # ground_impact, uncontrolled_descent, motors_stopped_in_air, below_safety_distance
     t_s: float  # s after the mission start
-    z_m: float  # height above the origin when it began
-    vz_ms: float  # vertical speed (up positive), m/s
     detail: str
+    z_m: float | UnsetType = UNSET  # height above the origin when it began (a UAV's own incidents)
+    vz_ms: float | UnsetType = UNSET  # vertical speed (up positive), m/s (a UAV's own incidents)
+    pair: list[int] | UnsetType = UNSET  # below_safety_distance: the two UAVs
+    min_m: float | UnsetType = UNSET  # ... their closest distance, m
+    min_at_s: float | UnsetType = UNSET  # ... when, s after the mission start
+    duration_s: float | UnsetType = UNSET  # ... time below the safety distance, s
 
 
 class RecordErrors(Struct):

@@ -163,18 +163,23 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         if args.sub == "nodes":
             return _nodes(obs, args, console, target)
         if args.sub == "watch":
+            from pathlib import Path
+
             from mrswarm.gcs.watch import run_watch
 
-            view = WatchView(target.swarm, args.sort, args.reverse, filt)
+            view = WatchView(target.swarm, args.sort, args.reverse, filt, run_dir=Path(args.run) if args.run else None)
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
         if args.sub == "telemetry":
             return _telemetry(obs, args, console)
         if args.sub == "foxglove":
             return _foxglove(obs, args, console)
         if args.sub == "web":
+            from pathlib import Path
+
             from mrswarm.gcs.web.server import serve_web
 
-            return serve_web(obs, host=args.host, port=args.port, duration=args.duration)
+            return serve_web(obs, host=args.host, port=args.port, duration=args.duration,
+                             run_dir=Path(args.run) if args.run else None)
         if args.sub == "record" and (args.mcap or args.file.endswith(".mcap")):
             return _record_mcap(obs, args, console)
         if args.sub == "record":
