@@ -139,6 +139,8 @@ class BeaconDiscovery:
     lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
     credentials: Credentials | None = None  # mutual TLS and access control (None: plain TCP)
+    # the node's beacon token (tags its beacons and goodbye, docs/discovery.md); default: the one beside its certificate
+    token: bytes | None = None
     name: str = "discovery"
 
     def __post_init__(self) -> None:
@@ -223,8 +225,17 @@ class BeaconDiscovery:
             raise ValueError("BeaconDiscovery needs the node id and role (pass them, or open it through a SwarmNode)")
         if self.role not in ROLES:
             raise ValueError(f"role must be one of {ROLES}")
+        token = self.token
+        if token is None and self.credentials is not None:
+            token = self.credentials.beacon_token()
+            if token is None:
+                log.warning("discovery: no beacon token beside %s's certificate in %s: a server that binds beacons to "
+                            "identities will not list this node (`mrswarm keys bundle` writes it)",
+                            self.credentials.identity, self.credentials.keys)
+        assert self.swarm is not None
         self.proxy = DiscoveryProxy(
             session=session, scout_port=self.scout_port, memberships=self.memberships(), role=self.role, node=self.node,
+            tokens={self.swarm: token} if token else {},
             realm=self.realm or "virtual", server=self.server_addr, period=self.period, advertise=self.advertise,
             lanes=self.lanes, schemes=self.schemes, refused=self.refused, guard_required=self.credentials is not None,
         )
@@ -245,8 +256,10 @@ class DiscoveryProxy:
     def __init__(self, *, session: zenoh.Session, scout_port: int, memberships: dict[str, bytes], role: str, node: int,
                  realm: str, server: Addr, period: float = DEFAULT_PERIOD, advertise: tuple[str, ...] = (),
                  window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0, lanes: int = 1,
-                 schemes: tuple[str, ...] = ("tcp", "tls"), refused: Counter[str] | None = None, guard_required: bool = False):
+                 schemes: tuple[str, ...] = ("tcp", "tls"), refused: Counter[str] | None = None, guard_required: bool = False,
+                 tokens: dict[str, bytes] | None = None):
         self.session = session
+        self.tokens = tokens or {}  # swarm -> this node's beacon token there: its beacons and goodbye carry the node tag
         self.schemes = schemes  # the link protocols this node dials: a member's locators of any other are never injected
         self.refused: Counter[str] = refused if refused is not None else Counter()
         for k in ("scouting", "foreign_scheme"):  # the keys exist before this thread counts (no resize while read)
@@ -311,7 +324,7 @@ class DiscoveryProxy:
             self._thread = None
         if self.entry is not None:
             for swarm, key in self.keys.items():  # tell the server at once, so peers forget us now
-                self._send_up(seal(MsgType.BYE, swarm, key, [self.role, self.node]))
+                self._send_up(seal(MsgType.BYE, swarm, key, [self.role, self.node], token=self.tokens.get(swarm)))
         self._close_sockets()
 
     def lock_scouting(self) -> None:
@@ -485,7 +498,8 @@ class DiscoveryProxy:
         for swarm, key in self.keys.items():
             with self._lock:
                 view = view_digest(self.peers[swarm].values())
-            self._send_up(seal(MsgType.BEACON, swarm, key, beacon_body(Beacon(self.entry, view, self.period))))
+            self._send_up(seal(MsgType.BEACON, swarm, key, beacon_body(Beacon(self.entry, view, self.period)),
+                               token=self.tokens.get(swarm)))
             self.stats["beacons"] += 1
 
     def _send_up(self, data: bytes) -> None:

@@ -222,7 +222,8 @@ class Experiment:
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,
                                          keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest,
-                                         feed_window=scn.network.feed_window_s)
+                                         feed_window=scn.network.feed_window_s,
+                                         extra_identities={s: p for s, p in self.swarm_keys.items() if p and s != scn.swarm})
         net = replace(net, lease_s=scn.network.lease_s)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl

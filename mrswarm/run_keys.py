@@ -7,7 +7,9 @@ runner (``ctl``) and one ground station (``gcs-1``, for ``mrswarm gcs --run``). 
 day after the run is long over (the CA dies with them), so a copied run folder opens nothing.
 
 With ``network.security.keys`` the run uses that directory as it is: each identity must have
-been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI.
+been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI. (A directory
+made before beacon tokens gets the tokens of the run's identities written from its beacon key,
+docs/security.md: nothing else.)
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ def check_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
     if missing:
         raise KeysError(f"{path} has no certificate for {', '.join(missing)}: "
                         f"`mrswarm keys issue --dir {path} {' '.join(missing)}`")
+    kd.ensure_tokens(names)
     return path.resolve()
 
 

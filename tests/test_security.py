@@ -81,8 +81,11 @@ def test_key_directory_issue_revoke_rotate(tmp_path: Path) -> None:
     assert (kd.path / "ca.pem").read_bytes() != old_ca and kd.roster.revoked == {}
     kd.issue(uav3)  # a new CA: the name is free again
     bundle = kd.bundle(uav3, tmp_path / "b3")
-    assert sorted(p.name for p in bundle.iterdir()) == ["ca.pem", "roster.json", "uav-3.alpha.key", "uav-3.alpha.pem"]
-    assert stat.S_IMODE(os.stat(bundle / "uav-3.alpha.key").st_mode) == 0o600
+    assert sorted(p.name for p in bundle.iterdir()) == ["ca.pem", "roster.json", "uav-3.alpha.beacon", "uav-3.alpha.key",
+                                                        "uav-3.alpha.pem"]
+    for private in ("uav-3.alpha.key", "uav-3.alpha.beacon"):
+        assert stat.S_IMODE(os.stat(bundle / private).st_mode) == 0o600
+    assert "beacon.key" in {p.name for p in kd.bundle(NodeName("edge", 0, SWARM), tmp_path / "be").iterdir()}
     with pytest.raises(KeysError, match="no CA"):  # a bundle cannot issue
         KeyDir(bundle).issue(NodeName.uav(4, SWARM))
 

@@ -75,6 +75,16 @@ class Credentials(Config, frozen=True):
                                           f"--dir <the swarm's key directory>` and copy its bundle here")
         return ca, cert, key
 
+    def beacon_token(self) -> bytes | None:
+        """This identity's beacon token (``<cn>.beacon``), which binds its discovery beacons to it; None
+        if the directory has none (one made before beacon tokens: ``mrswarm keys bundle`` writes it)."""
+        from swarmnet.security.beacon import read_token
+
+        try:
+            return read_token(self.keys, self.name.cn)
+        except ValueError as exc:
+            raise ConfigError("keys", str(exc)) from None
+
     def roster(self) -> Roster:
         roster = Roster.load(self.keys)
         if roster.swarm != self.name.swarm:
