@@ -46,7 +46,7 @@ from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
-from mrswarm.supervisor import Supervisor, uav_of
+from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
 from mrswarm.world_setup import (
     open_observer,
     other_swarm_credentials,
@@ -156,7 +156,8 @@ class Experiment:
                 self._stop_all()
             if self.signals.hangup:
                 self.console.quiet = True  # the terminal is gone
-            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast)
+            # the runner's own record: run.json may be missing its last writes (a full disk)
+            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast, info=self.run_info)
         finally:
             if own_signals:
                 self.signals.restore()
@@ -169,14 +170,21 @@ class Experiment:
             except Exception as exc:  # noqa: BLE001 - stopping must go on
                 self.run_info.write_errors.append(f"observer close: {exc}")
         grace = FAST_GRACE_S if self.signals.fast else GRACE_S + GRACE_S_PER_PROCESS * len(self.scn.all_uavs())
+        self.run_info.stopping = time.time()
         self.run_info.exit_codes = dict(self.runtime.stop(grace))
         self.run_info.stopped = time.time()
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
         self._save_info()
         # the flight recorder after run.json, which it keeps; faster after a second signal
-        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
-            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+        if self.recorder is not None:
+            code = self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT)
+            self.run_info.exit_codes[RECORDER] = code
+            if code not in (0, 130):
+                self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+            self.run_info.recording_files = list(self.recorder.files)
+            self.run_info.recording_unwritten = self.recorder.unwritten
+            self._save_info()
 
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
@@ -239,8 +247,9 @@ class Experiment:
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
+                self.run_info.recording_files = list(self.recorder.files)
                 self._say(f"flight recording: {self.recorder.path}")
-            except RuntimeError as exc:  # a run without its recording still flies
+            except (RuntimeError, OSError) as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
@@ -251,8 +260,10 @@ class Experiment:
         for c in configs:
             self.signals.check()
             self.runtime.start_uav(c)
-        self.run_info.pids = self.runtime.pids()
-        self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+        # the runtime's processes and the runner's flight recorder, each restarted as it should be
+        children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})
+        self.run_info.pids = children.pids()
+        self.supervisor = Supervisor(children, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
@@ -418,6 +429,13 @@ class Experiment:
         """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
         assert self.supervisor is not None
         events = self.supervisor.check()
+        resumed = self.recorder.poll_resumed() if self.recorder is not None else None
+        if resumed is not None:  # a restarted recorder records again: the end of the recording's gap
+            ev = ProcessEvent(t=time.time(), name=RECORDER, event="resumed", detail=Path(resumed).name,
+                              recorded_until=self.recorder.previous_flushed)  # type: ignore[union-attr]
+            self.supervisor.events.append(ev)
+            events.append(ev)
+            self.run_info.recording_files = list(self.recorder.files)  # type: ignore[union-attr]
         for ev in events:
             self._on_event(ev)
         if events:
@@ -436,6 +454,8 @@ class Experiment:
             if uav is not None:
                 self.lost.add(uav)
                 self.rejoin.pop(uav, None)
+        elif ev.event == "resumed":
+            self._say(f"[green]{ev.name} recording again[/] into {ev.detail}")
         elif ev.event == "restarted":
             self._say(f"[green]{ev.name} started again[/] ({ev.detail})")
             if uav is not None:

@@ -38,6 +38,7 @@ class ProcessEvent(Struct):
     last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
     detail: str = ""
     error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
+    recorded_until: float | None = None  # "resumed" (the flight recorder): its previous file holds the records up to then
 
 
 class FaultRecord(Struct):
@@ -73,12 +74,15 @@ class RunInfo(Struct):
     takeoff_sends: int = 0
     takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
     exit_codes: dict[str, int | None] = {}
-    stopped: float | None = None  # wall
+    stopping: float | None = None  # wall: the runner began stopping every process
+    stopped: float | None = None  # wall: ... and every process had stopped
     stop_signals: list[str] = []  # SIGINT, SIGTERM, SIGHUP received by the runner, in order
     events: list[ProcessEvent] = []  # processes that exited during the run, and restarts
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
     write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
+    recording_files: list[str] = []  # the flight recording's files, in order (run.mcap, run-2.mcap after a restart, ...)
+    recording_unwritten: int = 0  # records of the flight recording a full disk took none of
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -363,6 +367,25 @@ class RecordErrors(Struct):
     rows_dropped: int  # trajectory or pose-age rows given up (beyond the in-memory backlog)
     files_not_written: int  # counter-file replacements that failed
     runner: list[str]  # runner files that could not be written
+
+
+class RecordingGap(Struct):
+    """The flight recorder down, and recording again (mrswarm/supervisor.py restarts it)."""
+
+    from_s: float  # s after the mission start: its file holds the records up to then (its last flush before it died)
+    to_s: float | None  # recording again, into the next file (None: not before the end of the run)
+    gap_s: float | None
+    cause: str  # what ended it: a signal, an exit code
+
+
+class Recording(Struct):
+    """The flight recording (docs/recording.md): its files, the recorder's gaps, what a full disk took none of."""
+
+    files: list[str]
+    gaps: list[RecordingGap] = []
+    unwritten: int = 0
+
+
 class Security(Struct):
     """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
 
@@ -378,7 +401,11 @@ class RunSummary(Struct):
     run_dir: str
     uavs_planned: int
     uavs_recorded: int
-    interrupted: bool
+    interrupted: bool  # stopped by a signal, or the runner died before writing its end (runner_lost)
+    # the runner died (killed) before writing the end of run.json: its results are rebuilt from what was on disk
+    runner_lost: bool = False
+    interrupted_at_wall: float | UnsetType = UNSET  # the last known time of an interrupted run: its stop, else its newest record
+    interrupted_at_s: float | UnsetType = UNSET  # the same, s after the mission start (left out if the mission never started)
     error: str | UnsetType = UNSET  # nothing to analyse (no trajectory recorded)
     separation: Separation | UnsetType = UNSET
     coverage: Coverage | UnsetType = UNSET
@@ -401,6 +428,10 @@ class RunSummary(Struct):
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
+    recording: Recording | UnsetType = UNSET  # the flight recording (runs with one)
+    # why the run's records are incomplete (records lost to a full or failing disk, a recorder gap, a file not
+    # written); empty when they are whole. Not empty: ``mrswarm run`` exits 1 (3 with collisions or incidents)
+    degraded: list[str] = []
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property

@@ -67,6 +67,9 @@ def summary_table(s: RunSummary) -> Table:
     if rec := s.records:
         t.add_row("records", f"writes failed on UAVs {rec.uavs} ({', '.join(f'{k} x{v}' for k, v in rec.errors.items())}), "
                              f"{rec.rows_dropped} rows lost" + (f"; runner: {', '.join(rec.runner)}" if rec.runner else ""))
+    if s.degraded:
+        t.add_row("degraded", "[yellow]" + escape("; ".join(s.degraded[:4]))
+                  + (f" (+{len(s.degraded) - 4} more)" if len(s.degraded) > 4 else "") + "[/]")
     if sec := s.security:
         if sec.mode == "off":
             t.add_row("security", "[yellow]off: plain TCP, no access control[/]")
@@ -85,6 +88,9 @@ def summary_table(s: RunSummary) -> Table:
         t.add_row("plot failed", s.plot_error)
     if s.stop_signals:
         t.add_row("stopped by", ", ".join(s.stop_signals))
+    if s.runner_lost:
+        at = f" after {s.interrupted_at_s:.1f} s of mission" if s.interrupted_at_s else ""
+        t.add_row("interrupted", f"[yellow]the runner died{at}[/] (run.json has no end): rebuilt from what was recorded")
     if s.aborted:
         t.add_row("aborted", s.aborted)
     return t
