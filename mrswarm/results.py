@@ -47,6 +47,7 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
             summary.network.transport_age_links.csv = str(path)
         except OSError as exc:
             summary.degraded.append(f"{path.name} not written: {exc.strerror or exc}")
+            discard(path)
     if data is not None and stop():
         summary.plot_error = "skipped: the run was asked to stop fast (mrswarm results draws it later)"
     elif data is not None:
@@ -63,6 +64,7 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
             summary.plot_error = repr(exc)
             if isinstance(exc, OSError):
                 summary.degraded.append(f"{path.name} not written: {exc.strerror or exc}")
+                discard(path)  # what the disk took of it is no figure
         net = summary.network
         if data.pose_age is not None and net and net.pose_age_over_time:
             path = run_dir / "pose_age.png"
@@ -76,8 +78,17 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
                     net.pose_age_over_time.plot_error = repr(exc)
                     if isinstance(exc, OSError):
                         summary.degraded.append(f"{path.name} not written: {exc.strerror or exc}")
+                        discard(path)
     write_summary(summary, run_dir)
     return summary
+
+
+def discard(path: Path) -> None:
+    """Remove what a refused write left of a file (a read-only disk refuses that too: then it stays)."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 def write_summary(summary: RunSummary, run_dir: Path) -> None:
@@ -91,10 +102,9 @@ def write_summary(summary: RunSummary, run_dir: Path) -> None:
         why = f"{target}: {exc.strerror or exc}"
     summary.degraded.append(f"summary.json not written into the run folder ({why})")
     fallback = Path(tempfile.gettempdir()) / f"mrswarm-{run_dir.name}-summary.json"
-    summary.write_error = why
+    summary.write_error = f"{why}; written to {fallback} instead"
     try:
         summary.write(fallback)
-        summary.write_error = f"{why}; written to {fallback} instead"
     except OSError as exc:
         summary.write_error = f"{why}; nor to {fallback} ({exc.strerror or exc}): only printed here"
 

@@ -476,7 +476,10 @@ def write_atomic(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # a read-only disk refuses it too (and took no temporary file)
+            pass
     fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(fd)

@@ -86,7 +86,7 @@ class McapWriter:
     def __init__(self, path: str | Path, *, flush_every: float = FLUSH_EVERY, clock: Callable[[], float] = time.monotonic):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)  # never overwrite a recording
+        self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)  # never overwrite a recording
         self._sink = _Sink(self._fd)
         self._w = Writer(self._sink, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
         self._w.start(profile="", library=f"mrswarm {__version__}")
