@@ -24,16 +24,14 @@ Linux only (classic BPF socket filters); :class:`GuardError` elsewhere.
 from __future__ import annotations
 
 import ctypes
-import os
 import socket
-import stat
 import struct
 from collections.abc import Iterable
 
+from swarmnet.own_sockets import kernel_drops, udp_sockets
+
 SO_ATTACH_FILTER = getattr(socket, "SO_ATTACH_FILTER", 26)
 SO_LOCK_FILTER = getattr(socket, "SO_LOCK_FILTER", 44)
-SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
-SK_MEMINFO_DROPS = 8  # index of the drop counter in SO_MEMINFO's array of u32 (Linux >= 4.6)
 
 # classic BPF (linux/filter.h)
 _LD_W_ABS, _LD_H_ABS, _ALU_AND_K, _JEQ_K, _RET_K = 0x20, 0x28, 0x54, 0x15, 0x06
@@ -74,39 +72,6 @@ def attach_filter(sock: socket.socket, program: bytes) -> None:
     fprog = struct.pack("HP", len(program) // 8, ctypes.addressof(buf))
     sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER, fprog)
     sock.setsockopt(socket.SOL_SOCKET, SO_LOCK_FILTER, 1)
-
-
-def kernel_drops(sock: socket.socket) -> int:
-    """Datagrams the kernel dropped at ``sock`` (its filter, or a full receive queue), since it was made."""
-    info = sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
-    return int(struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0])
-
-
-def udp_sockets(addresses: set[tuple[str, int]]) -> dict[tuple[str, int], socket.socket]:
-    """This process's IPv4 UDP sockets bound to ``addresses``, as socket objects on descriptors of their own."""
-    found: dict[tuple[str, int], socket.socket] = {}
-    for name in os.listdir("/proc/self/fd"):
-        try:
-            fd = int(name)
-            if not stat.S_ISSOCK(os.stat(fd).st_mode):
-                continue
-            dup = os.dup(fd)
-        except (ValueError, OSError):  # closed meanwhile
-            continue
-        try:
-            s = socket.socket(fileno=dup)
-        except OSError:
-            os.close(dup)
-            continue
-        try:
-            addr = s.getsockname()[:2] if s.family == socket.AF_INET and s.type == socket.SOCK_DGRAM else None
-        except OSError:
-            addr = None
-        if addr in addresses and addr not in found:
-            found[addr] = s
-        else:
-            s.close()
-    return found
 
 
 class ScoutGuard:
