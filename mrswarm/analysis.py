@@ -26,6 +26,7 @@ from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record
 from mrswarm.incidents import find_incidents
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
+from mrswarm.stalls import stalls
 from mrswarm.summary import (
     CollisionPair,
     Coverage,
@@ -425,6 +426,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if info.stopped is None:  # run.json has no end: the runner died (SIGKILL, power) before writing it
         summary.interrupted = summary.runner_lost = True
     summary.lost_uavs = lost_uavs(info, t_ref)
+    summary.stalls = stalls(info, t_ref)
     summary.services = service_outages(info, t_ref)
     summary.failsafes = failsafe_events(stats, t_ref)
     errors = record_errors(stats, info)

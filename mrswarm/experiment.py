@@ -45,6 +45,7 @@ from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
+from mrswarm.stalls import StallWatch
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
 from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
 from mrswarm.world_setup import (
@@ -113,6 +114,7 @@ class Experiment:
         self.ids: list[int] = []
         self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
         self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
+        self.stalls = StallWatch()  # UAVs alive but silent (SIGSTOP, starved): events with their duration
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -164,6 +166,8 @@ class Experiment:
 
     def _stop_all(self) -> None:
         """Stop every child (faster after a second signal) and write run.json; never raises on a dead observer."""
+        if self.observer is not None and self.supervisor is not None:
+            self._watch_stalls(final=True)  # a UAV still stalled now: its stall lasted to the end
         if self.observer is not None:
             try:
                 self.observer.close()
@@ -418,6 +422,7 @@ class Experiment:
         self.metrics.add_poses(self.observer, fresh)
         self.metrics.update_separation(self.observer)
         self._supervise()
+        self._watch_stalls()
         self._rejoin_tick()
         try:
             self.display.refresh(self.observer)
@@ -443,6 +448,24 @@ class Experiment:
         if self.ids and not self._active_ids() and not self.rejoin and not any(
                 self.supervisor.restarting(f"uav{u}") for u in self.lost):
             raise RunAborted(f"every UAV process has exited (see {self.run_dir / 'logs'})")
+
+    def _watch_stalls(self, final: bool = False) -> None:
+        """Flying UAVs whose poses stopped while their process lives: an event when the stall ends (or the run does)."""
+        assert self.observer is not None and self.supervisor is not None
+        now = time.time()
+        began: list[int] = []
+        if final:
+            ended = self.stalls.close(now)
+        else:
+            last = {u: v.pose_recv for u, v in self.observer.uavs.items()}
+            began, ended = self.stalls.tick(now, last, set(self._active_ids()))
+        for uav in began:
+            self._say(f"[yellow]uav{uav} stalled[/]: no pose for {self.stalls.after:g} s, its process still runs")
+        for ev in ended:
+            self._say(f"[yellow]{ev.name} stalled[/] for {ev.duration_s:.1f} s")
+            self.supervisor.events.append(ev)
+        if ended:
+            self._save_info()
 
     def _on_event(self, ev: ProcessEvent) -> None:
         uav = uav_of(ev.name)

@@ -39,6 +39,7 @@ class ProcessEvent(Struct):
     detail: str = ""
     error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
     recorded_until: float | None = None  # "resumed" (the flight recorder): its previous file holds the records up to then
+    duration_s: float | None = None  # "stalled": how long no pose of the UAV came while its process ran (from ``t``)
 
 
 class FaultRecord(Struct):
@@ -315,6 +316,14 @@ class LostUav(Struct):
     error: str = ""  # its last error, from its log ("" if it logged none)
 
 
+class Stall(Struct):
+    """A UAV whose process ran but sent no pose for more than a second (stopped, starved: mrswarm/stalls.py)."""
+
+    uav: int
+    from_s: float  # its last pose before the stall, s after the mission start
+    duration_s: float
+
+
 class ServiceOutage(Struct):
     """The discovery server or the edge router down during the run, and its restart."""
 
@@ -424,6 +433,7 @@ class RunSummary(Struct):
     stop_signals: list[str] = []  # signals that stopped the runner
     incidents: list[Incident] = []
     lost_uavs: list[LostUav] = []
+    stalls: list[Stall] = []  # UAVs alive but silent for more than a second
     services: list[ServiceOutage] = []
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []

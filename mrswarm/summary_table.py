@@ -53,6 +53,9 @@ def summary_table(s: RunSummary) -> Table:
             f"UAV {lu.uav} at {lu.t_s:.1f} s ({lu.signal or f'exit {lu.exit_code}'}"
             + (f": {escape(lu.error[:120])}" if lu.error else "") + ")"
             + (f", back at {lu.restarted_s:.1f} s" if lu.restarted_s is not None else "") for lu in s.lost_uavs))
+    if s.stalls:
+        t.add_row("stalled UAVs", "; ".join(f"UAV {st.uav} at {st.from_s:.1f} s for {st.duration_s:.1f} s" for st in s.stalls[:6])
+                  + (f" (+{len(s.stalls) - 6} more)" if len(s.stalls) > 6 else ""))
     if s.services:
         t.add_row("service outages", "; ".join(
             f"{o.name} down at {o.down_s:.1f} s"

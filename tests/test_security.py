@@ -288,9 +288,9 @@ def test_intruders_without_a_swarm_certificate_cannot_connect(secured_router: tu
     assert wait_for(lambda: refused() >= 3, 3.0), refused()  # each refused handshake counted by the router
 
 
-def junk_connections(port: int, ca: Path, other: Path, each: int) -> int:
+def junk_connections(port: int, other: tuple[Path, Path], each: int) -> int:
     """Connections a TLS listener refuses, ``each`` of four kinds: HTTP bytes, nothing (connect, close), TLS without a
-    client certificate, TLS with another CA's; the number made."""
+    client certificate, TLS with ``other``, another CA's (certificate, key); the number made."""
     import socket
     import ssl
 
@@ -304,7 +304,7 @@ def junk_connections(port: int, ca: Path, other: Path, each: int) -> int:
                     ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
                     ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
                     if kind == "another CA":
-                        ctx.load_cert_chain(other / "uav-1.alpha.pem", other / "uav-1.alpha.key")
+                        ctx.load_cert_chain(*other)
                     try:
                         with ctx.wrap_socket(s) as t:
                             t.recv(1)
@@ -317,7 +317,8 @@ def junk_connections(port: int, ca: Path, other: Path, each: int) -> int:
 def test_every_refused_handshake_is_counted_once(secured_router: tuple[str, Path], swarm_keys: Path, tmp_path: Path) -> None:
     """Zenoh refuses at most 10 handshakes a second (a fixed 100 ms pause after each); the count catches up, exactly."""
     ep, stats_file = secured_router
-    made = junk_connections(int(ep.rsplit(":", 1)[1]), swarm_keys / "ca.pem", tmp_path / "other", each=10)
+    other = (tmp_path / "other" / "uav-1.alpha.pem", tmp_path / "other" / "uav-1.alpha.key")
+    made = junk_connections(int(ep.rsplit(":", 1)[1]), other, each=10)
     refused = lambda: json.loads(stats_file.read_text())["refused"]  # noqa: E731
     assert wait_for(lambda: refused().get("tls_handshake", 0) >= made, 15.0), (refused(), made)
     with client(ep, creds(swarm_keys, "uav-1")):  # a member's link is no refusal
