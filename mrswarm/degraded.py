@@ -69,10 +69,12 @@ def degraded_reasons(summary: RunSummary, info: RunInfo, run_dir: Path, last_rec
             end = _ended(info, name)
             if uav is None or end is None:
                 continue
-            t = last_record.get(uav)
-            if t is None or end - t > LATE_S:
-                out.append(f"{name}: its trajectory ends {'nowhere' if t is None else f'{end - t:.0f} s'} before its "
-                           "process stopped (rows it held when the disk was full)")
+            t = last_record.get(uav)  # (none at all: a UAV that never had a position, no disk's doing)
+            stalled_to_end = any(e.name == name and e.event == "stalled" and e.t + (e.duration_s or 0.0) >= end - LATE_S
+                                 for e in info.events)  # stopped (SIGSTOP) to the end: it wrote nothing, lost nothing
+            if t is not None and end - t > LATE_S and not stalled_to_end:
+                out.append(f"{name}: its trajectory ends {end - t:.0f} s before its process stopped (rows it held when "
+                           "the disk was full)")
             counters = run_dir / f"{name}.json"
             try:
                 age = end - counters.stat().st_mtime
