@@ -25,6 +25,7 @@ in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -115,6 +116,7 @@ class Experiment:
         self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
         self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
         self.stalls = StallWatch()  # UAVs alive but silent (SIGSTOP, starved): events with their duration
+        self._linked_since: float | None = None  # the runner's link to the edge router up since (wall)
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -458,7 +460,12 @@ class Experiment:
             ended = self.stalls.close(now)
         else:
             last = {u: v.pose_recv for u, v in self.observer.uavs.items()}
-            began, ended = self.stalls.tick(now, last, set(self._active_ids()))
+            # the runner's own view: a client of the edge router sees nothing while its link to that router is down
+            path: float | None = None  # a discovery peer: the other UAVs it hears vouch for its view
+            if getattr(self.observer.node.connectivity, "mode", "") == "client":
+                self._linked_since = (self._linked_since or now) if self.observer.node.routers() else None
+                path = self._linked_since if self._linked_since is not None else math.inf
+            began, ended = self.stalls.tick(now, last, set(self._active_ids()), path)
         for uav in began:
             self._say(f"[yellow]uav{uav} stalled[/]: no pose for {self.stalls.after:g} s, its process still runs")
         for ev in ended:

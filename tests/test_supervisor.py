@@ -180,3 +180,16 @@ def test_a_silent_uav_whose_process_lives_is_a_stall_with_its_duration() -> None
     assert last.duration_s == 3.1 and "end of the run" in last.detail
     info = RunInfo(scenario="s", started=t0 - 10, mission_start=t0, events=[*ended, last])
     assert [(s.uav, s.from_s, s.duration_s) for s in stalls(info, t0)] == [(2, 0.4, 3.1), (2, 4.9, 3.1)]
+
+
+def test_silence_the_runner_cannot_tell_from_its_own_blindness_is_no_stall() -> None:
+    from mrswarm.stalls import StallWatch
+
+    w = StallWatch()
+    t0 = 1000.0
+    # the edge router died at t0 + 0.4: the runner's link came back at t0 + 1.0, the UAVs' poses only later
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=t0 + 1.0) == ([], [])
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=float("inf")) == ([], [])  # link down
+    # a discovery peer (no router): silent UAV 2 counts only while it hears UAV 1
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=None) == ([], [])
+    assert w.tick(t0 + 2.1, {1: t0 + 2.0, 2: t0 + 0.4}, {1, 2}, path_since=None) == ([2], [])
