@@ -18,6 +18,15 @@ the two UAVs fly at each other they try to:
 while a ground station with its own certificate holds and resumes UAV 1, which obeys. The
 assertions are the swarm's outcome (goals reached, no collision, not ended early, no netem
 change, no kill) and the refusals the router and the UAVs counted.
+
+A second secured run takes issue 43's probe: forged Hellos at every UAV's scouting sockets,
+UAV 3's stolen beacon token speaking for UAVs 1 and 2, junk at a UAV's TLS listener. The rest
+of that probe runs where its parts live: a full or read-only results disk in
+tests/test_disk_e2e.py, the recorder killed and a UAV stopped mid-run in
+tests/test_fault_probe_e2e.py, the killed runner's results in tests/test_run_signals_e2e.py,
+the loader's duplicate keys and deep nesting in tests/test_inputs.py, exact handshake counts
+and floods in tests/test_security.py, the scouting guard and identity-bound beacons on their
+own in tests/test_scouting_guard.py and tests/test_discovery_identity.py.
 """
 
 from __future__ import annotations

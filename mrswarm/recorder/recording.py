@@ -21,6 +21,7 @@ import math
 import signal
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from types import FrameType
 
@@ -202,7 +203,7 @@ def record_swarm(observer: SwarmObserver, path: str | Path, *, duration: float |
                     files.write(rec)
                 for pattern in END_GLOBS:
                     for p in sorted(run_dir.glob(pattern)):
-                        files.guard(lambda w, p=p: _attach(w, p))  # type: ignore[misc]
+                        files.guard(partial(_attach, path=p))
         finally:
             files.close()
             status({"end": True, "files": files.files, "unwritten": files.unwritten, "disk_errors": files.disk_errors,
