@@ -161,14 +161,15 @@ class DockerRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
         ``keys``: the swarm's key directory; each container is handed its own bundle of it.
         ``extra_keys`` (more swarms in one airspace) is for the process runtime only.
         """
-        if extra_keys:
+        if extra_keys or extra_identities:
             raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
         if interest is not None:
             raise DeployError("network.interest (spatial interest) runs with the process runtime for now (docs/scale.md)")

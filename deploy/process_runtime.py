@@ -117,6 +117,7 @@ class ProcessRuntime:
         self.log_level = log_level
         self.children: dict[str, Child] = {}
         self.keys: Path | None = None
+        self.identities: dict[str, Path] = {}  # other swarms' key directories (the discovery server checks their tokens)
         self.interest: Interest | None = None
         self.feed_window: float | None = None  # s, the edge routers' pose-feed window (None: their default)
         self._py, self._env = child_python(python)
@@ -127,7 +128,8 @@ class ProcessRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
@@ -135,9 +137,11 @@ class ProcessRuntime:
         router (pose feed, and the way in for ground stations).
         ``keys``: the swarm's key directory: every link mutual TLS under the roster's access
         control (docs/security.md); None: plain TCP. ``extra_keys``: more swarms the discovery
-        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`).
+        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`), and
+        ``extra_identities`` their key directories (their beacons bound to identities too).
         """
         self.keys = keys
+        self.identities = dict(extra_identities or {})
         self.interest = interest  # spatial interest of every edge router's pose feed (docs/scale.md)
         self.feed_window = feed_window
         if connectivity == "discovery":
@@ -189,8 +193,11 @@ class ProcessRuntime:
         keys.write_text("".join(f"{s} {k}\n" for s, k in {swarm: key, **extra_keys}.items()))
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+        # secured: every swarm's beacons bound to identities (its key directory's roster and beacon key)
+        dirs = ([self.keys] if self.keys else []) + list(self.identities.values())
+        identities = [a for d in dirs for a in ("--identities", str(d))]
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(service.ttl), "--rate", "5000"])  # every node shares 127.0.0.1
+                                  "--ttl", str(service.ttl), "--rate", "5000", *identities])  # every node shares 127.0.0.1
         # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         deadline = time.monotonic() + 20.0
         while True:

@@ -23,10 +23,12 @@ from typing import Any
 
 import numpy as np
 
+from mrswarm.degraded import degraded_reasons, recording_report
 from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
 from mrswarm.incidents import find_incidents, safety_incident
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
+from mrswarm.stalls import stalls
 from mrswarm.summary import (
     CollisionPair,
     Coverage,
@@ -503,6 +505,18 @@ def mavlink_report(mode: str, stats: dict[int, dict[str, Any]]) -> Mavlink:
                 v = rt.get(k, 0)
                 out[k] += int(v) if isinstance(v, int) else 0
     return Mavlink(mode=mode, refused=refused, accepted=accepted)
+def _interrupted_at(summary: RunSummary, info: RunInfo, t_last: float | None) -> None:
+    """An interrupted run's last known time: when the runner stopped it, else (the runner died) the newest
+    thing on disk: a UAV's last record, or run.json's last event."""
+    if not summary.interrupted:
+        return
+    known = [t for t in (t_last, *(e.t for e in info.events), info.mission_start, info.started or None) if t]
+    at = info.stopped if info.stopped is not None else max(known, default=None)
+    if at is None:
+        return
+    summary.interrupted_at_wall = round(at, 3)
+    if info.mission_start is not None:
+        summary.interrupted_at_s = round(at - info.mission_start, 3)
 
 
 def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
@@ -529,7 +543,10 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if external is not None:
         summary.external_uavs = external
     t_ref = info.mission_start or info.started
+    if info.stopped is None:  # run.json has no end: the runner died (SIGKILL, power) before writing it
+        summary.interrupted = summary.runner_lost = True
     summary.lost_uavs = lost_uavs(info, t_ref)
+    summary.stalls = stalls(info, t_ref)
     summary.services = service_outages(info, t_ref)
     summary.failsafes = failsafe_events(stats, t_ref)
     errors = record_errors(stats, info)
@@ -539,11 +556,17 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         summary.security = security_report(run_dir, info.security, stats)
     if info.mavlink is not None:
         summary.mavlink = mavlink_report(info.mavlink, stats)
+    recording = recording_report(info, t_ref)
+    if recording is not None:
+        summary.recording = recording
+    summary.degraded = degraded_reasons(summary, info, run_dir, {u: float(tr.t[-1]) for u, tr in tracks.items()}, stats)
     if not tracks:
         summary.error = "no trajectory was recorded"
+        _interrupted_at(summary, info, None)
         return summary, None
     t_first = float(min(tr.t[0] for tr in tracks.values()))
     t_last = float(max(tr.t[-1] for tr in tracks.values()))
+    _interrupted_at(summary, info, t_last)
     t0 = info.mission_start or t_first
     t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
     if info.mission_start and info.all_done_at is not None:  # the mission ended early: its end, not the shutdown after it

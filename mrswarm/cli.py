@@ -13,7 +13,7 @@ from typing import Any
 
 # exit codes of `mrswarm run` (docs/reliability.md)
 EXIT_OK = 0  # the run completed: no collision, no incident
-EXIT_FAILED = 1  # the runner gave up (aborted), or nothing was recorded
+EXIT_FAILED = 1  # the runner gave up (aborted), nothing was recorded, or the records are incomplete (degraded)
 EXIT_USAGE = 2  # bad input: the scenario, an override, --out, or a fleet too large for this machine
 EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell or hit the ground)
 # 128 + N: stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)
@@ -93,6 +93,8 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
         return EXIT_FAILED
     if summary.safety_events:
         return EXIT_SAFETY
+    if summary.degraded:  # a full or failing disk lost records: the summary's `degraded` says which
+        return EXIT_FAILED
     return EXIT_OK
 
 

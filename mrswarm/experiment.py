@@ -30,6 +30,7 @@ in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -50,8 +51,9 @@ from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
+from mrswarm.stalls import StallWatch
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
-from mrswarm.supervisor import Supervisor, uav_of
+from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
 from mrswarm.wording import plural
 from mrswarm.world_setup import (
     external_agents,
@@ -126,6 +128,8 @@ class Experiment:
         self.ids: list[int] = []
         self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
         self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
+        self.stalls = StallWatch()  # UAVs alive but silent (SIGSTOP, starved): events with their duration
+        self._linked_since: float | None = None  # the runner's link to the edge router up since (wall)
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -202,7 +206,8 @@ class Experiment:
                 self._stop_all()
             if self.signals.hangup:
                 self.console.quiet = True  # the terminal is gone
-            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast)
+            # the runner's own record: run.json may be missing its last writes (a full disk)
+            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast, info=self.run_info)
         finally:
             if own_signals:
                 self.signals.restore()
@@ -210,6 +215,8 @@ class Experiment:
     def _stop_all(self) -> None:
         """Land the external UAVs, stop every child (faster after a second signal) and write run.json; never
         raises on a dead observer."""
+        if self.observer is not None and self.supervisor is not None:
+            self._watch_stalls(final=True)  # a UAV still stalled now: its stall lasted to the end
         try:
             self._land_external()
         except Exception as exc:  # noqa: BLE001 - stopping must go on
@@ -220,14 +227,21 @@ class Experiment:
             except Exception as exc:  # noqa: BLE001 - stopping must go on
                 self.run_info.write_errors.append(f"observer close: {exc}")
         grace = FAST_GRACE_S if self.signals.fast else GRACE_S + GRACE_S_PER_PROCESS * len(self.scn.all_uavs())
+        self.run_info.stopping = time.time()
         self.run_info.exit_codes = dict(self.runtime.stop(grace))
         self.run_info.stopped = time.time()
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
         self._save_info()
         # the flight recorder after run.json, which it keeps; faster after a second signal
-        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
-            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+        if self.recorder is not None:
+            code = self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT)
+            self.run_info.exit_codes[RECORDER] = code
+            if code not in (0, 130):
+                self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+            self.run_info.recording_files = list(self.recorder.files)
+            self.run_info.recording_unwritten = self.recorder.unwritten
+            self._save_info()
 
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
@@ -273,7 +287,8 @@ class Experiment:
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,
                                          keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest,
-                                         feed_window=scn.network.feed_window_s)
+                                         feed_window=scn.network.feed_window_s,
+                                         extra_identities={s: p for s, p in self.swarm_keys.items() if p and s != scn.swarm})
         net = replace(net, lease_s=scn.network.lease_s)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
@@ -291,8 +306,9 @@ class Experiment:
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
+                self.run_info.recording_files = list(self.recorder.files)
                 self._say(f"flight recording: {self.recorder.path}")
-            except RuntimeError as exc:  # a run without its recording still flies
+            except (RuntimeError, OSError) as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
@@ -307,8 +323,10 @@ class Experiment:
         for c in configs:
             self.signals.check()
             self.runtime.start_uav(c)
-        self.run_info.pids = self.runtime.pids()
-        self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+        # the runtime's processes and the runner's flight recorder, each restarted as it should be
+        children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})
+        self.run_info.pids = children.pids()
+        self.supervisor = Supervisor(children, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
@@ -576,6 +594,7 @@ class Experiment:
         self.metrics.add_poses(self.observer, fresh)
         self.metrics.update_separation(self.observer)
         self._supervise()
+        self._watch_stalls()
         self._rejoin_tick()
         try:
             self.display.refresh(self.observer)
@@ -587,6 +606,13 @@ class Experiment:
         """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
         assert self.supervisor is not None
         events = self.supervisor.check()
+        resumed = self.recorder.poll_resumed() if self.recorder is not None else None
+        if resumed is not None:  # a restarted recorder records again: the end of the recording's gap
+            ev = ProcessEvent(t=time.time(), name=RECORDER, event="resumed", detail=Path(resumed).name,
+                              recorded_until=self.recorder.previous_flushed)  # type: ignore[union-attr]
+            self.supervisor.events.append(ev)
+            events.append(ev)
+            self.run_info.recording_files = list(self.recorder.files)  # type: ignore[union-attr]
         for ev in events:
             self._on_event(ev)
         if events:
@@ -594,6 +620,29 @@ class Experiment:
         if self.ids and not self._active_ids() and not self.rejoin and not any(
                 self.supervisor.restarting(f"uav{u}") for u in self.lost):
             raise RunAborted(f"every UAV process has exited (see {self.run_dir / 'logs'})")
+
+    def _watch_stalls(self, final: bool = False) -> None:
+        """Flying UAVs whose poses stopped while their process lives: an event when the stall ends (or the run does)."""
+        assert self.observer is not None and self.supervisor is not None
+        now = time.time()
+        began: list[int] = []
+        if final:
+            ended = self.stalls.close(now)
+        else:
+            last = {u: v.pose_recv for u, v in self.observer.uavs.items()}
+            # the runner's own view: a client of the edge router sees nothing while its link to that router is down
+            path: float | None = None  # a discovery peer: the other UAVs it hears vouch for its view
+            if getattr(self.observer.node.connectivity, "mode", "") == "client":
+                self._linked_since = (self._linked_since or now) if self.observer.node.routers() else None
+                path = self._linked_since if self._linked_since is not None else math.inf
+            began, ended = self.stalls.tick(now, last, set(self._active_ids()), path)
+        for uav in began:
+            self._say(f"[yellow]uav{uav} stalled[/]: no pose for {self.stalls.after:g} s, its process still runs")
+        for ev in ended:
+            self._say(f"[yellow]{ev.name} stalled[/] for {ev.duration_s:.1f} s")
+            self.supervisor.events.append(ev)
+        if ended:
+            self._save_info()
 
     def _on_event(self, ev: ProcessEvent) -> None:
         uav = uav_of(ev.name)
@@ -605,6 +654,8 @@ class Experiment:
             if uav is not None:
                 self.lost.add(uav)
                 self.rejoin.pop(uav, None)
+        elif ev.event == "resumed":
+            self._say(f"[green]{ev.name} recording again[/] into {ev.detail}")
         elif ev.event == "restarted":
             self._say(f"[green]{ev.name} started again[/] ({ev.detail})")
             if uav is not None:

@@ -9,7 +9,9 @@ The directory also holds the run's MAVLink signing key (``mavlink.key``): QGroun
 MAVProxy command the run's UAVs with it (``mrswarm keys mavlink --run <run>``).
 
 With ``network.security.keys`` the run uses that directory as it is: each identity must have
-been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI.
+been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI. (A directory
+made before beacon tokens gets the tokens of the run's identities written from its beacon key,
+docs/security.md: nothing else.)
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ def check_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
     if missing:
         raise KeysError(f"{path} has no certificate for {', '.join(missing)}: "
                         f"`mrswarm keys issue --dir {path} {' '.join(missing)}`")
+    kd.ensure_tokens(names)
     return path.resolve()
 
 

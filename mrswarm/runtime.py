@@ -27,12 +27,14 @@ class Runtime(Protocol):
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
 
         ``keys``: the swarm's key directory (mutual TLS and access control on every link,
-        docs/security.md); None: plain TCP. ``extra_keys``: the discovery keys of more swarms
-        sharing the airspace (swarm -> key; docs/world.md). ``interest``: spatial interest of
+        docs/security.md; the discovery server binds beacons to its identities); None: plain TCP.
+        ``extra_keys``: the discovery keys of more swarms sharing the airspace (swarm -> key;
+        docs/world.md), ``extra_identities`` their key directories. ``interest``: spatial interest of
         the edge pose feed (docs/scale.md; only with ``pose_feed`` edge). ``feed_window``: the
         edge pose feed's batch window, s (None: the router's default, ``swarmnet.feed.DEFAULT_WINDOW``).
         """

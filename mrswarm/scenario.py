@@ -26,6 +26,7 @@ from msgspec.structs import force_setattr, replace
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against, fit_to_duration
+from swarmnet import strict_yaml
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
@@ -675,7 +676,7 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise ScenarioError(f"--set {text!r}: expected key.path=value")
     key, raw = text.split("=", 1)
     try:
-        return key.strip(), yaml.safe_load(raw)
+        return key.strip(), strict_yaml.load(raw)
     except yaml.YAMLError as exc:
         raise ScenarioError(f"--set {text!r}: bad value: {exc}") from None
 
@@ -744,7 +745,7 @@ def load_scenario(path: str | Path, overrides: list[str] | None = None, notes: l
     path = Path(path)
     text = read_scenario_text(path)
     try:
-        data = yaml.safe_load(text)
+        data = strict_yaml.load(text)  # duplicate keys and over-deep nesting are errors with their line, too
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""

@@ -38,6 +38,8 @@ class ProcessEvent(Struct):
     last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
     detail: str = ""
     error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
+    recorded_until: float | None = None  # "resumed" (the flight recorder): its previous file holds the records up to then
+    duration_s: float | None = None  # "stalled": how long no pose of the UAV came while its process ran (from ``t``)
 
 
 class FaultRecord(Struct):
@@ -73,7 +75,8 @@ class RunInfo(Struct):
     takeoff_sends: int = 0
     takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
     exit_codes: dict[str, int | None] = {}
-    stopped: float | None = None  # wall
+    stopping: float | None = None  # wall: the runner began stopping every process
+    stopped: float | None = None  # wall: ... and every process had stopped
     stop_signals: list[str] = []  # SIGINT, SIGTERM, SIGHUP received by the runner, in order
     events: list[ProcessEvent] = []  # processes that exited during the run, and restarts
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
@@ -81,6 +84,8 @@ class RunInfo(Struct):
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
     # the UAVs' MAVLink routers: "signed", "telemetry-only", "unsigned-allowed" or "off" (no routers); None: an older run
     mavlink: str | None = None
+    recording_files: list[str] = []  # the flight recording's files, in order (run.mcap, run-2.mcap after a restart, ...)
+    recording_unwritten: int = 0  # records of the flight recording a full disk took none of
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -313,6 +318,14 @@ class LostUav(Struct):
     error: str = ""  # its last error, from its log ("" if it logged none)
 
 
+class Stall(Struct):
+    """A UAV whose process ran but sent no pose for more than a second (stopped, starved: mrswarm/stalls.py)."""
+
+    uav: int
+    from_s: float  # its last pose before the stall, s after the mission start
+    duration_s: float
+
+
 class ServiceOutage(Struct):
     """The discovery server or the edge router down during the run, and its restart."""
 
@@ -370,6 +383,25 @@ class RecordErrors(Struct):
     rows_dropped: int  # trajectory or pose-age rows given up (beyond the in-memory backlog)
     files_not_written: int  # counter-file replacements that failed
     runner: list[str]  # runner files that could not be written
+
+
+class RecordingGap(Struct):
+    """The flight recorder down, and recording again (mrswarm/supervisor.py restarts it)."""
+
+    from_s: float  # s after the mission start: its file holds the records up to then (its last flush before it died)
+    to_s: float | None  # recording again, into the next file (None: not before the end of the run)
+    gap_s: float | None
+    cause: str  # what ended it: a signal, an exit code
+
+
+class Recording(Struct):
+    """The flight recording (docs/recording.md): its files, the recorder's gaps, what a full disk took none of."""
+
+    files: list[str]
+    gaps: list[RecordingGap] = []
+    unwritten: int = 0
+
+
 class Security(Struct):
     """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
 
@@ -404,7 +436,11 @@ class RunSummary(Struct):
     run_dir: str
     uavs_planned: int
     uavs_recorded: int
-    interrupted: bool
+    interrupted: bool  # stopped by a signal, or the runner died before writing its end (runner_lost)
+    # the runner died (killed) before writing the end of run.json: its results are rebuilt from what was on disk
+    runner_lost: bool = False
+    interrupted_at_wall: float | UnsetType = UNSET  # the last known time of an interrupted run: its stop, else its newest record
+    interrupted_at_s: float | UnsetType = UNSET  # the same, s after the mission start (left out if the mission never started)
     error: str | UnsetType = UNSET  # nothing to analyse (no trajectory recorded)
     separation: Separation | UnsetType = UNSET
     coverage: Coverage | UnsetType = UNSET
@@ -424,11 +460,16 @@ class RunSummary(Struct):
     stop_signals: list[str] = []  # signals that stopped the runner
     incidents: list[Incident] = []
     lost_uavs: list[LostUav] = []
+    stalls: list[Stall] = []  # UAVs alive but silent for more than a second
     services: list[ServiceOutage] = []
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
     external_uavs: list[ExternalUav] | UnsetType = UNSET  # only with UAVs whose flight controller is external
+    recording: Recording | UnsetType = UNSET  # the flight recording (runs with one)
+    # why the run's records are incomplete (records lost to a full or failing disk, a recorder gap, a file not
+    # written); empty when they are whole. Not empty: ``mrswarm run`` exits 1 (3 with collisions or incidents)
+    degraded: list[str] = []
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property
@@ -473,7 +514,10 @@ def write_atomic(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # a read-only disk refuses it too (and took no temporary file)
+            pass
     fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(fd)

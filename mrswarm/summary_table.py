@@ -91,6 +91,9 @@ def summary_table(s: RunSummary) -> Table:
             f"UAV {lu.uav} at {lu.t_s:.1f} s ({lu.signal or f'exit {lu.exit_code}'}"
             + (f": {escape(lu.error[:120])}" if lu.error else "") + ")"
             + (f", back at {lu.restarted_s:.1f} s" if lu.restarted_s is not None else "") for lu in s.lost_uavs))
+    if s.stalls:
+        t.add_row("stalled UAVs", "; ".join(f"UAV {st.uav} at {st.from_s:.1f} s for {st.duration_s:.1f} s" for st in s.stalls[:6])
+                  + (f" (+{len(s.stalls) - 6} more)" if len(s.stalls) > 6 else ""))
     if s.services:
         t.add_row("service outages", "; ".join(
             f"{o.name} down at {o.down_s:.1f} s"
@@ -108,6 +111,9 @@ def summary_table(s: RunSummary) -> Table:
                              + ", ".join(f"{k} {plural(v, 'time')}" for k, v in rec.errors.items()) + "), "
                              f"{plural(rec.rows_dropped, 'row')} lost"
                              + (f"; runner: {', '.join(rec.runner)}" if rec.runner else ""))
+    if s.degraded:
+        t.add_row("degraded", "[yellow]" + escape("; ".join(s.degraded[:4]))
+                  + (f" (+{len(s.degraded) - 4} more)" if len(s.degraded) > 4 else "") + "[/]")
     if sec := s.security:
         if sec.mode == "off":
             t.add_row("security", "[yellow]off: plain TCP, no access control[/]")
@@ -129,6 +135,9 @@ def summary_table(s: RunSummary) -> Table:
         t.add_row("plot failed", s.plot_error)
     if s.stop_signals:
         t.add_row("stopped by", ", ".join(s.stop_signals))
+    if s.runner_lost:
+        at = f" after {s.interrupted_at_s:.1f} s of mission" if s.interrupted_at_s else ""
+        t.add_row("interrupted", f"[yellow]the runner died{at}[/] (run.json has no end): rebuilt from what was recorded")
     if s.aborted:
         t.add_row("aborted", s.aborted)
     return t

@@ -140,7 +140,8 @@ def test_the_folders_a_field_user_names_are_made(tmp_path: Path) -> None:
     assert keys_main(["issue", "--dir", str(kd), "uav-3"]) == 0
     usb = tmp_path / "media" / "usb" / "uav-3"
     assert keys_main(["bundle", "--dir", str(kd), "uav-3", "--out", str(usb)]) == 0
-    assert {p.name for p in usb.iterdir()} == {"ca.pem", "roster.json", "uav-3.alpha.pem", "uav-3.alpha.key", "mavlink.key"}
+    assert {p.name for p in usb.iterdir()} == {"ca.pem", "roster.json", "uav-3.alpha.pem", "uav-3.alpha.key",
+                                               "uav-3.alpha.beacon", "mavlink.key"}
     cfg, _ = parse_agent([*BASE[:-1], "--origin", "47,8,500", "--keys", str(usb)])  # the bundle is what the agent takes
     assert cfg.network.security is not None and cfg.network.security.keys == str(usb)
     log = tmp_path / "var" / "log" / "mrswarm" / "uav3.log"

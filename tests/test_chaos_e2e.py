@@ -56,6 +56,15 @@ def test_a_chaos_run_goes_on_recovers_and_reports_every_fault(tmp_path: Path) ->
     assert faults["fcu_link_loss"]["detection_s"] <= 4.5  # the heartbeat timeout, 3 s after the last heartbeat
     assert faults["fcu_link_loss"]["recovery_s"] >= 5.0  # not before the link came back (5 s cut)
     assert faults["stop_uav"]["detection_s"] <= 2.5  # its pose goes stale after 1 s
+    # ... and the stopped UAV is a stall of about the 3 s it was stopped, in run.json and the summary; so is UAV 2,
+    # which withholds its pose while its FCU link is cut (5 s); the killed router silenced nobody but the runner
+    stalls = {st["uav"]: st for st in s["stalls"]}
+    assert set(stalls) == {2, 3}, s["stalls"]
+    assert 2.3 <= stalls[3]["duration_s"] <= 4.5 and abs(stalls[3]["from_s"] - 10.0) < 1.5, stalls
+    assert 3.5 <= stalls[2]["duration_s"] <= 8.0 and abs(stalls[2]["from_s"] - 8.0) < 1.5, stalls
+    assert sorted(e["duration_s"] for e in info["events"] if e["event"] == "stalled") == sorted(
+        st["duration_s"] for st in stalls.values())
+    assert s["degraded"] == []  # faults of the flight, none of the records
     assert faults["kill_uav"]["detection_s"] <= 1.5  # its liveliness token goes with the process (the runner ticks at 10 Hz)
     assert faults["kill_router"]["recovery_s"] <= 10.0 and faults["kill_discovery"]["recovery_s"] <= 10.0
     assert faults["gps_jump"]["detection_s"] <= 1.5  # a 7 m jump in one position update, then the state at once

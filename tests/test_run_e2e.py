@@ -80,8 +80,10 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
     run = json.loads((run_dir / "run.json").read_text())
-    # discovery is the default; the edge router runs beside it as the way in for ground stations
-    assert set(run["pids"]) == {"discovery", "router", "uav1", "uav2", "uav3", "uav4"}
+    # discovery is the default; the edge router runs beside it as the way in for ground stations; the flight
+    # recorder is supervised with them
+    assert set(run["pids"]) == {"discovery", "router", "recorder", "uav1", "uav2", "uav3", "uav4"}
+    assert summary["degraded"] == [] and summary["stalls"] == [] and summary["recording"]["gaps"] == []
     assert not [n for n, pid in run["pids"].items() if alive(pid)], "processes left behind"
     assert "coverage" in res.stdout and "collisions" in res.stdout  # the printed summary
     # without a terminal: a line per stage and milestone, progress with the mission clock, coverage, separation and

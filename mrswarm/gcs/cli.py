@@ -96,6 +96,8 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     p.add_argument("--die-with-parent", action="store_true", help="finish the file and stop when the parent process exits")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--status", action="store_true",
+                   help="MCAP: a line 'recorder-status {json}' on stdout per file begun or sealed, and at the end")
 
     p = sub.add_parser("foxglove", help="serve the swarm live to Foxglove (WebSocket protocol; docs/recording.md)")
     _common(p)
@@ -198,6 +200,7 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
     from pathlib import Path
 
     from mrswarm.recorder.recording import Stop, record_swarm
+    from mrswarm.recorder.run_recorder import STATUS_PREFIX
 
     if Path(args.file).exists():
         raise GcsError(f"{args.file} exists: a recording is never overwritten")
@@ -205,10 +208,20 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
     stop.install()
     last = [time.monotonic()]
 
+    def say(line: str) -> None:  # a full disk under the log, or a runner gone, must not end the recording
+        try:
+            print(line, flush=True)
+        except OSError:
+            pass
+
     def report(counts: dict[str, int]) -> None:
         if not args.quiet and time.monotonic() - last[0] >= 5.0:
             last[0] = time.monotonic()
-            print(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())), flush=True)
+            say(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+
+    def status(st: dict[str, object]) -> None:
+        if args.status:
+            say(f"{STATUS_PREFIX}{json.dumps(st)}")
 
     parent = os.getppid() if args.die_with_parent else None  # the runner: a runner killed hard still leaves a whole file
 
@@ -216,8 +229,10 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
         return stop.requested or (parent is not None and os.getppid() != parent)
 
     counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
-                          stop=stopped, report=report)
-    console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+                          stop=stopped, report=report, status=status)
+    unwritten = counts.pop("unwritten", 0)
+    say(f"recorded {sum(counts.values())} messages to {args.file}"
+        + (f"; {unwritten} could not be written (the disk refused them)" if unwritten else ""))
     return 130 if stop.signum == signal.SIGINT else EXIT_OK
 
 
