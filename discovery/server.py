@@ -22,7 +22,7 @@ state of sources that did. A beacon costs O(1) whatever the swarm's size (a runn
 digest per swarm, members kept in the order they were last heard), so legitimate members
 keep being heard and never expire because of junk.
 
-Run: ``mrswarm discovery serve --listen 0.0.0.0:7450 --keys keys.txt``
+Run: ``mrswarm discovery serve --listen <edge-address>:7450 --keys keys.txt``
 """
 
 from __future__ import annotations
@@ -247,7 +247,7 @@ class DiscoveryServer:
         self._snap = int.from_bytes(os.urandom(4), "big") | 1
 
     # ---- socket plumbing ---------------------------------------------------------------------------
-    def bind(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT) -> Addr:
+    def bind(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> Addr:
         fam = socket.AF_INET6 if ":" in host else socket.AF_INET
         s = socket.socket(fam, socket.SOCK_DGRAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -518,7 +518,9 @@ def load_keys(path: str | Path) -> dict[str, str]:
 
 def parse_listen(text: str) -> Addr:
     host, _, port = text.rpartition(":")
-    host = host.strip("[]") or "0.0.0.0"
+    host = host.strip("[]")
+    if not host:
+        raise ValueError(f"--listen {text!r}: name the address to listen on (0.0.0.0 for every interface)")
     try:
         return host, int(port)
     except ValueError:
@@ -535,7 +537,8 @@ def say(line: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm discovery serve", description=__doc__.splitlines()[0])
-    ap.add_argument("--listen", default=f"0.0.0.0:{DEFAULT_PORT}", help=f"UDP HOST:PORT (default 0.0.0.0:{DEFAULT_PORT})")
+    ap.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}",
+                    help=f"UDP HOST:PORT (default 127.0.0.1:{DEFAULT_PORT}; an edge server names its own address)")
     ap.add_argument("--keys", default=None, help="file with one 'SWARM KEY' per line (or a JSON object)")
     ap.add_argument("--key", action="append", default=[], metavar="SWARM=KEY",
                     help="a swarm key on the command line (visible to other users in ps; prefer --keys)")

@@ -494,7 +494,8 @@ def agent_parser() -> argparse.ArgumentParser:
     ap.add_argument("--mode", default="peer", choices=["peer", "client"], help="client behind carrier NAT")
     ap.add_argument("--pose-feed", default="direct", choices=["direct", "edge"],
                     help="edge: receive neighbour poses as batches from the edge router's feed")
-    ap.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint (peer mode)")
+    ap.add_argument("--listen", action="append", default=None,
+                    help="Zenoh listen endpoint (peer mode; default tcp/127.0.0.1:0: a UAV on a network names its own address)")
     ap.add_argument("--discovery", default=None, metavar="HOST:PORT",
                     help="find the swarm through this discovery server (instead of --connect's router)")
     ap.add_argument("--discovery-key-file", default=None, help="the swarm's discovery key (mrswarm discovery keygen)")
@@ -671,7 +672,7 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
         if not lo <= v <= hi:  # also NaN
             ap.error(f"--origin {args.origin}: {what} {v:g} is outside {lo:g}..{hi:g}")
     net: dict[str, Any] = {"endpoints": args.connect, "mode": args.mode, "pose_feed": args.pose_feed,
-                           "listen": args.listen or ["tcp/0.0.0.0:0"]}
+                           "listen": args.listen or ["tcp/127.0.0.1:0"]}  # a UAV on a network names its address
     if args.keys:
         net["security"] = {"keys": args.keys, "identity": args.identity or ""}
     if args.discovery:
