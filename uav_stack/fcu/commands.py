@@ -310,7 +310,8 @@ def cmd_set_message_interval(v: Vehicle, c: MavCommand) -> Result:
     if name == "HEARTBEAT":
         if c.p2 == -1 or c.p2 < 0:
             return DENIED, "HEARTBEAT cannot be disabled"
-        v.hb_interval_wall = max(c.p2 * 1e-6, 0.1) if c.p2 > 0 else 1.0
+        v.hb_period = max(c.p2 * 1e-6, 0.1) if c.p2 > 0 else 1.0
+        v.hb_interval_wall = v.hb_period / max(1.0, v.ctx.clock.target_rtf)
         return ACCEPTED, ""
     v.streams.set_interval_us(name, c.p2, v.now, v.default_rate(name))
     return ACCEPTED, ""
@@ -326,7 +327,7 @@ def cmd_get_message_interval(v: Vehicle, c: MavCommand) -> Result:
         v.send_now(v.mav.message_interval_encode(mid, 0))
         return (ACCEPTED if v.flavour.is_px4 else FAILED), ""
     if name == "HEARTBEAT":
-        v.send_now(v.mav.message_interval_encode(mid, int(v.hb_interval_wall * 1e6)))
+        v.send_now(v.mav.message_interval_encode(mid, int(v.hb_period * 1e6)))
     else:
         v.send_now(v.mav.message_interval_encode(mid, v.streams.interval_us(name)))
     return ACCEPTED, ""

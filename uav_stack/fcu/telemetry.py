@@ -81,16 +81,18 @@ def heartbeat(v: Vehicle) -> mavlink.MAVLink_message:
     mode = v.mode
     base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mode.base_flags
     now = v.now
+    first = v.heartbeats_sent == 0  # the first one shows the boot state, however short the boot
+    v.heartbeats_sent += 1
     if v.flavour.is_px4:
         if v.armed:
             base |= M.MAV_MODE_FLAG_SAFETY_ARMED
             status = M.MAV_STATE_CRITICAL if v.failsafe_active else M.MAV_STATE_ACTIVE
         else:
-            status = M.MAV_STATE_STANDBY if v.arming_checks_pass() else M.MAV_STATE_UNINIT
+            status = M.MAV_STATE_STANDBY if v.arming_checks_pass() and not first else M.MAV_STATE_UNINIT
     else:
         if v.armed:
             base |= M.MAV_MODE_FLAG_SAFETY_ARMED | mode.armed_flags
-        if not v.boot.passed("standby", now):
+        if first or not v.boot.passed("standby", now):
             base |= M.MAV_MODE_FLAG_GUIDED_ENABLED
             status = M.MAV_STATE_BOOT
         elif v.failsafe_active:
@@ -254,7 +256,8 @@ def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
 
 def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
     if not v.gps_fix:  # searching: no fix, no satellites
-        return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
+        no_fix = M.GPS_FIX_TYPE_NO_FIX if v.flavour.is_px4 else M.GPS_FIX_TYPE_NO_GPS  # (ArduCopter: 0 until detected)
+        return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), no_fix, 0, 0, 0,
                                         65535, 65535, 0, 65535, 0)  # fmt: skip
     lat, lon, alt = v.reported_geodetic()
     vn, ve, _ = v.ctx.dyn.get(VEL, v.i)

@@ -107,8 +107,11 @@ class Vehicle:
         for name in self.encoders:
             if name != "HEARTBEAT":
                 self.streams.set_rate(name, rates.get(name, 0.0), now=0.0, first=True)
-        self.hb_interval_wall = 1.0 / rates["HEARTBEAT"] if rates.get("HEARTBEAT", 0) > 0 else 1.0
+        # HEARTBEAT every 1 s of sim time and at least every 1 s of wall time (a slow sim keeps its link alive)
+        self.hb_period = 1.0 / rates["HEARTBEAT"] if rates.get("HEARTBEAT", 0) > 0 else 1.0
+        self.hb_interval_wall = self.hb_period / max(1.0, ctx.clock.target_rtf)
         self.next_hb_wall = 0.0
+        self.heartbeats_sent = 0
         # state
         self.mode: ModeSpec = self.flavour.mode(self.flavour.initial_mode)
         self.phase = P_HOLD
@@ -124,6 +127,7 @@ class Vehicle:
         self.rtl_z = 0.0
         self.setpoints = SetpointStream()
         self.guided_vel = False  # ArduPilot: current GUIDED target is a velocity (times out)
+        self.guided_target = False  # ArduPilot: GUIDED flies to a position target it was given
         self.gcs_last: float | None = None
         self.dll_tripped = False
         self.bat_level = 0  # 0 ok, 1 low, 2 critical, 3 emergency (latched)
@@ -224,7 +228,7 @@ class Vehicle:
         """ArduPilot sends one extra HEARTBEAT at every mode change (after the command's ACK); PX4 shows the new
         mode at its next regular one."""
         if not self.flavour.is_px4:
-            self.send_heartbeat()
+            self.send(heartbeat(self))  # (the 1 Hz cadence carries on as before)
 
     def statustext(self, severity: int, text: str) -> None:
         """A STATUSTEXT (PX4 sends none on its onboard link: it reports with events, :meth:`event`)."""
@@ -288,7 +292,7 @@ class Vehicle:
 
     def guided_position_target(self) -> bool:
         """ArduPilot GUIDED is flying to a position target (POSITION_TARGET_GLOBAL_INT is streamed then)."""
-        return self.mode.guidance is Guidance.OFFBOARD and self.phase == P_OFFBOARD and not self.guided_vel and self.armed
+        return self.mode.guidance is Guidance.OFFBOARD and self.phase == P_OFFBOARD and self.guided_target and self.armed
 
     @property
     def sticks_fresh(self) -> bool:
@@ -453,7 +457,7 @@ class Vehicle:
 
     def _start_offboard(self) -> None:
         self.phase = P_OFFBOARD
-        self.guided_vel = False
+        self.guided_vel = self.guided_target = False
         sp = self.setpoints.latest
         if self.flavour.is_px4 and sp is not None:
             self.apply_setpoint(sp)
@@ -474,6 +478,7 @@ class Vehicle:
             a, b, c = (0.0 if a != a else a), (0.0 if b != b else b), (0.0 if c != c else c)
         self._targets((pos[0], pos[1], pos[2]), (a, b, c), sp.yaw, sp.yaw_rate)
         self.guided_vel = sp.has_velocity
+        self.guided_target = not sp.has_velocity
 
     def on_setpoint(self, sp: Setpoint) -> None:
         self.setpoints.note(sp, self.now)
@@ -501,6 +506,7 @@ class Vehicle:
         else:
             self.phase = P_OFFBOARD
             self.guided_vel = False
+            self.guided_target = True
             self._targets(target, yaw=yaw)
             self._apply_limits()
 
