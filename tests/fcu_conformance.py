@@ -148,6 +148,41 @@ class Replay:
         if until is not None:
             self.until(until)
 
+    def upload(self, items: list[Any]) -> list[tuple[str, int]]:
+        """The mission protocol's upload, answering each of the vehicle's requests with the item it names;
+        returns the requests as (message type, seq). The vehicle's MISSION_ACK ends it."""
+        t0 = self.now
+        self.send(self.client.mav.mission_count_encode(1, 1, len(items), 0))
+        answered: list[tuple[str, int]] = []
+
+        def requests() -> list[tuple[str, int]]:
+            return [(m.get_type(), m.seq) for t, m in self.rx if t >= t0 and m.get_srcSystem() == 1
+                    and m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT")]  # fmt: skip
+
+        def acked() -> bool:
+            return any(m.get_srcSystem() == 1 for _, m in self.of("MISSION_ACK", t0))
+
+        while not acked():
+            n = len(answered)
+            assert self.wait_for(lambda k=n: len(requests()) > k or acked(), 2.0), "the upload stalled"
+            for req in requests()[n:]:
+                self.send(resend(self.client, items[req[1]]))
+                answered.append(req)
+        return answered
+
+    def download(self, count: int) -> dict[int, Any]:
+        """The mission protocol's download: MISSION_REQUEST_LIST, then each item by MISSION_REQUEST_INT."""
+        t0 = self.now
+        self.send(self.client.mav.mission_request_list_encode(1, 1, 0))
+        assert self.wait_for(lambda: bool(self.of("MISSION_COUNT", t0)), 2.0)
+        got: dict[int, Any] = {}
+        for seq in range(count):
+            self.send(self.client.mav.mission_request_int_encode(1, 1, seq, 0))
+            assert self.wait_for(lambda q=seq: any(m.seq == q for _, m in self.of("MISSION_ITEM_INT", t0)), 2.0)
+            got[seq] = next(m for _, m in self.of("MISSION_ITEM_INT", t0) if m.seq == seq)
+        self.send(self.client.mav.mission_ack_encode(1, 1, 0, 0))
+        return got
+
     # ------------------------------------------------------------- results
     def of(self, name: str, t0: float = -math.inf, t1: float = math.inf) -> list[tuple[float, Any]]:
         return [(t, m) for t, m in self.rx if m.get_type() == name and t0 <= t < t1]

@@ -85,7 +85,7 @@ def timeline(profile: str) -> BootTimeline:
     fw = firmware("ardupilot")
     events: list[tuple[float, str, object]] = [(t, "statustext", (sev, text)) for t, sev, text in fw.boot_statustexts]
     events += [(t, "param_value", (name, value, ptype, count)) for t, name, value, ptype, count in fw.boot_param_values]
-    events.append((MILESTONES["origin"], "origin", None))
+    events += [(MILESTONES["origin"], "gps_origin", None), (MILESTONES["origin"], "home", None)]
     return BootTimeline(MILESTONES, READY, profile, events)
 
 

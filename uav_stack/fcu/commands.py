@@ -283,11 +283,8 @@ def cmd_mission_start(v: Vehicle, c: MavCommand) -> Result:
     if _finite(c.p1) and c.p1 > 0 and not v.mission.set_current(int(c.p1)):
         return DENIED, f"Mission: no item {int(c.p1)}"
     result, why = v.request_mode(v.flavour.mode(v.flavour.mission_mode), by_user=False)
-    if result == ACCEPTED:
-        if v.flavour.is_px4:
-            v.event(px4.MISSION_EXECUTE)
-        else:
-            v.mission.say_item()  # ArduCopter names the item again when the mission (re)starts
+    if result == ACCEPTED and not v.flavour.is_px4:
+        v.mission.say_item()  # ArduCopter names the item again when the mission (re)starts
     return result, why
 
 

@@ -30,6 +30,7 @@ mission mode (a NAV_LAND or NAV_RETURN_TO_LAUNCH item ends it on the ground).
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -150,9 +151,15 @@ class MissionRun:
         if self.speed == self.speed:
             v.speed_xy = self.speed  # a paused mission resumes at its own speed
         nxt = self._next_nav(self.current)
+        if v.flavour.is_px4:
+            v.event(px4.MISSION_EXECUTE)
+            if v.landed:  # "climbing to ... before starting the mission" (its takeoff item's altitude, or the default)
+                alt = self._z_above_home(nxt) if nxt is not None and nxt.command == M.MAV_CMD_NAV_TAKEOFF else NAN
+                climb = alt if alt == alt and alt > 0 else v.settings.takeoff_alt
+                v.event(px4.Event(px4.MISSION_CLIMB.name, px4.MISSION_CLIMB.id, px4.MISSION_CLIMB.log_levels,
+                                  struct.pack("<f", climb)))  # fmt: skip
         if v.flavour.is_px4 and v.landed and (nxt is None or nxt.command != M.MAV_CMD_NAV_TAKEOFF):
             z = v.alt_to_z(v.home.alt + v.settings.takeoff_alt)  # PX4 takes off by itself first
-            v.event(px4.MISSION_CLIMB)
             v._start_takeoff(z)
             self.stage = "auto_takeoff"
             self.target = v.takeoff_target.copy()
@@ -339,6 +346,10 @@ class MissionRun:
         if rel is None or not math.isfinite(item.z):
             return NAN
         return self.v.alt_to_z(item.z + (self.v.home.alt if rel else 0.0))
+
+    def _z_above_home(self, item: MissionItem) -> float:
+        z = self._z(item)
+        return self.v.home_ned[2] - z if math.isfinite(z) else NAN
 
     def _yaw(self, item: MissionItem) -> float:
         yaw_deg = item.params[3]

@@ -138,8 +138,7 @@ def timeline(profile: str) -> BootTimeline:
     fw = firmware("px4")
     events: list[tuple[float, str, object]] = [(MILESTONES["events"], "event", LOGGER_OPEN)]
     events += [(t, "param_value", (name, None, None, None)) for t, name, _v, _ty, _n in fw.boot_param_values]
-    events += [(MILESTONES["estimate"], "health", "no_estimate"), (MILESTONES["ready"], "health", "ready"),
-               (MILESTONES["ready"], "home", None)]  # fmt: skip
+    events += [(MILESTONES["origin"], "gps_origin", None), (MILESTONES["ready"], "home", None)]
     return BootTimeline(MILESTONES, READY, profile, events)
 
 

@@ -155,6 +155,7 @@ class Vehicle:
         self.rc_failsafe = False  # ArduPilot SITL's RC receiver lost (SIM_RC_FAIL)
         self.rc_fail_since: float | None = None
         self.disarm_prflt_grace = px4.DISARM_PRFLT_GRACE_S if px else 0.0
+        self.log_closed = False
         self._geo_cache: tuple[int, tuple[float, float, float]] = (-1, (0.0, 0.0, 0.0))
         # error of the position estimate the FCU reports (north, east, down, m); zero unless a fault
         # is injected (uav_stack/sim_faults.py: a GPS glitch). Guidance and physics use the truth.
@@ -644,7 +645,9 @@ class Vehicle:
             self._start_guidance()
         if px:
             self.event(px4.ARMED_BY)
-            self.event(px4.LOGGER_OPEN)
+            if self.log_closed:  # PX4 logs from boot; a disarm closed that log, arming opens a new one
+                self.log_closed = False
+                self.event(px4.LOGGER_OPEN)
         else:  # ArduCopter sets home where it arms, then says so
             lat, lon, alt = self.geodetic()
             self.set_home(GeoPoint(lat, lon, alt))
@@ -680,6 +683,7 @@ class Vehicle:
             by = {"landing": px4.DISARMED_BY_LANDING, "preflight": px4.DISARMED_PREFLIGHT}
             self.event(by.get(why, px4.DISARMED_BY_COMMAND))
             self.px4_failsafe = False
+            self.log_closed = True
             self.ctx.dyn.battery[self.i] = 1.0  # PX4's simulated battery is full again when disarmed
             self.bat_level = 0
             if self.intended_mode is not self.mode:
@@ -762,12 +766,8 @@ class Vehicle:
                 self._boot_param_value(*payload)
             elif kind == "event":
                 self.event(payload)
-            elif kind in ("origin", "home"):  # ArduPilot: EKF origin and home; PX4: home set again when ready
-                if kind == "origin":
-                    msg = self.encoders["GPS_GLOBAL_ORIGIN"](self)
-                    if msg is not None:
-                        self.send(msg)
-                msg = self.encoders["HOME_POSITION"](self)
+            elif kind in ("gps_origin", "home"):  # the EKF origin, home (PX4 sets it again once ready)
+                msg = self.encoders["GPS_GLOBAL_ORIGIN" if kind == "gps_origin" else "HOME_POSITION"](self)
                 if msg is not None:
                     self.send(msg)
         if now >= self.boot.done_at:
