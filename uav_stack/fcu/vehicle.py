@@ -563,16 +563,17 @@ class Vehicle:
             if by_user and self.flavour.is_px4:
                 self.intended_mode = spec
             return ACCEPTED, ""
+        refused = TEMPORARILY_REJECTED if self.flavour.is_px4 else FAILED  # how each firmware refuses a mode
         if spec.guidance is Guidance.MANUAL and not self.landed:
-            return DENIED, f"{spec.name} needs RC input (none here)"
+            return refused, f"{spec.name} needs RC input (none here)"
         if self.flavour.is_px4 and spec.guidance is Guidance.OFFBOARD and not self.offboard_ready():
-            return DENIED, "Offboard: no setpoint stream (>2Hz for 1s)"
+            return refused, "Offboard: no setpoint stream (>2Hz for 1s)"
         if self.flavour.is_px4 and spec.guidance is Guidance.STICKS and not self.landed and not self.sticks_fresh:
-            return DENIED, f"{spec.name}: no manual control input"
+            return refused, f"{spec.name}: no manual control input"
         if spec.guidance is Guidance.MISSION:
             ok, why = self.mission.can_start()
             if not ok:
-                return DENIED, why
+                return refused, why
         if spec.guidance is Guidance.TAKEOFF:
             self.takeoff_alt_amsl = NAN
             self.takeoff_yaw = NAN
@@ -673,8 +674,8 @@ class Vehicle:
         "Disarming motors"."""
         if not self.armed:
             return ACCEPTED, ""
-        if not force and not self.landed:
-            return DENIED, "Disarming denied: not landed"
+        if not force and not self.landed:  # (PX4: TEMPORARILY_REJECTED, as for arming; ArduCopter: FAILED)
+            return (TEMPORARILY_REJECTED if self.flavour.is_px4 else FAILED), "Disarming denied: not landed"
         self.armed = False
         self.ctx.dyn.armed[self.i] = False
         self.landed_since = None
@@ -849,7 +850,8 @@ class Vehicle:
             self.bat_level = level
             name = {1: "low", 2: "critical", 3: "emergency"}[level]
             act = {1: s.bat_low_act, 2: s.bat_crit_act, 3: s.bat_emerg_act}[level]
-            self.statustext(M.MAV_SEVERITY_WARNING, f"Battery {name}: {int(soc * 100)}% remaining")
+            if not self.flavour.is_px4:  # (PX4 reports it in BATTERY_STATUS.charge_state and its events)
+                self.statustext(M.MAV_SEVERITY_WARNING, f"Battery {name}: {int(soc * 100)}% remaining")
             if flying and act not in (Action.NONE, Action.WARN):
                 self.failsafe(act, f"battery {name}")
         # geofence cylinder around home
