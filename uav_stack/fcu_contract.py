@@ -78,14 +78,14 @@ class Want:
 def wants_for(profile: AutopilotProfile, position_hz: float = 10.0) -> tuple[Want, ...]:
     """What the agent asks of an autopilot with this profile; ``position_hz`` is its pose rate."""
     wants = [
-        Want("GLOBAL_POSITION_INT", position_hz, True, "position and velocity: the pose the swarm sees, the control"),
-        Want("SYS_STATUS", 1.0, False, "battery, and the pre-arm health bit (ready to arm)"),
+        Want("GLOBAL_POSITION_INT", position_hz, True, "position, velocity"),
+        Want("SYS_STATUS", 1.0, False, "battery, pre-arm checks"),
         Want("EXTENDED_SYS_STATE", 1.0, False, "landed state"),
-        Want("HOME_POSITION", 0.5, False, "home: the take-off altitude"),
-        Want("GPS_RAW_INT", 1.0, False, "GPS fix: no position before a 3D fix"),
+        Want("HOME_POSITION", 0.5, False, "take-off altitude"),
+        Want("GPS_RAW_INT", 1.0, False, "GPS fix"),
     ]
     if profile.estimator:
-        wants.append(Want(profile.estimator, 1.0, False, "estimator flags: no position until it uses GPS"))
+        wants.append(Want(profile.estimator, 1.0, False, "estimator uses GPS"))
     return tuple(wants)
 
 
@@ -126,6 +126,7 @@ class FcuContract:
         self.requests = 0  # commands and REQUEST_DATA_STREAMs sent
         self.version_tries = 0
         self._first_look = False
+        self.version_ack = ""  # the autopilot's answer to REQUEST_MESSAGE(AUTOPILOT_VERSION): it hears this link
         self._acks: deque[str] = deque(maxlen=32)  # SET_MESSAGE_INTERVALs awaiting their ACK, in order
 
     # ---- lifecycle ----------------------------------------------------------------------
@@ -144,7 +145,7 @@ class FcuContract:
         first, self._first_look = self._first_look, False
         for s in self.streams.values():
             self._judge(s, now, first)
-        if self.ask and self.version_tries < VERSION_TRIES and not self.counts.get("AUTOPILOT_VERSION"):
+        if self.version_tries < VERSION_TRIES and not self.counts.get("AUTOPILOT_VERSION"):  # (asks nothing of its streams)
             self.version_tries += 1
             self._request(mavlink.MAV_CMD_REQUEST_MESSAGE, float(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
         self.next_check = min((s.since + s.window for s in self.streams.values()), default=now + STEADY_S)
@@ -202,7 +203,10 @@ class FcuContract:
         self._send_command(command, params)
 
     def on_ack(self, command: int, result: int) -> None:
-        """A COMMAND_ACK addressed to us for SET_MESSAGE_INTERVAL (in the order they were sent)."""
+        """A COMMAND_ACK addressed to us for SET_MESSAGE_INTERVAL (in the order they were sent) or REQUEST_MESSAGE."""
+        if command == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            self.version_ack = _RESULT.get(result, str(result))
+            return
         if command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL or not self._acks:
             return
         s = self.streams.get(self._acks.popleft())

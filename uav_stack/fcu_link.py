@@ -484,11 +484,12 @@ class FcuLink:
             return "latitude and longitude 0 (the autopilot has no position yet)"
         flags = st.estimator_flags
         if flags >= 0:
-            if not flags & _POS_HORIZ_ABS:
-                return f"the autopilot's estimator does not use GPS yet ({st.estimator} flags 0x{flags:x}: no POS_HORIZ_ABS)"
-            if flags & _ESTIMATOR_BAD[st.estimator]:
-                what = "uninitialised" if flags & mavlink.EKF_UNINITIALIZED else "in constant-position mode"
-                return f"the autopilot's estimator does not use GPS yet ({st.estimator} flags 0x{flags:x}: {what})"
+            bad = flags & _ESTIMATOR_BAD[st.estimator]
+            if bad or not flags & _POS_HORIZ_ABS:
+                what = ([] if flags & _POS_HORIZ_ABS else ["no absolute horizontal position"]) + \
+                    (["constant-position mode"] if bad & mavlink.EKF_CONST_POS_MODE else []) + \
+                    (["uninitialised"] if bad & mavlink.EKF_UNINITIALIZED else [])
+                return f"the autopilot's estimator does not use GPS yet ({st.estimator} flags 0x{flags:x}: {', '.join(what)})"
         elif 0 <= st.gps_fix < mavlink.GPS_FIX_TYPE_3D_FIX:
             return f"no 3D GPS fix (GPS_RAW_INT fix_type {st.gps_fix}, {st.satellites} satellites)"
         return ""
