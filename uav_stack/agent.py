@@ -48,7 +48,6 @@ ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * 
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
-ARM_TIMEOUT_S = 60.0  # s in ``arming`` before the agent gives up: phase ``error``, with the autopilot's reason
 PREARM_PROBE_S = 10.0  # while the autopilot reports failing pre-arm checks, an arm is tried this often (its answer says why)
 CONFIRM_S = 1.5  # s an accepted arm or mode change may take to show in the heartbeat (ArduPilot: its next 1 Hz beat)
 LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms (their own file)
@@ -141,7 +140,7 @@ class Agent(OverridesMixin):
         self._next_stats = 0.0
         self._next_link_stats = 0.0
         self._offboard_stream_since: float | None = None
-        self._arming_since = -math.inf  # when the agent began to arm (the ARM_TIMEOUT_S bound)
+        self._arming_since = -math.inf  # when the agent began to arm (the failsafe.arm_timeout_s bound)
         self._sent_at = -math.inf  # when the arming phase's current command was first sent
         self._arm_at = -math.inf  # when the last arm was sent
         self._arm_tries = 0
@@ -489,7 +488,7 @@ class Agent(OverridesMixin):
         """Arm, then take off. First out of any mode the autopilot cannot arm in (its profile's
         ``arm_modes``: PX4 returns to OFFBOARD after a landing), then once its own pre-arm checks
         pass (SYS_STATUS); a refusal is reported with the autopilot's reason and the arm tried
-        again, for ARM_TIMEOUT_S at most, then phase ``error`` (a takeoff or start tries again)."""
+        again, for ``failsafe.arm_timeout_s`` at most, then phase ``error`` (a takeoff or start tries again)."""
         link = self.link
         st = link.state
         prof = st.profile
@@ -501,11 +500,12 @@ class Agent(OverridesMixin):
                 return
         else:
             need = None if st.mode in prof.arm_modes else prof.arming_mode
-        if now - self._arming_since > ARM_TIMEOUT_S:
+        limit = self.cfg.failsafe.arm_timeout_s
+        if now - self._arming_since > limit:
             self.counters["arm_gave_up"] += 1
             why = self.detail or "no answer"
-            log.error("UAV %d: not armed after %.0f s: %s", self.cfg.uav, ARM_TIMEOUT_S, why)
-            self._set_phase(AgentPhase.ERROR, f"not armed after {ARM_TIMEOUT_S:.0f} s: {why}; send takeoff or start to try again")
+            log.error("UAV %d: not armed after %.0f s: %s", self.cfg.uav, limit, why)
+            self._set_phase(AgentPhase.ERROR, f"not armed after {limit:.0f} s: {why}; send takeoff or start to try again")
             return
         h = self._handle
         if h is not None:
@@ -525,6 +525,9 @@ class Agent(OverridesMixin):
             return
         if not st.has_position:
             self._say(f"waiting for a position: {st.no_position}")
+            return
+        if st.prearm_ok is None and link.contract.pending("SYS_STATUS"):
+            self._say("waiting for the autopilot's SYS_STATUS (its pre-arm checks)")
             return
         if st.prearm_ok is False and now - self._arm_at < PREARM_PROBE_S:
             reasons = (st.reasons_since(now - 30.0) + [f"PX4 reports: {c}" for c in st.px4_checks])[-3:]

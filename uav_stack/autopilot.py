@@ -45,6 +45,9 @@ class AutopilotProfile:
     # the message whose flags say whether the autopilot's estimator has a usable position (ArduPilot
     # EKF_STATUS_REPORT, PX4 ESTIMATOR_STATUS), asked for at start-up; "" when it has none
     estimator: str = ""
+    # its GLOBAL_POSITION_INT is no position until the estimator's flags say so (ArduCopter sends a
+    # real latitude and longitude from its GPS while the EKF still ignores them); PX4 sends none before
+    estimator_first: bool = False
     # honours REQUEST_DATA_STREAM (ArduPilot does; PX4 ignores it): the start-up contract's fallback
     data_streams: bool = True
 
@@ -108,6 +111,7 @@ ARDUPILOT_PROFILE = AutopilotProfile(
     arm_modes=frozenset({"GUIDED"}),  # ArduCopter takes off only in GUIDED: it arms there
     arming_mode="GUIDED",
     estimator="EKF_STATUS_REPORT",
+    estimator_first=True,
 )
 
 PROFILES: dict[int, AutopilotProfile] = {p.autopilot: p for p in (PX4_PROFILE, ARDUPILOT_PROFILE)}

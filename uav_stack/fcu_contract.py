@@ -126,6 +126,7 @@ class FcuContract:
         self.requests = 0  # commands and REQUEST_DATA_STREAMs sent
         self.version_tries = 0
         self._first_look = False
+        self.awaits_estimator = False  # the profile's estimator message may still come: no position before it
         self.version_ack = ""  # the autopilot's answer to REQUEST_MESSAGE(AUTOPILOT_VERSION): it hears this link
         self._acks: deque[str] = deque(maxlen=32)  # SET_MESSAGE_INTERVALs awaiting their ACK, in order
 
@@ -137,6 +138,7 @@ class FcuContract:
         self.streams = {w.name: Stream(w, now, self.counts.get(w.name, 0)) for w in wants_for(profile, self.position_hz)}
         self.next_check = now + OBSERVE_S
         self._first_look = True
+        self.awaits_estimator = profile.estimator_first and not self.counts.get(profile.estimator)
 
     def check(self, now: float) -> None:
         """Judge each message's rate over its window and ask for what does not arrive; sets next_check."""
@@ -148,6 +150,8 @@ class FcuContract:
         if self.version_tries < VERSION_TRIES and not self.counts.get("AUTOPILOT_VERSION"):  # (asks nothing of its streams)
             self.version_tries += 1
             self._request(mavlink.MAV_CMD_REQUEST_MESSAGE, float(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
+        if self.awaits_estimator:
+            self.awaits_estimator = self.pending(self.profile.estimator)
         self.next_check = min((s.since + s.window for s in self.streams.values()), default=now + STEADY_S)
         self.next_check = max(self.next_check, now + 0.2)
 
@@ -163,8 +167,8 @@ class FcuContract:
             s.status, s.tries, s.warned = "ok", 0, False
             s.since, s.count_at = now, n + s.count_at
             return
-        if not whole and not (first and n == 0):
-            return  # give it its whole window (one message seen already, or asked a moment ago)
+        if not whole and not (first and n == 0 and s.want.hz * OBSERVE_S >= 1.0):
+            return  # its whole window first (one seen already, asked a moment ago, or slower than the first look)
         if s.status == "ok" and n > 0:
             s.status = "slow"  # it came as asked before: say so, ask again
         elif s.status != "refused":
@@ -215,6 +219,17 @@ class FcuContract:
         s.ack = _RESULT.get(result, str(result))
         if result in _REFUSED and s.status != "ok":
             s.status = "refused"
+            if self.awaits_estimator and self.profile is not None and s.want.name == self.profile.estimator:
+                self.awaits_estimator = self.pending(s.want.name)
+
+    def pending(self, name: str) -> bool:
+        """May this wanted message still come: not seen yet, and neither refused nor given up on?"""
+        s = self.streams.get(name)
+        if s is None or self.counts.get(name):
+            return False
+        if not self.ask:
+            return s.status == "unseen"
+        return s.status != "refused" and (s.tries < MAX_TRIES or s.status == "unseen")
 
     # ---- what it says ---------------------------------------------------------------------
     def describe(self, s: Stream) -> str:

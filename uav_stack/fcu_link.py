@@ -490,6 +490,8 @@ class FcuLink:
                     (["constant-position mode"] if bad & mavlink.EKF_CONST_POS_MODE else []) + \
                     (["uninitialised"] if bad & mavlink.EKF_UNINITIALIZED else [])
                 return f"the autopilot's estimator does not use GPS yet ({st.estimator} flags 0x{flags:x}: {', '.join(what)})"
+        elif self.contract.awaits_estimator:
+            return f"waiting for the autopilot's {st.profile.estimator} (does its estimator use GPS?)"
         elif 0 <= st.gps_fix < mavlink.GPS_FIX_TYPE_3D_FIX:
             return f"no 3D GPS fix (GPS_RAW_INT fix_type {st.gps_fix}, {st.satellites} satellites)"
         return ""
