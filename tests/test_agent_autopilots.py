@@ -61,14 +61,15 @@ def virtual_fcu(*args: str) -> Iterator[str]:
 
 @contextmanager
 def agent(tmp_path: Path, fcu_url: str, router: str, *, autostart: bool = True, origin: tuple[float, ...] = HOME,
-          arm_timeout_s: float = 60.0) -> Iterator[tuple[subprocess.Popen[str], Path]]:
-    """`mrswarm agent --config` for UAV 3; yields the process and its status file (uav3.json)."""
-    rec = tmp_path / "rec"
+          arm_timeout_s: float = 60.0, name: str = "rec", **more: Any) -> Iterator[tuple[subprocess.Popen[str], Path]]:
+    """`mrswarm agent --config` for UAV 3 (``more``: further AgentConfig fields); yields the process
+    and its status file (``<name>/uav3.json``)."""
+    rec = tmp_path / name
     cfg = convert({"swarm": "solo", "uav": 3, "origin": {"lat": origin[0], "lon": origin[1], "alt": origin[2]},
                    "fcu": fcu_url, "realm": "physical", "autostart": autostart, "record_dir": str(rec),
                    "network": {"endpoints": [router], "listen": ["tcp/127.0.0.1:0"]},
-                   "failsafe": {"arm_timeout_s": arm_timeout_s}}, AgentConfig)
-    path = tmp_path / "agent.json"
+                   "failsafe": {"arm_timeout_s": arm_timeout_s}, **more}, AgentConfig)
+    path = tmp_path / f"{name}.json"
     path.write_text(cfg.to_json())
     p = subprocess.Popen([sys.executable, "-m", "mrswarm", "agent", "--fcu", fcu_url, "--swarm", "solo", "--uav", "3",
                           f"--origin={','.join(map(str, origin))}", "--config", str(path), "--insecure", "--duration", "90"],
@@ -181,3 +182,21 @@ def test_the_contract_asks_nothing_of_an_fcu_that_streams_what_the_agent_needs(t
         for name in ("GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "GPS_RAW_INT"):
             assert streams[name]["status"] == "ok" and streams[name]["ack"] == "", (name, streams[name])  # never asked
         assert status(st)["phase"] == "ready"
+
+
+def test_px4_back_in_offboard_after_a_landing_is_armed_and_flown_again(tmp_path: Path, router: str) -> None:
+    """A first agent flies and lands; PX4, disarmed, returns to OFFBOARD (its intended mode), where it
+    refuses to arm without a setpoint stream. A second agent, on the same FCU, leaves OFFBOARD for
+    HOLD, arms and flies."""
+    hop = {"altitude": 4.0, "mission": {"type": "goto", "goal": [4.0, 0.0], "land_when_done": True}}
+    with virtual_fcu("--flavour", "px4") as addr:
+        with agent(tmp_path, f"udpout:{addr}", router, name="first", **hop) as (p1, st1):
+            assert wait_for(lambda: status(st1).get("phase") == "landed" and status(st1)["fcu"]["mode"] != "LAND", 40.0), \
+                status(st1)
+            assert status(st1)["fcu"]["mode"] == "OFFBOARD"
+            assert wait_for(lambda: status(st1)["fcu"]["prearm_ok"] is False, 5.0)  # PX4 would refuse to arm there
+        with agent(tmp_path, f"udpout:{addr}", router, name="second") as (p2, st2):
+            assert wait_for(lambda: status(st2).get("phase") in ("hover", "mission", "done"), 40.0), status(st2)
+            assert status(st2)["agent"]["arm_refused"] == 0  # it left OFFBOARD first: no refusal to learn from
+        out = p2.stdout.read() if p2.stdout else ""  # type: ignore[union-attr]
+        assert "switching from OFFBOARD to HOLD to arm" in out, out[-3000:]
