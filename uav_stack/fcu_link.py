@@ -73,6 +73,9 @@ _RESULT_NAMES = {
 _ESTIMATOR_BAD = {"EKF_STATUS_REPORT": mavlink.EKF_CONST_POS_MODE | mavlink.EKF_UNINITIALIZED, "ESTIMATOR_STATUS": 0}
 _POS_HORIZ_ABS = mavlink.EKF_POS_HORIZ_ABS  # == ESTIMATOR_POS_HORIZ_ABS
 _PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+_OCCASIONAL = frozenset({"EXTENDED_SYS_STATE", "SYS_STATUS", "GPS_RAW_INT", "EKF_STATUS_REPORT", "ESTIMATOR_STATUS",
+                         "HOME_POSITION", "BATTERY_STATUS", "NAMED_VALUE_FLOAT", "COMMAND_ACK", "STATUSTEXT", "EVENT",
+                         "AUTOPILOT_VERSION"})
 REASON_SEVERITY = mavlink.MAV_SEVERITY_WARNING  # STATUSTEXTs (and PX4 EVENTs) at this level or worse are reasons
 # type_mask for a NED velocity setpoint: ignore position, acceleration, yaw and yaw rate
 VELOCITY_ONLY_MASK = (
@@ -415,6 +418,8 @@ class FcuLink:
             st.position_at = now
             st.position_boot_s = msg.time_boot_ms * 1e-3
             self.rtf.add(now, st.position_boot_s)
+        elif mtype == "ATTITUDE":
+            st.yaw = msg.yaw
         elif mtype == "HEARTBEAT":
             st.sysid = ids[0]
             if msg.autopilot != st.autopilot:
@@ -426,9 +431,13 @@ class FcuLink:
             st.system_status = msg.system_status
             st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             st.mode = mode_name(msg)
-        elif mtype == "ATTITUDE":
-            st.yaw = msg.yaw
-        elif mtype == "EXTENDED_SYS_STATE":
+        elif mtype in _OCCASIONAL:  # one set lookup: a message handled nowhere (LOCAL_POSITION_NED...) costs no chain
+            self._occasional(mtype, msg)
+
+    def _occasional(self, mtype: str, msg: Any) -> None:
+        """The FCU's messages that come at a few Hz or less (state, health, answers, texts)."""
+        st = self.state
+        if mtype == "EXTENDED_SYS_STATE":
             st.landed_state = msg.landed_state
         elif mtype == "SYS_STATUS":
             if msg.battery_remaining >= 0:
@@ -476,6 +485,7 @@ class FcuLink:
             else:  # ArduPilot: the git hash's first 8 characters
                 tag = custom.rstrip(b"\x00").decode("ascii", "replace")
             st.version = firmware_version(msg.flight_sw_version) + (f" ({tag})" if tag else "")
+
 
     def _no_position(self, msg: Any) -> str:
         """Why a GLOBAL_POSITION_INT is not a position, "" if it is (see the module's doc)."""
