@@ -167,8 +167,12 @@ def test_an_arm_the_autopilot_keeps_refusing_is_reported_with_its_reason(tmp_pat
         assert wait_for(lambda: "battery too low" in status(st).get("detail", ""), 20.0), status(st)
         assert wait_for(lambda: status(st).get("phase") == "error", 20.0), status(st)
         s = status(st)
-        assert s["detail"].startswith("not armed after 15 s") and "battery too low" in s["detail"]
+        assert s["detail"].startswith("not armed after 15 s (takeoff or start tries again)") and "battery too low" in s["detail"]
         assert s["agent"]["arm_refused"] >= 1 and s["agent"]["arm_gave_up"] == 1
+        out = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", "start", "--connect", router, "--swarm", "solo",
+                              "--uav", "3", "--json"], cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=60)
+        assert out.returncode == 0 and json.loads(out.stdout.splitlines()[-1])["status"] == "ok", (out.stdout, out.stderr)
+        assert wait_for(lambda: status(st).get("phase") == "arming", 5.0), status(st)  # an operator's start tries again
         assert p.poll() is None
 
 

@@ -505,7 +505,7 @@ class Agent(OverridesMixin):
             self.counters["arm_gave_up"] += 1
             why = self.detail or "no answer"
             log.error("UAV %d: not armed after %.0f s: %s", self.cfg.uav, limit, why)
-            self._set_phase(AgentPhase.ERROR, f"not armed after {limit:.0f} s: {why}; send takeoff or start to try again")
+            self._set_phase(AgentPhase.ERROR, f"not armed after {limit:.0f} s (takeoff or start tries again): {why}")
             return
         h = self._handle
         if h is not None:
