@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 
 from tests import captures
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_for
 from uav_stack.fcu_link import FcuLink
 from uav_stack.mav import mavlink as M
 
@@ -221,3 +221,32 @@ def test_the_compiled_framing_parses_every_firmware_frame_as_pymavlink_does() ->
     assert mavcodec.MAVCODEC == "compiled"
     assert {"GLOBAL_POSITION_INT", "HEARTBEAT", "ATTITUDE", "SYS_STATUS", "GPS_RAW_INT", "EKF_STATUS_REPORT",
             "ESTIMATOR_STATUS", "COMMAND_ACK", "EXTENDED_SYS_STATE", "AHRS", "SIMSTATE"} <= taken
+
+
+def test_only_other_systems_and_components_are_foreign_not_the_fcus_own_unknown_ids() -> None:
+    """A frame of the pinned FCU whose id mrswarm's dialect lacks is the FCU's (``unknown_id``); a frame
+    of another system or component, known id or not, is foreign (``foreign_id``)."""
+    port = free_port(socket.SOCK_DGRAM)
+    link = FcuLink(f"udpin:127.0.0.1:{port}", source_system=1).open()
+    fw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    fw.bind(("127.0.0.1", 0))
+
+    def unknown_frame(sysid: int, compid: int, msgid: int = 0xABCDE) -> bytes:
+        payload = b"\x01\x02\x03"
+        return bytes([0xFD, len(payload), 0, 0, 0, sysid, compid]) + msgid.to_bytes(3, "little") + payload + b"\x00\x00"
+
+    try:
+        fcu = M.MAVLink(None, 1, 1)
+        other = M.MAVLink(None, 1, 154)  # a gimbal of the same system
+        for frame in (fcu.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3).pack(fcu),
+                      unknown_frame(1, 1), unknown_frame(1, 1), unknown_frame(7, 1), unknown_frame(1, 154),
+                      other.heartbeat_encode(M.MAV_TYPE_GIMBAL, M.MAV_AUTOPILOT_INVALID, 0, 0, 3).pack(other),
+                      fcu.ahrs2_encode(0, 0, 0, 0, 0, 0).pack(fcu)):
+            fw.sendto(frame, ("127.0.0.1", port))
+        assert wait_for(lambda: (link.poll(), link.counts["rx"] >= 7)[1], 5.0), link.counts
+        c = link.counts
+        assert c["unknown_id"] == 2 and c["foreign_id"] == 3 and c["bad"] == 0
+        assert link.rx_types["AHRS2"] == 1  # ArduPilot's own message, of the FCU: neither
+    finally:
+        link.close()
+        fw.close()
