@@ -165,6 +165,9 @@ def test_an_arm_the_autopilot_keeps_refusing_is_reported_with_its_reason(tmp_pat
         assert wait_for(lambda: "pre-arm checks" in status(st).get("detail", ""), 20.0), status(st)
         assert status(st)["phase"] == "arming"
         assert wait_for(lambda: "battery too low" in status(st).get("detail", ""), 20.0), status(st)
+        watch = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", "watch", "--connect", router, "--swarm", "solo",
+                                "--once"], cwd=ROOT, capture_output=True, text=True, env=dict(ENV, COLUMNS="100"), timeout=60)
+        assert "UAV 3 arming: " in watch.stdout and "battery too low" in watch.stdout, watch.stdout  # what a ground station sees
         assert wait_for(lambda: status(st).get("phase") == "error", 20.0), status(st)
         s = status(st)
         assert s["detail"].startswith("not armed after 15 s (takeoff or start tries again)") and "battery too low" in s["detail"]

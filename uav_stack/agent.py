@@ -480,7 +480,7 @@ class Agent(OverridesMixin):
         link = self.link
         if not link.connected:
             if link.fcu_ids is None:
-                return f"no heartbeat from an autopilot on {link.url} ({link.counts['rx']} messages so far)"
+                return f"no heartbeat from an autopilot on {link.url}" + (" (other messages only)" if link.counts["rx"] else "")
             return "FCU link lost: no heartbeat for 3 s"
         return link.contract.waiting_for() or f"no position from the autopilot: {link.state.no_position}"
 
