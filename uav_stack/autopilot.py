@@ -145,7 +145,8 @@ PX4_EVENTS: dict[int, tuple[str, str]] = {
     0x01DEDBD0: ("commander_failsafe_enter_generic", "Failsafe activated: switching to {2}"),
     0x01F46777: ("commander_disarmed_by", "Disarmed by {1}"),
 }  # fmt: skip
-PX4_ARMING_SUMMARY = 0x01A893E0  # starts a new arming-check report: the check_* events that follow belong to it
+PX4_ARMING_SUMMARY = 0x01A893E0  # starts a new arming-check report: the check events that follow belong to it
+PX4_HEALTH_SUMMARY = 0x011D3727  # ends it
 
 
 def px4_event_text(event_id: int) -> str:

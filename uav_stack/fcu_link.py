@@ -40,6 +40,7 @@ from typing import Any
 
 from uav_stack.autopilot import (
     PX4_ARMING_SUMMARY,
+    PX4_HEALTH_SUMMARY,
     PX4_PROFILE,
     AutopilotProfile,
     firmware_version,
@@ -264,6 +265,7 @@ class FcuLink:
         self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
         self._next_heartbeat = 0.0
+        self._px4_report = False  # within a PX4 arming-check report (its summary event, then its checks)
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
@@ -512,8 +514,10 @@ class FcuLink:
         st = self.state
         level = msg.log_levels & 0x0F  # external log level (the internal one is the high nibble)
         if msg.id == PX4_ARMING_SUMMARY:
-            st.px4_checks = []
-        elif level <= mavlink.MAV_SEVERITY_ERROR and px4_event_text(msg.id).startswith("check_"):
+            st.px4_checks, self._px4_report = [], True
+        elif msg.id == PX4_HEALTH_SUMMARY:
+            self._px4_report = False
+        elif self._px4_report and level <= mavlink.MAV_SEVERITY_ERROR:  # a failing check of the report, known or not
             st.px4_checks.append(px4_event_text(msg.id))
         if level <= REASON_SEVERITY:
             st.reasons.append((self.clock(), px4_event_text(msg.id)))
