@@ -28,6 +28,8 @@ from tests.conftest import free_port, wait_for
 from uav_stack.config import AgentConfig
 from uav_stack.fcu.config import DEFAULT_STREAM_RATES
 
+pytestmark = pytest.mark.e2e  # flights of several processes, tens of seconds each
+
 ROOT = Path(__file__).resolve().parents[1]
 HOME = (47.397742, 8.545594, 488.0)
 ARDUPILOT_HOME = (-35.363261, 149.165230, 584.0)  # where the recorded ArduCopter SITL was
