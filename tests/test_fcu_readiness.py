@@ -250,3 +250,27 @@ def test_only_other_systems_and_components_are_foreign_not_the_fcus_own_unknown_
     finally:
         link.close()
         fw.close()
+
+
+def test_a_virtual_fcu_slower_than_real_time_is_not_asked_again_for_its_own_rates() -> None:
+    """At RTF 0.5 the virtual FCU's 10 Hz GLOBAL_POSITION_INT arrives 5 times a wall second: the rate is
+    the FCU's time's, so the contract asks for nothing."""
+    import time
+
+    from tests.fcu_helpers import FcuThread
+    from uav_stack.fcu import FcuConfig, VehicleConfig
+    from uav_stack.geo import GeoPoint
+
+    with FcuThread(FcuConfig([VehicleConfig(sysid=1, home=GeoPoint(46.6, 14.2, 446.0))], target_rtf=0.5)) as ft:
+        link = FcuLink(f"udpout:{ft.addrs[0][0]}:{ft.addrs[0][1]}").open()
+        try:
+            end = time.monotonic() + 9.0
+            while time.monotonic() < end:
+                link.poll()
+                link.service()
+                time.sleep(0.05)
+            gpi = link.contract.streams["GLOBAL_POSITION_INT"]
+            assert gpi.status == "ok" and gpi.ack == "" and 4.0 < gpi.hz < 6.0, gpi
+            assert link.rtf.value == pytest.approx(0.5, abs=0.1)
+        finally:
+            link.close()

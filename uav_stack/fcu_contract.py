@@ -113,12 +113,15 @@ class FcuContract:
     """The start-up contract of one :class:`~uav_stack.fcu_link.FcuLink` (see the module's doc)."""
 
     def __init__(self, counts: dict[str, int], send_command: Callable[[int, tuple[float, ...]], None],
-                 send_data_stream: Callable[[int, int], None], position_hz: float = 10.0, ask: bool = True):
+                 send_data_stream: Callable[[int, int], None], position_hz: float = 10.0, ask: bool = True,
+                 rtf: Callable[[], float] = lambda: 1.0):
         self.counts = counts  # messages of the pinned FCU by type (FcuLink.rx_types)
         self._send_command = send_command  # (command, params): one COMMAND_LONG, no retries
         self._send_data_stream = send_data_stream  # (stream id, rate Hz): REQUEST_DATA_STREAM
         self.position_hz = position_hz
         self.ask = ask
+        # the FCU's real-time factor: rates are of its time (a virtual FCU at RTF 0.4 sends 10 Hz as 4 per wall second)
+        self._rtf = rtf
         self.streams: dict[str, Stream] = {}
         self.profile: AutopilotProfile | None = None
         self.started_at = math.nan
@@ -161,9 +164,12 @@ class FcuContract:
         whole = window >= s.window - 1e-6
         if whole:
             s.hz = n / window if window > 0 else math.nan
-        if whole and n >= max(1, math.floor(ENOUGH * s.want.hz * window)):
+        k = self._rtf()
+        k = k if 0.0 < k < 1.0 else 1.0  # (NaN before it is measured)
+        if whole and n >= max(1, math.floor(ENOUGH * s.want.hz * k * window)):
             if s.status != "ok" and s.tries:
-                log.info("FCU: %s arrives at %.1f Hz (asked for %g Hz)", s.want.name, s.hz, s.want.hz)
+                log.info("FCU: %s arrives at %.1f Hz (asked for %g Hz%s)", s.want.name, s.hz, s.want.hz,
+                         f" of the FCU's time, RTF {k:.2f}" if k < 1.0 else "")
             s.status, s.tries, s.warned = "ok", 0, False
             s.since, s.count_at = now, n + s.count_at
             return

@@ -260,7 +260,7 @@ class FcuLink:
         self.rx_types: dict[str, int] = {}  # the pinned FCU's messages by type (the start-up contract reads them)
         # the start-up contract (uav_stack/fcu_contract.py): asks for what the agent needs once the FCU is pinned
         self.contract = FcuContract(self.rx_types, self._send_command_long, self._send_data_stream, position_hz=position_hz,
-                                    ask=ask_streams)
+                                    ask=ask_streams, rtf=lambda: self.rtf.value)
         self.conn: Any = None
         self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
