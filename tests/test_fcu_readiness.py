@@ -254,14 +254,16 @@ def test_only_other_systems_and_components_are_foreign_not_the_fcus_own_unknown_
 
 def test_a_virtual_fcu_slower_than_real_time_is_not_asked_again_for_its_own_rates() -> None:
     """At RTF 0.5 the virtual FCU's 10 Hz GLOBAL_POSITION_INT arrives 5 times a wall second: the rate is
-    the FCU's time's, so the contract asks for nothing."""
+    the FCU's time's, so the contract asks for nothing. (The PX4 flavour streams it at PX4's 50 Hz from
+    boot: set to 10 Hz here, as a configured link.)"""
     import time
 
     from tests.fcu_helpers import FcuThread
     from uav_stack.fcu import FcuConfig, VehicleConfig
     from uav_stack.geo import GeoPoint
 
-    with FcuThread(FcuConfig([VehicleConfig(sysid=1, home=GeoPoint(46.6, 14.2, 446.0))], target_rtf=0.5)) as ft:
+    with FcuThread(FcuConfig([VehicleConfig(sysid=1, home=GeoPoint(46.6, 14.2, 446.0))], target_rtf=0.5,
+                             stream_rates={"GLOBAL_POSITION_INT": 10.0})) as ft:  # fmt: skip
         link = FcuLink(f"udpout:{ft.addrs[0][0]}:{ft.addrs[0][1]}").open()
         try:
             end = time.monotonic() + 9.0

@@ -45,8 +45,9 @@ def preflight(addr: str, *args: str, timeout: float = 5.0) -> tuple[int, dict[st
 
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
 def test_the_gcs_link_loss_failsafe_fails_at_factory_defaults_and_passes_once_set(flavour: str) -> None:
+    streams = ["--set-streams"] if flavour == "ardupilot" else []  # a factory ArduPilot streams nothing unasked
     with fcu("--flavour", flavour) as addr:
-        rc, checks = preflight(addr)
+        rc, checks = preflight(addr, *streams)
         assert rc == 1
         gcs = checks["GCS link loss"]
         assert gcs["result"] == "fail" and GCS_FAILSAFE[flavour].split("=")[0] in gcs["fix"]
@@ -55,7 +56,7 @@ def test_the_gcs_link_loss_failsafe_fails_at_factory_defaults_and_passes_once_se
         for name in ("GLOBAL_POSITION_INT", "GPS", "position", "pre-arm checks", "companion link loss"):
             assert checks[name]["result"] == "pass", checks[name]
     with fcu("--flavour", flavour, "--param", GCS_FAILSAFE[flavour]) as addr:
-        rc, checks = preflight(addr)
+        rc, checks = preflight(addr, *streams)
         assert checks["GCS link loss"]["result"] == "pass", checks["GCS link loss"]
         assert rc == 0, [c for c in checks.values() if c["result"] == "fail"]
 
