@@ -26,7 +26,6 @@ from swarmnet.schema import convert
 from tests import captures
 from tests.conftest import free_port, wait_for
 from uav_stack.config import AgentConfig
-from uav_stack.fcu.config import DEFAULT_STREAM_RATES
 
 pytestmark = pytest.mark.e2e  # flights of several processes, tens of seconds each
 
@@ -92,9 +91,8 @@ def status(path: Path) -> dict[str, Any]:
 
 def test_an_fcu_silent_until_asked_is_asked_and_flown(tmp_path: Path, router: str) -> None:
     """ArduCopter's factory defaults stream nothing but HEARTBEAT: the agent asks for its streams
-    (SET_MESSAGE_INTERVAL) and flies. The virtual ArduCopter here sends nothing it is not asked for."""
-    silent = [f"--rate={name}=0" for name in DEFAULT_STREAM_RATES if name != "HEARTBEAT"]
-    with virtual_fcu("--flavour", "ardupilot", *silent) as addr, agent(tmp_path, f"udpout:{addr}", router) as (p, st):
+    (SET_MESSAGE_INTERVAL) and flies. The virtual ArduCopter, like the firmware, sends nothing it is not asked for."""
+    with virtual_fcu("--flavour", "ardupilot") as addr, agent(tmp_path, f"udpout:{addr}", router) as (p, st):
         assert wait_for(lambda: status(st).get("phase") in ("hover", "mission", "done"), 60.0), (status(st), p.poll())
         s = status(st)
         streams = s["fcu"]["streams"]
@@ -161,18 +159,20 @@ def test_an_own_pose_the_wire_cannot_hold_is_counted_and_skipped(tmp_path: Path,
 
 def test_an_arm_the_autopilot_keeps_refusing_is_reported_with_its_reason(tmp_path: Path, router: str) -> None:
     """Pre-arm checks that never pass (the virtual PX4's battery threshold above any charge): the agent
-    waits for them, tries, says the autopilot's own reason, and gives up after failsafe.arm_timeout_s."""
+    waits for them, tries, says the autopilot's own reason (PX4 sends no text: its refusal event), and gives
+    up after failsafe.arm_timeout_s."""
     with virtual_fcu("--param", "BAT_EMERGEN_THR=1.0") as addr, \
             agent(tmp_path, f"udpout:{addr}", router, arm_timeout_s=15.0) as (p, st):
         assert wait_for(lambda: "pre-arm checks" in status(st).get("detail", ""), 20.0), status(st)
         assert status(st)["phase"] == "arming"
-        assert wait_for(lambda: "battery too low" in status(st).get("detail", ""), 20.0), status(st)
+        reason = "commander_arm_denied_resolve_failures"  # PX4's own refusal, as its event names it
+        assert wait_for(lambda: reason in status(st).get("detail", ""), 20.0), status(st)
         watch = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", "watch", "--connect", router, "--swarm", "solo",
                                 "--once"], cwd=ROOT, capture_output=True, text=True, env=dict(ENV, COLUMNS="100"), timeout=60)
-        assert "UAV 3 arming: " in watch.stdout and "battery too low" in watch.stdout, watch.stdout  # what a ground station sees
+        assert "UAV 3 arming: " in watch.stdout and "commander_arm_denied" in watch.stdout, watch.stdout  # a GCS sees it
         assert wait_for(lambda: status(st).get("phase") == "error", 20.0), status(st)
         s = status(st)
-        assert s["detail"].startswith("not armed after 15 s (takeoff or start tries again)") and "battery too low" in s["detail"]
+        assert s["detail"].startswith("not armed after 15 s (takeoff or start tries again)") and reason in s["detail"]
         assert s["agent"]["arm_refused"] >= 1 and s["agent"]["arm_gave_up"] == 1
         out = subprocess.run([sys.executable, "-m", "mrswarm", "gcs", "start", "--connect", router, "--swarm", "solo",
                               "--uav", "3", "--json"], cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=60)
@@ -181,14 +181,23 @@ def test_an_arm_the_autopilot_keeps_refusing_is_reported_with_its_reason(tmp_pat
         assert p.poll() is None
 
 
+# PX4 streams all of it from boot; an ArduPilot whose MAV1_* rates are set streams its groups' messages
+# (EXTENDED_SYS_STATE and HOME_POSITION are in none: asked for)
+STREAMING = {"px4": ((), ("GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "GPS_RAW_INT")),
+             "ardupilot": (("--param", "MAV1_POSITION=10", "--param", "MAV1_EXT_STAT=2", "--param", "MAV1_EXTRA3=2"),
+                           ("GLOBAL_POSITION_INT", "SYS_STATUS", "GPS_RAW_INT"))}  # fmt: skip
+
+
 @pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
 def test_the_contract_asks_nothing_of_an_fcu_that_streams_what_the_agent_needs(tmp_path: Path, router: str,
                                                                                flavour: str) -> None:
-    with virtual_fcu("--flavour", flavour) as addr, agent(tmp_path, f"udpout:{addr}", router, autostart=False) as (p, st):
+    args, unasked = STREAMING[flavour]
+    with virtual_fcu("--flavour", flavour, *args) as addr, \
+            agent(tmp_path, f"udpout:{addr}", router, autostart=False) as (p, st):  # fmt: skip
         assert wait_for(lambda: status(st).get("fcu", {}).get("streams", {}).get("HOME_POSITION", {}).get("status") == "ok",
                         20.0), status(st)
         streams = status(st)["fcu"]["streams"]
-        for name in ("GLOBAL_POSITION_INT", "SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "GPS_RAW_INT"):
+        for name in unasked:
             assert streams[name]["status"] == "ok" and streams[name]["ack"] == "", (name, streams[name])  # never asked
         assert status(st)["phase"] == "ready"
 

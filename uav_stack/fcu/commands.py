@@ -146,18 +146,18 @@ def cmd_takeoff(v: Vehicle, c: MavCommand) -> Result:
 
 
 def cmd_land(v: Vehicle, c: MavCommand) -> Result:
-    result, why = v.request_mode(v.flavour.mode("LAND"), by_user=False)
+    result, why = v.request_mode(v.flavour.mode("LAND"))
     if result == ACCEPTED:
         v.event(px4.LANDING_CURRENT_POS)
     return result, why
 
 
 def cmd_rtl(v: Vehicle, c: MavCommand) -> Result:
-    return v.request_mode(v.flavour.mode("RTL"), by_user=False)
+    return v.request_mode(v.flavour.mode("RTL"))
 
 
 def cmd_loiter_unlim(v: Vehicle, c: MavCommand) -> Result:
-    return v.request_mode(v.flavour.mode(v.flavour.hold_mode), by_user=False)
+    return v.request_mode(v.flavour.mode(v.flavour.hold_mode))
 
 
 def cmd_set_mode(v: Vehicle, c: MavCommand) -> Result:
@@ -282,7 +282,7 @@ def cmd_mission_start(v: Vehicle, c: MavCommand) -> Result:
     """MISSION_START: the mission mode, from item p1 if given (p2, the last item, is not supported)."""
     if _finite(c.p1) and c.p1 > 0 and not v.mission.set_current(int(c.p1)):
         return DENIED, f"Mission: no item {int(c.p1)}"
-    result, why = v.request_mode(v.flavour.mode(v.flavour.mission_mode), by_user=False)
+    result, why = v.request_mode(v.flavour.mode(v.flavour.mission_mode))
     if result == ACCEPTED and not v.flavour.is_px4:
         v.mission.say_item()  # ArduCopter names the item again when the mission (re)starts
     return result, why

@@ -72,7 +72,7 @@ PX4_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("HOLD", px4_custom_mode(4, 3), B.HOLD, _AUTO),
     ModeSpec("MISSION", px4_custom_mode(4, 4), B.MISSION, _AUTO),
     ModeSpec("RTL", px4_custom_mode(4, 5), B.RTL, _AUTO, can_arm=False),
-    ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO),
+    ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO, can_arm=False),
     ModeSpec("ACRO", px4_custom_mode(5), B.MANUAL, _MANUAL),
     ModeSpec("OFFBOARD", px4_custom_mode(6), B.OFFBOARD, _OFFBOARD),
     ModeSpec("STABILIZED", px4_custom_mode(7), B.MANUAL, _ASSIST),

@@ -185,7 +185,8 @@ def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
     health = SENSORS | FENCE
     if not v.gps_fix:
         health &= ~GPS
-    if v.prearm_ok():
+    # PX4's checks include the mode's (OFFBOARD without setpoints fails them); ArduPilot's pre-arm checks do not
+    if v.arming_checks_pass() if v.flavour.is_px4 else v.prearm_ok():
         health |= PREARM
     if v.sticks_fresh:
         health |= RC

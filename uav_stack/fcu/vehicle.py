@@ -139,9 +139,10 @@ class Vehicle:
         self._sticks_in_mode = False  # a stick message arrived since the stick mode was entered
         self._stick_xy_held = self._stick_z_held = False  # holding the braking point, per axis
         self._deferred: list[mavlink.MAVLink_message] | None = None  # output held until a command's ACK is out
-        # PX4: the mode the user asked for last (CURRENT_MODE.intended_custom_mode); a failsafe changes the mode,
-        # not the intention, and after a disarm the vehicle goes back to it
+        # PX4: the mode the user asked for last (CURRENT_MODE.intended_custom_mode; a failsafe changes the mode, not
+        # the intention), and the last such mode it can arm in: where it goes back to after a disarm
         self.intended_mode: ModeSpec = self.mode
+        self.after_disarm_mode: ModeSpec = self.mode
         self.px4_failsafe = False  # PX4 flies a failsafe's mode (CRITICAL) until the user picks another
         self._health_state = ""  # the last health report PX4 sent
         self.home_override = False  # DO_SET_HOME (or arming) set home before the boot did
@@ -514,6 +515,10 @@ class Vehicle:
     # ------------------------------------------------------------------ modes
     def enter_mode(self, spec: ModeSpec, hold_target: np.ndarray | None = None) -> None:
         """Switch to an (already validated) mode and start its guidance."""
+        if not self.px4_failsafe:
+            self.intended_mode = spec
+            if spec.can_arm and spec.guidance is not Guidance.TAKEOFF:
+                self.after_disarm_mode = spec
         changed = spec is not self.mode
         if changed and self.mode.guidance is Guidance.MISSION:
             self.mission.pause()
@@ -553,15 +558,14 @@ class Vehicle:
             z = min(z, float(self.ctx.dyn.pos[self.i, 2]))  # already higher: keep altitude
         self._start_takeoff(z, self.takeoff_yaw)
 
-    def request_mode(self, spec: ModeSpec, by_user: bool = True) -> tuple[int, str]:
-        """A mode change asked for by a GCS/companion: (MAV_RESULT, reason if refused).
-
-        ``by_user``: a mode command (DO_SET_MODE, SET_MODE), which becomes PX4's intended mode; a NAV command
-        (land, RTL, takeoff, ...) does too, except while a failsafe flies the vehicle (PX4 returns to the intended
-        mode after landing from a failsafe)."""
+    def request_mode(self, spec: ModeSpec) -> tuple[int, str]:
+        """A mode change asked for by a GCS/companion (a mode or a NAV command): (MAV_RESULT, reason if refused).
+        It becomes PX4's intended mode, and, if PX4 can arm in it, the one it returns to after a disarm (from a
+        landing in LAND: the mode before)."""
         if spec is self.mode:
-            if by_user and self.flavour.is_px4:
-                self.intended_mode = spec
+            if self.px4_failsafe:
+                self.px4_failsafe = False  # the user has taken over
+                self.enter_mode(spec)
             return ACCEPTED, ""
         refused = TEMPORARILY_REJECTED if self.flavour.is_px4 else FAILED  # how each firmware refuses a mode
         if spec.guidance is Guidance.MANUAL and not self.landed:
@@ -577,16 +581,14 @@ class Vehicle:
         if spec.guidance is Guidance.TAKEOFF:
             self.takeoff_alt_amsl = NAN
             self.takeoff_yaw = NAN
-        if self.flavour.is_px4 and (by_user or not self.px4_failsafe):
-            self.intended_mode = spec
         self.px4_failsafe = False  # the user has taken over
         self.enter_mode(spec)
         return ACCEPTED, ""
 
     # ----------------------------------------------------------------- arming
-    def arm_refusal(self) -> str | None:
+    def arm_refusal(self, on_ground: bool = True) -> str | None:
         """Why arming would be refused now (None: it would pass), in words of our own (the firmwares' replies
-        are sent by :meth:`arm`)."""
+        are sent by :meth:`arm`). ``on_ground=False``: the checks alone, wherever the vehicle is."""
         if not self.mode.can_arm:
             return "mode not armable"
         if self.flavour.is_px4:
@@ -598,13 +600,14 @@ class Vehicle:
             return "no position estimate"
         if not self.prearm_ok():
             return "battery too low"
-        if not self.landed:
+        if on_ground and not self.landed:
             return "not on the ground"
         return None
 
     def arming_checks_pass(self) -> bool:
-        """PX4's health report passes (HEARTBEAT STANDBY, not UNINIT)."""
-        return self.arm_refusal() is None
+        """The arming checks pass in the current mode (PX4: HEARTBEAT STANDBY, not UNINIT; SYS_STATUS's
+        PREARM_CHECK health, both flavours)."""
+        return self.arm_refusal(on_ground=False) is None
 
     def arm(self, force: bool = False) -> tuple[int, str]:
         """Arm, as each firmware answers: PX4 refuses with TEMPORARILY_REJECTED and an event (no text),
@@ -687,8 +690,8 @@ class Vehicle:
             self.log_closed = True
             self.ctx.dyn.battery[self.i] = 1.0  # PX4's simulated battery is full again when disarmed
             self.bat_level = 0
-            if self.intended_mode is not self.mode:
-                self.enter_mode(self.intended_mode)
+            if self.after_disarm_mode is not self.mode:
+                self.enter_mode(self.after_disarm_mode)
         else:
             self.statustext(M.MAV_SEVERITY_INFO, "Disarming motors")
         return ACCEPTED, ""
