@@ -103,15 +103,15 @@ def test_px4_mission_takes_off_flies_every_waypoint_pauses_resumes_and_completes
     assert c.wait(lambda: -ned(c)[2] > 1.8, 4.0), ned(c)
     assert mission_current(c) == (1, 5, 0, 1)  # the speed item passed at once
     reached = lambda: reached_items(c, since)  # noqa: E731
-    assert c.wait(lambda: reached() == [1, 2], 15.0), (reached(), mission_current(c), ned(c))
+    assert c.wait(lambda: reached() == [0, 1, 2], 15.0), (reached(), mission_current(c), ned(c))  # (PX4: DO items too)
     # pause (MAVSDK's pause_mission: HOLD), then continue with the item that was current
     assert c.set_mode_px4(4, 3) == ACC
     assert c.wait(lambda: mission_current(c) == (3, 5, 0, 2), 1.5), mission_current(c)
     c.drain(1.5)
-    assert reached() == [1, 2] and c.wait(lambda: c.px4_mode() == "HOLD", 1.5)
+    assert reached() == [0, 1, 2] and c.wait(lambda: c.px4_mode() == "HOLD", 1.5)
     assert c.set_mode_px4(4, 4) == ACC
-    assert c.wait(lambda: reached() == [1, 2, 3, 4], 15.0), (reached(), mission_current(c))
-    # every waypoint in order (the DO item is not a NAV item), the last one reported again every second
+    assert c.wait(lambda: reached() == [0, 1, 2, 3, 4], 15.0), (reached(), mission_current(c))
+    # every item in order, the last one reported again every second
     c.drain(2.5)
     again = [m for m in c.received[since:] if m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 4]
     assert len(again) >= 2

@@ -15,8 +15,9 @@ NAV_MC_ALT_RAD vertically (PX4), or inside a sphere of that radius (ArduCopter).
 latitude/longitude in degE7 (both 0: where the vehicle is), altitude per the item's frame
 (relative to home, or AMSL).
 
-Reporting differs as the firmwares do: PX4's MISSION_CURRENT has mission_state 0 (unknown) and it repeats
-MISSION_ITEM_REACHED for the last item reached about once a second; ArduCopter names each item as it starts
+Reporting differs as the firmwares do: PX4's MISSION_CURRENT has mission_state 0 (unknown), it sends
+MISSION_ITEM_REACHED for every item done (a DO item as it passes: MAVSDK's is_mission_finished counts on the
+last one) and repeats it for the last item reached about once a second; ArduCopter names each item as it starts
 ("Mission: 2 WP") and each waypoint reached ("Reached command #2"), and reports mission_mode 0 outside AUTO.
 
 Flavour differences: ArduCopter's item 0 is its home and is never flown, and from the ground
@@ -273,6 +274,10 @@ class MissionRun:
         elif item.command == M.MAV_CMD_DO_CHANGE_SPEED and math.isfinite(p2) and p2 > 0:
             v.speed_xy = self.speed = min(p2, v.settings.xy_vel_max)
             v._apply_limits()
+        if v.flavour.is_px4:  # PX4 reports every item done, a DO item as it passes (ArduCopter: NAV items only)
+            v.send(v.mav.mission_item_reached_encode(item.seq))
+            self.last_reached = item.seq
+            self._reached_again = v.now + px4.ITEM_REACHED_REPEAT_S
         self.current += 1  # camera, gimbal and other payload items: nothing to fly
 
     def _fly(self, item: MissionItem) -> bool:

@@ -2,8 +2,10 @@
 
 Upload: MISSION_COUNT, then each item requested and answered with MISSION_ITEM_INT (or the float
 MISSION_ITEM), then MISSION_ACK. The requests are the firmwares': ArduCopter asks with the legacy
-MISSION_REQUEST (id 40) for every item, PX4 for item 0, then with MISSION_REQUEST_INT once the ground
-station has answered with MISSION_ITEM_INT; ArduCopter then says "Flight plan received". On download,
+MISSION_REQUEST (id 40) for every item; PX4 with MISSION_REQUEST until the ground station has shown that it
+speaks the INT protocol (a MISSION_ITEM_INT or MISSION_REQUEST_INT, or a NACK UNSUPPORTED of a legacy
+request, as MAVSDK sends: then it asks again with MISSION_REQUEST_INT), and remembers it. ArduCopter then
+says "Flight plan received". On download,
 ArduCopter's item 0 is its current home (frame GLOBAL, AMSL) and an RTL item comes back in frame GLOBAL.
 Download: MISSION_REQUEST_LIST, MISSION_COUNT, MISSION_REQUEST(_INT) per item. MISSION_CLEAR_ALL clears; MISSION_SET_CURRENT picks
 the item flown next. Mission types 0/1/2 (mission, fence, rally) are stored; only the mission is
@@ -49,13 +51,12 @@ def on_mission_count(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     if m.count > MAX_ITEMS:
         _ack(v, m, M.MAV_MISSION_NO_SPACE, m.mission_type)
         return
-    v.upload = {"type": m.mission_type, "count": m.count, "items": [], "t": v.ctx.wall(), "int": False}
+    v.upload = {"type": m.mission_type, "count": m.count, "items": [], "t": v.ctx.wall()}
     _request_item(v, m, 0, m.mission_type)
 
 
 def _request_item(v: Vehicle, m: mavlink.MAVLink_message, seq: int, mission_type: int) -> None:
-    up = v.upload
-    if v.flavour.is_px4 and up is not None and up.get("int"):
+    if v.mission_int_protocol:
         v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
     else:
         v.send(v.mav.mission_request_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
@@ -92,8 +93,8 @@ def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
         return
     if m.mission_type != up["type"]:
         return
-    if m.get_type() == "MISSION_ITEM_INT":
-        up["int"] = True
+    if m.get_type() == "MISSION_ITEM_INT" and v.flavour.is_px4:
+        v.mission_int_protocol = True
     items: list[MissionItem] = up["items"]  # type: ignore[assignment]
     if m.seq != len(items):
         _request_item(v, m, len(items), m.mission_type)
@@ -137,7 +138,21 @@ def _guided_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     _ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
 
 
+def on_mission_ack(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """During an upload, a NACK UNSUPPORTED answers a legacy MISSION_REQUEST (MAVSDK speaks only the INT
+    protocol): ask again for the item with MISSION_REQUEST_INT."""
+    up = v.upload
+    if up is None or m.type != M.MAV_MISSION_UNSUPPORTED or m.mission_type != up["type"] or v.mission_int_protocol:
+        return
+    v.mission_int_protocol = True
+    up["t"] = v.ctx.wall()
+    items: list[MissionItem] = up["items"]  # type: ignore[assignment]
+    _request_item(v, m, len(items), m.mission_type)
+
+
 def on_mission_request(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    if m.get_type() == "MISSION_REQUEST_INT" and v.flavour.is_px4:
+        v.mission_int_protocol = True
     items = v.missions.get(m.mission_type)
     if items is None or not 0 <= m.seq < len(items):
         _ack(v, m, M.MAV_MISSION_INVALID_SEQUENCE, m.mission_type)
@@ -192,4 +207,5 @@ HANDLERS = {
     "MISSION_REQUEST": on_mission_request,
     "MISSION_CLEAR_ALL": on_mission_clear_all,
     "MISSION_SET_CURRENT": on_mission_set_current,
+    "MISSION_ACK": on_mission_ack,
 }

@@ -134,6 +134,7 @@ class Vehicle:
         self.fence_breached = False
         self.missions: dict[int, list[MissionItem]] = {0: [], 1: [], 2: []}  # by MAV_MISSION_TYPE
         self.upload: dict[str, object] | None = None
+        self.mission_int_protocol = False  # PX4: the ground station speaks MISSION_ITEM_INT (asked with _REQUEST_INT)
         self.mission = MissionRun(self)
         self.sticks = StickStream()
         self._sticks_in_mode = False  # a stick message arrived since the stick mode was entered
