@@ -77,13 +77,14 @@ def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Calla
     """The callables measured warm and paused, and what closes what they opened."""
     from swarmnet.messages import Pose, Realm, encode_pose
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu
-    from uav_stack.fcu.telemetry import ENCODERS, FRAMERS
+    from uav_stack.fcu.streams import ENCODERS
+    from uav_stack.fcu.telemetry import FRAMERS
     from uav_stack.recorder import write_json_atomic
 
     fcu = VirtualFcu(FcuConfig(vehicles=[VehicleConfig(sysid=1, listen=("127.0.0.1", 0))]))
     fcu.open()
     v = fcu.vehicles[0]
-    v.settings.gps_fix_t = -1.0  # a fix from the start: the position messages are sent
+    v.finish_boot()  # booted: the position messages are sent
     clock = fcu.clock
     gpi, att = ENCODERS["GLOBAL_POSITION_INT"], ENCODERS["ATTITUDE"]
     pose = Pose(uav=1, realm=Realm.VIRTUAL, seq=1, t_sim=1.0, t_wall=time.time(), x=1.0, y=2.0, z=3.0,

@@ -133,6 +133,7 @@ def _results(args: argparse.Namespace) -> int:
 DELEGATED: dict[str, tuple[str, str, str]] = {
     "agent": ("run the swarm agent against a flight controller (real UAV, SITL)", "uav_stack.runtime", "agent_main"),
     "fcu": ("a standalone virtual flight controller speaking MAVLink over UDP", "uav_stack.fcu.__main__", "main"),
+    "preflight": ("check a flight controller for what the agent needs (docs/fcu.md)", "mrswarm.preflight", "main"),
     "router": ("a Zenoh rendezvous/edge router", "discovery.rendezvous", "main"),
     "deploy": ("images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
                "mrswarm.deploy_cli", "main"),

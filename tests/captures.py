@@ -30,7 +30,12 @@ def folder(autopilot: str, capture: str) -> Path:
 
 
 def summary(autopilot: str, capture: str) -> dict[str, Any]:
-    data: dict[str, Any] = json.loads((folder(autopilot, capture) / "summary.json").read_text())
+    return json_file(autopilot, capture, "summary.json")
+
+
+def json_file(autopilot: str, capture: str, name: str) -> dict[str, Any]:
+    """A JSON file of a capture's folder (summary.json, params.json)."""
+    data: dict[str, Any] = json.loads((folder(autopilot, capture) / name).read_text())
     return data
 
 

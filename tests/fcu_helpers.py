@@ -35,8 +35,8 @@ def px4_main_sub(custom_mode: int) -> tuple[int, int]:
 class FcuThread:
     """``with FcuThread(cfg) as ft:`` runs ``ft.fcu.run()`` in a daemon thread; ``ft.addrs``.
 
-    It enters once every vehicle has its first GPS fix (SIM_GPS_FIX_T of sim time after boot), as
-    a ground station waits for the vehicle's health; ``ready=False`` enters at boot instead.
+    It enters once every vehicle has booted far enough to arm (1 s of sim time with the default short boot),
+    as a ground station waits for the vehicle's health; ``ready=False`` enters at boot instead.
     """
 
     def __init__(self, config: FcuConfig, ready: bool = True):
@@ -78,6 +78,7 @@ class MavClient:
         self.latest: dict[str, M.MAVLink_message] = {}
         self.counts: dict[str, int] = {}
         self.statustexts: list[str] = []
+        self.events: list[int] = []  # ids of PX4's EVENTs (PX4 sends no STATUSTEXT on its onboard link)
         self.received: list[M.MAVLink_message] = []  # everything, in order (bounded)
         self._queue: deque[M.MAVLink_message] = deque(maxlen=10_000)  # not yet consumed by recv_match
 
@@ -116,6 +117,8 @@ class MavClient:
                 self.counts[t] = self.counts.get(t, 0) + 1
                 if t == "STATUSTEXT":
                     self.statustexts.append(m.text)
+                elif t == "EVENT":
+                    self.events.append(m.id)
                 if len(self.received) < 100_000:
                     self.received.append(m)
                 out.append(m)
@@ -158,10 +161,26 @@ class MavClient:
         self._queue.clear()
 
     # ------------------------------------------------------------ services
+    def request_streams(self, hz: int = 10, also: tuple[str, ...] = ("EXTENDED_SYS_STATE", "HOME_POSITION")) -> None:
+        """Ask an ArduPilot for its streams, as a ground station does: REQUEST_DATA_STREAM(ALL) and message
+        intervals for the messages in no stream group (PX4 ignores the one and already sends the others)."""
+        self.send(self.mav.request_data_stream_encode(self.target_sysid, 1, M.MAV_DATA_STREAM_ALL, hz, 1))
+        for name in also:
+            mid = getattr(M, f"MAVLINK_MSG_ID_{name}")
+            self.send(self.mav.command_long_encode(self.target_sysid, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid, 1e6 / hz,
+                                                   0, 0, 0, 0, 0))  # fmt: skip
+
     def heartbeat(self, mav_type: int = M.MAV_TYPE_GCS) -> None:
         self.send(self.mav.heartbeat_encode(mav_type, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE))
 
+    def _forget_acks(self, command: int) -> None:
+        """Drop ACKs of an earlier ``command`` still queued (PX4 ACKs DO_SET_MODE twice)."""
+        self.pump(0.0)
+        self._queue = deque((m for m in self._queue if not (m.get_type() == "COMMAND_ACK" and m.command == command)),
+                            maxlen=self._queue.maxlen)  # fmt: skip
+
     def command_long(self, command: int, *params: float, timeout: float = 2.0, confirmation: int = 0) -> int | None:
+        self._forget_acks(command)
         p = [float(x) for x in params] + [NAN] * (7 - len(params))
         self.send(self.mav.command_long_encode(self.target_sysid, 1, command, confirmation, *p))
         ack = self.recv_match("COMMAND_ACK", timeout, lambda m: m.command == command)
@@ -169,6 +188,7 @@ class MavClient:
 
     def command_int(self, command: int, frame: int, p1: float = NAN, p2: float = NAN, p3: float = NAN,
                     p4: float = NAN, x: int = 0, y: int = 0, z: float = NAN, timeout: float = 2.0) -> int | None:  # fmt: skip
+        self._forget_acks(command)
         self.send(self.mav.command_int_encode(self.target_sysid, 1, frame, command, 0, 0, p1, p2, p3, p4, x, y, z))
         ack = self.recv_match("COMMAND_ACK", timeout, lambda m: m.command == command)
         return None if ack is None else ack.result

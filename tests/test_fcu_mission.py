@@ -1,6 +1,7 @@
 """Missions over real UDP against the virtual FCU: the mission protocol, PX4 MISSION and ArduCopter AUTO flights.
 
-Legs are short and low so each flight takes seconds at RTF 1; every wait is bounded.
+Legs are short and low so each flight takes seconds at RTF 1; every wait is bounded. PX4 reports no
+mission_state (0) and repeats MISSION_ITEM_REACHED for the last item reached; ArduCopter reports both.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections.abc import Iterator
 import pytest
 
 from tests.fcu_helpers import FcuThread, MavClient
-from uav_stack.fcu import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
+from uav_stack.fcu import FcuConfig, VehicleConfig
 from uav_stack.fcu.modes import px4_custom_mode
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink as M
@@ -38,10 +39,11 @@ def wp(north: float, east: float, alt: float, radius: float = 0.0, hold: float =
 @pytest.fixture
 def vehicle(request: pytest.FixtureRequest) -> Iterator[tuple[FcuThread, MavClient]]:
     flavour, params = request.param
-    rates = dict(DEFAULT_STREAM_RATES, LOCAL_POSITION_NED=10.0)
-    ft = FcuThread(FcuConfig([VehicleConfig(sysid=1, home=HOME, flavour=flavour, params=params)], stream_rates=rates))
+    ft = FcuThread(FcuConfig([VehicleConfig(sysid=1, home=HOME, flavour=flavour, params=params)]))
     with ft, MavClient(ft.addrs[0]) as c:
         c.heartbeat()
+        if flavour == "ardupilot":
+            c.request_streams()  # ArduPilot streams nothing until asked
         assert c.recv_match("HEARTBEAT", 3.0) is not None
         yield ft, c
 
@@ -54,6 +56,15 @@ def ned(c: MavClient) -> tuple[float, float, float]:
 def mission_current(c: MavClient) -> tuple[int, int, int, int] | None:
     m = c.latest.get("MISSION_CURRENT")
     return None if m is None else (m.seq, m.total, m.mission_state, m.mission_mode)
+
+
+def reached_items(c: MavClient, since: int) -> list[int]:
+    """The items reached, in order (PX4 repeats MISSION_ITEM_REACHED for the last one every second)."""
+    out: list[int] = []
+    for m in c.received[since:]:
+        if m.get_type() == "MISSION_ITEM_REACHED" and (not out or out[-1] != m.seq):
+            out.append(m.seq)
+    return out
 
 
 def closest_approach(c: MavClient, since: int, targets: dict[int, tuple[float, float, float]],
@@ -84,33 +95,33 @@ def test_px4_mission_takes_off_flies_every_waypoint_pauses_resumes_and_completes
     items = [(M.MAV_FRAME_MISSION, SPEED, 0.0, 0.0, 0.0, (1.0, 3.0, -1.0, 0.0))]  # 3 m/s ground speed
     items += [wp(n, e, 3.0, radius=1.0) for n, e in legs]
     assert c.upload_mission(items) == M.MAV_MISSION_ACCEPTED
-    assert c.wait(lambda: mission_current(c) == (0, 5, M.MISSION_STATE_NOT_STARTED, 2), 2.0), mission_current(c)
+    assert c.wait(lambda: mission_current(c) == (0, 5, 0, 2), 2.0), mission_current(c)  # (no mission_state)
     assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
     since = len(c.received)
     assert c.set_mode_px4(4, 4) == ACC  # MAVSDK's start_mission: DO_SET_MODE MISSION
     # no takeoff item: PX4 climbs to MIS_TAKEOFF_ALT first, then flies the items
     assert c.wait(lambda: -ned(c)[2] > 1.8, 4.0), ned(c)
-    assert mission_current(c) == (1, 5, M.MISSION_STATE_ACTIVE, 1)  # the speed item passed at once
-    reached = lambda: [m.seq for m in c.received[since:] if m.get_type() == "MISSION_ITEM_REACHED"]  # noqa: E731
-    assert c.wait(lambda: reached() == [1, 2], 15.0), (reached(), mission_current(c), ned(c))
+    assert mission_current(c) == (1, 5, 0, 1)  # the speed item passed at once
+    reached = lambda: reached_items(c, since)  # noqa: E731
+    assert c.wait(lambda: reached() == [0, 1, 2], 15.0), (reached(), mission_current(c), ned(c))  # (PX4: DO items too)
     # pause (MAVSDK's pause_mission: HOLD), then continue with the item that was current
     assert c.set_mode_px4(4, 3) == ACC
-    assert c.wait(lambda: mission_current(c) == (3, 5, M.MISSION_STATE_PAUSED, 2), 1.5), mission_current(c)
+    assert c.wait(lambda: mission_current(c) == (3, 5, 0, 2), 1.5), mission_current(c)
     c.drain(1.5)
-    assert reached() == [1, 2] and c.px4_mode() == "HOLD"
+    assert reached() == [0, 1, 2] and c.wait(lambda: c.px4_mode() == "HOLD", 1.5)
     assert c.set_mode_px4(4, 4) == ACC
-    assert c.wait(lambda: mission_current(c) is not None and mission_current(c)[2] == M.MISSION_STATE_COMPLETE, 15.0), \
-        (reached(), mission_current(c))
-    assert reached() == [1, 2, 3, 4]  # every waypoint once, in order (the DO item is not a NAV item)
+    assert c.wait(lambda: reached() == [0, 1, 2, 3, 4], 15.0), (reached(), mission_current(c))
+    # every item in order, the last one reported again every second
+    c.drain(2.5)
+    again = [m for m in c.received[since:] if m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 4]
+    assert len(again) >= 2
     targets = {k + 1: (n, e, -3.0) for k, (n, e) in enumerate(legs)}
     near = closest_approach(c, since, targets, horizontal=True)
     assert all(near[k] <= 1.0 for k in targets), near  # each reached inside its 1 m acceptance radius
     speeds = [math.hypot(m.vx, m.vy) for m in c.received[since:] if m.get_type() == "LOCAL_POSITION_NED"]
     assert 2.5 < max(speeds) < 3.2  # DO_CHANGE_SPEED: 3 m/s instead of the 5 m/s cruise
     # the mission is over: still in MISSION, holding at the last waypoint
-    c.drain(1.0)
     assert c.px4_mode() == "MISSION" and math.dist(ned(c), (0.0, 0.0, -3.0)) < 1.0
-    assert any("Mission finished" in t for t in c.statustexts)
     assert c.command_long(M.MAV_CMD_NAV_LAND) == ACC
     assert c.wait(lambda: not c.armed(), 10.0)
 
@@ -122,8 +133,8 @@ def test_ardupilot_auto_needs_a_takeoff_skips_home_and_ends_with_rtl(vehicle) ->
     assert c.upload_mission([home, wp(6.0, 0.0, 3.0)]) == M.MAV_MISSION_ACCEPTED
     assert c.command_long(M.MAV_CMD_DO_SET_MODE, 1, 4) == ACC  # GUIDED
     assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
-    assert c.command_long(M.MAV_CMD_DO_SET_MODE, 1, 3) == M.MAV_RESULT_DENIED  # armed on the ground, no takeoff item
-    assert any(t == "Auto: Missing Takeoff Cmd" for t in c.statustexts)
+    assert c.command_long(M.MAV_CMD_DO_SET_MODE, 1, 3) == M.MAV_RESULT_FAILED  # armed on the ground, no takeoff item
+    assert c.wait(lambda: any(t == "Auto: Missing Takeoff Cmd" for t in c.statustexts), 0.5)
     rtl = (M.MAV_FRAME_MISSION, RTL, 0, 0, 0, ())
     items = [home, (REL, TAKEOFF, 0.0, 0.0, 3.0, ()), wp(6.0, 0.0, 3.0), wp(6.0, 6.0, 4.0), rtl]
     assert c.upload_mission(items) == M.MAV_MISSION_ACCEPTED
@@ -131,7 +142,9 @@ def test_ardupilot_auto_needs_a_takeoff_skips_home_and_ends_with_rtl(vehicle) ->
     assert c.command_long(M.MAV_CMD_DO_SET_MODE, 1, 3) == ACC  # MAVProxy's "mode AUTO"
     assert c.wait(lambda: not c.armed(), 40.0), (mission_current(c), ned(c))  # RTL landed and disarmed
     reached = [m.seq for m in c.received[since:] if m.get_type() == "MISSION_ITEM_REACHED"]
-    assert reached == [1, 2, 3, 4]  # the home slot is never flown
+    assert reached == [1, 2, 3, 4]  # the home slot is never flown (and ArduCopter reports each once)
+    texts = [t for t in c.statustexts if t.startswith(("Mission:", "Reached"))]
+    assert texts[:4] == ["Mission: 1 Takeoff", "Mission: 2 WP", "Reached command #2", "Mission: 3 WP"]
     currents = [m for m in c.received[since:] if m.get_type() == "MISSION_CURRENT"]
     assert {m.total for m in currents} == {4} and currents[-1].mission_state == M.MISSION_STATE_COMPLETE
     near = closest_approach(c, since, {2: (6.0, 0.0, -3.0), 3: (6.0, 6.0, -4.0)})
@@ -174,6 +187,6 @@ def test_mission_protocol_download_current_clear_and_refusals(vehicle) -> None:
     c.send(c.mav.mission_clear_all_encode(1, 1, 0))
     ack = c.recv_match("MISSION_ACK", 1.0)
     assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
-    assert c.wait(lambda: mission_current(c) is not None and mission_current(c)[2] == M.MISSION_STATE_NO_MISSION, 1.5)
-    assert c.set_mode_px4(4, 4) == M.MAV_RESULT_DENIED
+    assert c.wait(lambda: mission_current(c) is not None and mission_current(c)[1] == 65535, 1.5)  # PX4: no mission
+    assert c.set_mode_px4(4, 4) == M.MAV_RESULT_TEMPORARILY_REJECTED
     assert ft.alive and ft.fcu.stats.handler_errors == 0

@@ -26,7 +26,7 @@ HOMES = [GeoPoint(47.397742, 8.545594, 488.0), GeoPoint(-33.9, 151.2, 5.0), GeoP
 def _fcu(home: GeoPoint) -> VirtualFcu:
     fcu = VirtualFcu(FcuConfig(vehicles=[VehicleConfig(sysid=7, home=home, listen=("127.0.0.1", 0))]))
     fcu.open()
-    fcu.vehicles[0].settings.gps_fix_t = -1.0  # a fix from the start
+    fcu.vehicles[0].finish_boot()  # booted: the position is valid from the start
     return fcu
 
 
@@ -63,12 +63,13 @@ def test_compiled_frame_is_the_python_frame(home: GeoPoint) -> None:
 
 
 def test_no_frame_before_the_fix_nor_on_a_signing_link() -> None:
-    fcu = _fcu(HOMES[0])
+    fcu = VirtualFcu(FcuConfig(vehicles=[VehicleConfig(sysid=7, home=HOMES[0], listen=("127.0.0.1", 0))]))
+    fcu.open()
     try:
-        v = fcu.vehicles[0]
-        v.settings.gps_fix_t = 1e9  # searching
+        v = fcu.vehicles[0]  # booting: PX4 has no position estimate yet
         assert T.global_position_int_frame(v) is None and T.global_position_int(v) is None
-        v.settings.gps_fix_t = -1.0
+        v.finish_boot()
+        assert T.global_position_int_frame(v) is not None
         v.mav.signing.sign_outgoing = True  # a signed link: the Python path signs
         assert T.global_position_int_frame(v) is None
     finally:
@@ -77,7 +78,7 @@ def test_no_frame_before_the_fix_nor_on_a_signing_link() -> None:
 
 def test_the_stream_flies_to_a_ground_station_as_the_position_flown() -> None:
     """Over real UDP: the FCU's GLOBAL_POSITION_INT stream, now framed by compiled code, parses in
-    pymavlink as the vehicle's position, 10 a second, with consecutive sequence numbers."""
+    pymavlink as the vehicle's position, at PX4's rate, with consecutive sequence numbers."""
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.bind(("127.0.0.1", 0))
     gcs.settimeout(0.2)
@@ -87,7 +88,7 @@ def test_the_stream_flies_to_a_ground_station_as_the_position_flown() -> None:
     fcu.open()
     try:
         v, d = fcu.vehicles[0], fcu.dyn
-        v.settings.gps_fix_t = -1.0
+        v.finish_boot()
         d.pos[0] = [30.0, -40.0, 0.0]  # 30 m north, 40 m west, on the ground (disarmed: it stays)
         parser = mavlink.MAVLink(None)
         got = []

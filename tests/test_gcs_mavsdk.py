@@ -29,6 +29,7 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync  # noqa:
 
 from tests.conftest import free_port, wait_for
 from tests.gcs_helpers import agent_stats, start_virtual_uav, stop_process
+from uav_stack.fcu.firmware import firmware
 
 pytestmark = pytest.mark.e2e
 M_PER_DEG = 111_320.0
@@ -86,7 +87,7 @@ async def _takeoff_and_land(system, log: dict) -> None:  # noqa: ANN001
     log["takeoff_alt"] = await action.get_takeoff_altitude()
     log["rtl_alt"] = await action.get_return_to_launch_altitude()
     await action.arm()
-    assert await tel.armed()
+    await _until(tel.armed, lambda a: a, 3, "armed")  # (PX4 shows it in its next regular heartbeat)
     await action.takeoff()
     await _until(tel.position, lambda p: p.relative_altitude_m > 2.0, 20, "takeoff")
     log["in_air"] = await tel.in_air()
@@ -186,7 +187,12 @@ async def _manual_control(system, log: dict) -> None:  # noqa: ANN001
     await asyncio.sleep(1)
     await manual.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
     await manual.start_position_control()
-    log["manual_mode"] = await _until(tel.flight_mode, lambda m: m == FlightMode.POSCTL, 5, "position control")
+    for _ in range(50):  # the stick input goes on while PX4's next heartbeat shows the mode (a pause is a lost stick)
+        await manual.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
+        if await tel.flight_mode() == FlightMode.POSCTL:
+            break
+        await asyncio.sleep(0.1)
+    log["manual_mode"] = await tel.flight_mode()
     start = await tel.position()
     for _ in range(25):  # full forward stick for 2.5 s (the vehicle faces east after the offboard flow)
         await manual.set_manual_control_input(1.0, 0.0, 0.5, 0.0)
@@ -237,7 +243,9 @@ def test_mavsdk_example_flows_fly_a_virtual_uav_through_the_agents_router(tmp_pa
         stop_process(proc)
     assert log["sysid"] == 7  # the allocation scheme: UAV 7 -> sysid 7
     # takeoff and land (MIS_TAKEOFF_ALT and RTL_RETURN_ALT read as parameters), goto
-    assert log["takeoff_alt"] == pytest.approx(2.5) and log["rtl_alt"] == pytest.approx(60.0)
+    defaults = {p.name: p.default for p in firmware("px4").params}  # PX4 1.16's factory values
+    assert log["takeoff_alt"] == pytest.approx(defaults["MIS_TAKEOFF_ALT"]) and log["rtl_alt"] == pytest.approx(
+        defaults["RTL_RETURN_ALT"])
     assert log["in_air"] is True
     assert log["mode_after_goto"] == FlightMode.HOLD  # PX4: DO_REPOSITION ends in HOLD at the target
     assert log["landed_alt"] < 0.5

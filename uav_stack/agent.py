@@ -32,6 +32,7 @@ from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
 from uav_stack.fcu_link import CommandHandle, FcuLink
 from uav_stack.geo import LocalFrame
+from uav_stack.mav import mavlink
 from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
 from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
 from uav_stack.pose_age import AgeWindow, PoseAgeLog
@@ -47,6 +48,8 @@ ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * 
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
+PREARM_PROBE_S = 10.0  # while the autopilot reports failing pre-arm checks, an arm is tried this often (its answer says why)
+CONFIRM_S = 1.5  # s an accepted arm or mode change may take to show in the heartbeat (ArduPilot: its next 1 Hz beat)
 LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms (their own file)
 
 
@@ -137,7 +140,13 @@ class Agent(OverridesMixin):
         self._next_stats = 0.0
         self._next_link_stats = 0.0
         self._offboard_stream_since: float | None = None
-        self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0}
+        self._arming_since = -math.inf  # when the agent began to arm (the failsafe.arm_timeout_s bound)
+        self._sent_at = -math.inf  # when the arming phase's current command was first sent
+        self._arm_at = -math.inf  # when the last arm was sent
+        self._arm_tries = 0
+        self._refusal: CommandHandle | None = None  # the refused command already reported
+        self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0,
+                                         "arm_refused": 0, "arm_gave_up": 0, "pose_unencodable": 0}
         self.closest_seen = math.inf
         self.alt_target = cfg.altitude  # m above the swarm origin
         self.hold_point: tuple[float, float] = (math.nan, math.nan)
@@ -176,6 +185,13 @@ class Agent(OverridesMixin):
             self._mode_at_phase = self.link.state.mode
             self._next_state = 0.0  # publish the change now
         self.detail = detail
+
+    def _say(self, detail: str) -> None:
+        """A new detail for the current phase (what it waits for): logged and published when it changes."""
+        if detail != self.detail:
+            log.info("UAV %d: %s: %s", self.cfg.uav, self.phase, detail)
+            self.detail = detail
+            self._next_state = 0.0
 
     def _update_own(self) -> bool:
         st = self.link.state
@@ -239,11 +255,20 @@ class Agent(OverridesMixin):
                 and not self.failsafes.fcu_link_lost:
             self._published_position_at = st.position_at
             o = self.own
-            node.publish_pose(
-                t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
-                t_wall=st.position_at,
-            )
+            try:
+                node.publish_pose(
+                    t_sim=st.position_boot_s, x=o.x, y=o.y, z=o.z, vx=o.vx, vy=o.vy, vz=o.vz, yaw=o.yaw,
+                    t_wall=st.position_at,
+                )
+            except ValueError as exc:  # a pose the wire cannot hold (far from the swarm's origin): skipped, never fatal
+                self._unencodable(exc)
         return have_pos
+
+    def _unencodable(self, exc: ValueError) -> None:
+        n = self.counters["pose_unencodable"] = self.counters["pose_unencodable"] + 1
+        if n == 1 or n % 100 == 0:
+            log.warning("UAV %d: own pose not published (%d so far): %s; is the swarm's origin near the UAV?",
+                        self.cfg.uav, n, exc)
 
     def _act(self, now: float, have_pos: bool) -> None:
         """Swarm in, control and reports out."""
@@ -344,9 +369,9 @@ class Agent(OverridesMixin):
             # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
             if verb == "start":
                 self.go = True
-            if self.phase in (AgentPhase.INIT, AgentPhase.READY):
+            if self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.ERROR):
                 self.started_at = now
-                if self.phase == AgentPhase.READY:
+                if self.phase != AgentPhase.INIT:  # ready, or arming gave up (error): try (again)
                     self._begin_flight()
                 msg = "taking off" if self.phase != AgentPhase.INIT else "will take off once the FCU is up"
             elif self.phase == AgentPhase.HOVER and self.go:
@@ -374,6 +399,10 @@ class Agent(OverridesMixin):
     def _begin_flight(self, detail: str = "") -> None:
         self._set_phase(AgentPhase.ARMING, detail)
         self._handle = None
+        self._refusal = None
+        # the first arm goes at once if the pre-arm checks pass; while they fail, the first probe after PREARM_PROBE_S
+        self._arming_since = self._arm_at = self.clock()
+        self._arm_tries = 0
 
     def _land(self) -> None:
         if self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
@@ -392,6 +421,8 @@ class Agent(OverridesMixin):
                 self._set_phase(AgentPhase.READY)
                 if self.go or self.started_at is not None:
                     self._begin_flight()
+            else:
+                self._say(self._init_waits_for())
             return
         if ph in (AgentPhase.READY, AgentPhase.LANDED) and (why := self._flown_by_someone_else()) is not None:
             self._yield(why)  # a ground station flies a UAV the swarm is not flying: show it
@@ -403,18 +434,7 @@ class Agent(OverridesMixin):
             return
         self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
         if ph == AgentPhase.ARMING:
-            # some autopilots take off only in one mode (ArduPilot: GUIDED): switch to it first
-            need_mode = st.profile.takeoff_mode if st.profile.takeoff_mode not in (None, st.mode) else None
-            if need_mode is None and not st.armed and st.mode in st.profile.leave_before_arming:
-                need_mode = st.profile.arming_mode  # e.g. relaunched where a PX4 RTL left it
-            if st.armed and need_mode is None:
-                self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
-                self._set_phase(AgentPhase.TAKEOFF)
-            elif self._handle is None or (self._handle.done and (self._handle.accepted or since > RETRY_AFTER)):
-                if self._handle is not None and self._handle.done and not self._handle.accepted:
-                    self.detail = f"{'arm' if need_mode is None else 'set ' + need_mode} {self._handle.status}"
-                self._handle = link.arm(True) if need_mode is None else link.set_mode(need_mode)
-                self._phase_since = now
+            self._arming(now)
         elif ph == AgentPhase.TAKEOFF:
             if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
                 self._handle = link.takeoff(self.target_alt_amsl, self.cfg.altitude)
@@ -454,6 +474,91 @@ class Agent(OverridesMixin):
             elif self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
                 self._handle = link.land()
                 self._phase_since = now
+
+    def _init_waits_for(self) -> str:
+        """What the agent waits for before it can fly, in the autopilot's terms (the phase detail in ``init``)."""
+        link = self.link
+        if not link.connected:
+            if link.fcu_ids is None:
+                return f"no heartbeat from an autopilot on {link.url}" + (" (other messages only)" if link.counts["rx"] else "")
+            return "FCU link lost: no heartbeat for 3 s"
+        return link.contract.waiting_for() or f"no position from the autopilot: {link.state.no_position}"
+
+    def _arming(self, now: float) -> None:
+        """Arm, then take off. First out of any mode the autopilot cannot arm in (its profile's
+        ``arm_modes``: PX4 returns to OFFBOARD after a landing), then once its own pre-arm checks
+        pass (SYS_STATUS); a refusal is reported with the autopilot's reason and the arm tried
+        again, for ``failsafe.arm_timeout_s`` at most, then phase ``error`` (a takeoff or start tries again)."""
+        link = self.link
+        st = link.state
+        prof = st.profile
+        if st.armed:
+            need = prof.takeoff_mode if prof.takeoff_mode not in (None, st.mode) else None  # ArduPilot: GUIDED
+            if need is None:
+                self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
+                self._set_phase(AgentPhase.TAKEOFF)
+                return
+        else:
+            need = None if st.mode in prof.arm_modes else prof.arming_mode
+        limit = self.cfg.failsafe.arm_timeout_s
+        if now - self._arming_since > limit:
+            self.counters["arm_gave_up"] += 1
+            why = self.detail or "no answer"
+            log.error("UAV %d: not armed after %.0f s: %s", self.cfg.uav, limit, why)
+            self._set_phase(AgentPhase.ERROR, f"not armed after {limit:.0f} s (takeoff or start tries again): {why}")
+            return
+        h = self._handle
+        if h is not None:
+            if not h.done:
+                return  # its answer is pending (FcuLink retries it)
+            if h.accepted and now - self._sent_at < CONFIRM_S:
+                return  # accepted: give the heartbeat time to show it
+            if not h.accepted:
+                if self._refusal is not h:
+                    self._refused(h, need, now)
+                if now - self._sent_at < RETRY_AFTER:
+                    return
+        if need is not None:
+            if h is None or h.command != mavlink.MAV_CMD_DO_SET_MODE or h.accepted:
+                self._say(f"switching from {st.mode} to {need} to arm ({prof.label} arms in {', '.join(sorted(prof.arm_modes))})")
+            self._send_arming(link.set_mode(need), now)
+            return
+        if not st.has_position:
+            self._say(f"waiting for a position: {st.no_position}")
+            return
+        if st.prearm_ok is None and link.contract.pending("SYS_STATUS"):
+            self._say("waiting for the autopilot's SYS_STATUS (its pre-arm checks)")
+            return
+        if st.prearm_ok is False and now - self._arm_at < PREARM_PROBE_S:
+            reasons = (st.reasons_since(now - 30.0) + [f"PX4 reports: {c}" for c in st.px4_checks])[-3:]
+            self._say("waiting for the autopilot's pre-arm checks (SYS_STATUS)" + (f": {'; '.join(reasons)}" if reasons else ""))
+            return
+        self._arm_at = now
+        self._arm_tries += 1
+        self._send_arming(link.arm(True), now)
+
+    def _send_arming(self, h: CommandHandle, now: float) -> None:
+        self._handle = h
+        self._sent_at = now
+        self._phase_since = now
+
+    def _refused(self, h: CommandHandle, need: str | None, now: float) -> None:
+        """Say why the autopilot refused the arming phase's command, in its own words."""
+        self._refusal = h
+        st = self.link.state
+        arming = h.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+        reasons = st.reasons_since(self._sent_at - 0.05)
+        if st.px4_checks and any(r.startswith("commander_arm_denied") for r in reasons):
+            reasons.append(f"PX4 reports: {', '.join(st.px4_checks)}")
+        what = f"arm {h.status}" if arming else f"switch to {need} {h.status}"
+        if arming:
+            self.counters["arm_refused"] += 1
+            what += f" ({self._arm_tries} tr{'y' if self._arm_tries == 1 else 'ies'} in {now - self._arming_since:.0f} s)"
+        detail = f"{what}: {'; '.join(reasons) if reasons else 'the autopilot gave no reason'}"
+        new_reason = detail.split(": ", 1)[-1] != self.detail.split(": ", 1)[-1]
+        log.log(logging.WARNING if new_reason else logging.INFO, "UAV %d: %s", self.cfg.uav, detail)
+        self.detail = detail
+        self._next_state = 0.0
 
     def _send_velocity(self, vx: float, vy: float) -> None:
         err = self.target_alt_amsl - self.link.state.alt
@@ -538,6 +643,7 @@ class Agent(OverridesMixin):
             "uav": self.cfg.uav,
             "realm": self.realm.label,
             "phase": self.phase,
+            "detail": self.detail,
             "started_at": self.started_at,
             "mission_started_at": self.mission_started_at,
             "rtf": self.link.rtf.value,
@@ -546,6 +652,7 @@ class Agent(OverridesMixin):
             "agent": dict(self.counters),
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
+            "fcu": self.link.summary(),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
             # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake);
             # "zenoh_runtime": the process's ZENOH_RUNTIME ("": Zenoh's defaults; swarmnet.connectivity.lean_zenoh_runtime)

@@ -37,10 +37,19 @@ class AutopilotProfile:
     takeoff_mode: str | None  # mode NAV_TAKEOFF needs (ArduPilot: GUIDED); None: any mode
     takeoff_alt_relative: bool  # NAV_TAKEOFF param 7: metres above home (ArduPilot), not AMSL (PX4)
     mode_params: Mapping[str, tuple[float, ...]]  # DO_SET_MODE params 2.. (custom mode) per mode name
-    # modes a companion leaves before arming (``arming_mode``): the autopilot refuses to arm in them
-    # (a landed UAV is often left in RTL or LAND), or arming would start something (PX4 MISSION)
-    leave_before_arming: frozenset[str] = frozenset()
+    # the modes the agent arms in; in any other it first switches to ``arming_mode``. The autopilot
+    # refuses to arm in many (PX4 OFFBOARD without a setpoint stream, where PX4 returns after a
+    # landing; RTL, LAND, ArduPilot AUTO), or arming would start something (PX4 MISSION)
+    arm_modes: frozenset[str] = frozenset()
     arming_mode: str = ""
+    # the message whose flags say whether the autopilot's estimator has a usable position (ArduPilot
+    # EKF_STATUS_REPORT, PX4 ESTIMATOR_STATUS), asked for at start-up; "" when it has none
+    estimator: str = ""
+    # its GLOBAL_POSITION_INT is no position until the estimator's flags say so (ArduCopter sends a
+    # real latitude and longitude from its GPS while the EKF still ignores them); PX4 sends none before
+    estimator_first: bool = False
+    # honours REQUEST_DATA_STREAM (ArduPilot does; PX4 ignores it): the start-up contract's fallback
+    data_streams: bool = True
 
     def set_mode_params(self, name: str) -> tuple[float, ...]:
         """DO_SET_MODE params 1.. for a mode name (case-insensitive); ValueError if unknown."""
@@ -84,8 +93,10 @@ PX4_PROFILE = AutopilotProfile(
     # PX4 reads main/sub from params 2/3; LOITER is pymavlink's name for HOLD, kept as an alias
     mode_params={**{name: (float(main), float(sub)) for (main, sub), name in PX4_MODE_NAMES.items()},
                  "LOITER": (4.0, 3.0)},
-    leave_before_arming=frozenset({"RTL", "MISSION"}),
+    arm_modes=frozenset({"HOLD", "READY", "TAKEOFF"}),  # PX4 arms in Hold; NAV_TAKEOFF may have come first
     arming_mode="HOLD",
+    estimator="ESTIMATOR_STATUS",
+    data_streams=False,
 )
 
 ARDUPILOT_PROFILE = AutopilotProfile(
@@ -97,11 +108,52 @@ ARDUPILOT_PROFILE = AutopilotProfile(
     takeoff_mode="GUIDED",
     takeoff_alt_relative=True,
     mode_params={name: (float(number),) for number, name in mavutil.mode_mapping_acm.items()},
-    leave_before_arming=frozenset({"RTL", "LAND", "AUTO", "SMART_RTL", "AUTO_RTL"}),
+    arm_modes=frozenset({"GUIDED"}),  # ArduCopter takes off only in GUIDED: it arms there
     arming_mode="GUIDED",
+    estimator="EKF_STATUS_REPORT",
+    estimator_first=True,
 )
 
 PROFILES: dict[int, AutopilotProfile] = {p.autopilot: p for p in (PX4_PROFILE, ARDUPILOT_PROFILE)}
+
+
+def firmware_version(flight_sw_version: int) -> str:
+    """AUTOPILOT_VERSION.flight_sw_version as PX4 and ArduPilot encode it: major, minor, patch and
+    the release type in its four bytes (``0x04070000`` is 4.7.0-dev, ``0x011000FF`` 1.16.0)."""
+    v = flight_sw_version
+    kind = {0: "-dev", 64: "-alpha", 128: "-beta", 192: "-rc"}.get(v & 0xFF, "")
+    return f"{(v >> 24) & 0xFF}.{(v >> 16) & 0xFF}.{(v >> 8) & 0xFF}{kind}"
+
+
+# PX4's EVENTs (message 410) carry no text: an id, whose name and message come from the
+# firmware's event metadata. These are the ones PX4 1.16 sends on its onboard link around arming,
+# take-off, landing and failsafes, as recorded from a real PX4 SITL. Unknown ids are shown by number.
+PX4_EVENTS: dict[int, tuple[str, str]] = {
+    0x0102089D: ("commander_arm_denied_resolve_failures", "Arming denied: Resolve system health failures first"),
+    0x0105C2D9: ("check_modes_mission", "No valid mission available"),
+    0x0106ED29: ("check_modes_manual_control", "No manual control input"),
+    0x011D3727: ("commander_health_summary", "Health report summary event"),
+    0x012F1DC7: ("check_modes_offboard_signal", "No offboard signal"),
+    0x0132B2DE: ("commander_landing_current_pos", "Landing at current position"),
+    0x01414569: ("commander_takeoff_detected", "Takeoff detected"),
+    0x0167C97B: ("check_rc_dl_no_dllink", "No connection to the ground control station"),
+    0x0190CAF3: ("commander_armed_by", "Armed by {1}"),
+    0x019638AC: ("commander_landing_detected", "Landing detected"),
+    0x0198C273: ("check_modes_global_pos", "Navigation error: No valid global position estimate"),
+    0x01A893E0: ("commander_arming_check_summary", "Arming check summary event"),
+    0x01D31BB9: ("check_modes_local_pos", "Navigation error: No valid position estimate"),
+    0x01DEDBD0: ("commander_failsafe_enter_generic", "Failsafe activated: switching to {2}"),
+    0x01F46777: ("commander_disarmed_by", "Disarmed by {1}"),
+}  # fmt: skip
+PX4_ARMING_SUMMARY = 0x01A893E0  # starts a new arming-check report: the check events that follow belong to it
+PX4_HEALTH_SUMMARY = 0x011D3727  # ends it
+
+
+def px4_event_text(event_id: int) -> str:
+    """An EVENT's id as a person reads it: ``commander_arm_denied_resolve_failures (Arming denied:
+    Resolve system health failures first)``, or ``PX4 event 0x01234567`` for an id not in the table."""
+    known = PX4_EVENTS.get(event_id)
+    return f"{known[0]} ({known[1]})" if known else f"PX4 event 0x{event_id:08x}"
 
 
 def profile_for(autopilot: int) -> AutopilotProfile:

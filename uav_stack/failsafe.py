@@ -70,6 +70,9 @@ class FailsafeConfig(Config, frozen=True):
     battery_low: Annotated[float, Meta(ge=0.0, le=1.0, description="remaining fraction: warning")] = 0.15
     battery_critical: Annotated[float, Meta(ge=0.0, le=1.0, description="remaining fraction: battery_action")] = 0.07
     battery_action: Action = "land"
+    # s the agent keeps trying to arm (its autopilot's pre-arm checks failing, or its arms refused)
+    # before it gives up: phase error, with the autopilot's reason; a takeoff or start tries again
+    arm_timeout_s: Annotated[float, Meta(gt=0.0, le=3600.0, description="s of arming before giving up")] = 60.0
 
     def __post_init__(self) -> None:
         if self.swarm_link_action_s <= self.swarm_link_hold_s:

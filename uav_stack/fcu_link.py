@@ -13,7 +13,19 @@ and drops datagrams from any other sender than the FCU (``udpout``: the address 
 pins the FCU's system and component id: from then on only that (sysid, compid) moves the
 agent's view of its vehicle (mode, position, acks), so a forged heartbeat cannot make the
 agent yield and a forged position cannot move its swarm pose. Everything ignored is counted
-in :attr:`FcuLink.counts` (``foreign_source``, ``foreign_id``, ``before_heartbeat``).
+in :attr:`FcuLink.counts` (``foreign_source``, ``foreign_id``: another system or component than
+the pinned FCU; ``before_heartbeat``; ``unknown_id``: a message of the FCU itself whose id the
+dialect does not know).
+
+Once pinned, the link runs its start-up contract (:mod:`uav_stack.fcu_contract`): it asks the
+autopilot for the messages the agent needs and checks that they arrive.
+
+**No position until the autopilot has one.** A GLOBAL_POSITION_INT is taken only when the
+autopilot says it is a position: latitude and longitude not both 0 (ArduCopter sends zeros
+until its GPS has a fix), the estimator using an absolute horizontal position when it reports
+its flags (ArduPilot's EKF_STATUS_REPORT: POS_HORIZ_ABS set, not in constant-position mode nor
+uninitialised; PX4's ESTIMATOR_STATUS: POS_HORIZ_ABS set), else a 3D GPS fix when GPS_RAW_INT
+says. Any other is counted (``no_position``) and its reason kept (:attr:`FcuState.no_position`).
 """
 
 from __future__ import annotations
@@ -26,7 +38,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from uav_stack.autopilot import PX4_PROFILE, AutopilotProfile, mode_name, profile_for
+from uav_stack.autopilot import (
+    PX4_ARMING_SUMMARY,
+    PX4_HEALTH_SUMMARY,
+    PX4_PROFILE,
+    AutopilotProfile,
+    firmware_version,
+    mode_name,
+    profile_for,
+    px4_event_text,
+)
+from uav_stack.fcu_contract import FcuContract
 from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
 from uav_stack.mav import mavlink, mavutil
 from uav_stack.mavcodec import MAVLink
@@ -47,6 +69,15 @@ _RESULT_NAMES = {
     mavlink.MAV_RESULT_FAILED: "failed",
     mavlink.MAV_RESULT_IN_PROGRESS: "in_progress",
 }
+# estimator flags that mean "no usable absolute position", by message (their flag enums differ: PX4
+# sets ESTIMATOR_CONST_POS_MODE whenever it is disarmed on the ground, with a good GPS position)
+_ESTIMATOR_BAD = {"EKF_STATUS_REPORT": mavlink.EKF_CONST_POS_MODE | mavlink.EKF_UNINITIALIZED, "ESTIMATOR_STATUS": 0}
+_POS_HORIZ_ABS = mavlink.EKF_POS_HORIZ_ABS  # == ESTIMATOR_POS_HORIZ_ABS
+_PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+_OCCASIONAL = frozenset({"EXTENDED_SYS_STATE", "SYS_STATUS", "GPS_RAW_INT", "EKF_STATUS_REPORT", "ESTIMATOR_STATUS",
+                         "HOME_POSITION", "BATTERY_STATUS", "NAMED_VALUE_FLOAT", "COMMAND_ACK", "STATUSTEXT", "EVENT",
+                         "AUTOPILOT_VERSION"})
+REASON_SEVERITY = mavlink.MAV_SEVERITY_WARNING  # STATUSTEXTs (and PX4 EVENTs) at this level or worse are reasons
 # type_mask for a NED velocity setpoint: ignore position, acceleration, yaw and yaw rate
 VELOCITY_ONLY_MASK = (
     mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE
@@ -152,10 +183,49 @@ class FcuState:
     voltage: float = -1.0
     rtf_reported: float = math.nan  # NAMED_VALUE_FLOAT "RTF" if the FCU publishes it
     statustext: deque[str] = field(default_factory=lambda: deque(maxlen=20))
+    system_status: int = 0  # HEARTBEAT.system_status (MAV_STATE_*)
+    position_ok: bool = False  # the latest GLOBAL_POSITION_INT was a position (see the module's doc)
+    no_position: str = "no GLOBAL_POSITION_INT yet"  # why not, "" while it is
+    gps_fix: int = -1  # GPS_RAW_INT.fix_type (-1: none seen)
+    satellites: int = -1
+    estimator: str = ""  # the message the flags came from (EKF_STATUS_REPORT, ESTIMATOR_STATUS)
+    estimator_flags: int = -1  # its flags (-1: none seen)
+    sensors_present: int = 0  # SYS_STATUS onboard_control_sensors_* (MAV_SYS_STATUS_SENSOR bits)
+    sensors_health: int = 0
+    sys_status_at: float = -math.inf
+    version: str = ""  # "4.7.0-dev (2598e9d4)", from AUTOPILOT_VERSION
+    capabilities: int = -1  # AUTOPILOT_VERSION.capabilities (MAV_PROTOCOL_CAPABILITY_*)
+    # the autopilot's own words about problems: STATUSTEXT at WARNING or worse (ArduPilot's "Arm: ...",
+    # "PreArm: ..."), PX4 EVENTs at WARNING or worse, by name; (wall time, text), newest last
+    reasons: deque[tuple[float, str]] = field(default_factory=lambda: deque(maxlen=32))
+    px4_checks: list[str] = field(default_factory=list)  # errors of PX4's latest arming-check report
 
     @property
     def has_position(self) -> bool:
-        return not math.isnan(self.lat)
+        """A position the autopilot stands by (not zeros before a fix, not an estimator without GPS)."""
+        return self.position_ok
+
+    @property
+    def prearm_ok(self) -> bool | None:
+        """SYS_STATUS's pre-arm check bit: True/False as the autopilot reports it, None before a SYS_STATUS.
+
+        PX4 and ArduPilot (and the virtual FCU) set its health while arming would pass in the current
+        mode; PX4 leaves the "present" bit clear, so health alone is read for the autopilots known to
+        report it, and the present bit decides for others."""
+        if self.sys_status_at == -math.inf:
+            return None
+        if not (self.sensors_present & _PREARM) and self.autopilot not in (mavlink.MAV_AUTOPILOT_PX4,
+                                                                          mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
+            return None
+        return bool(self.sensors_health & _PREARM)
+
+    def reasons_since(self, t: float) -> list[str]:
+        """The autopilot's reasons (texts, events) that arrived at or after wall time ``t``, oldest first, once each."""
+        out: list[str] = []
+        for at, text in self.reasons:
+            if at >= t and text not in out:
+                out.append(text)
+        return out
 
 
 class FcuLink:
@@ -171,6 +241,8 @@ class FcuLink:
         clock: Callable[[], float] = time.time,
         on_message: Callable[[Any], None] | None = None,
         bind: str | None = None,
+        position_hz: float = 10.0,
+        ask_streams: bool = True,
     ):
         self.url = url
         self.bind = bind  # local address of a UDP link (None: the one that routes to the FCU)
@@ -183,11 +255,17 @@ class FcuLink:
         self.rtf = RtfMeter()  # the FCU's time_boot_ms against our wall clock
         self.pending: dict[int, CommandHandle] = {}
         self.counts: dict[str, int] = {"rx": 0, "tx_setpoints": 0, "commands": 0, "bad": 0,
-                                       "foreign_source": 0, "foreign_id": 0, "before_heartbeat": 0}
+                                       "foreign_source": 0, "foreign_id": 0, "before_heartbeat": 0, "unknown_id": 0,
+                                       "no_position": 0}
+        self.rx_types: dict[str, int] = {}  # the pinned FCU's messages by type (the start-up contract reads them)
+        # the start-up contract (uav_stack/fcu_contract.py): asks for what the agent needs once the FCU is pinned
+        self.contract = FcuContract(self.rx_types, self._send_command_long, self._send_data_stream, position_hz=position_hz,
+                                    ask=ask_streams, rtf=lambda: self.rtf.value)
         self.conn: Any = None
         self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
         self._next_heartbeat = 0.0
+        self._px4_report = False  # within a PX4 arming-check report (its summary event, then its checks)
 
     # ---- lifecycle ----------------------------------------------------------------------
     def open(self) -> FcuLink:
@@ -218,6 +296,17 @@ class FcuLink:
                 self.conn.close()
             finally:
                 self.conn = None
+
+    def summary(self) -> dict[str, Any]:
+        """What the autopilot says of itself and what the start-up contract got (the UAV's status file)."""
+        st = self.state
+        return {
+            "autopilot": st.profile.label if self.fcu_ids is not None else None, "version": st.version or None,
+            "mode": st.mode, "system_status": st.system_status, "position": st.no_position or "ok",
+            "gps_fix": st.gps_fix, "satellites": st.satellites, "estimator": st.estimator or None,
+            "estimator_flags": st.estimator_flags, "prearm_ok": st.prearm_ok,
+            "last_reasons": st.reasons_since(-math.inf)[-5:], **self.contract.as_dict(),
+        }
 
     @property
     def local_address(self) -> Addr | None:
@@ -292,6 +381,9 @@ class FcuLink:
             return
         self.counts["rx"] += 1
         ids = (msg.get_srcSystem(), msg.get_srcComponent())
+        unknown = ids == (0, 0) and msg.get_msgId() == mavlink.MAVLINK_MSG_ID_UNKNOWN
+        if unknown:  # an id the dialect does not know: pymavlink leaves its sender unset, the frame has it
+            ids = _frame_ids(msg)
         if self.fcu_ids is None:
             if not self._pins(msg):
                 self.counts["before_heartbeat"] += 1
@@ -300,24 +392,26 @@ class FcuLink:
             if self.udp is not None and self.udp.fcu is None:  # udpin: the FCU is whoever sent its first heartbeat
                 self.udp.fcu = src
             log.info("FCU link pinned to sysid %d compid %d%s", ids[0], ids[1], f" at {src[0]}:{src[1]}" if src else "")
+            self.contract.start(profile_for(msg.autopilot), self.clock())
         if self.on_message is not None:  # e.g. the MAVLink router: every frame of the FCU's link
             self.on_message(msg)
         if ids != self.fcu_ids:  # another component on the link (a camera, a forwarded GCS), or a forgery
             self.counts["foreign_id"] += 1
             return
+        if unknown:  # the FCU's own message, of an id mrswarm's dialect lacks: not a forgery, just not understood
+            self.counts["unknown_id"] += 1
+            return
+        types = self.rx_types
+        types[mtype] = types.get(mtype, 0) + 1
         st = self.state
-        now = self.clock()
-        if mtype == "HEARTBEAT":
-            st.sysid = ids[0]
-            if msg.autopilot != st.autopilot:
-                st.autopilot = msg.autopilot
-                st.profile = profile_for(msg.autopilot)
-            st.heartbeat_at = now
-            st.base_mode = msg.base_mode
-            st.custom_mode = msg.custom_mode
-            st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            st.mode = mode_name(msg)
-        elif mtype == "GLOBAL_POSITION_INT":
+        if mtype == "GLOBAL_POSITION_INT":
+            why = self._no_position(msg)
+            if why:
+                self.counts["no_position"] += 1
+                st.no_position, st.position_ok = why, False
+                return
+            st.no_position, st.position_ok = "", True
+            now = self.clock()
             st.lat, st.lon = msg.lat * 1e-7, msg.lon * 1e-7
             st.alt, st.relative_alt = msg.alt * 1e-3, msg.relative_alt * 1e-3
             st.vn, st.ve, st.vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
@@ -328,15 +422,38 @@ class FcuLink:
             self.rtf.add(now, st.position_boot_s)
         elif mtype == "ATTITUDE":
             st.yaw = msg.yaw
-        elif mtype == "EXTENDED_SYS_STATE":
+        elif mtype == "HEARTBEAT":
+            st.sysid = ids[0]
+            if msg.autopilot != st.autopilot:
+                st.autopilot = msg.autopilot
+                st.profile = profile_for(msg.autopilot)
+            st.heartbeat_at = self.clock()
+            st.base_mode = msg.base_mode
+            st.custom_mode = msg.custom_mode
+            st.system_status = msg.system_status
+            st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            st.mode = mode_name(msg)
+        elif mtype in _OCCASIONAL:  # one set lookup: a message handled nowhere (LOCAL_POSITION_NED...) costs no chain
+            self._occasional(mtype, msg)
+
+    def _occasional(self, mtype: str, msg: Any) -> None:
+        """The FCU's messages that come at a few Hz or less (state, health, answers, texts)."""
+        st = self.state
+        if mtype == "EXTENDED_SYS_STATE":
             st.landed_state = msg.landed_state
-        elif mtype == "HOME_POSITION":
-            st.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
         elif mtype == "SYS_STATUS":
             if msg.battery_remaining >= 0:
                 st.battery = msg.battery_remaining / 100.0
             if msg.voltage_battery != 65535:
                 st.voltage = msg.voltage_battery / 1000.0
+            st.sensors_present, st.sensors_health = msg.onboard_control_sensors_present, msg.onboard_control_sensors_health
+            st.sys_status_at = self.clock()
+        elif mtype == "GPS_RAW_INT":
+            st.gps_fix, st.satellites = msg.fix_type, msg.satellites_visible
+        elif mtype == "EKF_STATUS_REPORT" or mtype == "ESTIMATOR_STATUS":
+            st.estimator, st.estimator_flags = mtype, msg.flags
+        elif mtype == "HOME_POSITION":
+            st.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
         elif mtype == "BATTERY_STATUS":
             if msg.battery_remaining >= 0:
                 st.battery = msg.battery_remaining / 100.0
@@ -353,13 +470,64 @@ class FcuLink:
                 h.result = msg.result
                 if h.done:
                     del self.pending[msg.command]
+            else:
+                self.contract.on_ack(msg.command, msg.result)
         elif mtype == "STATUSTEXT":
             st.statustext.append(msg.text)
+            if msg.severity <= REASON_SEVERITY:
+                st.reasons.append((self.clock(), msg.text))
+        elif mtype == "EVENT":
+            self._event(msg)
+        elif mtype == "AUTOPILOT_VERSION":
+            st.capabilities = msg.capabilities
+            custom = bytes(msg.flight_custom_version)
+            if st.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+                custom = custom[::-1]  # PX4: the git hash's first bytes, least significant first
+                tag = custom.hex()[:8] if any(custom) else ""
+            else:  # ArduPilot: the git hash's first 8 characters
+                tag = custom.rstrip(b"\x00").decode("ascii", "replace")
+            st.version = firmware_version(msg.flight_sw_version) + (f" ({tag})" if tag else "")
+
+
+    def _no_position(self, msg: Any) -> str:
+        """Why a GLOBAL_POSITION_INT is not a position, "" if it is (see the module's doc)."""
+        st = self.state
+        if msg.lat == 0 and msg.lon == 0:
+            return "latitude and longitude 0 (the autopilot has no position yet)"
+        flags = st.estimator_flags
+        if flags >= 0:
+            bad = flags & _ESTIMATOR_BAD[st.estimator]
+            if bad or not flags & _POS_HORIZ_ABS:
+                what = ([] if flags & _POS_HORIZ_ABS else ["no absolute horizontal position"]) + \
+                    (["constant-position mode"] if bad & mavlink.EKF_CONST_POS_MODE else []) + \
+                    (["uninitialised"] if bad & mavlink.EKF_UNINITIALIZED else [])
+                return f"the autopilot's estimator does not use GPS yet ({st.estimator} flags 0x{flags:x}: {', '.join(what)})"
+        elif self.contract.awaits_estimator:
+            return f"waiting for the autopilot's {st.profile.estimator} (does its estimator use GPS?)"
+        elif 0 <= st.gps_fix < mavlink.GPS_FIX_TYPE_3D_FIX:
+            return f"no 3D GPS fix (GPS_RAW_INT fix_type {st.gps_fix}, {st.satellites} satellites)"
+        return ""
+
+    def _event(self, msg: Any) -> None:
+        """A PX4 EVENT: the ones at WARNING or worse become reasons (by name); an arming-check report's
+        errors are kept until the next report (PX4 sends them when they change, not with each refusal)."""
+        st = self.state
+        level = msg.log_levels & 0x0F  # external log level (the internal one is the high nibble)
+        if msg.id == PX4_ARMING_SUMMARY:
+            st.px4_checks, self._px4_report = [], True
+        elif msg.id == PX4_HEALTH_SUMMARY:
+            self._px4_report = False
+        elif self._px4_report and level <= mavlink.MAV_SEVERITY_ERROR:  # a failing check of the report, known or not
+            st.px4_checks.append(px4_event_text(msg.id))
+        if level <= REASON_SEVERITY:
+            st.reasons.append((self.clock(), px4_event_text(msg.id)))
 
     # ---- send ---------------------------------------------------------------------------
     def service(self) -> None:
-        """Heartbeat at 1 Hz and command retries; call often (every loop iteration)."""
+        """Heartbeat at 1 Hz, command retries and the start-up contract's checks; call often (every loop iteration)."""
         now = self.clock()
+        if now >= self.contract.next_check:
+            self.contract.check(now)
         if now >= self._next_heartbeat:
             self._next_heartbeat = now + 1.0
             self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -385,6 +553,10 @@ class FcuLink:
     def _send_command_long(self, command: int, params: tuple[float, ...], confirmation: int = 0) -> None:
         p = list(params) + [math.nan] * (7 - len(params))
         self.conn.mav.command_long_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, command, confirmation, *p)
+
+    def _send_data_stream(self, stream: int, hz: int) -> None:
+        """REQUEST_DATA_STREAM (start): ArduPilot's way to set a group of streams' rate."""
+        self.conn.mav.request_data_stream_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, stream, hz, 1)
 
     def command(self, command: int, *params: float) -> CommandHandle:
         """Send COMMAND_LONG; unused params go out as NaN (= unset). Replaces a pending one."""
@@ -426,6 +598,16 @@ class FcuLink:
             0, 0, 0, vn, ve, vd, 0, 0, 0, 0, 0,
         )
         self.counts["tx_setpoints"] += 1
+
+
+def _frame_ids(msg: Any) -> tuple[int, int]:
+    """(sysid, compid) from a message's own frame (MAVLink 2 or 1), for one pymavlink could not decode."""
+    buf = getattr(msg, "_msgbuf", b"")
+    if len(buf) >= 10 and buf[0] == mavlink.PROTOCOL_MARKER_V2:
+        return buf[5], buf[6]
+    if len(buf) >= 6 and buf[0] == mavlink.PROTOCOL_MARKER_V1:
+        return buf[3], buf[4]
+    return 0, 0
 
 
 class _UdpConnection:

@@ -55,6 +55,7 @@ class Row:
     seen: float = math.nan  # s since anything arrived from it
     rate: float = math.nan  # poses/s
     loss: float = math.nan  # fraction of poses lost
+    detail: str = ""  # the agent's phase detail: what it waits for in init/arming, why it is in error
 
     def get(self, key: str) -> Any:
         return self.phase + self.override if key == "phase" else getattr(self, key)
@@ -85,7 +86,7 @@ def rows_from(obs: SwarmObserver, now: float) -> list[Row]:
             r.use = t.use_ms if t.use_ms >= 0 else math.nan
             times.append(t.t_wall)
         if v.state is not None:
-            r.phase, r.override = v.state.phase, v.state.override
+            r.phase, r.override, r.detail = v.state.phase, v.state.override, v.state.detail
             times.append(v.state_recv)
         r.seen = now - max(times) if times else math.nan
         rows.append(r)
@@ -168,10 +169,13 @@ COLUMNS: dict[str, tuple[JustifyMethod, int]] = {
     "id": ("right", 3), "R": ("left", 1), "phase": ("left", 7), "override": ("left", 8), "mode": ("left", 8),
     "arm": ("left", 3), "x": ("right", 6), "y": ("right", 6), "alt": ("right", 5), "m/s": ("right", 4),
     "bat%": ("right", 4), "rtf": ("right", 4), "age ms": ("right", 6), "rx ms": ("right", 5), "use ms": ("right", 6),
-    "Hz": ("right", 4), "loss%": ("right", 5), "seen s": ("right", 6),
+    "Hz": ("right", 4), "loss%": ("right", 5), "seen s": ("right", 6), "detail": ("left", 12),
 }
-# dropped first when the terminal is narrow (the realm is R: V = virtual, P = physical)
-_DROP_ORDER = ("loss%", "Hz", "use ms", "rx ms", "R", "arm", "rtf", "m/s")
+# dropped first when the terminal is narrow (the realm is R: V = virtual, P = physical); a UAV that
+# waits (init, arming) or gave up (error) says why below the table at any width
+_DROP_ORDER = ("detail", "loss%", "Hz", "use ms", "rx ms", "R", "arm", "rtf", "m/s")
+WAITING = frozenset({AgentPhase.INIT, AgentPhase.ARMING, AgentPhase.ERROR})
+MAX_WAIT_LINES = 5
 
 
 def fit_columns(width: int) -> list[str]:
@@ -221,7 +225,9 @@ class WatchView:
         rows = rows_from(obs, now)
         total = len(rows)
         shown = sort_rows([r for r in rows if self.filter.match(r)], self.sort, self.reverse)
-        per_page = max(1, height - 9)
+        waiting = [r for r in sort_rows(rows, "id") if r.phase in WAITING and r.detail]
+        wait_lines = min(len(waiting), MAX_WAIT_LINES)
+        per_page = max(1, height - 9 - wait_lines - (len(waiting) > wait_lines))
         pages = max(1, math.ceil(len(shown) / per_page))
         self.page = min(self.page, pages - 1)
         page_rows = shown[self.page * per_page:(self.page + 1) * per_page]
@@ -241,7 +247,7 @@ class WatchView:
         t = Table(box=None, pad_edge=False, header_style="bold", expand=False, padding=(0, 1))
         for name in cols:
             just, min_w = COLUMNS[name]
-            t.add_column(name, justify=just, no_wrap=True, min_width=min_w)
+            t.add_column(name, justify=just, no_wrap=True, min_width=min_w, overflow="ellipsis")
         for r in page_rows:
             style = ""
             if r.seen > LOST_S:
@@ -260,6 +266,7 @@ class WatchView:
                 "age ms": _f(r.age * 1000 if r.age == r.age else math.nan, ".1f"), "rx ms": _f(r.rx, ".1f"),
                 "use ms": _f(r.use, ".0f"), "Hz": _f(r.rate, ".1f"),
                 "loss%": _f(r.loss * 100 if r.loss == r.loss else math.nan, ".1f"), "seen s": _f(r.seen, ".1f"),
+                "detail": r.detail,
             }
             t.add_row(*(cells[c] for c in cols), style=style)
         ended = self.run_ended(now)
@@ -269,11 +276,15 @@ class WatchView:
             head.append(Text(f"\nthe run has ended ({now - ended:.0f} s ago, at {at})"
                              + (f"; summary: {summary}" if summary.exists() else "; its summary is being written"),
                              style="bold red"))
+        waits = [Text.assemble((f"UAV {r.id} {r.phase}: ", "bold red" if r.phase == AgentPhase.ERROR else "bold"), r.detail,
+                               no_wrap=True, overflow="ellipsis") for r in waiting[:wait_lines]]
+        if len(waiting) > wait_lines:
+            waits.append(Text(f"... and {len(waiting) - wait_lines} more waiting (--filter phase=init)", style="dim"))
         foot = Text(
             f"sort {self.sort}{' (reversed)' if self.reverse else ''} | filter {self.filter.describe()} | "
             f"rows {len(shown)} of {total}, page {self.page + 1}/{pages} | "
             "q quit  s/S sort  r reverse  f phase  c clear  n/p page", style="dim")
-        return Group(head, t, foot)
+        return Group(head, t, *waits, foot)
 
     # ---- keys -------------------------------------------------------------------------------
     def key(self, k: str, obs: SwarmObserver) -> bool:

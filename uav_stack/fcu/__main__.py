@@ -1,9 +1,13 @@
 """Standalone virtual FCU.
 
     python -m uav_stack.fcu --sysid 1 --listen 127.0.0.1:14580 [--remote 127.0.0.1:14540]
-        --home LAT,LON,ALT [--flavour px4|ardupilot] [--rtf 1.0] [--duration S]
+        --home LAT,LON,ALT [--flavour px4|ardupilot] [--boot short|firmware] [--rtf 1.0] [--duration S]
         [--count N] [--param NAME=VALUE ...] [--rate MESSAGE=HZ ...] [--physics-hz 50]
         [--owner HOST:PORT [--owner-only]]
+
+``--boot firmware`` boots on the firmware's own timeline (ArduCopter is ready to arm after about 42 s);
+the default ``short`` runs the same boot, ready after 1 s. ``--rate`` sets a stream over the flavour's own
+(as a companion's SET_MESSAGE_INTERVAL would).
 
 With ``--count N`` it hosts N vehicles in one process: sysids sysid..sysid+N-1, listen
 port and remote ports +i (PX4 SITL's multi-vehicle convention), homes 5 m apart eastwards.
@@ -23,7 +27,8 @@ import signal
 import sys
 import threading
 
-from uav_stack.fcu.config import DEFAULT_STREAM_RATES, FcuConfig, VehicleConfig
+from uav_stack.fcu.boot import BOOT_PROFILES
+from uav_stack.fcu.config import FcuConfig, VehicleConfig
 from uav_stack.fcu.fcu import VirtualFcu
 from uav_stack.geo import GeoPoint, LocalFrame
 
@@ -66,6 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--remote", type=_hostport, action="append", default=[], help="static peer HOST:PORT")
     p.add_argument("--home", type=_home, default=GeoPoint(47.397742, 8.545594, 488.0), help="LAT,LON,ALT")
     p.add_argument("--flavour", choices=["px4", "ardupilot"], default="px4")
+    p.add_argument("--boot", choices=list(BOOT_PROFILES), default="short",
+                   help="boot timeline: short (ready in 1 s) or firmware (the firmware's own durations)")
     p.add_argument("--rtf", type=float, default=1.0, help="target real-time factor")
     p.add_argument("--physics-hz", type=float, default=50.0)
     p.add_argument("--duration", type=float, default=None, help="seconds of wall time, default forever")
@@ -100,11 +107,10 @@ def config_from_args(a: argparse.Namespace) -> FcuConfig:
                 params=dict(a.param),
                 owner=(a.owner[0], a.owner[1] + i) if a.owner else None,
                 owner_only=a.owner_only,
+                boot=a.boot,
             )
         )
-    rates = dict(DEFAULT_STREAM_RATES)
-    rates.update(dict(a.rate))
-    return FcuConfig(vehicles=vehicles, physics_hz=a.physics_hz, target_rtf=a.rtf, stream_rates=rates)
+    return FcuConfig(vehicles=vehicles, physics_hz=a.physics_hz, target_rtf=a.rtf, stream_rates=dict(a.rate))
 
 
 def main(argv: list[str] | None = None) -> int:

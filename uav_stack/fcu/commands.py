@@ -1,8 +1,9 @@
 """COMMAND_LONG / COMMAND_INT handling: one function per MAV_CMD, one ACK per command.
 
-Handlers return ``(MAV_RESULT, reason)``; a refusal's reason also goes out as STATUSTEXT.
-Messages a handler wants sent after its ACK (REQUEST_MESSAGE) go to ``v.after_ack``.
-NaN (and INT32_MAX for COMMAND_INT x/y) mean "unset". Unknown commands get UNSUPPORTED.
+Handlers return ``(MAV_RESULT, reason)``; on ArduPilot a refusal's reason also goes out as STATUSTEXT (PX4
+sends none on its onboard link). Everything a handler sends goes out after its ACK, as both firmwares do,
+except what it sends with ``v.send_now`` (PX4's replies to REQUEST_MESSAGE come first). PX4 ACKs DO_SET_MODE
+twice. NaN (and INT32_MAX for COMMAND_INT x/y) mean "unset". Unknown commands get UNSUPPORTED.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uav_stack.fcu import ardupilot, px4
 from uav_stack.fcu.offboard import GLOBAL_FRAMES
-from uav_stack.fcu.telemetry import ENCODERS, REQUESTABLE, STREAM_BY_ID
+from uav_stack.fcu.streams import REQUESTABLE, STREAM_BY_ID
 from uav_stack.fcu.vehicle import ACCEPTED, DENIED, FAILED, Vehicle
 from uav_stack.geo import GeoPoint
 from uav_stack.mav import mavlink
@@ -102,7 +104,7 @@ def cmd_arm_disarm(v: Vehicle, c: MavCommand) -> Result:
         return DENIED, "ARM_DISARM: param1 unset"
     if c.p1 >= 0.5:
         return v.arm(force)
-    return v.disarm(force, reason="Disarmed (forced)" if force and not v.landed else "")
+    return v.disarm(force, why="forced" if force else "command")
 
 
 def cmd_takeoff(v: Vehicle, c: MavCommand) -> Result:
@@ -131,19 +133,23 @@ def cmd_takeoff(v: Vehicle, c: MavCommand) -> Result:
         return FAILED, "Takeoff requires GUIDED mode"
     if not v.armed:
         return FAILED, "Takeoff: not armed"
-    if v.phase == "takeoff":
+    if v.phase == "takeoff" or v.pending_takeoff is not None:
         return ACCEPTED, ""  # a retry of the takeoff in progress
     if not v.landed:
         return FAILED, "Takeoff: already flying"
     if not _finite(c.p7) or not 0 < c.p7 <= MAX_REL_ALT:
         return FAILED, "Takeoff: altitude must be > 0"
     z = float(v.ctx.dyn.pos[v.i, 2]) - c.p7
-    v._start_takeoff(z, c.p4 if _finite(c.p4) else NAN)
+    # ArduCopter ramps its throttle up first: it leaves the ground a few seconds after the ACK
+    v.pending_takeoff = (v.now + ardupilot.TAKEOFF_SPOOL_S, z, c.p4 if _finite(c.p4) else NAN)
     return ACCEPTED, ""
 
 
 def cmd_land(v: Vehicle, c: MavCommand) -> Result:
-    return v.request_mode(v.flavour.mode("LAND"))
+    result, why = v.request_mode(v.flavour.mode("LAND"))
+    if result == ACCEPTED:
+        v.event(px4.LANDING_CURRENT_POS)
+    return result, why
 
 
 def cmd_rtl(v: Vehicle, c: MavCommand) -> Result:
@@ -229,18 +235,26 @@ def cmd_set_home(v: Vehicle, c: MavCommand) -> Result:
             return DENIED, "DO_SET_HOME: no position"
         lat, lon = ll
         alt = alt_v if alt_v is not None else v.home.alt
-    v.home = GeoPoint(lat, lon, alt)
-    v.home_ned = v.ned_of(lat, lon, alt)
-    _reply(v, ENCODERS["HOME_POSITION"](v))
+    v.set_home(GeoPoint(lat, lon, alt))
     return ACCEPTED, ""
 
 
 def _reply(v: Vehicle, msg: mavlink.MAVLink_message | None) -> Result:
-    """Send ``msg`` after the ACK; TEMPORARILY_REJECTED while there is nothing to send (no fix yet)."""
-    if msg is None:
-        return M.MAV_RESULT_TEMPORARILY_REJECTED, ""
-    v.after_ack.append(msg)
+    """Send a requested message. PX4 sends it just before its ACK, and DENIES when it has nothing to send
+    (no home yet); ArduPilot sends it after the ACK, and ACCEPTS even then (the message just does not come)."""
+    if v.flavour.is_px4:
+        if msg is None:
+            return DENIED, ""
+        v.send_now(msg)
+        return ACCEPTED, ""
+    if msg is not None:
+        v.send(msg)
     return ACCEPTED, ""
+
+
+def _unknown(v: Vehicle) -> Result:
+    """A message this firmware cannot send (ArduPilot: FAILED, as for PROTOCOL_VERSION; PX4: DENIED)."""
+    return (DENIED if v.flavour.is_px4 else FAILED), ""
 
 
 def _msg_id(x: float) -> int | None:
@@ -249,26 +263,29 @@ def _msg_id(x: float) -> int | None:
 
 def cmd_request_message(v: Vehicle, c: MavCommand) -> Result:
     if _msg_id(c.p1) is None:
-        return DENIED, ""
-    fn = REQUESTABLE.get(int(c.p1))
+        return _unknown(v)
+    fn = REQUESTABLE[v.flavour.name].get(int(c.p1))
     if fn is None:
-        return DENIED, ""
+        return _unknown(v)
     return _reply(v, fn(v))
 
 
 def cmd_autopilot_caps(v: Vehicle, c: MavCommand) -> Result:
-    return _reply(v, REQUESTABLE[M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
+    return _reply(v, REQUESTABLE[v.flavour.name][M.MAVLINK_MSG_ID_AUTOPILOT_VERSION](v))
 
 
 def cmd_get_home(v: Vehicle, c: MavCommand) -> Result:
-    return _reply(v, ENCODERS["HOME_POSITION"](v))
+    return _reply(v, v.encoders["HOME_POSITION"](v))
 
 
 def cmd_mission_start(v: Vehicle, c: MavCommand) -> Result:
     """MISSION_START: the mission mode, from item p1 if given (p2, the last item, is not supported)."""
     if _finite(c.p1) and c.p1 > 0 and not v.mission.set_current(int(c.p1)):
         return DENIED, f"Mission: no item {int(c.p1)}"
-    return v.request_mode(v.flavour.mode(v.flavour.mission_mode))
+    result, why = v.request_mode(v.flavour.mode(v.flavour.mission_mode))
+    if result == ACCEPTED and not v.flavour.is_px4:
+        v.mission.say_item()  # ArduCopter names the item again when the mission (re)starts
+    return result, why
 
 
 def cmd_set_mission_current(v: Vehicle, c: MavCommand) -> Result:
@@ -285,28 +302,31 @@ def cmd_set_message_interval(v: Vehicle, c: MavCommand) -> Result:
     if _msg_id(c.p1) is None or not _finite(c.p2) or not -1 <= c.p2 <= 2e9:
         return DENIED, ""
     name = STREAM_BY_ID.get(int(c.p1))
-    if name is None:
-        return DENIED, ""
+    if name is None or name not in v.encoders:
+        return _unknown(v)
     if name == "HEARTBEAT":
         if c.p2 == -1 or c.p2 < 0:
             return DENIED, "HEARTBEAT cannot be disabled"
-        v.hb_interval_wall = max(c.p2 * 1e-6, 0.1) if c.p2 > 0 else 1.0
+        v.hb_period = max(c.p2 * 1e-6, 0.1) if c.p2 > 0 else 1.0
+        v.hb_interval_wall = v.hb_period / max(1.0, v.ctx.clock.target_rtf)
         return ACCEPTED, ""
-    v.streams.set_interval_us(name, c.p2, v.now)
+    v.streams.set_interval_us(name, c.p2, v.now, v.default_rate(name))
     return ACCEPTED, ""
 
 
 def cmd_get_message_interval(v: Vehicle, c: MavCommand) -> Result:
+    """MESSAGE_INTERVAL, just before the ACK (both firmwares): -1 for a message not streamed."""
     mid = _msg_id(c.p1)
     if mid is None or mid > 0xFFFF:  # MESSAGE_INTERVAL.message_id is 16 bit
         return DENIED, ""
     name = STREAM_BY_ID.get(mid)
-    if name is None:
-        v.after_ack.append(v.mav.message_interval_encode(mid, 0))
-    elif name == "HEARTBEAT":
-        v.after_ack.append(v.mav.message_interval_encode(mid, int(v.hb_interval_wall * 1e6)))
+    if name is None or name not in v.encoders:
+        v.send_now(v.mav.message_interval_encode(mid, 0))
+        return (ACCEPTED if v.flavour.is_px4 else FAILED), ""
+    if name == "HEARTBEAT":
+        v.send_now(v.mav.message_interval_encode(mid, int(v.hb_period * 1e6)))
     else:
-        v.after_ack.append(v.mav.message_interval_encode(mid, v.streams.interval_us(name)))
+        v.send_now(v.mav.message_interval_encode(mid, v.streams.interval_us(name)))
     return ACCEPTED, ""
 
 
@@ -335,13 +355,13 @@ _RESULT_NAMES = {
 
 
 def handle_command(v: Vehicle, c: MavCommand) -> None:
-    """Run one command and ACK it (always exactly one ACK, even if the handler raises)."""
+    """Run one command and ACK it (always exactly one ACK, two for PX4's DO_SET_MODE, even if the handler
+    raises); what the handler sent follows the ACK."""
     stats = v.ctx.stats
     stats.commands_by_id[c.command] += 1
-    v.after_ack.clear()
-    v.hb_after_ack = False
-    v.in_command = True
     fn = HANDLERS.get(c.command)
+    held: list[mavlink.MAVLink_message] = []
+    v._deferred = held
     try:
         result, reason = fn(v, c) if fn is not None else (UNSUPPORTED, "")
     except Exception:
@@ -349,16 +369,15 @@ def handle_command(v: Vehicle, c: MavCommand) -> None:
         stats.handler_errors_by_type[f"COMMAND_{c.command}"] += 1
         v.ctx.log.exception("sysid %d: command %d failed", v.sysid, c.command)
         result, reason = FAILED, ""
-        v.after_ack.clear()
     finally:
-        v.in_command = False
+        v._deferred = None
     stats.commands[_RESULT_NAMES.get(result, str(result))] += 1
-    v.send(v.mav.command_ack_encode(c.command, result, 0, 0, c.src_sys, c.src_comp))
-    if reason and result != ACCEPTED:
-        v.statustext(M.MAV_SEVERITY_WARNING if result == DENIED else M.MAV_SEVERITY_ERROR, reason)
-    if v.hb_after_ack:
-        v.hb_after_ack = False
-        v.send_heartbeat()
-    for m in v.after_ack:
+    px = v.flavour.is_px4
+    ack = v.mav.command_ack_encode(c.command, result, 0, 0, c.src_sys, c.src_comp)
+    v.send(ack)
+    if px and c.command == M.MAV_CMD_DO_SET_MODE:
+        v.send(v.mav.command_ack_encode(c.command, result, 0, 0, c.src_sys, c.src_comp))
+    for m in held:
         v.send(m)
-    v.after_ack.clear()
+    if reason and result != ACCEPTED and not px:
+        v.statustext(M.MAV_SEVERITY_WARNING if result == DENIED else M.MAV_SEVERITY_ERROR, reason)

@@ -1,34 +1,15 @@
 """Constructor settings of a virtual FCU fleet: built in code from an already validated UAV configuration
-(`uav_stack.config.VirtualUavConfig`) or from `mrswarm fcu` flags; never read from a file, so no schema here."""
+(`uav_stack.config.VirtualUavConfig`) or from `mrswarm fcu` flags; never read from a file, so no schema here.
+A bad value raises ValueError naming the field."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from uav_stack.fcu.boot import check_profile
 from uav_stack.fcu.dynamics import MultirotorParams
+from uav_stack.fcu.streams import STREAM_NAMES
 from uav_stack.geo import GeoPoint
-
-# Default telemetry rates (Hz, sim time) per message name; SET_MESSAGE_INTERVAL changes
-# them per vehicle (0 Hz = off). Names are MAVLink message names, except that
-# NAMED_VALUE_FLOAT is the "RTF" value. The agent needs GLOBAL_POSITION_INT at 10 Hz; the
-# rest is for ground stations, at about PX4's rates for a GCS link (LOCAL_POSITION_NED 1 Hz,
-# GLOBAL_POSITION_INT 5 Hz there), since every message costs CPU in every UAV process.
-DEFAULT_STREAM_RATES: dict[str, float] = {
-    "HEARTBEAT": 1.0,
-    "GLOBAL_POSITION_INT": 10.0,
-    "LOCAL_POSITION_NED": 2.0,
-    "ATTITUDE": 5.0,
-    "SYS_STATUS": 1.0,
-    "EXTENDED_SYS_STATE": 1.0,
-    "HOME_POSITION": 0.5,
-    "BATTERY_STATUS": 0.5,
-    "GPS_RAW_INT": 1.0,
-    "VFR_HUD": 2.0,
-    "SYSTEM_TIME": 1.0,
-    "NAMED_VALUE_FLOAT": 1.0,
-    "ATTITUDE_QUATERNION": 0.0,
-    "MISSION_CURRENT": 1.0,  # and at once on every change (mission.py)
-}
 
 
 @dataclass
@@ -39,13 +20,19 @@ class VehicleConfig:
     listen: tuple[str, int] = ("127.0.0.1", 0)  # this vehicle's UDP MAVLink endpoint
     remotes: tuple[tuple[str, int], ...] = ()  # static peers to stream to (PX4 SITL style)
     yaw: float = 0.0  # initial heading, rad
-    params: dict[str, float] = field(default_factory=dict)  # parameter overrides by name
+    params: dict[str, float] = field(default_factory=dict)  # parameter overrides by name (as if saved before boot)
     owner: tuple[str, int] | None = None  # the companion's address: never churned out; None: the first peer heard
     owner_only: bool = False  # answer the owner only (a virtual UAV: ground stations use the agent's router)
+    # the boot's durations: "short" (ready to arm 1 s after launch) or "firmware" (the firmware's own times,
+    # ArduCopter about 42 s); the sequence of states and messages is the firmware's either way (uav_stack/fcu/boot.py)
+    boot: str = "short"
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.sysid) <= 255:
             raise ValueError(f"sysid must be 1..255, got {self.sysid}")
+        if self.flavour not in ("px4", "ardupilot"):
+            raise ValueError(f"flavour: expected 'px4' or 'ardupilot', got {self.flavour!r}")
+        check_profile(self.boot)
 
 
 @dataclass
@@ -57,7 +44,9 @@ class FcuConfig:
     max_step_batch_s: float = 0.1  # physics steps between two wake-ups at most (0 = wake every step)
     coalesce_datagrams: bool = True  # several MAVLink messages per UDP datagram (as PX4 does)
     dynamics: MultirotorParams = field(default_factory=MultirotorParams)
-    stream_rates: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_STREAM_RATES))
+    # stream rates (Hz of sim time, 0 = off) by message name, over each flavour's own from boot
+    # (uav_stack/fcu/streams.py): as if a companion had sent SET_MESSAGE_INTERVAL before anything else
+    stream_rates: dict[str, float] = field(default_factory=dict)
     max_peers: int = 8  # learned UDP peers per vehicle (like mavlink-router server endpoints)
     peer_timeout_s: float = 30.0  # wall seconds of silence before a learned peer is dropped
 
@@ -67,6 +56,9 @@ class FcuConfig:
         sysids = [v.sysid for v in self.vehicles]
         if len(set(sysids)) != len(sysids):
             raise ValueError(f"duplicate sysids in one FCU: {sysids}")
-        unknown = set(self.stream_rates) - set(DEFAULT_STREAM_RATES)
+        unknown = set(self.stream_rates) - STREAM_NAMES
         if unknown:
-            raise ValueError(f"unknown stream names {sorted(unknown)}; known: {sorted(DEFAULT_STREAM_RATES)}")
+            raise ValueError(f"stream_rates: unknown message names {sorted(unknown)}; known: {sorted(STREAM_NAMES)}")
+        bad = {k: v for k, v in self.stream_rates.items() if not (isinstance(v, (int, float)) and v >= 0)}
+        if bad:
+            raise ValueError(f"stream_rates: rates must be >= 0 Hz, got {bad}")

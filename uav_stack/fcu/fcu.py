@@ -120,9 +120,10 @@ class VirtualFcu:
         self._meter.add(now, 0.0)
         self.ctx.unix_at_start = time.time()
         n = len(self.vehicles)
-        for k, v in enumerate(self.vehicles):  # spread first heartbeats over 1 s
-            v.next_hb_wall = now + (k / n) * min(1.0, v.hb_interval_wall)
-        self._next_hb_wall = now
+        for k, v in enumerate(self.vehicles):  # the first heartbeat when the boot sends it; spread over 1 s
+            first = max(0.0, v.boot.at["heartbeat"]) / self.config.target_rtf
+            v.next_hb_wall = now + first + (k / n) * min(1.0, v.hb_interval_wall)
+        self._next_hb_wall = min(v.next_hb_wall for v in self.vehicles)
         self._opened = True
         return addrs
 
@@ -168,8 +169,8 @@ class VirtualFcu:
             st.bad_datagrams += 1
         if not msgs:
             return
-        if v.link.note_peer(addr, wall):
-            v.send_heartbeat()  # a new peer learns about us at once (fast discovery)
+        if v.link.note_peer(addr, wall) and v.now >= v.boot.at["heartbeat"]:
+            v.send_heartbeat()  # a new peer learns about us at once (fast discovery), once the boot sends heartbeats
         for m in msgs:
             name = m.get_type()
             st.messages_in[name] += 1

@@ -8,11 +8,13 @@ logged and counted and the vehicle keeps flying.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 
-from uav_stack.fcu import mission_transfer
+from uav_stack.fcu import ardupilot, mission_transfer
 from uav_stack.fcu.commands import MavCommand, handle_command
 from uav_stack.fcu.dynamics import POS, YAW
+from uav_stack.fcu.firmware import firmware
 from uav_stack.fcu.manual import from_manual_control
 from uav_stack.fcu.offboard import decode_global, decode_local
 from uav_stack.fcu.vehicle import ACCEPTED, Vehicle
@@ -27,8 +29,12 @@ Handler = Callable[[Vehicle, mavlink.MAVLink_message], None]
 
 
 def on_heartbeat(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    if m.type == M.MAV_TYPE_GCS:
-        v.gcs_last = v.now
+    """A ground station's heartbeat feeds the datalink-loss failsafe (ArduPilot: only MAV_GCS_SYSID's)."""
+    if m.type != M.MAV_TYPE_GCS:
+        return
+    if not v.flavour.is_px4 and m.get_srcSystem() != int(v.settings.gcs_sysid):
+        return
+    v.gcs_last = v.now
 
 
 def on_command_long(v: Vehicle, m: mavlink.MAVLink_message) -> None:
@@ -40,30 +46,53 @@ def on_command_int(v: Vehicle, m: mavlink.MAVLink_message) -> None:
 
 
 def on_set_mode(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    """SET_MODE (#11): QGC's way to change PX4 modes. No ACK; the heartbeat tells the result."""
+    """SET_MODE (#11): QGC's way to change PX4 modes. No ACK; the heartbeat tells the result (ArduPilot sends
+    one at once when the mode changes)."""
+    px = v.flavour.is_px4
     if not m.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-        v.statustext(M.MAV_SEVERITY_WARNING, "SET_MODE: only custom modes supported")
+        if not px:
+            v.statustext(M.MAV_SEVERITY_WARNING, "SET_MODE: only custom modes supported")
         return
     spec = v.flavour.by_custom_mode(m.custom_mode)
     if spec is None:
-        v.statustext(M.MAV_SEVERITY_WARNING, f"SET_MODE: unknown mode {m.custom_mode}")
+        if not px:
+            v.statustext(M.MAV_SEVERITY_WARNING, f"SET_MODE: unknown mode {m.custom_mode}")
         return
     result, reason = v.request_mode(spec)
-    if result != ACCEPTED:
+    if result != ACCEPTED and not px:
         v.statustext(M.MAV_SEVERITY_WARNING, reason)
-    else:
-        v.send_heartbeat()  # confirm at once, also when the mode did not change
 
 
 # ------------------------------------------------------------------ parameters
-def _param_value(v: Vehicle, k: int) -> mavlink.MAVLink_message:
+UNINDEXED = 65535  # ArduPilot's param_index in a PARAM_VALUE that answers a name (a read, a set) or comes unasked
+
+
+def _param_value(v: Vehicle, k: int, index: int | None = None) -> mavlink.MAVLink_message:
     name, value, ptype = v.params.encode(k)
-    return v.mav.param_value_encode(name.encode(), value, ptype, len(v.params), k)
+    return v.mav.param_value_encode(name.encode(), value, ptype, len(v.params), k if index is None else index)
+
+
+def hash_check(v: Vehicle) -> int:
+    """PX4's _HASH_CHECK: the firmware's for its defaults, another value for every other set of values."""
+    fw = firmware("px4").hash_check or 0
+    changed = v.params.changed()
+    if not changed:
+        return fw
+    blob = ";".join(f"{n}={changed[n]!r}" for n in sorted(changed)).encode()
+    return (fw ^ zlib.crc32(blob)) & 0xFFFFFFFF or 1
 
 
 def on_param_request_list(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    for k in range(len(v.params)):
-        v.send(_param_value(v, k))
+    """The whole list, paced as the firmware sends it (Vehicle._param_tick): PX4 starts with _HASH_CHECK
+    (index 65535), ArduPilot with its banner (firmware, board, frame) as STATUSTEXT."""
+    if v.flavour.is_px4:
+        h = v.params.wire(hash_check(v), M.MAV_PARAM_TYPE_UINT32)
+        v.send(v.mav.param_value_encode(b"_HASH_CHECK", h, M.MAV_PARAM_TYPE_UINT32, len(v.params), UNINDEXED))
+    else:
+        for text in (firmware("ardupilot").name, ardupilot.board_uid(v.sysid), ardupilot.FRAME_TEXT):
+            v.statustext(M.MAV_SEVERITY_INFO, text)
+    v.param_queue.clear()
+    v.param_queue.extend(range(len(v.params)))
 
 
 def _param_name(raw: str | bytes) -> str:
@@ -73,24 +102,30 @@ def _param_name(raw: str | bytes) -> str:
 
 
 def on_param_request_read(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """By index, or by name (ArduPilot answers a name with index 65535); an unknown one gets no answer."""
     if m.param_index >= 0:
         if m.param_index < len(v.params):
             v.send(_param_value(v, m.param_index))
         return
-    name = _param_name(m.param_id)
-    if name in v.params:
-        v.send(_param_value(v, v.params.index(name)))
+    k = v.params.on_mavlink(_param_name(m.param_id))
+    if k is not None:
+        v.send(_param_value(v, k, None if v.flavour.is_px4 else UNINDEXED))
 
 
 def on_param_set(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """Set and echo with the parameter's own type (a value it refuses: the old one). An unknown name gets no
+    answer. PX4 echoes twice; ArduPilot's echo has index 65535."""
     name = _param_name(m.param_id)
-    if name not in v.params:
-        v.statustext(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}"[:50])
+    k = v.params.on_mavlink(name)
+    if k is None:
         return
-    value = v.params.decode(name, m.param_value, m.param_type)
-    if not v.set_param(name, value):
-        v.statustext(M.MAV_SEVERITY_WARNING, f"Param {name}: invalid value"[:50])
-    v.send(_param_value(v, v.params.index(name)))
+    v.set_param(name, v.params.decode(name, m.param_value, m.param_type))
+    if v.flavour.is_px4:
+        echo = _param_value(v, k)
+        v.send(echo)
+        v.param_echo_again.append(echo)
+    else:
+        v.send(_param_value(v, k, UNINDEXED))
 
 
 # ------------------------------------------------------------------- setpoints
@@ -148,8 +183,10 @@ def on_ftp(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     v.send(v.mav.file_transfer_protocol_encode(0, m.get_srcSystem(), m.get_srcComponent(), out))
 
 
-def on_ignore(v: Vehicle, m: mavlink.MAVLink_message) -> None:
-    return None
+def on_request_data_stream(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """ArduPilot sets a stream group's rate (never ACKed); PX4 ignores REQUEST_DATA_STREAM."""
+    if not v.flavour.is_px4:
+        v.request_data_stream(m.req_stream_id, m.req_message_rate, m.start_stop)
 
 
 HANDLERS: dict[str, Handler] = {
@@ -168,7 +205,7 @@ HANDLERS: dict[str, Handler] = {
     "TIMESYNC": on_timesync,
     "PING": on_ping,
     "FILE_TRANSFER_PROTOCOL": on_ftp,
-    "REQUEST_DATA_STREAM": on_ignore,  # accepted; streams are set by SET_MESSAGE_INTERVAL
+    "REQUEST_DATA_STREAM": on_request_data_stream,
 }
 
 

@@ -15,6 +15,11 @@ NAV_MC_ALT_RAD vertically (PX4), or inside a sphere of that radius (ArduCopter).
 latitude/longitude in degE7 (both 0: where the vehicle is), altitude per the item's frame
 (relative to home, or AMSL).
 
+Reporting differs as the firmwares do: PX4's MISSION_CURRENT has mission_state 0 (unknown), it sends
+MISSION_ITEM_REACHED for every item done (a DO item as it passes: MAVSDK's is_mission_finished counts on the
+last one) and repeats it for the last item reached about once a second; ArduCopter names each item as it starts
+("Mission: 2 WP") and each waypoint reached ("Reached command #2"), and reports mission_mode 0 outside AUTO.
+
 Flavour differences: ArduCopter's item 0 is its home and is never flown, and from the ground
 (armed) AUTO needs a NAV_TAKEOFF as the next item ("Auto: Missing Takeoff Cmd"); PX4 takes
 off to MIS_TAKEOFF_ALT by itself when a mission starts on the ground without one. Leaving the
@@ -26,11 +31,13 @@ mission mode (a NAV_LAND or NAV_RETURN_TO_LAUNCH item ends it on the ground).
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from uav_stack.fcu import px4
 from uav_stack.fcu.modes import P_LAND, P_MISSION, P_TAKEOFF, TAKEOFF_DONE_M, Guidance
 from uav_stack.fcu.offboard import GLOBAL_FRAMES
 from uav_stack.mav import mavlink
@@ -46,6 +53,10 @@ WAYPOINTS = frozenset({
     M.MAV_CMD_NAV_LOITER_TIME, M.MAV_CMD_NAV_LOITER_UNLIM,
 })  # fmt: skip
 ENDS_ON_GROUND = frozenset({M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_RETURN_TO_LAUNCH})
+ITEM_WORDS = {M.MAV_CMD_NAV_TAKEOFF: "Takeoff", M.MAV_CMD_NAV_WAYPOINT: "WP", M.MAV_CMD_NAV_RETURN_TO_LAUNCH: "RTL",
+              M.MAV_CMD_NAV_LAND: "Land", M.MAV_CMD_NAV_LOITER_TIME: "LoitTime", M.MAV_CMD_NAV_LOITER_UNLIM: "LoitUnlim",
+              M.MAV_CMD_NAV_LOITER_TURNS: "LoitTurns", M.MAV_CMD_NAV_SPLINE_WAYPOINT: "SplineWP",
+              M.MAV_CMD_NAV_DELAY: "Delay"}  # ArduCopter's words for its items ("Mission: 2 WP")  # fmt: skip
 MAX_STEPS_PER_ITEM = 4  # bounds a chain of DO_JUMPs: at most this many passes over the mission per advance
 
 
@@ -85,6 +96,8 @@ class MissionRun:
         self.jumps: dict[int, int] = {}  # DO_JUMP seq -> jumps left
         self.speed = NAN  # the mission's DO_CHANGE_SPEED, m/s (kept over a pause)
         self._announced: tuple[int, int, int] | None = None
+        self.last_reached: int | None = None  # PX4 repeats MISSION_ITEM_REACHED for it
+        self._reached_again = math.inf
 
     # ---- what is stored ---------------------------------------------------------------
     @property
@@ -106,6 +119,7 @@ class MissionRun:
         self.stage = ""
         self.jumps = {}
         self.speed = NAN
+        self.last_reached = None
         if self.v.mode.guidance is Guidance.MISSION:
             self.v._start_hold()  # a new plan while flying one: hold until the mission mode is entered again
         self.announce()
@@ -132,11 +146,19 @@ class MissionRun:
         if not v.armed:  # the mission begins when the vehicle is armed
             v._start_hold()
             self.announce()
+            self.say_item()
             return
         self.state = M.MISSION_STATE_ACTIVE
         if self.speed == self.speed:
             v.speed_xy = self.speed  # a paused mission resumes at its own speed
         nxt = self._next_nav(self.current)
+        if v.flavour.is_px4:
+            v.event(px4.MISSION_EXECUTE)
+            if v.landed:  # "climbing to ... before starting the mission" (its takeoff item's altitude, or the default)
+                alt = self._z_above_home(nxt) if nxt is not None and nxt.command == M.MAV_CMD_NAV_TAKEOFF else NAN
+                climb = alt if alt == alt and alt > 0 else v.settings.takeoff_alt
+                v.event(px4.Event(px4.MISSION_CLIMB.name, px4.MISSION_CLIMB.id, px4.MISSION_CLIMB.log_levels,
+                                  struct.pack("<f", climb)))  # fmt: skip
         if v.flavour.is_px4 and v.landed and (nxt is None or nxt.command != M.MAV_CMD_NAV_TAKEOFF):
             z = v.alt_to_z(v.home.alt + v.settings.takeoff_alt)  # PX4 takes off by itself first
             v._start_takeoff(z)
@@ -204,7 +226,12 @@ class MissionRun:
 
     def _reached(self) -> None:
         item = self.items[self.current]
-        self.v.send(self.v.mav.mission_item_reached_encode(item.seq))
+        v = self.v
+        v.send(v.mav.mission_item_reached_encode(item.seq))
+        self.last_reached = item.seq
+        self._reached_again = v.now + px4.ITEM_REACHED_REPEAT_S
+        if not v.flavour.is_px4 and item.command in WAYPOINTS:
+            v.statustext(M.MAV_SEVERITY_INFO, f"Reached command #{item.seq}")
         if item.command in ENDS_ON_GROUND:
             self._complete()
             return
@@ -229,6 +256,7 @@ class MissionRun:
                 continue
             if self._fly(item):
                 self.announce()
+                self.say_item()
                 return
             self.v.statustext(M.MAV_SEVERITY_WARNING, f"Mission: item {item.seq} (cmd {item.command}) skipped")
             self.current += 1
@@ -246,6 +274,10 @@ class MissionRun:
         elif item.command == M.MAV_CMD_DO_CHANGE_SPEED and math.isfinite(p2) and p2 > 0:
             v.speed_xy = self.speed = min(p2, v.settings.xy_vel_max)
             v._apply_limits()
+        if v.flavour.is_px4:  # PX4 reports every item done, a DO item as it passes (ArduCopter: NAV items only)
+            v.send(v.mav.mission_item_reached_encode(item.seq))
+            self.last_reached = item.seq
+            self._reached_again = v.now + px4.ITEM_REACHED_REPEAT_S
         self.current += 1  # camera, gimbal and other payload items: nothing to fly
 
     def _fly(self, item: MissionItem) -> bool:
@@ -320,6 +352,10 @@ class MissionRun:
             return NAN
         return self.v.alt_to_z(item.z + (self.v.home.alt if rel else 0.0))
 
+    def _z_above_home(self, item: MissionItem) -> float:
+        z = self._z(item)
+        return self.v.home_ned[2] - z if math.isfinite(z) else NAN
+
     def _yaw(self, item: MissionItem) -> float:
         yaw_deg = item.params[3]
         if item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF) and math.isfinite(yaw_deg) and self.v.flavour.is_px4:
@@ -338,11 +374,33 @@ class MissionRun:
 
     # ---- reporting --------------------------------------------------------------------
     def current_message(self) -> mavlink.MAVLink_message:
-        """MISSION_CURRENT: the item flown, the item count (without ArduCopter's home), the state."""
+        """MISSION_CURRENT: the item flown, the item count, the state. PX4: mission_state 0 (it reports none),
+        mission_mode 1 in MISSION else 2. ArduCopter: the count without its home (0 with none), the mission
+        ACTIVE as soon as AUTO is on, mission_mode 1 in AUTO else 0."""
         v = self.v
-        total = len(self.items) - self.first if self.flyable() else UINT16_MAX
-        in_mode = 1 if v.mode.guidance is Guidance.MISSION else 2
-        return v.mav.mission_current_encode(self.current, total, self.state, in_mode)
+        in_mode = v.mode.guidance is Guidance.MISSION
+        if v.flavour.is_px4:
+            total = len(self.items) if self.flyable() else UINT16_MAX
+            return v.mav.mission_current_encode(self.current, total, 0, 1 if in_mode else 2)
+        total = len(self.items) - self.first if self.flyable() else 0
+        state = M.MISSION_STATE_ACTIVE if in_mode and self.state == M.MISSION_STATE_NOT_STARTED else self.state
+        return v.mav.mission_current_encode(self.current, total, state, 1 if in_mode else 0)
+
+    def say_item(self) -> None:
+        """ArduCopter names the item it starts ("Mission: 1 Takeoff")."""
+        v = self.v
+        if v.flavour.is_px4 or not self.flyable():
+            return
+        item = self._next_nav(self.current)
+        if item is not None:
+            v.statustext(M.MAV_SEVERITY_INFO, f"Mission: {item.seq} {ITEM_WORDS.get(item.command, 'WP')}")
+
+    def repeat_reached(self, now: float) -> None:
+        """PX4 repeats MISSION_ITEM_REACHED for the last item reached about once a second."""
+        if self.last_reached is None or now < self._reached_again or self.v.mode.guidance is not Guidance.MISSION:
+            return
+        self._reached_again = now + px4.ITEM_REACHED_REPEAT_S
+        self.v.send(self.v.mav.mission_item_reached_encode(self.last_reached))
 
     def announce(self, force: bool = False) -> None:
         """MISSION_CURRENT now, if what it says has changed (also streamed at 1 Hz)."""

@@ -1,8 +1,13 @@
 """The MAVLink mission protocol: upload, download, clear and the current item (mavlink.io, Mission Protocol).
 
-Upload: MISSION_COUNT, then each item requested with MISSION_REQUEST_INT and answered with
-MISSION_ITEM_INT (or the float MISSION_ITEM), then MISSION_ACK. Download: MISSION_REQUEST_LIST,
-MISSION_COUNT, MISSION_REQUEST(_INT) per item. MISSION_CLEAR_ALL clears; MISSION_SET_CURRENT picks
+Upload: MISSION_COUNT, then each item requested and answered with MISSION_ITEM_INT (or the float
+MISSION_ITEM), then MISSION_ACK. The requests are the firmwares': ArduCopter asks with the legacy
+MISSION_REQUEST (id 40) for every item; PX4 with MISSION_REQUEST until the ground station has shown that it
+speaks the INT protocol (a MISSION_ITEM_INT or MISSION_REQUEST_INT, or a NACK UNSUPPORTED of a legacy
+request, as MAVSDK sends: then it asks again with MISSION_REQUEST_INT), and remembers it. ArduCopter then
+says "Flight plan received". On download,
+ArduCopter's item 0 is its current home (frame GLOBAL, AMSL) and an RTL item comes back in frame GLOBAL.
+Download: MISSION_REQUEST_LIST, MISSION_COUNT, MISSION_REQUEST(_INT) per item. MISSION_CLEAR_ALL clears; MISSION_SET_CURRENT picks
 the item flown next. Mission types 0/1/2 (mission, fence, rally) are stored; only the mission is
 flown (mission.py). An ArduPilot MISSION_ITEM_INT with ``current=2`` outside a transfer is a
 "guided goto", as ArduCopter reads it.
@@ -51,7 +56,10 @@ def on_mission_count(v: Vehicle, m: mavlink.MAVLink_message) -> None:
 
 
 def _request_item(v: Vehicle, m: mavlink.MAVLink_message, seq: int, mission_type: int) -> None:
-    v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
+    if v.mission_int_protocol:
+        v.send(v.mav.mission_request_int_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
+    else:
+        v.send(v.mav.mission_request_encode(m.get_srcSystem(), m.get_srcComponent(), seq, mission_type))
 
 
 def _item(m: mavlink.MAVLink_message, seq: int) -> MissionItem | None:
@@ -85,6 +93,8 @@ def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
         return
     if m.mission_type != up["type"]:
         return
+    if m.get_type() == "MISSION_ITEM_INT" and v.flavour.is_px4:
+        v.mission_int_protocol = True
     items: list[MissionItem] = up["items"]  # type: ignore[assignment]
     if m.seq != len(items):
         _request_item(v, m, len(items), m.mission_type)
@@ -101,6 +111,8 @@ def on_mission_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
         _store(v, m.mission_type, items)
         v.upload = None
         _ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
+        if not v.flavour.is_px4 and m.mission_type == M.MAV_MISSION_TYPE_MISSION:
+            v.statustext(M.MAV_SEVERITY_INFO, "Flight plan received")
     else:
         _request_item(v, m, len(items), m.mission_type)
 
@@ -126,18 +138,42 @@ def _guided_item(v: Vehicle, m: mavlink.MAVLink_message) -> None:
     _ack(v, m, M.MAV_MISSION_ACCEPTED, m.mission_type)
 
 
+def on_mission_ack(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    """During an upload, a NACK UNSUPPORTED answers a legacy MISSION_REQUEST (MAVSDK speaks only the INT
+    protocol): ask again for the item with MISSION_REQUEST_INT."""
+    up = v.upload
+    if up is None or m.type != M.MAV_MISSION_UNSUPPORTED or m.mission_type != up["type"] or v.mission_int_protocol:
+        return
+    v.mission_int_protocol = True
+    up["t"] = v.ctx.wall()
+    items: list[MissionItem] = up["items"]  # type: ignore[assignment]
+    _request_item(v, m, len(items), m.mission_type)
+
+
 def on_mission_request(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    if m.get_type() == "MISSION_REQUEST_INT" and v.flavour.is_px4:
+        v.mission_int_protocol = True
     items = v.missions.get(m.mission_type)
     if items is None or not 0 <= m.seq < len(items):
         _ack(v, m, M.MAV_MISSION_INVALID_SEQUENCE, m.mission_type)
         return
     f = items[m.seq]
     p1, p2, p3, p4 = f.params
-    current = int(m.mission_type == M.MAV_MISSION_TYPE_MISSION and m.seq == v.mission.current)
+    frame, x, y, z = f.frame, f.x, f.y, f.z
+    mission = m.mission_type == M.MAV_MISSION_TYPE_MISSION
+    if v.flavour.is_px4:
+        current = int(mission and m.seq == v.mission.current)
+    else:  # ArduCopter: item 0 is home, RTL has no position; "current" is never set
+        current = 0
+        if mission and m.seq == 0:
+            h = v.home
+            frame, x, y, z = M.MAV_FRAME_GLOBAL, round(h.lat * 1e7), round(h.lon * 1e7), float(h.alt)
+        elif mission and f.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            frame = M.MAV_FRAME_GLOBAL
     v.send(
         v.mav.mission_item_int_encode(
-            m.get_srcSystem(), m.get_srcComponent(), m.seq, f.frame, f.command, current, f.autocontinue,
-            p1, p2, p3, p4, f.x, f.y, f.z, m.mission_type,
+            m.get_srcSystem(), m.get_srcComponent(), m.seq, frame, f.command, current, f.autocontinue,
+            p1, p2, p3, p4, x, y, z, m.mission_type,
         )  # fmt: skip
     )
 
@@ -171,4 +207,5 @@ HANDLERS = {
     "MISSION_REQUEST": on_mission_request,
     "MISSION_CLEAR_ALL": on_mission_clear_all,
     "MISSION_SET_CURRENT": on_mission_set_current,
+    "MISSION_ACK": on_mission_ack,
 }

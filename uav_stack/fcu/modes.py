@@ -49,6 +49,7 @@ class ModeSpec:
     guidance: Guidance  # what the vehicle does in this mode
     base_flags: int  # MAV_MODE_FLAG bits besides CUSTOM_MODE_ENABLED and SAFETY_ARMED
     can_arm: bool = True
+    armed_flags: int = 0  # bits the firmware adds while armed (ArduCopter's RTL: GUIDED_ENABLED)
 
 
 def px4_custom_mode(main: int, sub: int = 0) -> int:
@@ -57,7 +58,7 @@ def px4_custom_mode(main: int, sub: int = 0) -> int:
 
 
 _AUTO = mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
-_GUIDED = mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+_OFFBOARD = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED  # PX4 1.16: OFFBOARD's base_mode is 0x11 (0x91 armed)
 _MANUAL = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 _ASSIST = mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
 
@@ -71,22 +72,24 @@ PX4_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("HOLD", px4_custom_mode(4, 3), B.HOLD, _AUTO),
     ModeSpec("MISSION", px4_custom_mode(4, 4), B.MISSION, _AUTO),
     ModeSpec("RTL", px4_custom_mode(4, 5), B.RTL, _AUTO, can_arm=False),
-    ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO),
+    ModeSpec("LAND", px4_custom_mode(4, 6), B.LAND, _AUTO, can_arm=False),
     ModeSpec("ACRO", px4_custom_mode(5), B.MANUAL, _MANUAL),
-    ModeSpec("OFFBOARD", px4_custom_mode(6), B.OFFBOARD, _GUIDED),
+    ModeSpec("OFFBOARD", px4_custom_mode(6), B.OFFBOARD, _OFFBOARD),
     ModeSpec("STABILIZED", px4_custom_mode(7), B.MANUAL, _ASSIST),
 )
 
+# ArduCopter 4.7's base_mode (HEARTBEAT): 81 (STABILIZE | MANUAL_INPUT | CUSTOM) plus GUIDED_ENABLED in the
+# guided modes: GUIDED, AUTO and LAND read 89 disarmed and 217 armed, STABILIZE 81, RTL 81 disarmed and 217 armed
 _APM_BASE = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 _APM_GUIDED = _APM_BASE | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
 ARDUPILOT_MODES: tuple[ModeSpec, ...] = (
     ModeSpec("STABILIZE", 0, B.MANUAL, _APM_BASE),
     ModeSpec("ACRO", 1, B.MANUAL, _APM_BASE),
     ModeSpec("ALT_HOLD", 2, B.STICKS, _APM_BASE),
-    ModeSpec("AUTO", 3, B.MISSION, _APM_GUIDED | mavlink.MAV_MODE_FLAG_AUTO_ENABLED, can_arm=False),
+    ModeSpec("AUTO", 3, B.MISSION, _APM_GUIDED, can_arm=False),
     ModeSpec("GUIDED", 4, B.OFFBOARD, _APM_GUIDED),
     ModeSpec("LOITER", 5, B.STICKS, _APM_BASE),
-    ModeSpec("RTL", 6, B.RTL, _APM_GUIDED, can_arm=False),
+    ModeSpec("RTL", 6, B.RTL, _APM_BASE, can_arm=False, armed_flags=mavlink.MAV_MODE_FLAG_GUIDED_ENABLED),
     ModeSpec("LAND", 9, B.LAND, _APM_GUIDED, can_arm=False),
     ModeSpec("POSHOLD", 16, B.STICKS, _APM_BASE),
     ModeSpec("BRAKE", 17, B.HOLD, _APM_GUIDED),
@@ -110,7 +113,6 @@ class Flavour:
     hold_mode: str  # target of "hold"-type failsafes
     mission_mode: str  # the mode that flies the uploaded mission
     bytewise_params: bool  # PX4 PARAM_ENCODE_BYTEWISE; ArduPilot C cast
-    flight_sw_version: int
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_by_name", {m.name: m for m in self.modes})
@@ -152,7 +154,6 @@ PX4 = Flavour(
     hold_mode="HOLD",
     mission_mode="MISSION",
     bytewise_params=True,
-    flight_sw_version=(1 << 24) | (15 << 16) | (0 << 8) | 0xFF,  # v1.15.0 release
 )
 
 ARDUPILOT = Flavour(
@@ -163,7 +164,6 @@ ARDUPILOT = Flavour(
     hold_mode="LOITER",
     mission_mode="AUTO",
     bytewise_params=False,
-    flight_sw_version=(4 << 24) | (5 << 16) | (0 << 8) | 0xFF,  # v4.5.0 release
 )
 
 FLAVOURS: dict[str, Flavour] = {"px4": PX4, "ardupilot": ARDUPILOT}

@@ -1,10 +1,12 @@
 """The parameter set of each flavour, its wire encoding, and the settings it drives.
 
-Every parameter here changes behaviour (or is a fixed fact a GCS expects, like
-COM_RC_IN_MODE=4 "no RC"). The vehicle reads the derived ``Settings`` (SI units, internal
-action enums), rebuilt whenever a parameter is set.
+Each flavour lists its firmware's parameters, every one of them, with the firmware's names, index order,
+types and factory defaults (uav_stack/fcu/firmware.py: 901 for PX4 1.16, 1338 for ArduCopter 4.7). A few of
+them drive the emulation (``PX4_ROLES``, ``ARDUPILOT_ROLES``); the others are stored and echoed only. The
+vehicle reads the derived ``Settings`` (SI units, internal action enums), rebuilt whenever a parameter is
+set. The emulator's own settings (``hidden_param_defs``) are set from the configuration and never listed.
 
-Wire encoding (PARAM_VALUE/PARAM_SET): PX4 uses "bytewise" (an INT32 parameter's bit
+Wire encoding (PARAM_VALUE/PARAM_SET): PX4 uses "bytewise" (an integer parameter's bit
 pattern is carried in the float field), ArduPilot a C cast (float value of the integer).
 """
 
@@ -16,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from enum import Enum
 
 from uav_stack.fcu.dynamics import MultirotorParams
+from uav_stack.fcu.firmware import firmware
 from uav_stack.mav import mavlink
 
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
@@ -30,7 +33,10 @@ _INT_TYPES = {
     mavlink.MAV_PARAM_TYPE_UINT32,
     mavlink.MAV_PARAM_TYPE_INT32,
 }
-_INT_RANGE = {INT8: (-128, 127), INT16: (-32768, 32767), INT32: (-(2**31), 2**31 - 1)}
+UINT32 = mavlink.MAV_PARAM_TYPE_UINT32
+_INT_RANGE = {INT8: (-128, 127), INT16: (-32768, 32767), INT32: (-(2**31), 2**31 - 1), UINT32: (0, 2**32 - 1),
+              mavlink.MAV_PARAM_TYPE_UINT8: (0, 255), mavlink.MAV_PARAM_TYPE_UINT16: (0, 65535)}  # fmt: skip
+ARDUPILOT_LAND_DISARM_S = 2.0  # ArduCopter disarms about 2 s after touching down in LAND/RTL (its land detector)
 
 
 class Action(str, Enum):
@@ -57,6 +63,7 @@ class ParamDef:
     actions: dict[int, Action] | None = None  # enum parameters: raw value -> Action
     min: float = -math.inf
     max: float = math.inf
+    hidden: bool = False  # the emulator's own: set from the configuration, not on the MAVLink parameter list
 
 
 @dataclass
@@ -102,7 +109,9 @@ class Settings:
     stick_input: float = 1.0  # 0 = MANUAL_CONTROL / RC_CHANNELS_OVERRIDE ignored
     rc_loss_t: float = 0.5  # stick stream silent this long in a stick mode = lost, s
     rc_loss_act: Action = Action.RTL
-    gps_fix_t: float = 1.0  # sim seconds from boot to the first 3D fix (position, home, health)
+    bat_floor: float = 0.0  # PX4's simulated battery never drains below this fraction (SIM_BAT_MIN_PCT)
+    sysid: float = 1.0  # MAV_SYS_ID / MAV_SYSID: informative (a reboot would apply it)
+    gcs_sysid: float = 255.0  # ArduPilot MAV_GCS_SYSID: only its heartbeats keep the GCS failsafe away
     # internal helpers for flavour-specific combinations
     px4_low_bat_act: int = 0
     fence_enable: float = 1.0
@@ -122,87 +131,121 @@ _APM_THR = {0: Action.NONE, 1: Action.RTL, 2: Action.RTL, 3: Action.LAND, 4: Act
 _APM_FENCE = {0: Action.WARN, 1: Action.RTL, 2: Action.LAND, 3: Action.RTL, 4: Action.HOLD, 5: Action.RTL}
 
 
-def px4_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
+@dataclass(frozen=True)
+class Role:
+    """What one firmware parameter drives: a Settings field (value * scale, or an action from its enum),
+    and the values the emulator accepts for it."""
+
+    role: str
+    scale: float = 1.0
+    actions: dict[int, Action] | None = None
+    min: float = -math.inf
+    max: float = math.inf
+
+
+R = Role
+# PX4 1.16 parameters the emulator flies by (their defaults are the firmware's, data/px4.json)
+PX4_ROLES: dict[str, Role] = {
+    "MIS_TAKEOFF_ALT": R("takeoff_alt", min=0.0, max=1000.0),
+    "MPC_XY_CRUISE": R("xy_cruise", min=0.1, max=50.0),
+    "MPC_XY_VEL_MAX": R("xy_vel_max", min=0.1, max=50.0),
+    "MPC_Z_VEL_MAX_UP": R("z_vel_up", min=0.1, max=20.0),
+    "MPC_Z_VEL_MAX_DN": R("z_vel_dn", min=0.1, max=20.0),
+    "MPC_ACC_HOR": R("acc_hor", min=0.1, max=30.0),
+    "MPC_TILTMAX_AIR": R("tilt_max_deg", min=5.0, max=89.0),
+    "MPC_LAND_SPEED": R("land_speed", min=0.05, max=20.0),
+    "MPC_LAND_ALT2": R("land_alt_slow", min=0.0, max=1000.0),
+    "MPC_TKO_SPEED": R("tko_speed", min=0.1, max=20.0),
+    "MPC_YAWRAUTO_MAX": R("yaw_rate_max_deg", min=1.0, max=1000.0),
+    "RTL_RETURN_ALT": R("rtl_alt", min=0.0, max=1000.0),
+    "COM_OF_LOSS_T": R("of_loss_t", min=0.0, max=3600.0),
+    "COM_OBL_RC_ACT": R("of_loss_act", actions=_PX4_OBL),
+    "COM_DISARM_LAND": R("disarm_land_s", min=-1.0, max=3600.0),
+    "COM_DISARM_PRFLT": R("disarm_prflt_s", min=-1.0, max=3600.0),
+    "NAV_DLL_ACT": R("dll_act", actions=_PX4_DLL),
+    "COM_DL_LOSS_T": R("dll_t", min=1, max=3600),
+    "COM_LOW_BAT_ACT": R("px4_low_bat_act", min=0, max=3),
+    "BAT_LOW_THR": R("bat_low", min=0.0, max=1.0),
+    "BAT_CRIT_THR": R("bat_crit", min=0.0, max=1.0),
+    "BAT_EMERGEN_THR": R("bat_emerg", min=0.0, max=1.0),
+    "GF_ACTION": R("gf_action", actions=_PX4_GF),
+    "GF_MAX_HOR_DIST": R("gf_hor", min=0.0, max=1e6),
+    "GF_MAX_VER_DIST": R("gf_ver", min=0.0, max=1e5),
+    "MAV_SYS_ID": R("sysid", min=1, max=255),  # takes effect after a reboot (never, here)
+    # stick input: MANUAL_CONTROL (there is no RC receiver); 4 = none, 0 = RC only (so none either)
+    "COM_RC_IN_MODE": R("stick_input", min=0, max=4),
+    "COM_RC_LOSS_T": R("rc_loss_t", min=0.1, max=35.0),
+    "NAV_RCL_ACT": R("rc_loss_act", actions=_PX4_RCL),
+    "MPC_VEL_MANUAL": R("vel_manual", min=0.5, max=50.0),
+    "NAV_ACC_RAD": R("acc_rad", min=0.05, max=200.0),
+    "NAV_MC_ALT_RAD": R("alt_rad", min=0.05, max=200.0),
+    # PX4's simulated battery: drains while armed over SIM_BAT_DRAIN s, never below SIM_BAT_MIN_PCT, full when disarmed
+    "SIM_BAT_DRAIN": R("endurance_s", min=1.0, max=1e6),
+    "SIM_BAT_MIN_PCT": R("bat_floor", scale=0.01, min=0.0, max=100.0),
+}
+
+# ArduCopter 4.7 parameters the emulator flies by (cm-based ones converted; defaults from data/ardupilot_copter.json)
+_CM = 0.01
+ARDUPILOT_ROLES: dict[str, Role] = {
+    "MAV_SYSID": R("sysid", min=1, max=255),
+    "MAV_GCS_SYSID": R("gcs_sysid", min=1, max=255),
+    "WPNAV_SPEED": R("xy_cruise", scale=_CM, min=10, max=5000),
+    "WPNAV_SPEED_UP": R("z_vel_up", scale=_CM, min=10, max=2000),
+    "WPNAV_SPEED_DN": R("z_vel_dn", scale=_CM, min=10, max=2000),
+    "WPNAV_ACCEL": R("acc_hor", scale=_CM, min=10, max=3000),
+    "ANGLE_MAX": R("tilt_max_deg", scale=_CM, min=500, max=8000),
+    "ATC_RATE_Y_MAX": R("yaw_rate_max_deg", min=0.0, max=1080.0),  # 0: no limit of its own (the default)
+    "LAND_SPEED": R("land_speed", scale=_CM, min=5, max=2000),
+    "LAND_ALT_LOW": R("land_alt_slow", scale=_CM, min=0),
+    "RTL_ALT": R("rtl_alt", scale=_CM, min=0, max=100000),
+    "RTL_SPEED": R("rtl_speed", scale=_CM, min=0, max=5000),
+    "DISARM_DELAY": R("disarm_prflt_s", min=0),
+    "FS_GCS_ENABLE": R("dll_act", actions=_APM_GCS),
+    "FS_GCS_TIMEOUT": R("dll_t", min=2.0, max=3600.0),
+    "FS_THR_ENABLE": R("rc_loss_act", actions=_APM_THR),  # stick (RC override) loss
+    "RC_OVERRIDE_TIME": R("rc_loss_t", min=0.1, max=120.0),
+    "LOIT_SPEED": R("vel_manual", scale=_CM, min=20, max=3500),
+    "PILOT_SPEED_UP": R("pilot_vz_up", scale=_CM, min=50, max=500),
+    "PILOT_SPEED_DN": R("pilot_vz_dn", scale=_CM, min=0, max=500),
+    "WPNAV_RADIUS": R("acc_rad", scale=_CM, min=5, max=1000),
+    "BATT_LOW_VOLT": R("bat_low", min=0.0, max=100.0),  # volts, converted to a charge fraction
+    "BATT_CRT_VOLT": R("bat_crit", min=0.0, max=100.0),
+    "BATT_FS_LOW_ACT": R("bat_low_act", actions=_APM_BATT),
+    "BATT_FS_CRT_ACT": R("bat_crit_act", actions=_APM_BATT),
+    "FENCE_ENABLE": R("fence_enable", min=0, max=1),
+    "FENCE_ACTION": R("gf_action", actions=_APM_FENCE),
+    "FENCE_RADIUS": R("gf_hor", min=30.0, max=1e6),
+    "FENCE_ALT_MAX": R("gf_ver", min=10.0, max=1e5),
+    "GUID_TIMEOUT": R("guided_timeout", min=0.1, max=3600.0),
+}
+
+
+def hidden_param_defs(flavour: str, mp: MultirotorParams) -> list[ParamDef]:
+    """The emulator's own settings in parameter form: set from the configuration (VehicleConfig.params,
+    ``--param``), not on the firmware's parameter list (a ground station never sees them)."""
     P = ParamDef
-    return [
-        P("MIS_TAKEOFF_ALT", 2.5, role="takeoff_alt", min=0.0, max=1000.0),
-        P("MPC_XY_CRUISE", mp.xy_cruise, role="xy_cruise", min=0.1, max=50.0),
-        P("MPC_XY_VEL_MAX", mp.xy_vel_max, role="xy_vel_max", min=0.1, max=50.0),
-        P("MPC_Z_VEL_MAX_UP", mp.z_vel_up, role="z_vel_up", min=0.1, max=20.0),
-        P("MPC_Z_VEL_MAX_DN", mp.z_vel_dn, role="z_vel_dn", min=0.1, max=20.0),
-        P("MPC_ACC_HOR", mp.acc_hor, role="acc_hor", min=0.1, max=30.0),
-        P("MPC_TILTMAX_AIR", mp.tilt_max_deg, role="tilt_max_deg", min=5.0, max=89.0),
-        P("MPC_LAND_SPEED", mp.land_speed, role="land_speed", min=0.05, max=20.0),
-        P("MPC_LAND_ALT2", mp.land_alt_slow, role="land_alt_slow", min=0.0, max=1000.0),
-        P("MPC_TKO_SPEED", mp.takeoff_speed, role="tko_speed", min=0.1, max=20.0),
-        P("MPC_YAWRAUTO_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0, max=1000.0),
-        P("RTL_RETURN_ALT", 60.0, role="rtl_alt", min=0.0, max=1000.0),
-        P("COM_OF_LOSS_T", 1.0, role="of_loss_t", min=0.0, max=3600.0),
-        P("COM_OBL_RC_ACT", 5, INT32, role="of_loss_act", actions=_PX4_OBL),
-        # emulator: seconds of > 2 Hz setpoint stream before OFFBOARD is allowed (PX4 docs: 1 s);
+    if flavour == "px4":
+        # seconds of > 2 Hz setpoint stream before OFFBOARD is allowed (PX4 docs: 1 s);
         # 0 = PX4's code: one setpoint younger than COM_OF_LOSS_T is enough
-        P("SIM_OFB_STREAM_T", 0.0, role="of_stream_s", min=0.0, max=60.0),
-        P("COM_DISARM_LAND", 2.0, role="disarm_land_s", min=-1.0, max=3600.0),
-        P("COM_DISARM_PRFLT", 10.0, role="disarm_prflt_s", min=-1.0, max=3600.0),
-        P("NAV_DLL_ACT", 0, INT32, role="dll_act", actions=_PX4_DLL),
-        P("COM_DL_LOSS_T", 10, INT32, role="dll_t", min=1, max=3600),
-        P("COM_LOW_BAT_ACT", 0, INT32, role="px4_low_bat_act", min=0, max=3),
-        P("BAT_LOW_THR", 0.15, role="bat_low", min=0.0, max=1.0),
-        P("BAT_CRIT_THR", 0.07, role="bat_crit", min=0.0, max=1.0),
-        P("BAT_EMERGEN_THR", 0.05, role="bat_emerg", min=0.0, max=1.0),
-        P("GF_ACTION", 2, INT32, role="gf_action", actions=_PX4_GF),
-        P("GF_MAX_HOR_DIST", 0.0, role="gf_hor", min=0.0, max=1e6),
-        P("GF_MAX_VER_DIST", 0.0, role="gf_ver", min=0.0, max=1e5),
-        P("MAV_SYS_ID", sysid, INT32, min=1, max=255),  # takes effect after a reboot (never, here)
-        P("MAV_TYPE", mavlink.MAV_TYPE_QUADROTOR, INT32),
-        # stick input: MANUAL_CONTROL (there is no RC receiver); 4 = none, 0 = RC only (so none either)
-        P("COM_RC_IN_MODE", 3, INT32, role="stick_input", min=0, max=4),
-        P("COM_RC_LOSS_T", 0.5, role="rc_loss_t", min=0.1, max=35.0),
-        P("NAV_RCL_ACT", 2, INT32, role="rc_loss_act", actions=_PX4_RCL),
-        P("MPC_VEL_MANUAL", 10.0, role="vel_manual", min=0.5, max=50.0),
-        P("NAV_ACC_RAD", 2.0, role="acc_rad", min=0.05, max=200.0),
-        P("NAV_MC_ALT_RAD", 0.8, role="alt_rad", min=0.05, max=200.0),
-        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
-        P("SIM_GPS_FIX_T", 1.0, role="gps_fix_t", min=0.0, max=600.0),  # emulator: s from boot to the first fix
-    ]
+        return [P("SIM_OFB_STREAM_T", 0.0, role="of_stream_s", min=0.0, max=60.0, hidden=True)]
+    return [P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6, hidden=True)]
 
 
-def ardupilot_param_defs(mp: MultirotorParams, sysid: int) -> list[ParamDef]:
-    P = ParamDef
-    cm = 0.01
-    return [
-        P("SYSID_THISMAV", sysid, INT16, min=1, max=255),
-        P("WPNAV_SPEED", mp.xy_cruise * 100, role="xy_cruise", scale=cm, min=10, max=5000),
-        P("WPNAV_SPEED_UP", mp.z_vel_up * 100, role="z_vel_up", scale=cm, min=10, max=2000),
-        P("WPNAV_SPEED_DN", mp.z_vel_dn * 100, role="z_vel_dn", scale=cm, min=10, max=2000),
-        P("WPNAV_ACCEL", mp.acc_hor * 100, role="acc_hor", scale=cm, min=10, max=3000),
-        P("ANGLE_MAX", mp.tilt_max_deg * 100, INT16, role="tilt_max_deg", scale=cm, min=500, max=8000),
-        P("ATC_RATE_Y_MAX", mp.yaw_rate_max_deg, role="yaw_rate_max_deg", min=1.0, max=1000.0),
-        P("LAND_SPEED", mp.land_speed * 100, INT16, role="land_speed", scale=cm, min=5, max=2000),
-        P("LAND_ALT_LOW", mp.land_alt_slow * 100, INT16, role="land_alt_slow", scale=cm, min=0),
-        P("RTL_ALT", 1500, INT32, role="rtl_alt", scale=cm, min=0, max=100000),
-        P("RTL_SPEED", 0, role="rtl_speed", scale=cm, min=0, max=5000),
-        P("DISARM_DELAY", 10, INT8, role="disarm_prflt_s", min=0),
-        P("FS_GCS_ENABLE", 0, INT8, role="dll_act", actions=_APM_GCS),
-        P("FS_GCS_TIMEOUT", 5.0, role="dll_t", min=2.0, max=3600.0),
-        P("FS_THR_ENABLE", 1, INT8, role="rc_loss_act", actions=_APM_THR),  # stick (RC override) loss
-        P("RC_OVERRIDE_TIME", 3.0, role="rc_loss_t", min=0.1, max=120.0),
-        P("LOIT_SPEED", 1250, role="vel_manual", scale=cm, min=20, max=3500),
-        P("PILOT_SPEED_UP", 250, INT16, role="pilot_vz_up", scale=cm, min=50, max=500),
-        P("PILOT_SPEED_DN", 0, INT16, role="pilot_vz_dn", scale=cm, min=0, max=500),
-        P("WPNAV_RADIUS", 200, role="acc_rad", scale=cm, min=5, max=1000),
-        P("BATT_LOW_VOLT", 14.4, role="bat_low", min=0.0, max=100.0),  # volts, converted to a charge fraction
-        P("BATT_CRT_VOLT", 14.2, role="bat_crit", min=0.0, max=100.0),
-        P("BATT_FS_LOW_ACT", 0, INT8, role="bat_low_act", actions=_APM_BATT),
-        P("BATT_FS_CRT_ACT", 0, INT8, role="bat_crit_act", actions=_APM_BATT),
-        P("FENCE_ENABLE", 0, INT8, role="fence_enable", min=0, max=1),
-        P("FENCE_ACTION", 1, INT8, role="gf_action", actions=_APM_FENCE),
-        P("FENCE_RADIUS", 300.0, role="gf_hor", min=30.0, max=1e6),
-        P("FENCE_ALT_MAX", 100.0, role="gf_ver", min=10.0, max=1e5),
-        P("GUID_TIMEOUT", 3.0, role="guided_timeout", min=0.1, max=3600.0),
-        P("SIM_BAT_DRAIN", mp.battery_endurance_s, role="endurance_s", min=1.0, max=1e6),  # emulator: s to drain
-        P("SIM_GPS_FIX_T", 1.0, role="gps_fix_t", min=0.0, max=600.0),  # emulator: s from boot to the first fix
-    ]
+def param_defs(flavour: str, mp: MultirotorParams, sysid: int) -> list[ParamDef]:
+    """Every parameter of a flavour: the firmware's own, in its index order with its types and defaults
+    (the behaviour ones with their Role), then the emulator's hidden ones."""
+    roles = PX4_ROLES if flavour == "px4" else ARDUPILOT_ROLES
+    defs: list[ParamDef] = []
+    for p in firmware(flavour).params:
+        r = roles.get(p.name)
+        default = float(sysid) if r is not None and r.role == "sysid" else p.default
+        if r is None:
+            defs.append(ParamDef(p.name, default, p.ptype))
+        else:
+            defs.append(ParamDef(p.name, default, p.ptype, r.role, r.scale, r.actions, r.min, r.max))
+    missing = set(roles) - {d.name for d in defs}
+    assert not missing, f"{flavour}: roles for parameters the firmware does not have: {sorted(missing)}"
+    return defs + hidden_param_defs(flavour, mp)
 
 
 def _soc_for_voltage(mp: MultirotorParams, volts: float) -> float:
@@ -210,7 +253,7 @@ def _soc_for_voltage(mp: MultirotorParams, volts: float) -> float:
     return min(max((volts - empty) / (full - empty), 0.0), 1.0)
 
 
-def derive_settings(flavour: str, values: dict[str, float], defs: list[ParamDef], mp: MultirotorParams) -> Settings:
+def derive_settings(flavour: str, store: ParamStore, mp: MultirotorParams) -> Settings:
     s = Settings(
         xy_cruise=mp.xy_cruise,
         xy_vel_max=mp.xy_vel_max,
@@ -225,14 +268,12 @@ def derive_settings(flavour: str, values: dict[str, float], defs: list[ParamDef]
         endurance_s=mp.battery_endurance_s,
     )
     upd: dict[str, object] = {}
-    for d in defs:
-        if d.role is None:
-            continue
-        raw = values[d.name]
+    for d in store.role_defs:
+        raw = store.get(d.name)
         if d.actions is not None:
-            upd[d.role] = d.actions.get(int(raw), Action.NONE)
+            upd[d.role] = d.actions.get(int(raw), Action.NONE)  # type: ignore[index]
         else:
-            upd[d.role] = raw * d.scale
+            upd[d.role] = raw * d.scale  # type: ignore[index]
     s = replace(s, **upd)  # type: ignore[arg-type]
     if flavour == "px4":
         act = int(s.px4_low_bat_act)
@@ -244,10 +285,12 @@ def derive_settings(flavour: str, values: dict[str, float], defs: list[ParamDef]
         s = replace(
             s,
             tko_speed=s.z_vel_up,
+            yaw_rate_max_deg=s.yaw_rate_max_deg if s.yaw_rate_max_deg > 0 else mp.yaw_rate_max_deg,
             bat_low=_soc_for_voltage(mp, s.bat_low),
             bat_crit=_soc_for_voltage(mp, s.bat_crit),
             bat_emerg=0.0,
-            disarm_land_s=1.0,  # ArduCopter disarms right after landing in LAND/RTL
+            bat_floor=0.0,
+            disarm_land_s=ARDUPILOT_LAND_DISARM_S,
             gf_hor=s.gf_hor if s.fence_enable else 0.0,
             gf_ver=s.gf_ver if s.fence_enable else 0.0,
             of_loss_act=Action.NONE,
@@ -265,30 +308,53 @@ def _f2i(f: float) -> int:
     return struct.unpack("<i", struct.pack("<f", f))[0]
 
 
+def _u2f(u: int) -> float:
+    return struct.unpack("<f", struct.pack("<I", u & 0xFFFFFFFF))[0]
+
+
+def _f2u(f: float) -> int:
+    return struct.unpack("<I", struct.pack("<f", f))[0]
+
+
 @dataclass
 class ParamStore:
-    """Values by name in a fixed order, with the flavour's PARAM_VALUE encoding."""
+    """Values by name in the firmware's order, with the flavour's PARAM_VALUE encoding.
+
+    Defaults are shared (``defs``); a vehicle stores only the values set since boot. Hidden
+    (emulator) parameters come after the firmware's and are invisible on MAVLink.
+    """
 
     defs: list[ParamDef]
     bytewise: bool
-    values: dict[str, float] = field(default_factory=dict)
+    _set: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._index = {d.name: k for k, d in enumerate(self.defs)}
-        for d in self.defs:
-            self.values.setdefault(d.name, float(d.default))
+        self.listed = sum(1 for d in self.defs if not d.hidden)  # MAVLink's param_count
+        self.role_defs = [d for d in self.defs if d.role is not None]
 
     def __len__(self) -> int:
-        return len(self.defs)
+        return self.listed
 
     def __contains__(self, name: str) -> bool:
+        """A parameter of the configuration (the firmware's or the emulator's)."""
         return name in self._index
+
+    def on_mavlink(self, name: str) -> int | None:
+        """The index of a parameter a ground station can see, or None."""
+        k = self._index.get(name)
+        return k if k is not None and k < self.listed else None
 
     def index(self, name: str) -> int:
         return self._index[name]
 
     def get(self, name: str) -> float:
-        return self.values[name]
+        v = self._set.get(name)
+        return v if v is not None else float(self.defs[self._index[name]].default)
+
+    def changed(self) -> dict[str, float]:
+        """Values set since boot that differ from the defaults."""
+        return {n: v for n, v in self._set.items() if v != self.defs[self._index[n]].default}
 
     def set(self, name: str, value: float) -> bool:
         """Set a value (already decoded); False if unknown, NaN or out of range."""
@@ -303,23 +369,25 @@ class ParamStore:
                 return False
         if not d.min <= value <= d.max:
             return False
-        self.values[name] = value
+        self._set[name] = value
         return True
 
     def encode(self, k: int) -> tuple[str, float, int]:
         """(param_id, wire value, MAV_PARAM_TYPE) of parameter number k."""
         d = self.defs[k]
-        v = self.values[d.name]
-        if d.ptype in _INT_TYPES and self.bytewise:
-            return d.name, _i2f(int(v)), d.ptype
-        return d.name, float(v), d.ptype
+        return d.name, self.wire(self.get(d.name), d.ptype), d.ptype
+
+    def wire(self, value: float, ptype: int) -> float:
+        if ptype in _INT_TYPES and self.bytewise:
+            return _u2f(int(value)) if ptype == UINT32 else _i2f(int(value))
+        return float(value)
 
     def decode(self, name: str, wire_value: float, wire_type: int) -> float:
         """The value a PARAM_SET means (NaN if it cannot be decoded)."""
         d = self.defs[self._index[name]]
         if d.ptype in _INT_TYPES:
             if self.bytewise and wire_type in _INT_TYPES:
-                return float(_f2i(wire_value))
+                return float(_f2u(wire_value) if d.ptype == UINT32 else _f2i(wire_value))
             # C cast (ArduPilot, or a PX4 client that sent a float for an int parameter)
             return float(round(wire_value)) if math.isfinite(wire_value) else math.nan
         return float(wire_value)

@@ -1,8 +1,8 @@
-"""Telemetry: message encoders per stream name and the per-vehicle stream scheduler.
+"""Telemetry: the encoders of the messages both flavours send (the flavours' own are in
+telemetry_ardupilot.py and telemetry_px4.py; streams.py schedules them all).
 
-Streams are scheduled on *sim* time, checked after every physics step, so they slow down
-with the simulation and never burst. Vehicles of one fleet get different phase offsets so
-a process hosting many vehicles spreads its sends over the period.
+An encoder returns None when the firmware would send nothing yet (no position before the
+estimate is valid, no home before it is set): the stream skips that slot.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from swarmnet.compiled import compiled_module
 from uav_stack import geo
+from uav_stack.fcu import ardupilot, px4
 from uav_stack.fcu.dynamics import BATTERY, LANDED, PITCH, PITCH_RATE, POS, ROLL, ROLL_RATE, VEL, YAW, YAW_RATE
 from uav_stack.mav import mavlink
 
@@ -39,6 +40,7 @@ PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
 FENCE = M.MAV_SYS_STATUS_GEOFENCE
 GPS = M.MAV_SYS_STATUS_SENSOR_GPS
 RC = M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER  # stick input (MANUAL_CONTROL / RC_CHANNELS_OVERRIDE)
+ARDUPILOT_GPS_FIX = ardupilot.GPS_FIX
 
 
 def _ms(v: Vehicle) -> int:
@@ -70,13 +72,34 @@ def _u16(x: float) -> int:
 
 
 def heartbeat(v: Vehicle) -> mavlink.MAVLink_message:
-    base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | v.mode.base_flags
-    if v.armed:
-        base |= M.MAV_MODE_FLAG_SAFETY_ARMED
-    status = M.MAV_STATE_ACTIVE if v.armed else M.MAV_STATE_STANDBY
-    if v.failsafe_active:
-        status = M.MAV_STATE_CRITICAL
-    return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, v.mode.custom_mode, status)
+    """HEARTBEAT as each firmware fills it.
+
+    PX4: system_status UNINIT while the arming checks fail (at boot; in OFFBOARD without setpoints),
+    STANDBY when they pass, ACTIVE armed, CRITICAL in a failsafe. ArduPilot: BOOT until it has
+    started, STANDBY (also armed on the ground), ACTIVE flying, CRITICAL in a failsafe; its base_mode
+    carries GUIDED_ENABLED while booting and in the modes that have it (ModeSpec)."""
+    mode = v.mode
+    base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mode.base_flags
+    now = v.now
+    first = v.heartbeats_sent == 0  # the first one shows the boot state, however short the boot
+    v.heartbeats_sent += 1
+    if v.flavour.is_px4:
+        if v.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+            status = M.MAV_STATE_CRITICAL if v.failsafe_active else M.MAV_STATE_ACTIVE
+        else:
+            status = M.MAV_STATE_STANDBY if v.arming_checks_pass() and not first else M.MAV_STATE_UNINIT
+    else:
+        if v.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED | mode.armed_flags
+        if first or not v.boot.passed("standby", now):
+            base |= M.MAV_MODE_FLAG_GUIDED_ENABLED
+            status = M.MAV_STATE_BOOT
+        elif v.failsafe_active:
+            status = M.MAV_STATE_CRITICAL
+        else:
+            status = M.MAV_STATE_ACTIVE if v.armed and v.has_flown_since_arming() else M.MAV_STATE_STANDBY
+    return v.mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, v.flavour.autopilot, base, mode.custom_mode, status)
 
 
 def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -> mavlink.MAVLink_message:
@@ -88,25 +111,32 @@ def _reuse(v: Vehicle, name: str, make: Callable[[], mavlink.MAVLink_message]) -
 
 
 def global_position_int(v: Vehicle) -> mavlink.MAVLink_message | None:
-    if not v.gps_ok:
-        return None  # no global position before the first fix (PX4 sends none either)
-    lat, lon, alt = v.reported_geodetic()
+    """PX4: none until the position estimate is valid. ArduPilot: zeros (but a heading) until its GPS has a
+    fix, then the position; relative_alt 0 until home is set."""
     d = v.ctx.dyn
-    vn, ve, vd = d.get(VEL, v.i)
     m = _reuse(v, "GLOBAL_POSITION_INT", lambda: v.mav.global_position_int_encode(0, 0, 0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
+    m.hdg = _cdeg_heading(d.get(YAW, v.i))
+    if not v.booted:
+        if v.flavour.is_px4:
+            if not v.boot.passed("position", v.now):
+                return None
+        elif not v.boot.passed("gps_fix", v.now):
+            m.lat = m.lon = m.alt = m.relative_alt = m.vx = m.vy = m.vz = 0
+            return m
+    lat, lon, alt = v.reported_geodetic()
+    vn, ve, vd = d.get(VEL, v.i)
     m.lat = _i32(lat * 1e7)
     m.lon = _i32(lon * 1e7)
     m.alt = _i32(alt * 1000.0)
-    m.relative_alt = _i32((alt - v.home.alt) * 1000.0)
+    m.relative_alt = _i32((alt - v.home.alt) * 1000.0) if v.home_set else 0
     m.vx, m.vy, m.vz = _i16(vn * 100.0), _i16(ve * 100.0), _i16(vd * 100.0)
-    m.hdg = _cdeg_heading(d.get(YAW, v.i))
     return m
 
 
 def local_position_ned(v: Vehicle) -> mavlink.MAVLink_message | None:
-    if not v.gps_ok:
-        return None  # the local position comes from GPS here
+    if not v.booted and not v.flavour.is_px4 and not v.boot.passed("ekf_gps", v.now):
+        return None  # ArduPilot: only once the EKF has a horizontal position
     d = v.ctx.dyn
     m = _reuse(v, "LOCAL_POSITION_NED", lambda: v.mav.local_position_ned_encode(0, 0, 0, 0, 0, 0, 0))
     m.time_boot_ms = _ms(v)
@@ -146,13 +176,17 @@ def attitude_quaternion(v: Vehicle) -> mavlink.MAVLink_message:
 def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
     """Sensors present/enabled/healthy as MAVSDK's health() and QGC read them: GPS healthy from the
     first fix, PREARM_CHECK while arming would pass, RC_RECEIVER while stick input arrives."""
+    if not v.booted and v.flavour.is_px4 and not v.boot.passed("home", v.now):
+        volts, amps, pct = v.battery_readings()  # PX4 reports its sensors once they are up
+        return v.mav.sys_status_encode(0, 0, 0, 0, _u16(volts * 1000), _i16(amps * 100), pct, 0, 0, 0, 0, 0, 0)
     sticks = RC if v.settings.stick_input else 0
     present = SENSORS | PREARM | FENCE | sticks
     enabled = SENSORS | PREARM | (FENCE if v.fence_enabled else 0) | sticks
     health = SENSORS | FENCE
-    if not v.gps_ok:
+    if not v.gps_fix:
         health &= ~GPS
-    if v.prearm_ok():
+    # PX4's checks include the mode's (OFFBOARD without setpoints fails them); ArduPilot's pre-arm checks do not
+    if v.arming_checks_pass() if v.flavour.is_px4 else v.prearm_ok():
         health |= PREARM
     if v.sticks_fresh:
         health |= RC
@@ -165,12 +199,13 @@ def sys_status(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def extended_sys_state(v: Vehicle) -> mavlink.MAVLink_message:
-    return v.mav.extended_sys_state_encode(M.MAV_VTOL_STATE_MC, v.landed_state())
+    vtol = M.MAV_VTOL_STATE_UNDEFINED if v.flavour.is_px4 else M.MAV_VTOL_STATE_MC
+    return v.mav.extended_sys_state_encode(vtol, v.landed_state())
 
 
 def home_position(v: Vehicle) -> mavlink.MAVLink_message | None:
-    if not v.gps_ok:
-        return None  # home is set at the first fix
+    if not v.home_set:
+        return None  # nothing to say before home is set
     h = v.home
     x, y, z = (float(c) for c in v.home_ned)
     return v.mav.home_position_encode(
@@ -221,8 +256,9 @@ def battery_status(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
-    if not v.gps_ok:  # searching: no fix, no satellites
-        return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
+    if not v.gps_fix:  # searching: no fix, no satellites
+        no_fix = M.GPS_FIX_TYPE_NO_FIX if v.flavour.is_px4 else M.GPS_FIX_TYPE_NO_GPS  # (ArduCopter: 0 until detected)
+        return v.mav.gps_raw_int_encode(int(v.ctx.clock.sim_time * 1e6), no_fix, 0, 0, 0,
                                         65535, 65535, 0, 65535, 0)  # fmt: skip
     lat, lon, alt = v.reported_geodetic()
     vn, ve, _ = v.ctx.dyn.get(VEL, v.i)
@@ -230,7 +266,7 @@ def gps_raw_int(v: Vehicle) -> mavlink.MAVLink_message:
     cog = _cdeg_heading(math.atan2(ve, vn)) if gs > 0.1 else 65535
     return v.mav.gps_raw_int_encode(
         int(v.ctx.clock.sim_time * 1e6),
-        M.GPS_FIX_TYPE_3D_FIX,
+        M.GPS_FIX_TYPE_3D_FIX if v.flavour.is_px4 else ARDUPILOT_GPS_FIX,
         _i32(lat * 1e7),
         _i32(lon * 1e7),
         _i32(alt * 1000.0),
@@ -274,53 +310,66 @@ def mission_current(v: Vehicle) -> mavlink.MAVLink_message:
 
 
 def autopilot_version(v: Vehicle) -> mavlink.MAVLink_message:
-    cap = (
-        M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-        | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-        | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-        | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-        | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-        | M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
-        | M.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
-    )
-    cap |= (
-        M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-        if v.flavour.bytewise_params
-        else M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
-    )
+    """The version and capabilities the firmware reports (PX4 1.16.0, ArduCopter 4.7.0-dev)."""
+    if v.flavour.is_px4:
+        cap, sw, custom = px4.CAPABILITIES, px4.FLIGHT_SW_VERSION, list(px4.FLIGHT_CUSTOM_VERSION)
+        uid2 = [0] * 18
+    else:
+        cap, sw, custom = ardupilot.CAPABILITIES, ardupilot.FLIGHT_SW_VERSION, list(ardupilot.FLIGHT_CUSTOM_VERSION)
+        uid2 = list(ardupilot.board_uid(v.sysid).encode()[:17]) + [0]
     return v.mav.autopilot_version_encode(
         cap,
-        v.flavour.flight_sw_version,
+        sw,
+        sw if v.flavour.is_px4 else 0,
         0,
-        0,
-        0,
+        1 if v.flavour.is_px4 else 0,
+        custom,
         [0] * 8,
         [0] * 8,
-        [0] * 8,
         0,
         0,
-        0x4D52_0000_0000_0000 | v.sysid,  # "MR" + sysid: stable per vehicle
+        0x4D52_0000_0000_0000 | v.sysid if v.flavour.is_px4 else 0,  # "MR" + sysid: stable per vehicle
+        uid2,
     )
 
 
-# None: nothing to send yet (no position before the first GPS fix)
-ENCODERS: dict[str, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
-    "HEARTBEAT": heartbeat,
-    "GLOBAL_POSITION_INT": global_position_int,
-    "LOCAL_POSITION_NED": local_position_ned,
-    "ATTITUDE": attitude,
-    "ATTITUDE_QUATERNION": attitude_quaternion,
-    "SYS_STATUS": sys_status,
-    "EXTENDED_SYS_STATE": extended_sys_state,
-    "HOME_POSITION": home_position,
-    "BATTERY_STATUS": battery_status,
-    "GPS_RAW_INT": gps_raw_int,
-    "VFR_HUD": vfr_hud,
-    "SYSTEM_TIME": system_time,
-    "NAMED_VALUE_FLOAT": named_value_rtf,
-    "MISSION_CURRENT": mission_current,
-}
+def gps_global_origin(v: Vehicle) -> mavlink.MAVLink_message | None:
+    if not v.origin_set:
+        return None
+    o = v.frame.origin
+    return v.mav.gps_global_origin_encode(_i32(o.lat * 1e7), _i32(o.lon * 1e7), _i32(o.alt * 1000.0), int(v.now * 1e6))
 
+
+def scaled_pressure(v: Vehicle) -> mavlink.MAVLink_message:
+    _, _, alt = v.geodetic()
+    return v.mav.scaled_pressure_encode(_ms(v), pressure_hpa(alt), 0.0, 2500, 0)
+
+
+def servo_output_raw(v: Vehicle) -> mavlink.MAVLink_message:
+    pwm = motor_pwm(v)
+    return v.mav.servo_output_raw_encode(int(v.now * 1e6) & 0xFFFFFFFF, 0, pwm, pwm, pwm, pwm, 0, 0, 0, 0,
+                                         0, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
+
+
+def vibration(v: Vehicle) -> mavlink.MAVLink_message:
+    return v.mav.vibration_encode(int(v.now * 1e6), 0.0, 0.0, 0.0, 0, 0, 0)
+
+
+def timesync_request(v: Vehicle) -> mavlink.MAVLink_message:
+    """A TIMESYNC request of the vehicle's own (tc1 = 0, ts1 = its time in ns)."""
+    return v.mav.timesync_encode(0, max(1, int(v.now * 1e9)))
+
+
+def pressure_hpa(alt_amsl: float) -> float:
+    """ISA static pressure at an altitude (hPa)."""
+    return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl) ** 5.25588
+
+
+def motor_pwm(v: Vehicle) -> int:
+    """A motor output in µs: 1000 disarmed, about 1100 armed on the ground, about 1500 hovering."""
+    if not v.armed:
+        return 1000
+    return 1100 if v.landed else 1500
 
 
 def _framer() -> Any:
@@ -347,7 +396,7 @@ def global_position_int_frame(v: Vehicle) -> bytes | None:
     against 4.8 µs warm, docs/benchmarks.md); None: nothing to send, or the Python path must
     (no fix yet, a signing link, no compiled framer), so :func:`global_position_int` decides."""
     mav = v.mav
-    if not v.gps_ok or mav.signing.sign_outgoing:
+    if not v.booted or mav.signing.sign_outgoing:
         return None
     d = v.ctx.dyn
     frame: bytes = _FRAMER.global_position_int(
@@ -360,73 +409,3 @@ def global_position_int_frame(v: Vehicle) -> bytes | None:
 FRAMERS: dict[str, Callable[[Vehicle], bytes | None]] = (
     {"GLOBAL_POSITION_INT": global_position_int_frame} if _FRAMER is not None else {})
 
-# Messages REQUEST_MESSAGE can produce, by id (streams plus one-shot ones).
-REQUESTABLE: dict[int, Callable[[Vehicle], mavlink.MAVLink_message | None]] = {
-    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
-    **{getattr(M, f"MAVLINK_MSG_ID_{name}"): fn for name, fn in ENCODERS.items()},
-}
-STREAM_BY_ID: dict[int, str] = {getattr(M, f"MAVLINK_MSG_ID_{name}"): name for name in ENCODERS}
-
-
-class StreamSet:
-    """Per-vehicle stream intervals (sim seconds) and next due times.
-
-    All of a vehicle's streams are phase-aligned on the physics step grid (offset
-    ``phase`` steps), so one wake-up sends everything due and a lone vehicle wakes its
-    host loop about 10 times a second, not once per stream; vehicles of a fleet get
-    different phases, which spreads their sends.
-    """
-
-    def __init__(self, rates: dict[str, float], defaults: dict[str, float], dt: float, phase: int = 0):
-        self.dt = dt
-        self.defaults = dict(defaults)
-        self.interval: dict[str, float] = {}
-        self.next_due: dict[str, float] = {}
-        self.next_any = math.inf
-        self._phase = phase
-        self._grid = max(1, round(0.1 / dt))  # first sends on the 10 Hz grid: everything within 0.1 s
-        for name in ENCODERS:
-            self.set_rate(name, rates.get(name, 0.0), now=0.0, first=True)
-
-    def _aligned(self, now: float, iv: float, first: bool = False) -> float:
-        steps = max(1, round(iv / self.dt))
-        if first:
-            steps = min(steps, self._grid)
-        k_now = round(now / self.dt)
-        return (k_now + 1 + (self._phase - k_now - 1) % steps) * self.dt
-
-    def set_rate(self, name: str, hz: float, now: float, first: bool = False) -> None:
-        if not hz > 0 or not math.isfinite(hz):
-            self.interval[name] = 0.0
-            self.next_due[name] = math.inf
-        else:
-            iv = max(1.0 / hz, self.dt)
-            self.interval[name] = iv
-            self.next_due[name] = self._aligned(now, iv, first)
-        self.next_any = min(self.next_due.values())
-
-    def set_interval_us(self, name: str, interval_us: float, now: float) -> None:
-        """SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else microseconds."""
-        if interval_us == -1:
-            self.set_rate(name, 0.0, now)
-        elif interval_us == 0:
-            self.set_rate(name, self.defaults.get(name, 0.0), now)
-        else:
-            self.set_rate(name, 1e6 / interval_us, now)
-
-    def interval_us(self, name: str) -> int:
-        iv = self.interval.get(name, 0.0)
-        return int(round(iv * 1e6)) if iv > 0 else -1
-
-    def due(self, now: float) -> list[str]:
-        if now + 1e-9 < self.next_any:
-            return []
-        out = []
-        for name, t in self.next_due.items():
-            if now + 1e-9 >= t:
-                out.append(name)
-                iv = self.interval[name]
-                nt = t + iv
-                self.next_due[name] = nt if nt > now else now + iv
-        self.next_any = min(self.next_due.values())
-        return out
