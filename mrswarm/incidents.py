@@ -23,8 +23,8 @@ import numpy as np
 
 from mrswarm.summary import Incident
 
-AIRBORNE_Z = 1.0  # m above the origin
-GROUND_Z = 0.3  # m above the origin: on the ground
+AIRBORNE_Z = 1.0  # m above the UAV's ground (find_incidents)
+GROUND_Z = 0.3  # m above the UAV's ground: on the ground
 DESCENT_MS = 4.0  # m/s
 IMPACT_MS = 2.0  # m/s
 
@@ -47,10 +47,14 @@ def _onsets(mask: np.ndarray, min_len: int = 1) -> list[int]:
 
 
 def find_incidents(uav: int, t: np.ndarray, z: np.ndarray, vz: np.ndarray, armed: np.ndarray, t0: float) -> list[Incident]:
-    """Incidents of one UAV from its trajectory (wall time, height, vertical speed, armed), times from ``t0``."""
+    """Incidents of one UAV from its trajectory (wall time, height above the origin, vertical speed, armed), times
+    from ``t0``. Heights are taken above the UAV's own ground: where it stood, disarmed, at its first record (a
+    real autopilot's home need not be at the origin's altitude), else the origin."""
     out: list[Incident] = []
     if len(t) < 2:
         return out
+    if armed[0] == 0 and np.isfinite(z[0]):
+        z = z - z[0]
     for k in _onsets((armed == 0) & (z > AIRBORNE_Z)):
         out.append(Incident(uav=uav, kind="motors_stopped_in_air", t_s=round(float(t[k] - t0), 2), z_m=round(float(z[k]), 2),
                             vz_ms=round(float(vz[k]), 2), detail=f"disarmed {z[k]:.1f} m above the ground"))

@@ -59,3 +59,14 @@ def test_mode_names_are_the_autopilots_own_px4_hold_is_hold() -> None:
         hb = mav.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 1, spec.custom_mode, 3)
         assert mode_name(hb) == spec.name
     assert PX4_PROFILE.set_mode_params("HOLD") == PX4_PROFILE.set_mode_params("LOITER") == (1.0, 4.0, 3.0)
+
+
+def test_no_nan_where_ardupilot_makes_integers() -> None:
+    """ArduPilot turns COMMAND_LONG into COMMAND_INT, params 5 and 6 into integers: a NaN there is undefined
+    (a real ArduCopter 4.7 SITL stops on its floating-point trap). Every command the agent sends it has none."""
+    from uav_stack.autopilot import ARDUPILOT_PROFILE
+
+    for params in (ARDUPILOT_PROFILE.land_params(), ARDUPILOT_PROFILE.takeoff_params(600.0, 15.0),
+                   ARDUPILOT_PROFILE.set_mode_params("GUIDED")):
+        padded = list(params) + [0.0] * (7 - len(params))
+        assert not any(math.isnan(p) for p in padded[4:6]), params

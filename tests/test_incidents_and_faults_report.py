@@ -54,6 +54,21 @@ def test_a_fall_is_found_as_motors_stopped_uncontrolled_descent_and_ground_impac
     assert find_incidents(1, t, land_z, land_vz, np.where(on_ground, 0, 1), T0) == []
 
 
+def test_heights_count_from_the_uavs_own_ground_not_the_origin() -> None:
+    """A real autopilot's home 1.5 m above the swarm origin (a PX4 SITL's, as seen): standing disarmed there before
+    and after a flight is no incident; a fall from the air there still is."""
+    t = T0 + np.arange(0.0, 30.0, 0.1)
+    ground = 1.5
+    flying = (t > T0 + 5.0) & (t < T0 + 20.0)
+    z = np.where(flying, ground + 10.0, ground)
+    assert find_incidents(1, t, z, np.zeros_like(t), flying.astype(int), T0) == []
+    fz, fvz, farmed = fall(t, T0 + 10.0)
+    farmed[:20] = 0  # on the ground, disarmed, at its first records
+    fz[:20] = 0.0
+    got = find_incidents(1, t, fz + ground, fvz, farmed, T0)
+    assert [i.kind for i in got] == ["motors_stopped_in_air", "uncontrolled_descent", "ground_impact"]
+
+
 def test_the_summary_lists_incidents_lost_uavs_and_one_row_per_fault(tmp_path: Path) -> None:
     run_dir = tmp_path / "mini_coverage-run"
     run_dir.mkdir()

@@ -48,6 +48,8 @@ class AutopilotProfile:
     # its GLOBAL_POSITION_INT is no position until the estimator's flags say so (ArduCopter sends a
     # real latitude and longitude from its GPS while the EKF still ignores them); PX4 sends none before
     estimator_first: bool = False
+    # COMMAND_LONG params 5 and 6 become integers (ArduPilot): never NaN there
+    integer_xy: bool = False
     # honours REQUEST_DATA_STREAM (ArduPilot does; PX4 ignores it): the start-up contract's fallback
     data_streams: bool = True
 
@@ -57,6 +59,14 @@ class AutopilotProfile:
         if params is None:
             raise ValueError(f"unknown {self.label} mode {name!r}; known: {', '.join(self.mode_params)}")
         return (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), *params)
+
+    def land_params(self) -> tuple[float, ...]:
+        """NAV_LAND params 1-7 for a landing where the UAV is, yaw unchanged. PX4 takes NaN as "here"; ArduPilot
+        turns params 5 and 6 into integers (COMMAND_LONG to COMMAND_INT), where a NaN is undefined and stops its
+        SITL on the floating-point trap: it takes 0, 0 as "here"."""
+        if self.integer_xy:
+            return (0, 0, 0, math.nan, 0, 0, 0)
+        return (0, 0, 0, math.nan, math.nan, math.nan, math.nan)
 
     def takeoff_params(self, alt_amsl: float, relative_alt: float) -> tuple[float, ...]:
         """NAV_TAKEOFF params 1-7 for a climb to ``alt_amsl`` (m AMSL), ``relative_alt`` m above home."""
@@ -112,6 +122,7 @@ ARDUPILOT_PROFILE = AutopilotProfile(
     arming_mode="GUIDED",
     estimator="EKF_STATUS_REPORT",
     estimator_first=True,
+    integer_xy=True,
 )
 
 PROFILES: dict[int, AutopilotProfile] = {p.autopilot: p for p in (PX4_PROFILE, ARDUPILOT_PROFILE)}

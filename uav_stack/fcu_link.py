@@ -551,7 +551,9 @@ class FcuLink:
         self.conn.write(data)
 
     def _send_command_long(self, command: int, params: tuple[float, ...], confirmation: int = 0) -> None:
-        p = list(params) + [math.nan] * (7 - len(params))
+        # unused params are 0, as ground stations send them: ArduPilot turns COMMAND_LONG into COMMAND_INT,
+        # params 5 and 6 into integers, and a NaN there is undefined (its SITL stops on the FPE trap)
+        p = list(params) + [0.0] * (7 - len(params))
         self.conn.mav.command_long_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, command, confirmation, *p)
 
     def _send_data_stream(self, stream: int, hz: int) -> None:
@@ -559,7 +561,7 @@ class FcuLink:
         self.conn.mav.request_data_stream_send(self.target, mavlink.MAV_COMP_ID_AUTOPILOT1, stream, hz, 1)
 
     def command(self, command: int, *params: float) -> CommandHandle:
-        """Send COMMAND_LONG; unused params go out as NaN (= unset). Replaces a pending one."""
+        """Send COMMAND_LONG; unused params go out as 0. Replaces a pending one."""
         h = CommandHandle(command, tuple(params), self.clock())
         self.pending[command] = h
         self.counts["commands"] += 1
@@ -575,7 +577,8 @@ class FcuLink:
         return self.command(mavlink.MAV_CMD_NAV_TAKEOFF, *self.state.profile.takeoff_params(alt_amsl, relative_alt))
 
     def land(self) -> CommandHandle:
-        return self.command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+        """NAV_LAND where the UAV is (the profile says how: NaN for PX4, 0 for ArduPilot)."""
+        return self.command(mavlink.MAV_CMD_NAV_LAND, *self.state.profile.land_params())
 
     def return_to_launch(self) -> CommandHandle:
         return self.command(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
