@@ -76,7 +76,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.output import write_results  # noqa: E402
 from deploy.process_runtime import wait_file  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
-from discovery.options import pose_feed_argv  # noqa: E402
+from discovery.options import FeedOptions  # noqa: E402
 from mrswarm.run_keys import throwaway_keys  # noqa: E402
 from swarmnet.feed import DEFAULT_WINDOW  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
@@ -400,7 +400,7 @@ def measure_fleet(args: argparse.Namespace, work: Path, routers: list[subprocess
         endpoints[w] = endpoint = f"tls/127.0.0.1:{free_port()}"
         stats = work / f"router-{w:g}.json"
         routers.append(start_router(endpoint, ["--keys", str(keys), "--stats", str(stats)],
-                                    *pose_feed_argv(SWARM, w / 1000.0)))
+                                    *FeedOptions(swarm=SWARM, window_s=w / 1000.0).argv()))
         wait_file(stats, timeout=20.0, proc=routers[-1])
         for v in args.variants:
             if not v.startswith("uav"):

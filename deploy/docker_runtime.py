@@ -6,8 +6,8 @@ It mirrors :class:`deploy.process_runtime.ProcessRuntime` (``start_network``, ``
 * one user-defined bridge network ``mrs-<run>-net``, internal (no route out of the host) and
   with multicast and broadcast made impossible (``deploy/multicast.py``), unless the
   scenario says ``docker.multicast: allow`` (a plain LAN bridge);
-* the services the scenario's connectivity needs (``deploy/services.py``; today the
-  rendezvous/edge router), one container each;
+* the services of the run's network plan (``deploy/plan.py``: the discovery server, the edge
+  router), one container each, with the same options as the process runtime's;
 * one container per virtual UAV, running ``python3 -m uav_stack.virtual_uav --config ...``
   with the same config JSON as a UAV process, on its own IP, with the scenario's CPU and
   memory limits, no capabilities, a read-only root file system, and IPv6 off.
@@ -44,15 +44,14 @@ from msgspec.structs import replace
 
 from deploy import multicast
 from deploy.dockerutil import L_RUN, DeployError, client, labels
-from deploy.services import KEYS_IN_CONTAINER, NetworkPlan, network_plan
+from deploy.plan import CONTAINERS, KEYS_IN_CONTAINER, NetworkPlan
 from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
-from discovery.options import DiscoveryService
-from swarmnet.interest import Interest
+from discovery.options import DiscoveryServerOptions
 from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
-from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +108,6 @@ class DockerRuntime:
 
     def __init__(self, run_dir: Path, log_level: str = "INFO", settings: ContainerSettings | None = None,
                  swarm: str = "*"):
-        self.discovery = DiscoveryService()
         self.run_dir = run_dir.resolve()
         self.log_level = log_level
         self.settings = settings or ContainerSettings()
@@ -157,32 +155,19 @@ class DockerRuntime:
     def _name(self, short: str) -> str:
         return f"mrs-{self.run}-{short}"
 
-    # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None,
-                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
-        """Create the run's network, start its services, and return how UAVs reach them.
+    # ---- the network: routers, discovery server (deploy/plan.py) --------------------------------
+    def start_network(self, plan: NetworkPlan) -> dict[str, NetworkConfig]:
+        """Create the run's network, start the plan's services as containers (:data:`~deploy.plan.CONTAINERS`),
+        and return how the UAVs reach them.
 
-        With discovery the edge router runs too: the runner on the host joins through it.
-        ``keys``: the swarm's key directory; each container is handed its own bundle of it.
-        ``extra_keys`` (more swarms in one airspace) is for the process runtime only.
+        The runner on the host joins through the edge router. Each secured container is handed its
+        own bundle of the swarm's key directory. One swarm per run: more swarms in one airspace run
+        with the process runtime.
         """
-        if extra_keys or extra_identities:
+        if len(plan.swarms) > 1:
             raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
-        if interest is not None:
-            raise DeployError("network.interest (spatial interest) runs with the process runtime for now (docs/scale.md)")
-        self.swarm = swarm if swarm != "*" else self.swarm
-        self.keys = keys
-        service = discovery or DiscoveryService()
-        if connectivity == "discovery" and not service.key:
-            from discovery.protocol import new_key
-
-            service = replace(service, key=new_key())  # a fresh key per run unless the scenario sets one
-        self.discovery = service
-        plan = network_plan(connectivity, mode, pose_feed, swarm, service, with_router=connectivity == "discovery",
-                            secured=keys is not None, feed_window=feed_window)
+        self.swarm = plan.swarms[0].name
+        self.keys = plan.swarms[0].keys
         # internal: no route out of the host. (Docker's isolation rules for internal networks
         # also drop traffic to addresses outside the subnet, multicast included, so a LAN-like
         # network with multicast must not be internal.)
@@ -199,28 +184,22 @@ class DockerRuntime:
                 multicast.seal(bridge, self.network.name, between_containers=False)
             except multicast.SealError as exc:
                 log.warning("multicast between containers and host not blocked: %s", exc)
-        return self._start_services(plan)
-
-    def _start_services(self, plan: NetworkPlan) -> NetworkConfig:
-        addresses: dict[str, str] = {}
-        for svc in plan.services:
-            ident = NodeName.in_swarm(svc.identity, self.swarm) if svc.identity else None
-            box = self._run(svc.name, "router" if svc.name == "router" else svc.name, list(svc.argv), uav=None,
-                            cpus=SERVICE_CPUS, memory_mb=SERVICE_MEMORY_MB, mounts=False, identity=ident)
-            addresses[svc.name] = box.ip
-            if svc.proto == "tcp":
-                wait_tcp(box.ip, svc.port, 30.0, alive=partial(self._running, box), period=0.2)
-            elif svc.name == "discovery":
-                wait_discovery(f"{box.ip}:{svc.port}", self.swarm, self.discovery.key or "", 30.0,
+        placed = plan.place(CONTAINERS)
+        hosts: dict[str, str] = {}
+        for svc in placed.services:
+            box = self._run(svc.name, svc.service.role, ["python3", *svc.argv()], uav=None, cpus=SERVICE_CPUS,
+                            memory_mb=SERVICE_MEMORY_MB, mounts=False, identity=svc.service.identity)
+            hosts[svc.name] = box.ip
+            if isinstance(svc.options, DiscoveryServerOptions):
+                wait_discovery(f"{box.ip}:{svc.port}", self.swarm, svc.options.keys[self.swarm], 30.0,
                                alive=partial(self._running, box))
-        net = plan.uav_network(addresses)
+            else:
+                wait_tcp(box.ip, svc.port, 30.0, alive=partial(self._running, box), period=0.2)
+        nets = placed.uav_networks(hosts)
         self._write_manifest()
-        return net
+        return nets
 
-    # ---- more swarms, the world service (docs/world.md) -----------------------------------------
-    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
-        raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
-
+    # ---- the world service (docs/world.md) -----------------------------------------------------
     def start_world(self, config: Path) -> None:
         """The world service in its own container on the run's network: the run folder mounted (its
         configuration in, its records out) and, in a secured run, the edge's credentials as its own."""

@@ -3,7 +3,8 @@
 Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
 with its own Zenoh session and a real MAVLink/UDP link between the two. A UAV whose flight
 controller is external (a real autopilot, a SITL) gets only its agent (``mrswarm agent``). The runtime also
-starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Every child (UAVs,
+starts the network plan's services on 127.0.0.1 (``deploy/plan.py``: the discovery server, each swarm's edge
+router), as every runtime places that plan. Every child (UAVs,
 edge router, discovery server) gets its own process group and ``PR_SET_PDEATHSIG`` (SIGTERM) before it execs, so
 it dies with the runner even when the runner is killed with SIGKILL, and :meth:`ProcessRuntime.stop` escalates
 from SIGTERM to SIGKILL, so nothing outlives the run. :meth:`ProcessRuntime.signal` and
@@ -17,7 +18,6 @@ import ctypes
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,13 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from msgspec.structs import replace
-
-from discovery.netutil import free_port, wait_tcp
-from discovery.options import DiscoveryService, ProxyOptions, pose_feed_argv
-from swarmnet.interest import Interest
-from swarmnet.security.credentials import Credentials
-from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from deploy.plan import LocalSite, NetworkPlan, PlacedService, SwarmPlan
+from discovery.netutil import wait_tcp
+from discovery.options import DiscoveryServerOptions, RouterOptions
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
 log = logging.getLogger(__name__)
 
@@ -116,122 +113,59 @@ class ProcessRuntime:
         self.python = python
         self.log_level = log_level
         self.children: dict[str, Child] = {}
-        self.keys: Path | None = None
-        self.identities: dict[str, Path] = {}  # other swarms' key directories (the discovery server checks their tokens)
-        self.interest: Interest | None = None
-        self.feed_window: float | None = None  # s, the edge routers' pose-feed window (None: their default)
         self._py, self._env = child_python(python)
         (run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (run_dir / "config").mkdir(parents=True, exist_ok=True)
 
-    # ---- connectivity ---------------------------------------------------------------------
-    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None,
-                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
-        """Start what the nodes need on 127.0.0.1 and return how they reach it.
+    # ---- the network: routers, discovery server (deploy/plan.py) --------------------------------
+    def start_network(self, plan: NetworkPlan) -> dict[str, NetworkConfig]:
+        """Start the plan's services on 127.0.0.1 (:class:`~deploy.plan.LocalSite`), in its order, each
+        waited for; return how each swarm's UAVs reach them.
 
-        ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
-        ``discovery``: a discovery server (beacon relay, docs/discovery.md), plus the edge
-        router (pose feed, and the way in for ground stations).
-        ``keys``: the swarm's key directory: every link mutual TLS under the roster's access
-        control (docs/security.md); None: plain TCP. ``extra_keys``: more swarms the discovery
-        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`), and
-        ``extra_identities`` their key directories (their beacons bound to identities too).
+        The discovery server (connectivity ``discovery``) gets every swarm's key in a file of the run
+        (``config/discovery.keys``, not on a command line) and, secured, their key directories; each
+        swarm's edge router (``router``, ``router-<swarm>``) its own key directory, and its counters go to
+        ``logs/<name>.stats.json``, whose first write says it is up.
         """
-        self.keys = keys
-        self.identities = dict(extra_identities or {})
-        self.interest = interest  # spatial interest of every edge router's pose feed (docs/scale.md)
-        self.feed_window = feed_window
-        if connectivity == "discovery":
-            net = self._start_discovery(swarm, pose_feed, discovery or DiscoveryService(), extra_keys or {})
-            return replace(net, interest=interest)
-        endpoint = self._start_router(pose_feed, swarm)
-        return NetworkConfig(connectivity="rendezvous", endpoints=(endpoint,), mode=mode, listen=(f"{self._scheme}/127.0.0.1:0",),
-                             pose_feed=pose_feed, security=self._credentials(), interest=interest)
+        placed = plan.place(LocalSite(self.run_dir))
+        for svc in placed.services:
+            if isinstance(svc.options, DiscoveryServerOptions):
+                self._start_discovery(svc, svc.options, plan.swarms[0])
+            else:
+                self._start_router(svc, svc.options)
+        return placed.uav_networks({s.name: s.host for s in placed.services})
 
-    @property
-    def _scheme(self) -> str:
-        return "tls" if self.keys is not None else "tcp"
-
-    def _credentials(self, keys: Path | None = None) -> Credentials | None:
-        """What every UAV process is given (each speaks as its own uav-<id>.<swarm>)."""
-        keys = keys or self.keys
-        return Credentials(keys=str(keys)) if keys is not None else None
-
-    def _start_router(self, pose_feed: str, swarm: str, name: str = "router", keys: Path | None = None) -> str:
-        keys = keys or self.keys
-        port = free_port()
-        endpoint = f"{'tls' if keys is not None else 'tcp'}/127.0.0.1:{port}"
-        argv = [*self._py, "-m", "discovery.rendezvous", "--listen", endpoint]
-        stats = self.run_dir / "logs" / f"{name}.stats.json"
-        if keys is not None:  # as edge.<swarm>; counts what it refuses in logs/<name>.stats.json
-            argv += ["--keys", str(keys), "--stats", str(stats)]
+    def _start_router(self, svc: PlacedService, options: RouterOptions) -> None:
+        self._spawn(svc.name, [*self._py, *svc.argv()])
+        router = self.children[svc.name]
+        if options.stats is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters
+            wait_file(Path(options.stats), timeout=20.0, proc=router.proc)
         else:
-            argv += ["--insecure"]
-        if pose_feed == "edge":
-            argv += pose_feed_argv(swarm, self.feed_window)
-            if self.interest is not None:
-                argv += self.interest.argv()
-        self._spawn(name, argv)
-        router = self.children[name]
-        if keys is not None:  # a bare TCP probe would count as a refused handshake: wait for its first counters
-            wait_file(stats, timeout=20.0, proc=router.proc)
-        else:
-            wait_tcp("127.0.0.1", port, timeout=20.0, alive=lambda: router.proc.poll() is None,
+            wait_tcp(svc.host, svc.port, timeout=20.0, alive=lambda: router.proc.poll() is None,
                      what=f"the router (log: {router.log_path})")
-        return endpoint
 
-    def _start_discovery(self, swarm: str, pose_feed: PoseFeed, service: DiscoveryService,
-                         extra_keys: dict[str, str]) -> NetworkConfig:
+    def _start_discovery(self, svc: PlacedService, options: DiscoveryServerOptions, swarm: SwarmPlan) -> None:
         from discovery.client import QueryTimeout, query_registry
-        from discovery.protocol import new_key
 
-        key = service.key or new_key()  # a fresh key per run unless the scenario sets one
-        keys = self.run_dir / "config" / "discovery.keys"
-        keys.write_text("".join(f"{s} {k}\n" for s, k in {swarm: key, **extra_keys}.items()))
-        keys.chmod(0o600)
-        server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
-        # secured: every swarm's beacons bound to identities (its key directory's roster and beacon key)
-        dirs = ([self.keys] if self.keys else []) + list(self.identities.values())
-        identities = [a for d in dirs for a in ("--identities", str(d))]
-        self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(service.ttl), "--rate", "5000", *identities])  # every node shares 127.0.0.1
+        if options.keys_file is not None:
+            keys = Path(options.keys_file)
+            keys.write_text(options.keys_text())
+            keys.chmod(0o600)
         # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
+        self._spawn(svc.name, [*self._py, *svc.argv()])
+        child = self.children[svc.name]
         deadline = time.monotonic() + 20.0
         while True:
-            proc = self.children["discovery"].proc
-            if proc.poll() is not None:
-                raise RuntimeError(f"discovery server exited with code {proc.returncode}"
-                                   f" (see {self.children['discovery'].log_path})")
+            if child.proc.poll() is not None:
+                raise RuntimeError(f"discovery server exited with code {child.proc.returncode} (see {child.log_path})")
             try:
-                query_registry(server, swarm, key, timeout=0.2, attempts=1)
-                break
+                query_registry(options.listen, swarm.name, swarm.discovery_key or "", timeout=0.2, attempts=1)
+                return
             except QueryTimeout:
                 if time.monotonic() > deadline:
-                    raise RuntimeError(f"discovery server on {server} does not answer after 20 s") from None
-        # The edge router runs beside the discovery server, and every node keeps one static link
-        # to it: it carries the edge pose feed (if on) and is the way in for ground stations and
-        # other tools (`mrswarm gcs`, `mrswarm netem set`), which join as its Zenoh clients.
-        # Routing is interest-based, so it carries nothing until someone subscribes through it;
-        # UAV-to-UAV data flows peer to peer over the links discovery introduced.
-        endpoints = (self._start_router(pose_feed, swarm),)
-        return NetworkConfig(connectivity="discovery", endpoints=endpoints, mode="peer", listen=(f"{self._scheme}/127.0.0.1:0",),
-                             pose_feed=pose_feed, discovery=ProxyOptions(server=server, key=key, period=service.period),
-                             security=self._credentials())
+                    raise RuntimeError(f"discovery server on {options.listen} does not answer after 20 s") from None
 
-    # ---- more swarms, the world service (docs/world.md) -----------------------------------------
-    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
-        """Another swarm in the same airspace: its own edge router (``router-<swarm>``, under its own
-        key directory ``keys``) and, with discovery, the run's discovery server with its own key
-        (given to :meth:`start_network` in ``extra_keys``). Returns how its UAVs reach it."""
-        endpoint = self._start_router(net.pose_feed, swarm, name=f"router-{swarm}", keys=keys)
-        scheme = "tls" if keys is not None else "tcp"
-        d = net.discovery
-        return replace(net, endpoints=(endpoint,), listen=(f"{scheme}/127.0.0.1:0",), security=self._credentials(keys),
-                       discovery=replace(d, key=discovery_key, key_file=None) if d is not None and discovery_key else d)
-
+    # ---- the world service (docs/world.md) -----------------------------------------------------
     def start_world(self, config: Path) -> None:
         """The world service beside the edge routers; it joins each swarm as its router's client."""
         self._spawn("world", [*self._py, "-m", "world", "--config", str(config), "--log-level", self.log_level,

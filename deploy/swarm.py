@@ -4,9 +4,10 @@
 CLI layer, which reads scenarios) and this module turns the fleet into a compose stack file
 and deploys it with ``docker stack deploy``:
 
-* the infrastructure services of the scenario's connectivity (``deploy/services.py``; today
-  the rendezvous/edge router) with DNS round-robin endpoints and their port published on
-  the manager in host mode (no ingress mesh needed);
+* the services of the scenario's network plan placed in containers (``deploy/plan.py``,
+  :data:`~deploy.plan.CONTAINERS`: the discovery server, the edge router), with the same options
+  as the other runtimes, DNS round-robin endpoints and their port published on the manager in
+  host mode (no ingress mesh needed);
 * with ``StackOptions.edges`` (``swarm up --edge-per-node``), an edge router per server:
   ``router-<host>`` pinned to each other server, dialling the manager's ``router``; each UAV
   replica uses its own server's (``deploy/swarm_uav.py``, ``MRSWARM_NODE``/``MRSWARM_EDGES``);
@@ -35,16 +36,18 @@ import json
 import shutil
 import subprocess
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
+from msgspec import structs
 
 from deploy.dockerutil import L_ROLE, L_RUN, L_SWARM, DeployError, client
 from deploy.multicast import IPV6_OFF
-from deploy.services import ROUTER_PORT, NetworkPlan, edge_service
+from deploy.plan import ROUTER_PORT, PlacedNetwork, edge_service
 from deploy.settings import ContainerSettings
+from discovery.options import RouterOptions
 from swarmnet.schema import to_builtins
 from swarmnet.security.beacon import BEACON_KEY_FILE
 from swarmnet.security.identity import NodeName
@@ -70,16 +73,24 @@ class StackOptions:
 
 @dataclass(frozen=True)
 class Fleet:
-    """What a stack runs: the swarm's services (``deploy/services.py``) and one config per UAV replica.
+    """What a stack runs: the swarm's network plan placed in containers (``deploy/plan.py``) and one
+    config per UAV replica.
 
     Built from a scenario by ``mrswarm deploy swarm up`` (``mrswarm/deploy_cli.py``); the UAVs
-    reach the services by their DNS names, so ``plan.uav_network`` was called with those.
+    reach the services by their DNS names, so ``network.uav_network`` was called with those.
     """
 
-    swarm: str
-    plan: NetworkPlan
+    network: PlacedNetwork
     uavs: tuple[VirtualUavConfig, ...]
-    keys: Path | None = None  # the swarm's key directory, relative to the stack file's folder or absolute; None: plain TCP
+
+    @property
+    def swarm(self) -> str:
+        return self.network.plan.swarms[0].name
+
+    @property
+    def keys(self) -> Path | None:
+        """The swarm's key directory, relative to the stack file's folder or absolute; None: plain TCP."""
+        return self.network.plan.swarms[0].keys
 
 
 def _secret(key_file: str) -> str:
@@ -92,11 +103,10 @@ def _secrets(fleet: Fleet, name: str, common_labels: dict[str, str]) -> tuple[di
     assert fleet.keys is not None
     base = [CA_CERT_FILE, ROSTER_FILE]
     pairs: dict[str, list[str]] = {}
-    for svc in fleet.plan.services:
-        if svc.identity is not None:
-            ident = NodeName.in_swarm(svc.identity, fleet.swarm)
+    for svc in fleet.network.services:
+        if (ident := svc.service.identity) is not None:
             # the discovery server also holds the beacon key: it checks every node's beacon token
-            extra = [BEACON_KEY_FILE] if svc.name == "discovery" else []
+            extra = [BEACON_KEY_FILE] if svc.service.role == "discovery" else []
             pairs[svc.name] = [*base, f"{ident.cn}.pem", f"{ident.cn}.key", *extra]
     pairs["uav"] = [*base, *(f"{NodeName.uav(c.agent.uav, fleet.swarm).cn}.{ext}" for c in fleet.uavs
                              for ext in ("pem", "key", "beacon"))]
@@ -118,20 +128,19 @@ def stack_name(swarm: str) -> str:
 
 def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
     """The compose stack (as a dict) and the fleet file's JSON text."""
-    plan = fleet.plan
     fleet_json = json.dumps([to_builtins(c) for c in fleet.uavs], indent=1)
     digest = hashlib.sha256(fleet_json.encode()).hexdigest()[:10]
     name = stack_name(fleet.swarm)
     common_labels = {L_RUN: name, L_SWARM: fleet.swarm}
     sysctls = {k: int(v) for k, v in IPV6_OFF.items()}
     services: dict[str, Any] = {}
-    for svc in plan.services:
+    for svc in fleet.network.services:
         services[svc.name] = {
             "image": opts.image,
-            "command": list(svc.argv),
+            "command": ["python3", *svc.argv()],
             "networks": ["swarm"],
             "ports": [{"target": svc.port, "published": opts.port if svc.name == "router" else svc.port,
-                       "protocol": svc.proto, "mode": "host"}],
+                       "protocol": svc.service.proto, "mode": "host"}],
             "sysctls": sysctls,
             "read_only": True,
             "tmpfs": ["/tmp"],
@@ -145,11 +154,14 @@ def stack_spec(fleet: Fleet, opts: StackOptions) -> tuple[dict[str, Any], str]:
                 "labels": {**common_labels, L_ROLE: svc.name},
             },
         }
-        if svc.name == "router" and opts.edges:
+        if svc.name == "router" and opts.edges and isinstance(svc.options, RouterOptions):
             services[svc.name]["deploy"]["placement"] = {"constraints": [f"node.hostname == {opts.edges[0]}"]}
-            for host in opts.edges[1:]:  # an edge per other server, linked to the manager's (docs/deploy.md)
+            # an edge per other server, linked to the manager's (docs/deploy.md)
+            scheme = fleet.network.plan.swarm(svc.service.swarm).scheme
+            linked = replace(svc, options=structs.replace(svc.options, connect=(f"{scheme}/router:{svc.port}",)))
+            for host in opts.edges[1:]:
                 edge = json.loads(json.dumps(services[svc.name]))
-                edge["command"] = [*svc.argv, "--connect", f"{'tls' if fleet.keys is not None else 'tcp'}/router:{svc.port}"]
+                edge["command"] = ["python3", *linked.argv()]
                 del edge["ports"]  # only the manager's router is published
                 edge["deploy"]["placement"] = {"constraints": [f"node.hostname == {host}"]}
                 services[edge_service(host, opts.edges)] = edge

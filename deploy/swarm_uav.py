@@ -22,7 +22,7 @@ from pathlib import Path
 
 from msgspec.structs import replace
 
-from deploy.services import edge_service
+from deploy.plan import edge_service
 from swarmnet.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging

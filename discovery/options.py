@@ -5,7 +5,11 @@
 * :class:`ProxyOptions`: a node's side (``NetworkConfig.discovery`` of a UAV process, or the
   flags of ``mrswarm agent``): which server, which key, what to advertise. The node's
   :class:`~discovery.proxy.BeaconDiscovery` is built from it.
-* :func:`pose_feed_argv`: the edge router's pose-feed arguments, as the runtimes start it.
+* the services' own options, each writing its command line (:meth:`argv`) for every runtime
+  (``deploy/plan.py`` places them): :class:`RouterOptions` (``mrswarm router``,
+  discovery/rendezvous.py) with its :class:`FeedOptions` (the edge pose feed: window, spatial
+  interest), and :class:`DiscoveryServerOptions` (discovery/server.py). Durations are seconds
+  here; an ``argv`` converts to a flag's unit (``--feed-window-ms``), the one place that does.
 
 Light imports only (msgspec, no zenoh): a scenario or a UAV config names these types.
 """
@@ -18,6 +22,7 @@ from typing import Annotated, Literal
 from msgspec import Meta, field
 
 from discovery.protocol import DEFAULT_PERIOD, MIN_KEY_LEN
+from swarmnet.interest import Interest
 from swarmnet.schema import Config, ConfigError
 
 Key = Annotated[str, Meta(min_length=MIN_KEY_LEN, description="a swarm's discovery key (`mrswarm discovery keygen`)")]
@@ -67,10 +72,61 @@ class ProxyOptions(Config, frozen=True):
         return key
 
 
-def pose_feed_argv(swarm: str, window: float | None = None) -> list[str]:
-    """The edge router's arguments (``mrswarm router``, discovery/rendezvous.py) for the pose feed of
-    ``swarm`` batching within ``window`` s (None: the router's default), for the runtimes that start it."""
-    argv = ["--feed", swarm]
-    if window is not None:
-        argv += ["--feed-window-ms", f"{window * 1000.0:g}"]
-    return argv
+class FeedOptions(Config, frozen=True):
+    """The edge router's pose feed (swarmnet/feed.py) for one swarm: its batch window and spatial interest."""
+
+    swarm: str  # the swarm whose poses it batches ('*': every swarm)
+    window_s: Annotated[float, Meta(ge=0.0, le=1.0)] | None = None  # s a pose may wait for others (None: the router's default)
+    interest: Interest | None = None  # spatial interest (docs/scale.md); None: every pose to every UAV
+
+    def argv(self) -> list[str]:
+        argv = ["--feed", self.swarm]
+        if self.window_s is not None:
+            argv += ["--feed-window-ms", f"{self.window_s * 1000.0:g}"]
+        if self.interest is not None:
+            argv += self.interest.argv()
+        return argv
+
+
+class RouterOptions(Config, frozen=True):
+    """``mrswarm router`` (discovery/rendezvous.py): a swarm's edge router, as a runtime starts it."""
+
+    listen: tuple[str, ...]  # Zenoh endpoints it listens on, e.g. tls/127.0.0.1:7447
+    keys: str | None = None  # its credentials (the swarm's key directory or edge's bundle) as it sees them; None: plain TCP
+    stats: str | None = None  # its counters written to this file every second
+    feed: FeedOptions | None = None  # the edge pose feed (pose_feed: edge)
+    connect: tuple[str, ...] = ()  # other edge routers it links to (one edge per server)
+
+    def argv(self) -> list[str]:
+        argv = [a for endpoint in self.listen for a in ("--listen", endpoint)]
+        argv += ["--keys", self.keys] if self.keys is not None else ["--insecure"]
+        if self.stats is not None:
+            argv += ["--stats", self.stats]
+        if self.feed is not None:
+            argv += self.feed.argv()
+        return argv + [a for endpoint in self.connect for a in ("--connect", endpoint)]
+
+
+class DiscoveryServerOptions(Config, frozen=True):
+    """The discovery server (discovery/server.py) of the swarms of one airspace, as a runtime starts it."""
+
+    listen: str  # UDP HOST:PORT
+    keys: dict[str, Key]  # swarm -> its discovery key
+    # the keys in this file (the runtime writes :meth:`keys_text` there), else on the command line
+    keys_file: str | None = None
+    ttl: Annotated[float, Meta(gt=0.0)] = 3.0  # s: the server forgets nodes silent this long
+    rate: Annotated[float, Meta(gt=0.0)] = 100.0  # datagrams/s accepted per source address
+    identities: tuple[str, ...] = ()  # key directories (or edge bundles) whose roster binds beacons to identities
+
+    def argv(self) -> list[str]:
+        argv = ["--listen", self.listen]
+        if self.keys_file is not None:
+            argv += ["--keys", self.keys_file]
+        else:
+            argv += [a for swarm, key in self.keys.items() for a in ("--key", f"{swarm}={key}")]
+        argv += ["--ttl", str(self.ttl), "--rate", f"{self.rate:g}"]
+        return argv + [a for d in self.identities for a in ("--identities", d)]
+
+    def keys_text(self) -> str:
+        """What :attr:`keys_file` holds: one ``SWARM KEY`` per line."""
+        return "".join(f"{swarm} {key}\n" for swarm, key in self.keys.items())

@@ -29,7 +29,7 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
 
     Secured (the default): the stack takes its credentials from ``network.security.keys``, else
     from ``keys/`` beside the stack file (:func:`stack_keys` fills it)."""
-    from deploy.services import network_plan
+    from deploy.plan import CONTAINERS
 
     if uavs < 1:
         raise DeployError(f"--uavs must be at least 1, got {uavs}")
@@ -40,24 +40,16 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
         raise DeployError(f"scenario {scn.name} lists {len(virtual)} virtual UAVs; cannot deploy {uavs}"
                           + (f" (its {external} with an external flight controller run their own agent: mrswarm agent)"
                              if external else ""))
-    net = scn.network
-    if net.interest is not None:  # the deployed edge router runs no near feeds yet (docs/scale.md)
-        raise DeployError("network.interest (spatial interest) runs with the process runtime for now")
-    service = net.discovery
-    if net.connectivity == "discovery" and not service.key:
-        from discovery.protocol import new_key
-
-        service = replace(service, key=new_key())  # a fresh key per deployment unless the scenario sets one
-    # the edge router runs beside the discovery server: ground stations join through it
-    sec = net.secured
+    sec = scn.network.secured
     keys = (Path(sec.keys).resolve() if sec.keys else STACK_KEYS) if sec.enabled else None
-    plan = network_plan(*net.topology, scn.swarm, service, with_router=True,
-                        secured=keys is not None, feed_window=net.feed_window_s)
-    netcfg = plan.uav_network({s.name: s.name for s in plan.services})
+    # the run's plan, placed in containers as the container runtime places it; a fresh discovery key per
+    # deployment unless the scenario sets one
+    network = scn.network_plan({scn.swarm: keys}).place(CONTAINERS)
+    netcfg = network.uav_network(scn.swarm, {s.name: s.name for s in network.services})  # by DNS name
     cfgs = scn.virtual_uav_configs(netcfg, record_dir=f"{DATA_PATH}/{scn.swarm}")[:uavs]
     if autostart:
         cfgs = [replace(c, agent=replace(c.agent, autostart=True)) for c in cfgs]
-    return Fleet(scn.swarm, plan, tuple(cfgs), keys)
+    return Fleet(network, tuple(cfgs))
 
 
 def stack_keys(fleet: Fleet, out: Path) -> None:

@@ -38,7 +38,6 @@ from typing import Any
 
 import yaml
 import zenoh
-from msgspec.structs import replace
 from rich.console import Console
 from rich.markup import escape
 
@@ -59,8 +58,6 @@ from mrswarm.world_setup import (
     external_agents,
     open_observer,
     other_swarm_credentials,
-    other_swarm_keys,
-    swarm_networks,
     uav_configs,
     world_service_config,
     write_world_config,
@@ -284,12 +281,9 @@ class Experiment:
         if n > MESH_MAX_UAVS:  # the network may not be the one a small run gets: say which it is
             self._say(f"network: {n} UAVs on this machine: {connectivity}, {mode} mode, {pose_feed} pose feed (what "
                       f"the scenario does not set is chosen for more than {MESH_MAX_UAVS} UAVs: docs/scale.md)")
-        discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
-        net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,
-                                         keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest,
-                                         feed_window=scn.network.feed_window_s,
-                                         extra_identities={s: p for s, p in self.swarm_keys.items() if p and s != scn.swarm})
-        net = replace(net, lease_s=scn.network.lease_s)
+        # every swarm of the airspace, each with its own key directory and discovery key (docs/world.md)
+        nets = self.runtime.start_network(scn.network_plan(self.swarm_keys))
+        net = nets[scn.swarm]
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
@@ -310,7 +304,6 @@ class Experiment:
                 self._say(f"flight recording: {self.recorder.path}")
             except (RuntimeError, OSError) as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
-        nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))

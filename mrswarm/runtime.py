@@ -1,7 +1,8 @@
 """Where the virtual UAVs run: the :class:`Runtime` interface the runner drives, and the choice of one.
 
 ``deploy/`` provides the runtimes (``ProcessRuntime``: one OS process per UAV;
-``DockerRuntime``: one container per UAV); the runner (``mrswarm.experiment``) depends only
+``DockerRuntime``: one container per UAV), each placing the same network plan
+(``deploy/plan.py``, made by ``Scenario.network_plan``); the runner (``mrswarm.experiment``) depends only
 on this interface, and :func:`make_runtime` picks one from the scenario, handing each runtime
 its own typed settings.
 """
@@ -11,9 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-from discovery.options import DiscoveryService
-from swarmnet.interest import Interest
-from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from deploy.plan import NetworkPlan
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
 if TYPE_CHECKING:
     from mrswarm.scenario import Scenario
@@ -24,25 +24,10 @@ class Runtime(Protocol):
 
     name: str  # "process" or "docker"
 
-    def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
-                      connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
-                      keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None,
-                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
-        """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
-
-        ``keys``: the swarm's key directory (mutual TLS and access control on every link,
-        docs/security.md; the discovery server binds beacons to its identities); None: plain TCP.
-        ``extra_keys``: the discovery keys of more swarms sharing the airspace (swarm -> key;
-        docs/world.md), ``extra_identities`` their key directories. ``interest``: spatial interest of
-        the edge pose feed (docs/scale.md; only with ``pose_feed`` edge). ``feed_window``: the
-        edge pose feed's batch window, s (None: the router's default, ``swarmnet.feed.DEFAULT_WINDOW``).
-        """
-        ...
-
-    def add_swarm(self, swarm: str, net: NetworkConfig, discovery_key: str | None, keys: Path | None) -> NetworkConfig:
-        """Another swarm in the same airspace: its own edge router (under its own key directory,
-        ``keys``), the discovery server of ``net`` with its own discovery key; how its UAVs reach it."""
+    def start_network(self, plan: NetworkPlan) -> dict[str, NetworkConfig]:
+        """Start the plan's services (``deploy/plan.py``: the discovery server, each swarm's edge router),
+        placed as this runtime places things, and return how each swarm's UAVs reach them (by swarm,
+        the plan's first swarm first)."""
         ...
 
     def start_world(self, config: Path) -> None:

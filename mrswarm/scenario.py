@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import stat
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -23,6 +24,7 @@ import yaml
 from msgspec import Meta, field
 from msgspec.structs import force_setattr, replace
 
+from deploy.plan import NetworkPlan, SwarmPlan
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from mrswarm.faults import FaultSpec, check_against, fit_to_duration
@@ -560,6 +562,25 @@ class Scenario(Config, kw_only=True, frozen=True):
         if g.listen_base is not None:
             out.append(f"udpin:{g.host}:{g.listen_base + uav}")
         return tuple(out)
+
+    # ---- the network plan (deploy/plan.py) --------------------------------------------------------
+    def network_plan(self, keys: Mapping[str, Path | None]) -> NetworkPlan:
+        """The run's network, planned once (``deploy/plan.py``) for every runtime to place: the swarms named
+        in ``keys`` (each with its key directory; None: plain TCP), in the airspace's order, the scenario's
+        own first (a Swarm stack deploys that one only), on the network this scenario chose. Every swarm
+        without a discovery key in the scenario gets a fresh one for this run."""
+        from discovery.protocol import new_key
+
+        own = self.network
+        connectivity, mode, pose_feed = own.topology
+        given = {self.swarm: own.discovery.key} | {o.swarm: o.key for o in self.other_swarms}
+        if unknown := [s for s in keys if s not in given]:
+            raise ValueError(f"no swarm {unknown} in scenario {self.name}")
+        if self.swarm not in keys:
+            raise ValueError(f"the plan of scenario {self.name} starts with its own swarm, {self.swarm}")
+        swarms = tuple(SwarmPlan(s, keys[s], given[s] or new_key()) for s in given if s in keys)
+        return NetworkPlan(swarms, connectivity, mode, pose_feed, feed_window_s=own.feed_window_s, interest=own.interest,
+                           discovery=own.discovery, lease_s=own.lease_s)
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None,

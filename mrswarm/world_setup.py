@@ -16,7 +16,6 @@ from typing import Any
 
 from msgspec.structs import replace
 
-from mrswarm.runtime import Runtime
 from mrswarm.scenario import Scenario
 from swarmnet.connectivity import Connectivity, open_retrying
 from swarmnet.messages import Command, Pose
@@ -28,13 +27,6 @@ from uav_stack.runtime import OPEN_TIMEOUT_S, make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
 
 
-def other_swarm_keys(scn: Scenario) -> dict[str, str]:
-    """The discovery key of every other swarm: the scenario's, else a fresh one for this run."""
-    from discovery.protocol import new_key
-
-    return {o.swarm: o.key or new_key() for o in scn.other_swarms}
-
-
 def other_swarm_credentials(scn: Scenario, run_dir: Path, secured: bool) -> dict[str, Path | None]:
     """Every other swarm's key directory for this run: a throw-away CA each (``<run>/keys-<swarm>``)
     with its UAVs, its edge, its ctl and one ground station; None each when the run is not secured."""
@@ -44,16 +36,6 @@ def other_swarm_credentials(scn: Scenario, run_dir: Path, secured: bool) -> dict
 
     return {o.swarm: throwaway_keys(run_dir / f"keys-{o.swarm}", o.swarm, run_identities(o.swarm, [u.id for u in o.uav_list()]))
             for o in scn.other_swarms}
-
-
-def swarm_networks(scn: Scenario, net: NetworkConfig, runtime: Runtime, discovery_keys: dict[str, str],
-                   keys: dict[str, Path | None]) -> dict[str, NetworkConfig]:
-    """How the UAVs of each swarm reach it: the runtime's network for the scenario's swarm, and for
-    every other swarm its own edge router, discovery key and credentials (``Runtime.add_swarm``)."""
-    out = {scn.swarm: net}
-    for o in scn.other_swarms:
-        out[o.swarm] = runtime.add_swarm(o.swarm, net, discovery_keys.get(o.swarm), keys.get(o.swarm))
-    return out
 
 
 def observer_network(net: NetworkConfig, keys: Path | None) -> NetworkConfig:

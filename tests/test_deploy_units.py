@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from deploy.images import image_tag
-from deploy.services import network_plan
+from deploy.plan import CONTAINERS, NetworkPlan, SwarmPlan
 from deploy.swarm import StackOptions, stack_spec, write_stack
 from deploy.swarm_uav import SlotError, endpoint_host, load_fleet, pick
 from mrswarm.deploy_cli import swarm_fleet
@@ -32,15 +32,15 @@ def test_docker_fields_are_validated_with_their_names() -> None:
 
 
 def test_network_plan_rendezvous_router_and_uav_endpoints() -> None:
-    plan = network_plan("rendezvous", "peer", "edge", "alpha")
-    (router,) = plan.services
-    assert router.name == "router" and "--feed" in router.argv and "alpha" in router.argv
-    net = plan.uav_network({"router": "10.1.2.3"})
+    network = NetworkPlan((SwarmPlan("alpha"),), "rendezvous", "peer", "edge").place(CONTAINERS)
+    (router,) = network.services
+    assert router.name == "router" and router.argv()[-2:] == ["--feed", "alpha"]
+    net = network.uav_network("alpha", {"router": "10.1.2.3"})
     assert net.endpoints == ("tcp/10.1.2.3:7447",) and net.pose_feed == "edge" and net.mode == "peer"
     with pytest.raises(ValueError, match="router"):
-        plan.uav_network({})
-    with pytest.raises(ValueError, match="no container deployment"):
-        network_plan("carrier-pigeon")
+        network.uav_network("alpha", {})
+    with pytest.raises(ValueError, match=r"discovery needs a key for swarms \['alpha'\]"):
+        NetworkPlan((SwarmPlan("alpha"),), "discovery")
 
 
 def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
@@ -72,8 +72,7 @@ def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
 def test_a_deployed_edge_router_batches_with_the_scenarios_feed_window() -> None:
     """``network.feed_window_ms`` reaches the edge router of a Swarm stack as it does a local run's."""
     fleet = swarm_fleet(load_scenario(COVERAGE, ["network.pose_feed=edge", "network.feed_window_ms=4"]), 2)
-    (router,) = [s for s in fleet.plan.services if s.name == "router"]
-    argv = list(router.argv)
+    argv = fleet.network.service("router").argv()
     assert argv[argv.index("--feed-window-ms") + 1] == "4"
 
 

@@ -11,6 +11,7 @@ import pytest
 
 from deploy import multicast
 from deploy.docker_runtime import ContainerSettings, DockerRuntime
+from deploy.plan import NetworkPlan, SwarmPlan
 from tests.conftest import wait_for
 from tests.docker_support import containers_of, docker_client, docker_image, no_leftovers  # noqa: F401
 
@@ -28,7 +29,7 @@ def test_ps_logs_and_down_after_a_runner_that_never_stopped(docker_image: str, t
                                                             no_leftovers: None) -> None:
     rt = DockerRuntime(tmp_path / "run", settings=ContainerSettings(image=docker_image), swarm="clitest")
     try:
-        rt.start_network(swarm="clitest")
+        rt.start_network(NetworkPlan((SwarmPlan("clitest"),)))
         rt.start_container("idle", ["python3", "-c", "import time; time.sleep(300)"])
         network = rt.network.name
         ps = deploy_cli("ps")

@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 
 from deploy.docker_runtime import ContainerSettings, DockerRuntime
+from deploy.plan import NetworkPlan, SwarmPlan
 from tests.docker_support import docker_image, no_leftovers  # noqa: F401
 
 pytestmark = pytest.mark.docker
@@ -36,7 +37,7 @@ def test_multicast_and_zenoh_scouting_only_on_an_open_network(multicast: str, do
                                                             no_leftovers: None) -> None:
     rt = DockerRuntime(tmp_path / "run", settings=ContainerSettings(image=docker_image, multicast=multicast), swarm="probe")
     try:
-        rt.start_network(swarm="probe")
+        rt.start_network(NetworkPlan((SwarmPlan("probe"),)))
         listener = rt.start_container("listen", [*PROBE, "listen", "--seconds", "12"])
         za = rt.start_container("za", [*PROBE, "zenoh", "--name", "za", "--seconds", "14"])
         zb = rt.start_container("zb", [*PROBE, "zenoh", "--name", "zb", "--seconds", "14"])

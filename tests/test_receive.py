@@ -351,17 +351,23 @@ def _inlet_threads() -> int:
     return sum(1 for t in threading.enumerate() if t.name == "swarmnet-inlet" and t.is_alive())
 
 
-def test_a_scenarios_feed_window_reaches_the_edge_router_of_its_run(tmp_path: Path) -> None:
-    """``network.feed_window_ms`` is handed to the run's edge router (the process runtime), which
-    says the window it batches with."""
+def test_a_scenarios_feed_window_and_interest_reach_the_edge_router_of_its_run(tmp_path: Path) -> None:
+    """``network.feed_window_ms`` and ``network.interest`` are planned once (``Scenario.network_plan``) and
+    handed to the run's edge router (the process runtime), which says the window (ms) and interest it runs with."""
     from deploy.process_runtime import ProcessRuntime
+    from mrswarm.scenario import load_scenario
 
+    scn = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "coverage.yaml",
+                        ["network.security=off", "network.mode=client", "network.pose_feed=edge", "network.feed_window_ms=2.5",
+                         "network.interest={radius_m: 30, far_rate_hz: 0.5}"])
     rt = ProcessRuntime(tmp_path)
     try:
-        rt.start_network(mode="client", pose_feed="edge", swarm="win", feed_window=0.0025)
+        nets = rt.start_network(scn.network_plan({scn.swarm: None}))
         log = tmp_path / "logs" / "router.log"
-        assert wait_for(lambda: "window 2.5 ms" in (log.read_text() if log.exists() else ""), 20.0), \
+        said = "window 2.5 ms), interest radius 30 m (+5), far 0.5 Hz"
+        assert wait_for(lambda: said in (log.read_text() if log.exists() else ""), 20.0), \
             log.read_text() if log.exists() else "no router log"
+        assert nets[scn.swarm].interest == scn.network.interest  # and the UAVs listen for their near feeds
     finally:
         rt.stop(grace=5.0)
 
