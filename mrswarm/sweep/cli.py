@@ -70,7 +70,8 @@ def _main(argv: list[str], signals: Any) -> int:
     if args.report is not None:
         return _report(args, console, err)
     if args.file is None:
-        err.print("[red]error:[/] name a campaign file, or a scenario with --grid (or --report DIR)", highlight=False)
+        err.print("[red]error:[/] name a campaign file, or a scenario with --grid (or --report DIR)", highlight=False,
+                  soft_wrap=True)
         return EXIT_USAGE
     from mrswarm.sweep.campaign import CampaignError
 
@@ -87,7 +88,7 @@ def _main(argv: list[str], signals: Any) -> int:
     opts = RunOptions(record=plan.campaign.record and not args.no_record, force=args.force, log_level=args.log_level)
     resume = resume_command([a for a in argv if a != "--retry-failed"] + ([] if args.out else ["--out", str(out)]))
     sweep = Sweep(plan, out, console, parallel=parallel, retry_failed=args.retry_failed, opts=opts, live=not args.no_live,
-                  signals=signals, resume_command=resume)
+                  signals=signals, resume_command=resume, err=err)
     return sweep.run()
 
 
@@ -177,7 +178,8 @@ def _report(args: argparse.Namespace, console: Any, err: Any) -> int:
 
     folder = Path(args.report)
     if not (folder / RUNS).is_dir():
-        err.print(f"[red]error:[/] --report {folder}: not a campaign folder (no {RUNS}/ in it)", highlight=False)
+        err.print(f"[red]error:[/] --report {folder}: not a campaign folder (no {RUNS}/ in it)", highlight=False,
+                  soft_wrap=True)
         return EXIT_USAGE
     metrics = [m.strip() for m in args.metrics.split(",") if m.strip()] if args.metrics else None
     for m in metrics or []:
@@ -185,7 +187,9 @@ def _report(args: argparse.Namespace, console: Any, err: Any) -> int:
         if problem:
             err.print(f"[red]error:[/] --metrics: {problem}", highlight=False, soft_wrap=True)
             return EXIT_USAGE
+    from mrswarm.sweep.runner import results_line
+
     paths = build_report(folder, console=console, metrics=metrics)
     if paths:
-        console.print("results: " + ", ".join(str(p) for p in paths), highlight=False, soft_wrap=True)
+        console.print(results_line(folder, paths), highlight=False, soft_wrap=True)
     return 0

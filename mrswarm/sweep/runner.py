@@ -61,10 +61,11 @@ class Pending:
 class Sweep:
     def __init__(self, plan: Plan, out: Path, console: Console, *, parallel: int | str = 1, retry_failed: bool = False,
                  opts: RunOptions | None = None, live: bool = True, signals: StopSignals | None = None,
-                 resume_command: str = "") -> None:
+                 resume_command: str = "", err: Console | None = None) -> None:
         self.plan = plan
         self.out = out
         self.console = console
+        self.err = err or Console(stderr=True)
         self.limit = machine_cores() if parallel == "auto" else int(parallel)
         self.retry_failed = retry_failed
         self.opts = opts or RunOptions(record=plan.campaign.record)
@@ -141,7 +142,7 @@ class Sweep:
             self._take_lock()
             todo, ok, failed = self.check()
         except (SweepError, OSError) as exc:
-            self.console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            self.err.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
             self._release_lock()
             return EXIT_USAGE
         try:
@@ -188,9 +189,8 @@ class Sweep:
                     running.remove(r)
                     st = status(r.folder)
                     if st.state == SlotState.PENDING:  # interrupted (or killed): flown again next time
-                        if not self.signals.requested:
-                            progress.say(f"[yellow]{r.slot.label}: interrupted[/] (exit {r.attempt.exit_code}; "
-                                         f"{r.log_path}); flown again by the next sweep")
+                        progress.say(f"[yellow]{r.slot.label}: interrupted[/] (exit {r.attempt.exit_code}, {r.log_path}); "
+                                     "the next sweep flies it again")
                         continue
                     done += 1
                     if r.attempt.wall_s is not None:
@@ -244,7 +244,7 @@ class Sweep:
             self.console.print(f"[yellow]warning:[/] cannot write the report: {exc}")
             paths = []
         if paths:
-            self.console.print("results: " + ", ".join(str(p) for p in paths), highlight=False, soft_wrap=True)
+            self.console.print(results_line(self.out, paths), highlight=False, soft_wrap=True)
         if self.signals.requested:
             left = total - done
             self.console.print(f"[yellow]{self.signals.names[0]}:[/] stopped with {done} of {total} runs complete; "
@@ -275,6 +275,13 @@ def _headline(summary: dict[str, object] | None) -> str:
     if rtf is not None:
         out.append(f"RTF {rtf:.3f}")
     return f": {', '.join(out)}" if out else ""
+
+
+def results_line(folder: Path, paths: list[Path]) -> str:
+    """``results in DIR: runs.csv, cells.csv, overview.png, plots/ (5)``."""
+    top = [p.name for p in paths if p.parent == folder]
+    inner = [p for p in paths if p.parent != folder]
+    return f"results in {folder}: " + ", ".join(top) + (f", plots/ ({len(inner)} figures)" if inner else "")
 
 
 def resume_command(argv: list[str]) -> str:
