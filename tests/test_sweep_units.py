@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import json
 import math
+import signal
+import socket
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -20,6 +24,7 @@ from mrswarm.sweep.capacity import SETTLE_S, Capacity, Need
 from mrswarm.sweep.slots import SlotRecord, SlotState, status, write_record
 from mrswarm.sweep.stats import summarise, t_quantile, t_two_sided
 from mrswarm.sweep.table import collect, metric_problem, runs_csv
+from tests.conftest import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 MINI = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"
@@ -250,3 +255,44 @@ def test_a_second_run_waits_for_room_on_the_machine() -> None:
     cap.measured("c", 3.0)  # a run of that cell used 3 cores: its next one is planned with that (and a margin)
     assert first.cores < 1.0 and cap.need(scn, "c").cores == pytest.approx(3.0 * 1.25)
     assert math.isclose(cap.need(scn, "other").cores, first.cores)
+
+
+# ---- a swarm job's wrapper and service ---------------------------------------------------------------------------
+def test_the_job_wrapper_records_exit_code_cpu_and_forwards_sigterm(tmp_path: Path) -> None:
+    from mrswarm.sweep.job import read_result
+
+    result, log = tmp_path / "job.json", tmp_path / "run.log"
+    burn = ("import time; t = time.process_time(); print('flying', flush=True)\n"
+            "while time.process_time() - t < 0.3: pass\nraise SystemExit(3)")
+    done = subprocess.run([sys.executable, "-m", "mrswarm.sweep.job", "--result", str(result), "--log", str(log), "--",
+                           sys.executable, "-c", burn], cwd=ROOT, timeout=60)
+    r = read_result(result)
+    assert done.returncode == 0 and r is not None and log.read_text() == "flying\n"
+    assert (r.exit_code, r.node) == (3, socket.gethostname())
+    assert r.cpu_s is not None and r.cpu_s >= 0.3 and r.wall_s is not None and r.wall_s >= r.cpu_s * 0.5
+    # SIGTERM to the wrapper (what `docker service rm` does to the container) reaches the run, which stops as it likes
+    wait = ("import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(143))\nprint('up', flush=True)\n"
+            "time.sleep(60)")
+    proc = subprocess.Popen([sys.executable, "-m", "mrswarm.sweep.job", "--result", str(result), "--log", str(log), "--",
+                             sys.executable, "-c", wait], cwd=ROOT)
+    assert wait_for(lambda: log.read_text().endswith("up\n"), timeout=30)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=30) == 0
+    r = read_result(result)
+    assert r is not None and r.exit_code == 143 and r.wall_s is not None and r.wall_s < 30
+
+
+def test_a_job_reserves_the_runs_need_and_mounts_only_the_campaign_folder(tmp_path: Path) -> None:
+    from mrswarm.sweep.swarm_jobs import scenario_files_problem, service_kwargs
+
+    kw = service_kwargs(image="mrswarm:0.1.0", argv=["python3", "-m", "mrswarm.sweep.job"], out=tmp_path, name="mrs-x-1",
+                        run_label="sweep-x", need=Need(cores=0.62, memory_mb=480.0), uid=1000, gid=1000)
+    assert dict(kw["mode"]) == {"ReplicatedJob": {}}  # one task, run once (Swarm's defaults: one completion)
+    assert kw["restart_policy"]["Condition"] == "none"
+    assert kw["resources"]["Reservations"] == {"NanoCPUs": 620_000_000, "MemoryBytes": 480 * 2**20}
+    (m,) = kw["mounts"]
+    assert (m["Source"], m["Target"], m["Type"]) == (str(tmp_path.resolve()), str(tmp_path.resolve()), "bind")
+    assert kw["user"] == "1000:1000" and kw["networks"] == ["none"] and kw["hostname"] == "{{.Node.Hostname}}"
+    assert scenario_files_problem(load_scenario(MINI)) == ""
+    keyed = load_scenario(MINI, ["network.security.keys=/etc/mrswarm/keys"])
+    assert scenario_files_problem(keyed).startswith("network.security.keys: /etc/mrswarm/keys: a key directory on this machine")

@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +63,8 @@ class Campaign(Config, kw_only=True, frozen=True):
     metrics: list[Annotated[str, Meta(min_length=1)]] | None = None  # what the plots show; default: by mission type
     x: str | None = None  # the plots' horizontal axis: a grid key (default: the first numeric one)
     confidence: Annotated[float, Meta(gt=0.5, lt=1.0)] = 0.95
-    parallel: Annotated[int, Meta(ge=1, le=64)] | Literal["auto"] = 1
+    # runs at once: N at most, or auto (as many as fit); default 1 on this machine, auto on a swarm
+    parallel: Annotated[int, Meta(ge=1, le=64)] | Literal["auto"] | None = None
     record: bool = True  # each run's flight recording (run.mcap)
 
     def __post_init__(self) -> None:
@@ -219,7 +221,7 @@ def plan_campaign(campaign: Campaign, source: Path | None, where: str | None = N
     second, and so on, so that an interrupted campaign has its runs spread over the cells."""
     where = where or (str(source) if source is not None else "sweep")
     base = source.parent if source is not None else Path(".")
-    scenario_path = Path(campaign.scenario) if Path(campaign.scenario).is_absolute() else base / campaign.scenario
+    scenario_path = Path(os.path.normpath(base / campaign.scenario))  # campaigns/../scenarios/x.yaml: scenarios/x.yaml
     if not scenario_path.is_file():
         raise CampaignError(f"{where}: scenario: {scenario_path}: no such file")
     keys = list(campaign.grid)

@@ -73,7 +73,7 @@ class Capacity:
         self.last_start = 0.0
         psutil.cpu_percent(None)  # the first call only starts the measurement
 
-    def sample(self) -> float:
+    def sample(self) -> float | None:
         """Record the machine's CPU use since the last call (share of all cores, 0..1) and return it."""
         now = time.monotonic()
         busy = psutil.cpu_percent(None) / 100.0
@@ -125,3 +125,16 @@ class Capacity:
 
     def started(self) -> None:
         self.last_start = time.monotonic()
+
+
+class ClusterCapacity(Capacity):
+    """On a Docker Swarm: the nodes' room is Swarm's business (each job reserves its need); only the cap on the
+    jobs submitted at once is the sweep's."""
+
+    def sample(self) -> float | None:
+        return None  # the nodes' load is not watched from here
+
+    def admits(self, new: Need, running: list[Need]) -> str:
+        if len(running) >= self.limit:
+            return f"{len(running)} jobs submitted (--parallel {self.limit})"
+        return ""

@@ -35,6 +35,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", default=None, help="the campaign folder (default: results/<campaign name>); the same --out resumes")
     ap.add_argument("--parallel", default=None, metavar="N|auto",
                     help="fly up to N runs at once, each only when the machine has room for it (default 1)")
+    ap.add_argument("--on", choices=["local", "swarm"], default="local",
+                    help="where the runs fly: this machine, or the Docker Swarm that DOCKER_HOST manages (one job per run; "
+                         "the campaign folder must be shared by every node)")
+    ap.add_argument("--image", default=None, help="with --on swarm: the stack image of the jobs (default: mrswarm:<version>)")
     ap.add_argument("--retry-failed", action="store_true", help="fly again the runs whose runner gave up")
     ap.add_argument("--no-record", action="store_true", help="no flight recording (run.mcap) in the runs")
     ap.add_argument("--force", action="store_true", help="fly fleets that look too large for this machine (mrswarm run --force)")
@@ -87,12 +91,25 @@ def _main(argv: list[str], signals: Any) -> int:
 
     opts = RunOptions(record=plan.campaign.record and not args.no_record, force=args.force, log_level=args.log_level)
     resume = resume_command([a for a in argv if a != "--retry-failed"] + ([] if args.out else ["--out", str(out)]))
+    launcher = None
+    if args.on == "swarm":
+        from deploy.dockerutil import DeployError
+        from deploy.images import image_tag
+        from mrswarm.sweep.swarm_jobs import SwarmJobs
+
+        try:
+            launcher = SwarmJobs(out, plan.scenario_path, args.image or image_tag(), opts)
+        except DeployError as exc:
+            err.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            return EXIT_USAGE
+    if parallel is None:
+        parallel = "auto" if args.on == "swarm" else 1
     sweep = Sweep(plan, out, console, parallel=parallel, retry_failed=args.retry_failed, opts=opts, live=not args.no_live,
-                  signals=signals, resume_command=resume, err=err)
+                  signals=signals, resume_command=resume, err=err, launcher=launcher)
     return sweep.run()
 
 
-def _plan(args: argparse.Namespace) -> tuple[Any, Path, int | str]:
+def _plan(args: argparse.Namespace) -> tuple[Any, Path, int | str | None]:
     import yaml
 
     from mrswarm.sweep.campaign import (

@@ -22,10 +22,11 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Protocol
 
 from deploy.process_runtime import die_with_parent_preexec
 from mrswarm.sweep.campaign import Slot
+from mrswarm.sweep.capacity import Need
 from mrswarm.sweep.slots import Attempt, SlotRecord, new_attempt, run_folders, write_record
 
 LOG_TAIL_BYTES = 4096
@@ -53,6 +54,60 @@ def run_command(scenario: Path, slot: Slot, folder: Path, opts: RunOptions) -> l
     return argv
 
 
+class Flight(Protocol):
+    """A run flying somewhere, as the schedule (mrswarm/sweep/runner.py) sees it."""
+
+    slot: Slot
+    folder: Path
+    record: SlotRecord
+    attempt: Attempt
+    log_path: Path
+    busy: list[float]
+
+    @property
+    def elapsed(self) -> float: ...
+
+    def last_line(self) -> str: ...
+
+    def signal(self, sig: int) -> None: ...
+
+    def poll(self) -> bool: ...
+
+
+class Launcher(Protocol):
+    """Where the runs fly: this machine (:class:`LocalLauncher`), a Docker Swarm (mrswarm/sweep/swarm_jobs.py)."""
+
+    where: str
+
+    def start(self, slot: Slot, folder: Path, record: SlotRecord, need: Need) -> Flight: ...
+
+
+@dataclass
+class LocalLauncher:
+    """Every run a child process of the sweep, on this machine."""
+
+    scenario: Path
+    opts: RunOptions
+    where: str = "this machine"
+
+    def start(self, slot: Slot, folder: Path, record: SlotRecord, need: Need) -> Flight:
+        return start(self.scenario, slot, folder, record, self.opts)
+
+
+def tail_line(path: Path) -> str:
+    """The last line a run printed (its stage, its progress line)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - LOG_TAIL_BYTES))
+            tail = f.read().decode(errors="replace")
+    except OSError:
+        return ""
+    lines = [ln.strip() for ln in tail.splitlines() if ln.strip()]
+    return lines[-1] if lines else ""
+
+
 @dataclass
 class Launch:
     """A run flying: its child process, its slot's record and what the sweep measures of it."""
@@ -74,17 +129,7 @@ class Launch:
         return time.monotonic() - self.t0
 
     def last_line(self) -> str:
-        """The last line the run printed (its stage, its progress line)."""
-        try:
-            with open(self.log_path, "rb") as f:
-                f.seek(0, os.SEEK_END)
-                size = f.tell()
-                f.seek(max(0, size - LOG_TAIL_BYTES))
-                tail = f.read().decode(errors="replace")
-        except OSError:
-            return ""
-        lines = [ln.strip() for ln in tail.splitlines() if ln.strip()]
-        return lines[-1] if lines else ""
+        return tail_line(self.log_path)
 
     def signal(self, sig: int) -> None:
         """Forward a stop signal to the runner (it stops its UAVs and writes an interrupted summary)."""

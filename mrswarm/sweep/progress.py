@@ -22,7 +22,7 @@ from rich.table import Table
 
 from mrswarm.scenario import Scenario
 from mrswarm.sweep.campaign import Slot
-from mrswarm.sweep.launch import Launch
+from mrswarm.sweep.launch import Flight
 
 PLAIN_EVERY_S = 30.0
 PRIOR_BASE_S = 12.0  # s a run takes besides its mission and climb: processes, ready, the summary and its figures
@@ -64,7 +64,7 @@ class Estimator:
             return slot.scenario.duration + sum(self.overhead) / len(self.overhead)
         return prior_wall_s(slot.scenario)
 
-    def time_left(self, pending: list[Slot], running: list[Launch], parallel: int) -> float:
+    def time_left(self, pending: list[Slot], running: list[Flight], parallel: int) -> float:
         work = sum(self.predict(s) for s in pending) + sum(max(self.predict(r.slot) - r.elapsed, 0.0) for r in running)
         return work / max(1, parallel)
 
@@ -84,7 +84,7 @@ class SweepProgress:
                                   TimeElapsedColumn(), TextColumn("{task.fields[left]}"), console=console)
         self._task = self._progress.add_task("sweep", total=total, completed=done, left="")
         self._live: Live | None = None
-        self._running: list[Launch] = []
+        self._running: list[Flight] = []
 
     def __enter__(self) -> SweepProgress:
         if self.live:
@@ -102,7 +102,7 @@ class SweepProgress:
         """A line above the bar (or a plain line)."""
         self.console.print(text, highlight=False, soft_wrap=not self.console.is_terminal)
 
-    def update(self, done: int, failed: int, running: list[Launch], left_s: float | None) -> None:
+    def update(self, done: int, failed: int, running: list[Flight], left_s: float | None) -> None:
         self.done, self.failed, self._running = done, failed, running
         left = f"about {duration(left_s)} left" if left_s is not None and done < self.total else ""
         self._progress.update(self._task, completed=done, left=left + (f", {failed} failed" if failed else ""))

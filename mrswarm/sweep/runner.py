@@ -33,8 +33,8 @@ from mrswarm.resources import check_resources
 from mrswarm.signals import StopSignals
 from mrswarm.summary import write_atomic
 from mrswarm.sweep.campaign import Plan, Slot, campaign_yaml
-from mrswarm.sweep.capacity import Capacity, Need, exclusive_problem, machine_cores
-from mrswarm.sweep.launch import Launch, RunOptions, start
+from mrswarm.sweep.capacity import Capacity, ClusterCapacity, Need, exclusive_problem, machine_cores
+from mrswarm.sweep.launch import Flight, Launcher, LocalLauncher, RunOptions
 from mrswarm.sweep.progress import Estimator, SweepProgress, duration
 from mrswarm.sweep.slots import SlotRecord, SlotState, attempt_of, slot_dir, status
 from mrswarm.sweep.table import CAMPAIGN_COPY
@@ -61,35 +61,63 @@ class Pending:
 class Sweep:
     def __init__(self, plan: Plan, out: Path, console: Console, *, parallel: int | str = 1, retry_failed: bool = False,
                  opts: RunOptions | None = None, live: bool = True, signals: StopSignals | None = None,
-                 resume_command: str = "", err: Console | None = None) -> None:
+                 resume_command: str = "", err: Console | None = None, launcher: Launcher | None = None) -> None:
         self.plan = plan
         self.out = out
         self.console = console
         self.err = err or Console(stderr=True)
-        self.limit = machine_cores() if parallel == "auto" else int(parallel)
         self.retry_failed = retry_failed
         self.opts = opts or RunOptions(record=plan.campaign.record)
         self.live = live
         self.signals = signals or StopSignals()
         self.resume_command = resume_command
-        self.capacity = Capacity(self.limit)
+        self.launcher: Launcher = launcher or LocalLauncher(plan.scenario_path, self.opts)
+        self.local = isinstance(self.launcher, LocalLauncher)
+        if self.local:
+            self.limit = machine_cores() if parallel == "auto" else int(parallel)
+            self.capacity: Capacity = Capacity(self.limit)
+        else:
+            self.limit = self._cluster_limit() if parallel == "auto" else int(parallel)
+            self.capacity = ClusterCapacity(self.limit)
         self.estimator = Estimator()
         self._lock: IO[str] | None = None
+
+    def _cluster_limit(self) -> int:
+        """Jobs submitted at once on a swarm by default: as many as the cluster's cores hold at the largest need."""
+        from mrswarm.sweep.swarm_jobs import SwarmJobs
+
+        assert isinstance(self.launcher, SwarmJobs)
+        need = max(Capacity(1).need(s.scenario, "").cores for s in self.plan.slots)
+        return max(1, int(self.launcher.cores // max(need, 0.1)))
 
     # ---- before flying: the folder, the slots' state, the machine -----------------------------------------------
     def check(self) -> tuple[list[Pending], int, int]:
         """The slots to fly (in order), and how many are complete (ok, failed). Raises SweepError."""
         plan = self.plan
-        if self.limit > 1:
+        cells = {s.cell.index: s for s in plan.slots}.values()
+        if self.local and self.limit > 1:
             for s in plan.slots:
                 problem = exclusive_problem(s.scenario)
                 if problem:
                     raise SweepError(f"{plan.scenario_path}: {problem}")
-        if not self.opts.force:
-            for s in {s.cell.index: s for s in plan.slots}.values():
+        if self.local and not self.opts.force:
+            for s in cells:
                 problem = check_resources(s.scenario)
                 if problem:
                     raise SweepError(f"{plan.scenario_path}: {s.cell.label}: {problem}")
+        if not self.local:
+            from mrswarm.sweep.swarm_jobs import SwarmJobs
+
+            assert isinstance(self.launcher, SwarmJobs)
+            for s in cells:
+                problem = self.launcher.problem(s.scenario, self.capacity.need(s.scenario, str(s.cell.index)))
+                if problem:
+                    raise SweepError(f"{plan.scenario_path}: {s.cell.label}: --on swarm: {problem}")
+            left = self.launcher.leftovers()
+            if left:
+                names = " ".join(sv.name for sv in left)
+                raise SweepError(f"{len(left)} job(s) of this campaign are still in the swarm (a sweep stopped without "
+                                 f"removing them): let them end, or remove them with `docker service rm {names}`")
         todo: list[Pending] = []
         ok = failed = 0
         for s in plan.slots:
@@ -164,18 +192,20 @@ class Sweep:
         self.console.print(head, highlight=False, soft_wrap=True)
         if not todo:
             return EXIT_FAILED if failed else EXIT_OK
-        if self.limit > 1:
+        if not self.local:
+            self.console.print(f"on {self.launcher.where}: up to {self.limit} jobs at once, each placed by Swarm on a "
+                               f"node with room for it", highlight=False)
+        elif self.limit > 1:
             self.console.print(f"parallel: up to {self.limit} runs at once when the machine has room "
                                f"({self.capacity.cores} cores)", highlight=False)
-        running: list[Launch] = []
+        running: list[Flight] = []
         forwarded = 0
         done, n_failed = ok + failed, failed
         from mrswarm.sweep.report import refresh_tables
 
         with SweepProgress(self.console, total, done, self.live) as progress:
             while todo or running:
-                self.capacity.sample()
-                busy_now = self.capacity._load[-1][1] if self.capacity._load else None
+                busy_now = self.capacity.sample()
                 for r in running:
                     if busy_now is not None:
                         r.busy.append(busy_now)
@@ -216,8 +246,8 @@ class Sweep:
                         break
                     todo.pop(0)
                     try:
-                        launch = start(plan.scenario_path, nxt.slot, nxt.folder, nxt.record, self.opts)
-                    except OSError as exc:
+                        launch = self.launcher.start(nxt.slot, nxt.folder, nxt.record, need)
+                    except Exception as exc:  # noqa: BLE001 - OSError here, a docker API error on a swarm: say it, stop
                         progress.say(f"[red]error:[/] cannot start a run in {nxt.folder}: {exc}")
                         todo.clear()
                         break
@@ -232,7 +262,7 @@ class Sweep:
                 time.sleep(TICK_S)
         return self._end(done, n_failed, total)
 
-    def _need(self, r: Launch) -> Need:
+    def _need(self, r: Flight) -> Need:
         return self.capacity.need(r.slot.scenario, str(r.slot.cell.index))
 
     def _end(self, done: int, failed: int, total: int) -> int:
