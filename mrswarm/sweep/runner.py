@@ -10,11 +10,13 @@ running one, which stops its UAVs and writes its summary as an interrupted run (
 flies it again); a second signal is forwarded too (the runs stop faster). The tables and plots
 are then written from the complete runs, and the sweep says how to resume.
 
-Where a run flies is the launcher's business (:mod:`mrswarm.sweep.launch`: a child ``mrswarm
-run``); the schedule only asks it to start, poll and signal runs, and asks
-:class:`~mrswarm.sweep.capacity.Capacity` whether another fits, from each run's need. Another way
-of flying a run (another clock, another place) is another launcher with its own need, and the
-same schedule.
+Where and how a run flies is the launcher's business (:class:`~mrswarm.sweep.launch.Launcher`: a
+child ``mrswarm run`` here, a job on a Docker Swarm in :mod:`mrswarm.sweep.swarm_jobs`); the
+schedule only asks it to start, poll and signal runs, and asks
+:class:`~mrswarm.sweep.capacity.Capacity` whether another fits, from each run's need. A run in
+simulated rather than wall-clock time would be one more launcher (its runs' command line and
+need: CPU-bound, as many cores as it is given), refusing, as the swarm launcher does, a scenario
+with an external flight controller; the slots, resume, tables and progress stay as they are.
 """
 
 from __future__ import annotations
@@ -190,8 +192,8 @@ class Sweep:
         if ok + failed:
             head += f"; {ok + failed} complete already, {len(todo)} to fly"
         self.console.print(head, highlight=False, soft_wrap=True)
-        if not todo:
-            return EXIT_FAILED if failed else EXIT_OK
+        if not todo:  # nothing left to fly: the report again
+            return self._end(ok + failed, failed, total)
         if not self.local:
             self.console.print(f"on {self.launcher.where}: up to {self.limit} jobs at once, each placed by Swarm on a "
                                f"node with room for it", highlight=False)

@@ -48,7 +48,7 @@ from mrswarm.sweep.slots import Attempt, SlotRecord, new_attempt, run_folders, w
 STOP_GRACE_S = 60.0  # SIGTERM -> SIGKILL of a job's container: the run stops its UAVs and writes its summary
 GONE_WAIT_S = STOP_GRACE_S + 15.0  # after removing a job's service, how long its result may take to appear
 UNSEEN_WAIT_S = 10.0  # a job Swarm says is complete whose result does not show: the folder is not shared
-SCENARIO_COPY = "scenario.yaml"  # the scenario file, copied into the campaign folder (the jobs read it there)
+SCENARIO_COPY = "scenario-file.yaml"  # the scenario file, copied into the campaign folder (the jobs read it there)
 ROLE = "sweep-run"
 FAILED_STATES = ("failed", "rejected", "orphaned")
 
