@@ -69,10 +69,11 @@ METRICS: tuple[Metric, ...] = (
     Metric("wall_s", "wall time of the run", "s", short="wall"),
     Metric("cpu_s", "CPU time of the run", "s", short="CPU time"),
     Metric("cpu_cores", "CPU of the run (cores)", "cores", short="CPU cores"),
+    Metric("concurrent", "runs flying at once", short="at once"),
+    Metric("machine_busy", "machine CPU in use while flying", "%", 100.0, short="machine busy"),
 )
 SWEEP_MEASURES = ("wall_s", "cpu_s", "cpu_cores", "concurrent", "machine_busy")  # measured by the sweep, not in summary.json
-KNOWN = {m.path: m for m in METRICS} | {"concurrent": Metric("concurrent", "runs flying at once"),
-                                       "machine_busy": Metric("machine_busy", "machine CPU in use while flying", "%", 100.0)}
+KNOWN = {m.path: m for m in METRICS}
 
 DEFAULT_PLOTS: dict[str, tuple[str, ...]] = {
     "coverage": ("coverage.time_to_90_s", "coverage.final", "separation.min_during_mission_m",
