@@ -259,7 +259,7 @@ def test_a_second_run_waits_for_room_on_the_machine() -> None:
 
 # ---- a swarm job's wrapper and service ---------------------------------------------------------------------------
 def test_the_job_wrapper_records_exit_code_cpu_and_forwards_sigterm(tmp_path: Path) -> None:
-    from mrswarm.sweep.job import read_result
+    from mrswarm.sweep.job import ask_stop, read_result
 
     result, log = tmp_path / "job.json", tmp_path / "run.log"
     burn = ("import time; t = time.process_time(); print('flying', flush=True)\n"
@@ -270,16 +270,23 @@ def test_the_job_wrapper_records_exit_code_cpu_and_forwards_sigterm(tmp_path: Pa
     assert done.returncode == 0 and r is not None and log.read_text() == "flying\n"
     assert (r.exit_code, r.node) == (3, socket.gethostname())
     assert r.cpu_s is not None and r.cpu_s >= 0.3 and r.wall_s is not None and r.wall_s >= r.cpu_s * 0.5
-    # SIGTERM to the wrapper (what `docker service rm` does to the container) reaches the run, which stops as it likes
-    wait = ("import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(143))\nprint('up', flush=True)\n"
-            "time.sleep(60)")
-    proc = subprocess.Popen([sys.executable, "-m", "mrswarm.sweep.job", "--result", str(result), "--log", str(log), "--",
-                             sys.executable, "-c", wait], cwd=ROOT)
-    assert wait_for(lambda: log.read_text().endswith("up\n"), timeout=30)
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=30) == 0
-    r = read_result(result)
-    assert r is not None and r.exit_code == 143 and r.wall_s is not None and r.wall_s < 30
+    # a stop signal the sweep writes into the stop file (in the shared campaign folder) reaches the run, as does one
+    # sent to the wrapper itself (the container stopped by hand); the run stops as it likes
+    wait = ("import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(143))\n"
+            "signal.signal(signal.SIGINT, lambda *a: sys.exit(130))\nprint('up', flush=True)\ntime.sleep(60)")
+    for how, code in (("file", 130), ("signal", 143)):
+        log.write_text("")
+        stop = tmp_path / f"stop-{how}"
+        proc = subprocess.Popen([sys.executable, "-m", "mrswarm.sweep.job", "--result", str(result), "--log", str(log),
+                                 "--stop", str(stop), "--", sys.executable, "-c", wait], cwd=ROOT)
+        assert wait_for(lambda: log.read_text().endswith("up\n"), timeout=30)
+        if how == "file":
+            ask_stop(stop, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        r = read_result(result)
+        assert r is not None and r.exit_code == code and r.wall_s is not None and r.wall_s < 30, how
 
 
 def test_a_job_reserves_the_runs_need_and_mounts_only_the_campaign_folder(tmp_path: Path) -> None:
@@ -292,7 +299,7 @@ def test_a_job_reserves_the_runs_need_and_mounts_only_the_campaign_folder(tmp_pa
     assert kw["resources"]["Reservations"] == {"NanoCPUs": 620_000_000, "MemoryBytes": 480 * 2**20}
     (m,) = kw["mounts"]
     assert (m["Source"], m["Target"], m["Type"]) == (str(tmp_path.resolve()), str(tmp_path.resolve()), "bind")
-    assert kw["user"] == "1000:1000" and kw["networks"] == ["none"] and kw["hostname"] == "{{.Node.Hostname}}"
+    assert kw["user"] == "1000:1000" and "networks" not in kw and kw["hostname"] == "{{.Node.Hostname}}"
     assert scenario_files_problem(load_scenario(MINI)) == ""
     keyed = load_scenario(MINI, ["network.security.keys=/etc/mrswarm/keys"])
     assert scenario_files_problem(keyed).startswith("network.security.keys: /etc/mrswarm/keys: a key directory on this machine")

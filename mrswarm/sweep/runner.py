@@ -220,9 +220,11 @@ class Sweep:
                 for r in [r for r in running if r.poll()]:
                     running.remove(r)
                     st = status(r.folder)
-                    if st.state == SlotState.PENDING:  # interrupted (or killed): flown again next time
-                        progress.say(f"[yellow]{r.slot.label}: interrupted[/] (exit {r.attempt.exit_code}, {r.log_path}); "
-                                     "the next sweep flies it again")
+                    if st.state == SlotState.PENDING:  # interrupted, killed, or never started: flown again next time
+                        code = r.attempt.exit_code
+                        how = "interrupted" if self.signals.requested else "ended without a complete summary"
+                        progress.say(f"[yellow]{r.slot.label}: {how}[/] ({f'exit {code}, ' if code is not None else ''}"
+                                     f"{r.log_path}); the next sweep flies it again")
                         continue
                     done += 1
                     if r.attempt.wall_s is not None:
@@ -285,6 +287,10 @@ class Sweep:
         if failed:
             self.console.print(f"[red]{failed} of {total} runs failed[/] (their runner gave up; see runs.csv, column why); "
                                "--retry-failed flies them again", highlight=False)
+            return EXIT_FAILED
+        if done < total:
+            self.console.print(f"[red]{total - done} of {total} runs did not complete[/] (see their attempt logs); the next "
+                               f"sweep flies them again:\n    {self.resume_command}", highlight=False, soft_wrap=True)
             return EXIT_FAILED
         return EXIT_OK
 

@@ -5,7 +5,8 @@ swarm. Each run becomes a service in ``replicated-job`` mode from the stack imag
 deploy build``; ``--image``): one task, never restarted, that runs exactly the command line a
 local run gets (:func:`mrswarm.sweep.launch.run_command`) through :mod:`mrswarm.sweep.job`, with
 the process runtime inside its container: its UAV processes, discovery server and edge router
-speak on the container's own loopback, and the container has no network (``none``). Swarm
+speak on the container's own loopback (the container sits on its node's default bridge: Swarm
+attaches a service to no ``none`` network). Swarm
 places the job on a node whose unreserved CPU and memory hold the run's need (its reservation:
 the same estimate as for parallel runs on one machine, :mod:`mrswarm.sweep.capacity`), and
 holds it pending until one has room; ``--parallel`` caps the jobs submitted at once (default:
@@ -17,9 +18,10 @@ the host's file system). The job bind-mounts it and writes the run folder there,
 would; the sweep reads it as for a local run. A job whose result the sweep cannot see (the
 folder not shared with its node) is reported as such.
 
-Stopping: the sweep removes the services of the running jobs; Swarm sends each container
-SIGTERM and waits :data:`STOP_GRACE_S` before SIGKILL, the run stops its UAVs and writes an
-interrupted summary, which the next sweep flies again.
+Stopping: the sweep appends the stop signal to each running job's stop file in the slot
+(``stop-<n>``, :mod:`mrswarm.sweep.job`), and the job's wrapper sends it to the run, which stops
+its UAVs and writes an interrupted summary (flown again by the next sweep); the service is
+removed once its run has ended. (Removing a job's service does not stop its running task.)
 
 What is not measured here: the load of the nodes. Swarm schedules by reservations, so a node
 running other work beside the campaign's jobs would slow its runs; keep the nodes for the
@@ -45,8 +47,8 @@ from mrswarm.sweep.job import read_result
 from mrswarm.sweep.launch import RunOptions, run_command, tail_line
 from mrswarm.sweep.slots import Attempt, SlotRecord, new_attempt, run_folders, write_record
 
-STOP_GRACE_S = 60.0  # SIGTERM -> SIGKILL of a job's container: the run stops its UAVs and writes its summary
-GONE_WAIT_S = STOP_GRACE_S + 15.0  # after removing a job's service, how long its result may take to appear
+STOP_GRACE_S = 60.0  # SIGTERM -> SIGKILL of a job's container stopped by Docker (a node drained, docker stop)
+STOPPED_WAIT_S = 90.0  # after a stop signal, how long a job's run may take to end before the sweep gives up on it
 UNSEEN_WAIT_S = 10.0  # a job Swarm says is complete whose result does not show: the folder is not shared
 SCENARIO_COPY = "scenario-file.yaml"  # the scenario file, copied into the campaign folder (the jobs read it there)
 ROLE = "sweep-run"
@@ -85,7 +87,6 @@ def service_kwargs(*, image: str, argv: list[str], out: Path, name: str, run_lab
         "user": f"{uid}:{gid}",
         "env": ["HOME=/tmp", "COLUMNS=120", "MPLCONFIGDIR=/tmp/matplotlib"],
         "hostname": "{{.Node.Hostname}}",
-        "networks": ["none"],
         "init": True,
         "stop_grace_period": int(STOP_GRACE_S * 1e9),
     }
@@ -101,12 +102,13 @@ class SwarmJob:
     attempt: Attempt
     log_path: Path
     result_path: Path
+    stop_path: Path
     service: Any
     client: Any
     before: set[str]
     busy: list[float] = field(default_factory=list)  # not measured on a remote node
     t0: float = field(default_factory=time.monotonic)
-    removed_at: float | None = None
+    stopped_at: float | None = None  # the first stop signal
     done_at: float | None = None  # Swarm said the task is complete
 
     @property
@@ -119,10 +121,14 @@ class SwarmJob:
         return where + tail_line(self.log_path)
 
     def signal(self, sig: int) -> None:
-        """Any stop signal: remove the job's service (Swarm stops its container with SIGTERM)."""
-        if self.removed_at is None:
-            self.removed_at = time.monotonic()
-            self._remove()
+        """A stop signal for the run, through its stop file (its wrapper sends it to the run)."""
+        from mrswarm.sweep.job import ask_stop
+
+        self.stopped_at = self.stopped_at or time.monotonic()
+        try:
+            ask_stop(self.stop_path, sig)
+        except OSError:
+            pass
 
     def _remove(self) -> None:
         try:
@@ -147,12 +153,14 @@ class SwarmJob:
             self._finish(r.exit_code, r.wall_s, r.cpu_s, f"swarm:{r.node}")
             self._remove()
             return True
-        if self.removed_at is not None:
-            if time.monotonic() - self.removed_at > GONE_WAIT_S:
-                self._finish(None, None, None, f"swarm:{r.node}" if r else "swarm")
-                return True
-            return False
         state, err = self._task()
+        if self.stopped_at is not None and (not state or time.monotonic() - self.stopped_at > STOPPED_WAIT_S):
+            if state and state not in ("complete", *FAILED_STATES):
+                self._say(f"the run did not end within {STOPPED_WAIT_S:g} s of the stop; its job is left in the swarm")
+            else:
+                self._remove()
+            self._finish(None, None, None, f"swarm:{r.node}" if r else "swarm")
+            return True
         if state in FAILED_STATES:
             self._say(f"the job's task {state}: {err or 'no reason given'}")
             self._finish(None, None, None, f"swarm:{r.node}" if r else "swarm")
@@ -241,8 +249,19 @@ class SwarmJobs:
         return ""
 
     def leftovers(self) -> list[Any]:
-        """Services of this campaign still in the swarm (a sweep killed outright leaves its jobs behind)."""
-        return list(self.client.services.list(filters={"label": f"{L_RUN}={self.label}"}))
+        """Jobs of this campaign still running in the swarm (a sweep killed outright leaves them behind); the
+        services of those that ended are removed (their runs are in the campaign folder)."""
+        running = []
+        for svc in self.client.services.list(filters={"label": f"{L_RUN}={self.label}"}):
+            states = [str(t.get("Status", {}).get("State", "")) for t in svc.tasks()]
+            if states and all(s in ("complete", *FAILED_STATES, "shutdown") for s in states):
+                try:
+                    svc.remove()
+                except Exception:  # noqa: BLE001 - gone already
+                    pass
+            else:
+                running.append(svc)
+        return running
 
     def start(self, slot: Slot, folder: Path, record: SlotRecord, need: Need) -> SwarmJob:
         folder.mkdir(parents=True, exist_ok=True)
@@ -251,14 +270,16 @@ class SwarmJobs:
         write_record(folder, record)
         log_path = folder / f"attempt-{attempt.number}.log"
         result_path = folder / f"job-{attempt.number}.json"
+        stop_path = folder / f"stop-{attempt.number}"
         result_path.unlink(missing_ok=True)
+        stop_path.unlink(missing_ok=True)
         run = run_command(self.scenario.resolve(), slot, folder.resolve(), self.opts)  # the same paths on every node
         run[0] = "python3"  # the image's interpreter, not this machine's
         argv = ["python3", "-m", "mrswarm.sweep.job", "--result", str(result_path.resolve()), "--log",
-                str(log_path.resolve()), "--", *run]
+                str(log_path.resolve()), "--stop", str(stop_path.resolve()), "--", *run]
         name = f"mrs-{self.label}-{attempt.number}-{hashlib.sha256(slot.name.encode()).hexdigest()[:8]}"
         svc = self.client.services.create(**service_kwargs(image=self.image, argv=argv, out=self.out, name=name,
                                                            run_label=self.label, need=need, uid=os.getuid(),
                                                            gid=os.getgid()))
         return SwarmJob(slot=slot, folder=folder, record=record, attempt=attempt, log_path=log_path,
-                        result_path=result_path, service=svc, client=self.client, before=before)
+                        result_path=result_path, stop_path=stop_path, service=svc, client=self.client, before=before)
