@@ -147,6 +147,8 @@ DELEGATED: dict[str, tuple[str, str, str]] = {
                "mrswarm.recorder.cli", "export_main"),
     "replay": ("republish a recording under its own swarm name, for gcs watch/web and Foxglove",
                "mrswarm.recorder.cli", "replay_main"),
+    "sweep": ("a campaign: a scenario over a grid of overrides and seeds, one table with confidence intervals, plots "
+              "(docs/campaigns.md)", "mrswarm.sweep.cli", "main"),
     "keys": ("the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
              "mrswarm.keys_cli", "main"),
 }
