@@ -113,9 +113,9 @@ def plot(rows: list[dict[str, Any]], commits: list[str], path: Path, title: str)
 
 def flying_order(sides: list[T], rnd: int) -> list[tuple[int, T]]:
     """The sides of round ``rnd`` with their indices, in the order they fly: as given in even
-    rounds, reversed in odd ones. Why: at N = 50 on 2026-11-28 the side flown second in a round
-    measured about 4 % more CPU per UAV than the first, whichever commit it was (three rounds
-    each way); alternating the order puts that on every side alike."""
+    rounds, reversed in odd ones. Why: at N = 50 the side flown second in a round measured about
+    4 % more CPU per UAV than the first, whichever commit it was (three rounds each way);
+    alternating the order puts that on every side alike."""
     order = list(enumerate(sides))
     return order if rnd % 2 == 0 else order[::-1]
 

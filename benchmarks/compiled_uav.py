@@ -1,6 +1,6 @@
 """Does compiling the UAV's Python make a lone virtual UAV cheaper? Pure Python against Cython or mypyc.
 
-A lone virtual UAV spends over half of its CPU in the CPython interpreter (docs/benchmarks.md),
+A lone virtual UAV spends over half of its CPU in the CPython interpreter (docs/performance.md),
 so the obvious question is whether compiled code would run the same work for less. This copies
 the checkout into a temporary folder, compiles the modules on a UAV's per-tick path there,
 then flies a lone UAV (``benchmarks/scale.py --sizes 1 --configs CONFIG``) from the checkout and

@@ -11,7 +11,7 @@ age at the subscriber (p50 / p99). The modes alternate within each round.
 
 The figures favour lowlatency on loopback, and mrswarm still does not use it: a ``put`` then
 waits until the socket takes the bytes, with no queue to drop from, so a stalled uplink would
-stall the UAV's loop (docs/benchmarks.md says more).
+stall the UAV's loop (docs/performance.md, "Measured and not adopted").
 
     python benchmarks/lowlatency.py --rounds 3 --out benchmarks/results
     # -> benchmarks/results/lowlatency.{json,csv,png}; about 2 minutes

@@ -3,7 +3,7 @@
 Why: flown one after the other (benchmarks/commits.py), a lone UAV's CPU moves by about 5 % from
 one run to the next on this machine, so a change worth 2 % needs many rounds to show. In one run
 both halves share every load spike, the same swarm and the same network: the ratio of their
-medians moves by about 1.5 % (the A/A rounds of docs/benchmarks.md). The price: a mixed fleet,
+medians moves by about 1.5 % (its A/A rounds, docs/performance.md). The price: a mixed fleet,
 so the two variants must speak the same wire format, and what the change does to the others (the
 poses it sends them) shows on both halves.
 

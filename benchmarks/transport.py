@@ -21,7 +21,7 @@ every other agent's (full mesh). The transports, flown one after the other at ev
 Raw transports send 48-byte payloads (sender, sequence number, send time, padding); swarmnet
 sends its own pose encoding (at most 48 bytes). The pose age is the receiving process's arrival
 stamp (taken as the sample leaves Zenoh) minus the sender's stamp, both on this machine's wall
-clock: for swarmnet that is its transport age (docs/benchmarks.md). Measured in each agent
+clock: for swarmnet that is its transport age (docs/performance.md). Measured in each agent
 over the window: ages (log histogram, 50 bins per decade), poses received against poses
 published by the others (delivery ratio; and that of the worst receiver, which tells one agent
 linked late from drops spread over all), the agent's own CPU time (all its threads) and RSS;

@@ -52,7 +52,7 @@ from swarmnet.interest import Interest
 from swarmnet.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -161,14 +161,15 @@ class DockerRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Create the run's network, start its services, and return how UAVs reach them.
 
         With discovery the edge router runs too: the runner on the host joins through it.
         ``keys``: the swarm's key directory; each container is handed its own bundle of it.
         ``extra_keys`` (more swarms in one airspace) is for the process runtime only.
         """
-        if extra_keys:
+        if extra_keys or extra_identities:
             raise DeployError("more swarms in one airspace (other_swarms) run with the process runtime (docs/world.md)")
         if interest is not None:
             raise DeployError("network.interest (spatial interest) runs with the process runtime for now (docs/scale.md)")
@@ -246,6 +247,12 @@ class DockerRuntime:
                   ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
                   uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True,
                   identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm))
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """Not here: the containers' network has no way out to a flight controller on the host (a scenario with
+        an external one is refused with runtime docker)."""
+        raise RuntimeError(f"UAV {cfg.uav}'s flight controller is external ({cfg.fcu}): the container runtime runs "
+                           "virtual UAVs only; use runtime: process")
 
     def _bundle(self, identity: NodeName) -> Path:
         """The credentials of one container: a bundle of the run's key directory, in <run>/secrets/<cn>."""

@@ -1,7 +1,8 @@
 """The process runtime: every virtual UAV is its own OS process on this machine.
 
 Each UAV process runs a virtual FCU and the agent (``python -m uav_stack.virtual_uav``),
-with its own Zenoh session and a real MAVLink/UDP link between the two. The runtime also
+with its own Zenoh session and a real MAVLink/UDP link between the two. A UAV whose flight
+controller is external (a real autopilot, a SITL) gets only its agent (``mrswarm agent``). The runtime also
 starts what connectivity needs on 127.0.0.1 (a discovery server and/or a rendezvous router). Every child (UAVs,
 edge router, discovery server) gets its own process group and ``PR_SET_PDEATHSIG`` (SIGTERM) before it execs, so
 it dies with the runner even when the runner is killed with SIGKILL, and :meth:`ProcessRuntime.stop` escalates
@@ -31,7 +32,7 @@ from discovery.netutil import free_port, wait_tcp
 from discovery.options import DiscoveryService, ProxyOptions, pose_feed_argv
 from swarmnet.interest import Interest
 from swarmnet.security.credentials import Credentials
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +117,7 @@ class ProcessRuntime:
         self.log_level = log_level
         self.children: dict[str, Child] = {}
         self.keys: Path | None = None
+        self.identities: dict[str, Path] = {}  # other swarms' key directories (the discovery server checks their tokens)
         self.interest: Interest | None = None
         self.feed_window: float | None = None  # s, the edge routers' pose-feed window (None: their default)
         self._py, self._env = child_python(python)
@@ -126,7 +128,8 @@ class ProcessRuntime:
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Start what the nodes need on 127.0.0.1 and return how they reach it.
 
         ``rendezvous``: a Zenoh router (gossip rendezvous; data router for client mode).
@@ -134,9 +137,11 @@ class ProcessRuntime:
         router (pose feed, and the way in for ground stations).
         ``keys``: the swarm's key directory: every link mutual TLS under the roster's access
         control (docs/security.md); None: plain TCP. ``extra_keys``: more swarms the discovery
-        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`).
+        server serves (swarm -> key), for swarms sharing the airspace (:meth:`add_swarm`), and
+        ``extra_identities`` their key directories (their beacons bound to identities too).
         """
         self.keys = keys
+        self.identities = dict(extra_identities or {})
         self.interest = interest  # spatial interest of every edge router's pose feed (docs/scale.md)
         self.feed_window = feed_window
         if connectivity == "discovery":
@@ -188,8 +193,11 @@ class ProcessRuntime:
         keys.write_text("".join(f"{s} {k}\n" for s, k in {swarm: key, **extra_keys}.items()))
         keys.chmod(0o600)
         server = f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}"
+        # secured: every swarm's beacons bound to identities (its key directory's roster and beacon key)
+        dirs = ([self.keys] if self.keys else []) + list(self.identities.values())
+        identities = [a for d in dirs for a in ("--identities", str(d))]
         self._spawn("discovery", [self.python, "-m", "discovery.server", "--listen", server, "--keys", str(keys),
-                                  "--ttl", str(service.ttl), "--rate", "5000"])  # every node shares 127.0.0.1
+                                  "--ttl", str(service.ttl), "--rate", "5000", *identities])  # every node shares 127.0.0.1
         # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         deadline = time.monotonic() + 20.0
         while True:
@@ -237,6 +245,17 @@ class ProcessRuntime:
             f"uav{cfg.agent.uav}",
             [*self._py, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
         )
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """The agent of a UAV whose flight controller is external: ``mrswarm agent --config`` against
+        ``cfg.fcu``, a child like a UAV process (``uav<id>``: its own process group, dies with the runner)."""
+        path = self.run_dir / "config" / f"uav{cfg.uav}.json"
+        path.write_text(cfg.to_json())
+        path.chmod(0o600)  # it holds the discovery key
+        argv = [*self._py, "-m", "mrswarm", "agent", "--config", str(path), "--log-level", self.log_level]
+        if cfg.network.security is None:  # the run asked for it by name (network.security: off)
+            argv.append("--insecure")
+        self._spawn(f"uav{cfg.uav}", argv)
 
     def _spawn(self, name: str, argv: list[str]) -> None:
         log_path = self.run_dir / "logs" / f"{name}.log"

@@ -89,9 +89,11 @@ def network_plan(connectivity: str = "rendezvous", mode: ZenohMode = "peer", pos
         key = service.key
         if not key:
             raise ValueError("discovery needs a key (the runtime draws one per run if the scenario sets none)")
-        server = Service("discovery", ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}",
-                                       "--key", f"{swarm}={key}", "--ttl", str(service.ttl), "--rate", "5000"),
-                         DISCOVERY_PORT, proto="udp")
+        server_argv = ("python3", "-m", "discovery.server", "--listen", f"0.0.0.0:{DISCOVERY_PORT}", "--key", f"{swarm}={key}",
+                       "--ttl", str(service.ttl), "--rate", "5000")
+        # secured: beacons bound to identities, checked with the edge's bundle (its roster and the beacon key)
+        server = Service("discovery", server_argv + (("--identities", KEYS_IN_CONTAINER) if secured else ()),
+                         DISCOVERY_PORT, proto="udp", identity="edge" if secured else None)
         routed = pose_feed == "edge" or with_router
         services = (server, router) if routed else (server,)
 

@@ -20,7 +20,8 @@ and deploys it with ``docker stack deploy``:
 * on a secured swarm (docs/security.md), the credentials as Swarm secrets from the swarm's key
   directory, mounted in ``/run/secrets`` (never in the image): the router gets the CA
   certificate, the roster and ``edge``'s key pair; the ``uav`` service every UAV's pair of the
-  fleet, since Swarm hands secrets per service, not per replica (each replica uses its own).
+  fleet, since Swarm hands secrets per service, not per replica (each replica uses its own), and
+  the swarm's MAVLink signing key.
 
 Other edge servers join with ``docker swarm join`` and replicas spread over them
 (``docs/deploy.md``). The stack's name is ``mrswarm-<swarm>``; ``down`` runs ``docker stack rm``
@@ -45,8 +46,9 @@ from deploy.multicast import IPV6_OFF
 from deploy.services import ROUTER_PORT, NetworkPlan, edge_service
 from deploy.settings import ContainerSettings
 from swarmnet.schema import to_builtins
+from swarmnet.security.beacon import BEACON_KEY_FILE
 from swarmnet.security.identity import NodeName
-from swarmnet.security.roster import CA_CERT_FILE, ROSTER_FILE
+from swarmnet.security.roster import CA_CERT_FILE, MAVLINK_KEY_FILE, ROSTER_FILE
 from uav_stack.config import VirtualUavConfig
 
 FLEET_PATH = "/etc/mrswarm/fleet.json"
@@ -92,13 +94,20 @@ def _secrets(fleet: Fleet, name: str, common_labels: dict[str, str]) -> tuple[di
     pairs: dict[str, list[str]] = {}
     for svc in fleet.plan.services:
         if svc.identity is not None:
-            cn = NodeName.in_swarm(svc.identity, fleet.swarm).cn
-            pairs[svc.name] = [*base, f"{cn}.pem", f"{cn}.key"]
-    pairs["uav"] = [*base, *(f"{NodeName.uav(c.agent.uav, fleet.swarm).cn}.{ext}" for c in fleet.uavs for ext in ("pem", "key"))]
+            ident = NodeName.in_swarm(svc.identity, fleet.swarm)
+            # the discovery server also holds the beacon key: it checks every node's beacon token
+            extra = [BEACON_KEY_FILE] if svc.name == "discovery" else []
+            pairs[svc.name] = [*base, f"{ident.cn}.pem", f"{ident.cn}.key", *extra]
+    pairs["uav"] = [*base, *(f"{NodeName.uav(c.agent.uav, fleet.swarm).cn}.{ext}" for c in fleet.uavs
+                             for ext in ("pem", "key", "beacon"))]
+    # the MAVLink signing key: the stack's own directory always has one (ensure_keys); a swarm's, if it was made
+    if not fleet.keys.is_absolute() or (fleet.keys / MAVLINK_KEY_FILE).is_file():
+        pairs["uav"].append(MAVLINK_KEY_FILE)
     files = sorted({f for fs in pairs.values() for f in fs})
     top = {_secret(f): {"file": f"{fleet.keys / f}" if fleet.keys.is_absolute() else f"./{fleet.keys / f}",
                         "name": f"{name}-{f}", "labels": common_labels} for f in files}
-    mounts = {svc: [{"source": _secret(f), "target": f, "mode": 0o400 if f.endswith(".key") else 0o444} for f in fs]
+    mounts = {svc: [{"source": _secret(f), "target": f, "mode": 0o400 if f.endswith((".key", ".beacon")) else 0o444}
+                    for f in fs]
               for svc, fs in pairs.items()}
     return top, mounts
 

@@ -1,6 +1,6 @@
 """``mrswarm discovery ...``: the discovery server, registry queries, a probe node, keys.
 
-    mrswarm discovery serve --listen 0.0.0.0:7450 --keys keys.txt
+    mrswarm discovery serve --listen <edge-address>:7450 --keys keys.txt
     mrswarm discovery nodes --server 10.0.0.2:7450 --swarm alpha --key-file alpha.key [--json]
     mrswarm discovery probe --server 10.0.0.2:7450 --swarm alpha --id 7 --key-file alpha.key
     mrswarm discovery keygen > alpha.key

@@ -50,14 +50,14 @@ def build_connectivity(args: argparse.Namespace) -> Any:
             if not sep:
                 raise SystemExit(f"--extra-swarm {item!r}: expected SWARM=KEYFILE")
             extra[s] = Path(f).read_text().strip()
-        return BeaconDiscovery(server=args.server, key=key, listen=tuple(args.listen or ["tcp/0.0.0.0:0"]),
+        return BeaconDiscovery(server=args.server, key=key, listen=tuple(args.listen or ["tcp/127.0.0.1:0"]),
                                advertise=tuple(args.advertise), extra_swarms=extra, period=args.period,
                                connect=tuple(args.connect), zid=args.zid)
     from swarmnet.connectivity import Rendezvous
 
     if not args.connect:
         raise SystemExit("mrswarm discovery probe: --connectivity rendezvous needs --connect ROUTER_ENDPOINT")
-    return Rendezvous(tuple(args.connect), mode="peer", listen=tuple(args.listen or ["tcp/0.0.0.0:0"]))
+    return Rendezvous(tuple(args.connect), mode="peer", listen=tuple(args.listen or ["tcp/127.0.0.1:0"]))
 
 
 def main(argv: list[str] | None = None) -> int:

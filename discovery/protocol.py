@@ -5,13 +5,20 @@ Every datagram is one authenticated message::
     offset  size  field
     0       4     magic  b"MRSD"
     4       1     protocol version (1)
-    5       1     message type (MsgType)
+    5       1     message type (MsgType); bit 7 set: a node tag follows the body (TAGGED)
     6       1     n = length of the swarm name (1..32)
     7       n     swarm name, ASCII [A-Za-z0-9_-]
     7+n     8     timestamp, microseconds since the Unix epoch (big-endian)
     15+n    8     nonce (random)
     23+n    ...   body: one msgpack value (layout per type below)
+    [end-64 32    node tag (TAGGED only): HMAC-SHA256 over everything before it, keyed with the
+                  sender's own beacon token (swarmnet/security/beacon.py)]
     end-32  32    HMAC-SHA256 over everything before it, keyed with the swarm's key
+
+The swarm's key lets its holders in; the node tag binds a BEACON or BYE to the identity it
+speaks for: a server that knows the swarm's roster and beacon key (``--identities``) derives
+the token of the certificate that identity holds and refuses any other (discovery/identities.py),
+so one node's credentials speak only for that node.
 
 The receiver checks, in this order and without ever raising anything but
 :class:`ProtocolError`: size (<= MAX_DATAGRAM), magic, version, type, swarm name, that it
@@ -91,6 +98,9 @@ LOCATOR_RE = re.compile(r"^[a-z0-9]{2,8}/[\x21-\x7e]{3,}$")
 _TS = struct.Struct(">Q")
 _MASK64 = (1 << 64) - 1
 MAX_ITEMS = 256  # items per array a receiver unpacks (unseal's max_array_len)
+
+
+TAGGED = 0x80  # type-byte flag: a node tag precedes the MAC
 
 
 class MsgType(IntEnum):
@@ -203,14 +213,24 @@ class Envelope:
     ts: float
     nonce: bytes
     body: Any
+    tag: bytes = b""  # the node tag of a TAGGED datagram ...
+    tagged: bytes = b""  # ... and the bytes it covers
+
+    def tag_matches(self, token: bytes) -> bool:
+        """The node tag was made with ``token`` (constant time); False for an untagged datagram."""
+        return bool(self.tag) and compare_digest(hmac_sha256(token, self.tagged), self.tag)
 
 
-def seal(mtype: MsgType, swarm: str, key: bytes, body: Any, ts: float | None = None, nonce: bytes | None = None) -> bytes:
+def seal(mtype: MsgType, swarm: str, key: bytes, body: Any, ts: float | None = None, nonce: bytes | None = None,
+         token: bytes | None = None) -> bytes:
+    """One datagram; with ``token`` (the sender's beacon token) it carries the node tag too."""
     sw = swarm.encode()
     check_swarm(swarm)
-    head = MAGIC + bytes((VERSION, int(mtype), len(sw))) + sw
+    head = MAGIC + bytes((VERSION, int(mtype) | (TAGGED if token else 0), len(sw))) + sw
     head += _TS.pack(int((time.time() if ts is None else ts) * 1e6)) + (nonce or os.urandom(NONCE_LEN))
     data = head + msgpack.packb(body, use_bin_type=True)
+    if token:
+        data += hmac_sha256(token, data)
     data += hmac_sha256(key, data)
     if len(data) > MAX_DATAGRAM:
         raise ValueError(f"message of {len(data)} bytes exceeds {MAX_DATAGRAM}")
@@ -229,7 +249,7 @@ def peek(data: bytes) -> tuple[MsgType, str]:
     if data[4] != VERSION:
         raise ProtocolError("bad_version", f"protocol version {data[4]}, expected {VERSION}")
     try:
-        mtype = MsgType(data[5])
+        mtype = MsgType(data[5] & (0xFF ^ TAGGED))
     except ValueError:
         raise ProtocolError("malformed", f"message type {data[5]}") from None
     sl = data[6]
@@ -237,7 +257,8 @@ def peek(data: bytes) -> tuple[MsgType, str]:
         swarm = data[7:7 + sl].decode("ascii")
     except UnicodeDecodeError:
         raise ProtocolError("malformed", "swarm name") from None
-    if not SWARM_RE.match(swarm) or len(swarm) != sl or n < 7 + sl + 8 + NONCE_LEN + 1 + MAC_LEN:
+    tail = MAC_LEN * (2 if data[5] & TAGGED else 1)
+    if not SWARM_RE.match(swarm) or len(swarm) != sl or n < 7 + sl + 8 + NONCE_LEN + 1 + tail:
         raise ProtocolError("malformed", "swarm name")
     return mtype, swarm
 
@@ -254,12 +275,17 @@ def unseal(data: bytes, key_for: Callable[[str], bytes | None]) -> Envelope:
     p = 7 + len(swarm)
     ts = _TS.unpack_from(data, p)[0] / 1e6
     nonce = bytes(data[p + 8:p + 8 + NONCE_LEN])
+    end = len(data) - MAC_LEN
+    tag = tagged = b""
+    if data[5] & TAGGED:
+        end -= MAC_LEN
+        tag, tagged = bytes(data[end:end + MAC_LEN]), bytes(data[:end])
     try:
-        body = msgpack.unpackb(data[p + 8 + NONCE_LEN:-MAC_LEN], raw=False, use_list=True, strict_map_key=True,
+        body = msgpack.unpackb(data[p + 8 + NONCE_LEN:end], raw=False, use_list=True, strict_map_key=True,
                                max_str_len=MAX_DATAGRAM, max_bin_len=64, max_array_len=MAX_ITEMS, max_map_len=64)
     except Exception as exc:  # msgpack raises many types on bad input; all mean "malformed"
         raise ProtocolError("malformed", f"body: {type(exc).__name__}") from None
-    return Envelope(mtype, swarm, ts, nonce, body)
+    return Envelope(mtype, swarm, ts, nonce, body, tag, tagged)
 
 
 class ReplayGuard:

@@ -59,7 +59,8 @@ from discovery.protocol import (
     unseal,
     view_digest,
 )
-from discovery.wire import Hello, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
+from discovery.scout_guard import GuardError, ScoutGuard
+from discovery.wire import Hello, Locator, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
 from swarmnet.connectivity import TransportTuning, base_config
 from swarmnet.security.credentials import Credentials
 from swarmnet.version import __version__
@@ -97,6 +98,18 @@ def resolve(addr: Addr) -> Addr:
     return str(info[0][4][0]), int(info[0][4][1])
 
 
+def source_address(server: Addr, family: int) -> str:
+    """The local address the kernel sends to ``server`` from (the uplink binds to it, not to the wildcard)."""
+    if is_loopback_host(server[0]):
+        return LOCAL_HOST if family == socket.AF_INET else "::1"
+    try:
+        with socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.connect(server)  # no datagram: only picks the route
+            return str(probe.getsockname()[0])
+    except OSError:  # no route yet (no network at boot): the wildcard, for now
+        return "::" if family == socket.AF_INET6 else "0.0.0.0"
+
+
 @dataclass
 class BeaconDiscovery:
     """Find the swarm through a discovery server; connect to every member directly.
@@ -126,6 +139,8 @@ class BeaconDiscovery:
     lanes: int = 4  # parallel dial lanes: scouting sockets on 127.0.0.1..127.0.0.K (see DiscoveryProxy.inject)
     tuning: TransportTuning = field(default_factory=TransportTuning)
     credentials: Credentials | None = None  # mutual TLS and access control (None: plain TCP)
+    # the node's beacon token (tags its beacons and goodbye, docs/discovery.md); default: the one beside its certificate
+    token: bytes | None = None
     name: str = "discovery"
 
     def __post_init__(self) -> None:
@@ -143,6 +158,7 @@ class BeaconDiscovery:
         if not self.listen:
             raise ValueError("a discovery node must listen on at least one endpoint (peers dial it)")
         self.proxy: DiscoveryProxy | None = None
+        self.refused: Counter[str] = Counter()
 
     @classmethod
     def from_options(cls, opts: ProxyOptions, listen: tuple[str, ...], connect: tuple[str, ...] = (),
@@ -152,8 +168,12 @@ class BeaconDiscovery:
                    advertise=opts.advertise, period=opts.period, extra_swarms=dict(opts.extra_swarms), dial=opts.dial,
                    zid=opts.zid, lanes=opts.lanes, credentials=credentials, tuning=tuning or TransportTuning())
 
-    def bind(self, identity: Any) -> None:
-        """Take the identity of the node that owns the session (fields not set explicitly)."""
+    def bind(self, identity: Any, refused: Counter[str] | None = None) -> None:
+        """Take the identity of the node that owns the session (fields not set explicitly), and the
+        counter its refusals go into (``NodeStats.refused``: scouting datagrams its guard dropped,
+        members' locators of another scheme than its own)."""
+        if refused is not None:
+            self.refused = refused
         self.swarm = self.swarm or identity.swarm
         self.node = self.node or identity.uav
         self.role = self.role or identity.role
@@ -184,6 +204,15 @@ class BeaconDiscovery:
             cfg["id"] = self.zid
         return cfg
 
+    @property
+    def schemes(self) -> tuple[str, ...]:
+        """The link protocols this node speaks, so the only ones it dials: ``tls`` when secured."""
+        from swarmnet.security.credentials import SECURE_SCHEMES
+
+        if self.credentials is not None:
+            return SECURE_SCHEMES
+        return tuple(sorted({e.partition("/")[0] for e in self.listen}))
+
     def memberships(self) -> dict[str, bytes]:
         if self.swarm is None:
             raise ValueError("BeaconDiscovery has no swarm: pass swarm= or open it through a SwarmNode")
@@ -196,10 +225,19 @@ class BeaconDiscovery:
             raise ValueError("BeaconDiscovery needs the node id and role (pass them, or open it through a SwarmNode)")
         if self.role not in ROLES:
             raise ValueError(f"role must be one of {ROLES}")
+        token = self.token
+        if token is None and self.credentials is not None:
+            token = self.credentials.beacon_token()
+            if token is None:
+                log.warning("discovery: no beacon token beside %s's certificate in %s: a server that binds beacons to "
+                            "identities will not list this node (`mrswarm keys bundle` writes it)",
+                            self.credentials.identity, self.credentials.keys)
+        assert self.swarm is not None
         self.proxy = DiscoveryProxy(
             session=session, scout_port=self.scout_port, memberships=self.memberships(), role=self.role, node=self.node,
+            tokens={self.swarm: token} if token else {},
             realm=self.realm or "virtual", server=self.server_addr, period=self.period, advertise=self.advertise,
-            lanes=self.lanes,
+            lanes=self.lanes, schemes=self.schemes, refused=self.refused, guard_required=self.credentials is not None,
         )
         self.proxy.start()
 
@@ -217,8 +255,18 @@ class DiscoveryProxy:
 
     def __init__(self, *, session: zenoh.Session, scout_port: int, memberships: dict[str, bytes], role: str, node: int,
                  realm: str, server: Addr, period: float = DEFAULT_PERIOD, advertise: tuple[str, ...] = (),
-                 window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0, lanes: int = 1):
+                 window: float = DEFAULT_WINDOW, retry_min: float = 1.0, retry_max: float = 30.0, lanes: int = 1,
+                 schemes: tuple[str, ...] = ("tcp", "tls"), refused: Counter[str] | None = None, guard_required: bool = False,
+                 tokens: dict[str, bytes] | None = None):
         self.session = session
+        self.tokens = tokens or {}  # swarm -> this node's beacon token there: its beacons and goodbye carry the node tag
+        self.schemes = schemes  # the link protocols this node dials: a member's locators of any other are never injected
+        self.refused: Counter[str] = refused if refused is not None else Counter()
+        for k in ("scouting", "foreign_scheme"):  # the keys exist before this thread counts (no resize while read)
+            self.refused[k] += 0
+        self.guard_required = guard_required  # a secured node does not run with unguarded scouting sockets
+        self.scout_guard: ScoutGuard | None = None
+        self._guard_dropped = 0
         self.scout_addr: Addr = (LOCAL_HOST, scout_port)
         self.keys = memberships
         self.role, self.node, self.realm = role, node, realm
@@ -249,7 +297,8 @@ class DiscoveryProxy:
         target = self.server or server
         fam = socket.AF_INET6 if ":" in target[0] else socket.AF_INET
         self.up = socket.socket(fam, socket.SOCK_DGRAM)
-        self.up.bind((LOCAL_HOST if is_loopback_host(target[0]) else ("::" if fam == socket.AF_INET6 else "0.0.0.0"), 0))
+        wildcard = "::" if fam == socket.AF_INET6 else "0.0.0.0"  # only while the server's name does not resolve
+        self.up.bind((source_address(self.server, fam) if self.server is not None else wildcard, 0))
         for s in (self.local, self.up):
             s.setblocking(False)
 
@@ -257,6 +306,7 @@ class DiscoveryProxy:
     def start(self, learn_timeout: float = 5.0) -> None:
         try:
             self.learn(learn_timeout)
+            self.lock_scouting()
         except BaseException:
             self._close_sockets()
             raise
@@ -274,10 +324,47 @@ class DiscoveryProxy:
             self._thread = None
         if self.entry is not None:
             for swarm, key in self.keys.items():  # tell the server at once, so peers forget us now
-                self._send_up(seal(MsgType.BYE, swarm, key, [self.role, self.node]))
+                self._send_up(seal(MsgType.BYE, swarm, key, [self.role, self.node], token=self.tokens.get(swarm)))
         self._close_sockets()
 
+    def lock_scouting(self) -> None:
+        """From now on only this proxy (and the session itself) reach the session's scouting sockets
+        (discovery/scout_guard.py): a Hello from anyone else is dropped by the kernel, and counted."""
+        try:
+            self.scout_guard = ScoutGuard.install([p for _, p in self.injectors], self.scout_addr[1], self.local.getsockname()[1])
+        except GuardError as exc:
+            if self.guard_required:
+                raise RuntimeError(f"a secured node does not run with open scouting sockets: {exc}") from None
+            log.warning("discovery: %s; any process that reaches them can make this node dial it", exc)
+
+    def count_refused(self) -> None:
+        """Scouting datagrams the guard dropped since the last look, into ``refused.scouting``."""
+        if self.scout_guard is None:
+            return
+        total = self.scout_guard.dropped()
+        if total > self._guard_dropped:
+            if not self._guard_dropped:
+                log.warning("discovery: scouting datagrams from another process than this node's proxy dropped "
+                            "(a forged Hello?); counted in refused.scouting")
+            self.refused["scouting"] += total - self._guard_dropped
+            self._guard_dropped = total
+
+    def dialable(self, e: NodeEntry) -> tuple[str, ...]:
+        """The locators of ``e`` this node may dial: those of its own link protocols."""
+        out = []
+        for loc in e.locators:
+            try:
+                scheme = Locator.parse(loc).proto
+            except ValueError:
+                continue
+            if scheme in self.schemes:
+                out.append(loc)
+        return tuple(out)
+
     def _close_sockets(self) -> None:
+        if self.scout_guard is not None:
+            self.scout_guard.close()
+            self.scout_guard = None
         for s in (self.local, self.up):
             try:
                 s.close()
@@ -356,6 +443,10 @@ class DiscoveryProxy:
         and retries back off exponentially: ``delay`` is when to try again."""
         lanes = self.injectors
         assert lanes
+        locators = self.dialable(e)
+        if not locators:  # nothing of this node's scheme (counted once, when the entry came)
+            self._retry[e.zid] = (now + self.retry_max, self.retry_max)
+            return
         if delay is not None and len(lanes) > 1:
             lane = lanes[-1]
         else:
@@ -363,7 +454,7 @@ class DiscoveryProxy:
             lane = fresh[self._rr % len(fresh)]
             self._rr += 1
         try:
-            self.local.sendto(encode_hello(Hello(e.zid, e.whatami, e.locators)), lane)
+            self.local.sendto(encode_hello(Hello(e.zid, e.whatami, locators)), lane)
             self.stats["injected"] += 1
         except (OSError, ValueError) as exc:
             self.stats["inject_error"] += 1
@@ -384,6 +475,7 @@ class DiscoveryProxy:
             try:
                 now_m = time.monotonic()
                 if now_m >= next_beacon:
+                    self.count_refused()
                     self.beacon()
                     self.reinject(time.time())
                     jitter = 0.9 + 0.2 * int.from_bytes(os.urandom(2), "big") / 65535.0  # no lock-step beacons
@@ -406,7 +498,8 @@ class DiscoveryProxy:
         for swarm, key in self.keys.items():
             with self._lock:
                 view = view_digest(self.peers[swarm].values())
-            self._send_up(seal(MsgType.BEACON, swarm, key, beacon_body(Beacon(self.entry, view, self.period))))
+            self._send_up(seal(MsgType.BEACON, swarm, key, beacon_body(Beacon(self.entry, view, self.period)),
+                               token=self.tokens.get(swarm)))
             self.stats["beacons"] += 1
 
     def _send_up(self, data: bytes) -> None:
@@ -505,6 +598,11 @@ class DiscoveryProxy:
                 table.clear()
             for e in entries:
                 table[e.key] = e
+        for e in new:
+            if len(self.dialable(e)) < len(e.locators):
+                self.refused["foreign_scheme"] += 1
+                log.warning("discovery: %s %d (zid %s) announces %s; this node dials only %s", e.role, e.node, e.zid_hex,
+                            ", ".join(e.locators), "/".join(self.schemes))
         if new:
             linked = self.linked()
             for e in new:
@@ -518,6 +616,8 @@ class DiscoveryProxy:
             "zid": self.entry.zid_hex if self.entry else None,
             "locators": list(self.entry.locators) if self.entry else [],
             "injectors": [f"{h}:{p}" for h, p in self.injectors],
+            "scouting_guarded": self.scout_guard is not None,
+            "refused": dict(self.refused),
             "server_contact_age": (time.time() - self.last_server_contact) if self.last_server_contact else None,
             "members": members,
             "stats": dict(self.stats),

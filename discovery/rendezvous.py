@@ -23,7 +23,9 @@ Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -67,14 +69,43 @@ def router_credentials(keys: str, identity: str | None = None) -> Credentials:
     return Credentials(keys=keys, identity=f"edge.{Roster.load(keys).swarm}")
 
 
-def write_stats(path: Path, stats: NodeStats, feed: PoseFeed | None) -> None:
-    out: dict[str, Any] = {"refused": dict(stats.refused)}
-    if feed is not None:
-        out["feed"] = {"received": dict(feed.stats.received), "rejected": dict(feed.stats.rejected),
-                       "sent": dict(feed.stats.sent)}
-    tmp = path.with_name(f".{path.name}.{os.getpid()}")
-    tmp.write_text(json.dumps(out))
-    os.replace(tmp, path)
+class StatsFile:
+    """``--stats FILE``, replaced atomically every second. A write the disk refuses (full, read-only) is counted
+    (``unwritten``, in the next write that succeeds) and logged once a minute; the router never stops for it."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.unwritten = 0
+        self._warned = -math.inf
+
+    def write(self, stats: NodeStats, feed: PoseFeed | None) -> bool:
+        out: dict[str, Any] = {"refused": dict(stats.refused)}
+        if feed is not None:
+            out["feed"] = {"received": dict(feed.stats.received), "rejected": dict(feed.stats.rejected),
+                           "sent": dict(feed.stats.sent)}
+        if self.unwritten:
+            out["unwritten"] = self.unwritten
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}")
+        try:
+            tmp.write_text(json.dumps(out))
+            os.replace(tmp, self.path)
+            return True
+        except OSError as exc:
+            self.unwritten += 1
+            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
+                tmp.unlink(missing_ok=True)
+            if time.monotonic() - self._warned >= 60.0:
+                self._warned = time.monotonic()
+                say(f"warning: cannot write {self.path} ({exc.strerror or exc}); the router goes on, counting it")
+            return False
+
+
+def say(line: str) -> None:
+    """A line on standard output; one the disk under the log refuses is dropped, never the router's end."""
+    try:
+        print(line, flush=True)
+    except OSError:
+        pass
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
@@ -88,12 +119,11 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
     feed = None
     try:
         shown = [e.replace("tcp/", "tls/", 1) if credentials else e for e in listen]
-        print(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
+        say(f"rendezvous router {session.info.zid()} listening on {', '.join(shown)}"
               + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
               + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else "")
               + (f", interest radius {interest.radius_m:g} m (+{interest.margin_m:g}), far {interest.far_rate_hz:g} Hz"
-                 if feed_swarms and interest else ""),
-              flush=True)
+                 if feed_swarms and interest else ""))
         if credentials is not None:
             from swarmnet.security.acl import member_names
             from swarmnet.security.links import LinkWatch
@@ -103,17 +133,18 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
         feed = PoseFeed(session, feed_swarms, feed_window, interest=interest).start() if feed_swarms else None
         end = time.monotonic() + duration if duration is not None else float("inf")
         next_stats = 0.0
+        out = StatsFile(stats_file) if stats_file is not None else None
         while not stop.is_set() and time.monotonic() < end:
             if links is not None:
                 links.poll()
-            if stats_file is not None and time.monotonic() >= next_stats:
-                write_stats(stats_file, stats, feed)
+            if out is not None and time.monotonic() >= next_stats:
+                out.write(stats, feed)
                 next_stats = time.monotonic() + STATS_PERIOD
             stop.wait(max(0.0, min(TICK, end - time.monotonic())))
-        if stats_file is not None:
+        if out is not None:
             if links is not None:
                 links.poll()
-            write_stats(stats_file, stats, feed)
+            out.write(stats, feed)
     finally:
         if feed is not None:
             feed.close()

@@ -10,7 +10,10 @@ registry from the next round of beacons.
 
 Bad input never crashes it: every datagram is size-checked, rate-limited per source
 address, authenticated (HMAC-SHA256 with the swarm's key) and replay-checked before its
-body is decoded, and every drop is counted under a reason (``stats``).
+body is decoded, and every drop is counted under a reason (``stats``). With a swarm's key
+directory (``--identities``) a beacon or goodbye must also carry the node tag of the identity
+it speaks for (discovery/identities.py): one member's credentials cannot list, replace or
+remove another member.
 
 Under a flood from spoofed source addresses the work per datagram stays bounded and
 constant (:class:`SourceLimiter`): sources that never authenticated share a bounded table
@@ -19,7 +22,7 @@ state of sources that did. A beacon costs O(1) whatever the swarm's size (a runn
 digest per swarm, members kept in the order they were last heard), so legitimate members
 keep being heard and never expire because of junk.
 
-Run: ``mrswarm discovery serve --listen 0.0.0.0:7450 --keys keys.txt``
+Run: ``mrswarm discovery serve --listen <edge-address>:7450 --keys keys.txt``
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from discovery.identities import SwarmIdentities
 from discovery.protocol import (
     BODY_BUDGET,
     DEFAULT_PERIOD,
@@ -211,11 +215,16 @@ class ServerConfig:
     # flood), a silent member may only have lost its beacons there: it is forgotten only
     # after overload_grace x ttl of silence
     overload_grace: float = 10.0
+    # swarm -> its roster and beacon key: beacons and goodbyes of that swarm must carry their node's tag
+    identities: dict[str, SwarmIdentities] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.keys:
             raise ValueError("the discovery server needs at least one swarm key")
         self.keys = {s: check_key(k, f"key of swarm {s!r}") for s, k in self.keys.items()}
+        for s in self.identities:
+            if s not in self.keys:
+                raise ValueError(f"identities of swarm {s!r}, which has no key")
         if self.ttl <= 0 or self.window <= 0 or self.rate <= 0:
             raise ValueError("ttl, window and rate must be > 0")
 
@@ -238,7 +247,7 @@ class DiscoveryServer:
         self._snap = int.from_bytes(os.urandom(4), "big") | 1
 
     # ---- socket plumbing ---------------------------------------------------------------------------
-    def bind(self, host: str = "0.0.0.0", port: int = DEFAULT_PORT) -> Addr:
+    def bind(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> Addr:
         fam = socket.AF_INET6 if ":" in host else socket.AF_INET
         s = socket.socket(fam, socket.SOCK_DGRAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -353,9 +362,21 @@ class DiscoveryServer:
             st["drop_internal_error"] += 1
             log.exception("internal error on a datagram from %s", addr)
 
+    def _check_identity(self, env: Envelope, role: str, node: int) -> None:
+        """A swarm with identities: the datagram carries the tag of the node it speaks for."""
+        ids = self.config.identities.get(env.swarm)
+        if ids is None:
+            return
+        if not env.tag:
+            raise ProtocolError("untagged", f"{role} {node}: no node tag")
+        token = ids.token(role, node)
+        if token is None or not env.tag_matches(token):
+            raise ProtocolError("bad_identity", f"{role} {node}: not tagged by that node's credentials")
+
     def _on_beacon(self, env: Envelope, addr: Addr, now: float) -> None:
         b = parse_beacon(env.body)
         e = b.entry
+        self._check_identity(env, e.role, e.node)
         swarm = self.swarms.get(env.swarm)
         if swarm is None:
             swarm = self.swarms[env.swarm] = Swarm()
@@ -416,6 +437,7 @@ class DiscoveryServer:
 
     def _on_bye(self, env: Envelope, addr: Addr) -> None:
         k = parse_bye(env.body)
+        self._check_identity(env, *k)
         sw = self.swarms.get(env.swarm)
         m = sw.members.get(k) if sw is not None else None
         if m is not None and m.addr == addr:  # only the node itself can say goodbye
@@ -496,19 +518,33 @@ def load_keys(path: str | Path) -> dict[str, str]:
 
 def parse_listen(text: str) -> Addr:
     host, _, port = text.rpartition(":")
-    host = host.strip("[]") or "0.0.0.0"
+    host = host.strip("[]")
+    if not host:
+        raise ValueError(f"--listen {text!r}: name the address to listen on (0.0.0.0 for every interface)")
     try:
         return host, int(port)
     except ValueError:
         raise ValueError(f"--listen {text!r}: expected HOST:PORT") from None
 
 
+def say(line: str) -> None:
+    """A line on standard output; one that cannot be written (a full disk under the log) is dropped, not fatal."""
+    try:
+        print(line, flush=True)
+    except OSError:
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm discovery serve", description=__doc__.splitlines()[0])
-    ap.add_argument("--listen", default=f"0.0.0.0:{DEFAULT_PORT}", help=f"UDP HOST:PORT (default 0.0.0.0:{DEFAULT_PORT})")
+    ap.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}",
+                    help=f"UDP HOST:PORT (default 127.0.0.1:{DEFAULT_PORT}; an edge server names its own address)")
     ap.add_argument("--keys", default=None, help="file with one 'SWARM KEY' per line (or a JSON object)")
     ap.add_argument("--key", action="append", default=[], metavar="SWARM=KEY",
                     help="a swarm key on the command line (visible to other users in ps; prefer --keys)")
+    ap.add_argument("--identities", action="append", default=[], metavar="DIR",
+                    help="a swarm's key directory or the edge's bundle (roster.json, beacon.key): its beacons must carry "
+                         "their node's tag, so one member cannot speak for another (repeatable)")
     ap.add_argument("--ttl", type=float, default=DEFAULT_TTL, help=f"forget nodes silent this long, s (default {DEFAULT_TTL})")
     ap.add_argument("--window", type=float, default=DEFAULT_WINDOW, help="accepted clock difference, s")
     ap.add_argument("--rate", type=float, default=100.0, help="datagrams/s accepted per source IP")
@@ -532,8 +568,9 @@ def main(argv: list[str] | None = None) -> int:
             if not sep:
                 raise ValueError(f"--key {kv!r}: expected SWARM=KEY")
             keys[s] = k
+        identities = {ids.swarm: ids for ids in map(SwarmIdentities.load, args.identities)}
         cfg = ServerConfig(keys={s: k.encode() for s, k in keys.items()}, ttl=args.ttl, window=args.window,
-                           rate=args.rate, burst=2 * args.rate)
+                           rate=args.rate, burst=2 * args.rate, identities=identities)
         server = DiscoveryServer(cfg)
         host, port = server.bind(*parse_listen(args.listen))
     except (OSError, ValueError) as exc:
@@ -542,8 +579,9 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    print(f"discovery server on udp/{host}:{port} for swarms {', '.join(sorted(cfg.keys))} "
-          f"(period {DEFAULT_PERIOD:g} s, ttl {cfg.ttl:g} s)", flush=True)
+    bound = f"; beacons bound to identities for {', '.join(sorted(cfg.identities))}" if cfg.identities else ""
+    say(f"discovery server on udp/{host}:{port} for swarms {', '.join(sorted(cfg.keys))} "
+        f"(period {DEFAULT_PERIOD:g} s, ttl {cfg.ttl:g} s){bound}")
     try:
         server.serve(stop, args.duration)
     finally:

@@ -2,7 +2,9 @@
 
 Inputs, written by the UAVs while flying (uav_stack/recorder.py): ``uav<N>.csv`` trajectories
 (wall and simulated time, FCU position in the swarm frame, agent phase, RTF) and ``uav<N>.json``
-counters; by the runner: ``run.json``. Separation and coverage come from the UAVs' own
+counters; by the runner: ``run.json``. A UAV whose flight controller is external and whose agent
+recorded elsewhere (on its companion computer) gets the poses it shared, from the flight recording.
+Every UAV recorded counts, whether the scenario lists it or not. Separation and coverage come from the UAVs' own
 flight-controller positions, not from the poses they exchanged, so network impairments cannot
 hide a collision. Positions are resampled on a common 10 Hz grid of wall time.
 
@@ -15,23 +17,27 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mrswarm.degraded import degraded_reasons, recording_report
 from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
-from mrswarm.incidents import find_incidents
+from mrswarm.incidents import find_incidents, safety_incident
 from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
 from mrswarm.scenario import Scenario
+from mrswarm.stalls import stalls
 from mrswarm.summary import (
     CollisionPair,
     Coverage,
     Encounter,
+    ExternalUav,
     Goal,
     LinkAge,
     LinkAges,
+    Mavlink,
     Network,
     PoseAge,
     Rtf,
@@ -49,6 +55,7 @@ from uav_stack.recorder import links_file_name
 GRID_HZ = 10.0  # resampling rate of the trajectories
 AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
 GOAL_RADIUS = 2.0  # m (horizontal): a goto UAV this close to its goal has reached it
+BREACH_GAP_S = 1.0  # s: a pair back above the safety distance for less than this is one incident, not two
 CELL_CHUNK = 2_000_000  # cells x points per coverage step held in memory at once (~32 MB of float64 pairs)
 
 
@@ -77,6 +84,20 @@ class SeparationSteps:
     collisions: int
     collision_pairs: list[CollisionPair]
     onsets: list[tuple[float, int, int]]  # (wall time, uav, uav) of every collision onset
+    breaches: list[Breach] = field(default_factory=list)  # stretches of a pair below the safety distance (in the window)
+
+
+@dataclass
+class Breach:
+    """Two UAVs closer than the safety distance: from ``start`` to ``end`` (grid indices, ``end`` included),
+    ``steps`` grid steps below it (shorter gaps than :data:`BREACH_GAP_S` joined), at least ``min`` m apart."""
+
+    pair: tuple[int, int]
+    start: int
+    end: int
+    steps: int
+    min: float
+    min_at: int
 
 
 @dataclass
@@ -175,14 +196,31 @@ def resample(tracks: dict[int, Track], t0: float, t1: float) -> tuple[np.ndarray
     return grid, pos, ids
 
 
-def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_distance: float) -> SeparationSteps:
-    """Minimum pairwise 3-D distance between airborne UAVs, per time step and overall."""
+def breaches_of(pair: tuple[int, int], d: np.ndarray, below: np.ndarray) -> list[Breach]:
+    """The stretches where ``below`` holds for one pair (``d``: its distance per grid step), gaps shorter than
+    :data:`BREACH_GAP_S` joined."""
+    idx = np.nonzero(below)[0]
+    if not len(idx):
+        return []
+    cuts = np.nonzero(np.diff(idx) > BREACH_GAP_S * GRID_HZ)[0]
+    out = []
+    for run in np.split(idx, cuts + 1):
+        k = int(run[np.argmin(d[run])])
+        out.append(Breach(pair=pair, start=int(run[0]), end=int(run[-1]), steps=len(run), min=float(d[k]), min_at=k))
+    return out
+
+
+def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_distance: float,
+               safety_distance: float | None = None, window: np.ndarray | None = None) -> SeparationSteps:
+    """Minimum pairwise 3-D distance between airborne UAVs, per time step and overall; with ``safety_distance``,
+    every stretch of a pair below it within ``window`` (a mask of the grid; default: all of it)."""
     n = len(ids)
     min_t = np.full(len(grid), np.inf)
     best: tuple[float, int | None, int | None, float | None] = (math.inf, None, None, None)
     collisions = 0
     pairs_below: list[CollisionPair] = []
     onset_times: list[tuple[float, int, int]] = []
+    breaches: list[Breach] = []
     for i in range(n):
         for j in range(i + 1, n):
             d = np.linalg.norm(pos[i] - pos[j], axis=1)
@@ -199,6 +237,9 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
             if onsets:
                 collisions += onsets
                 pairs_below.append(CollisionPair(pair=[ids[i], ids[j]], onsets=onsets, min=float(d[k])))
+            if safety_distance is not None:
+                near = d < safety_distance
+                breaches += breaches_of((ids[i], ids[j]), d, near if window is None else near & window)
     return SeparationSteps(
         per_step=min_t,
         min=best[0] if best[0] != math.inf else None,
@@ -207,6 +248,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
         collisions=collisions,
         collision_pairs=pairs_below,
         onsets=sorted(onset_times),
+        breaches=sorted(breaches, key=lambda b: (b.start, b.pair)),
     )
 
 
@@ -273,20 +315,81 @@ def goals_report(scenario: Scenario, tracks: dict[int, Track]) -> dict[str, Goal
 
 
 def encounter_report(scenario: Scenario, grid: np.ndarray, pos: np.ndarray, ids: list[int],
-                     per_step: np.ndarray) -> Encounter | None:
-    """Where two UAVs flying at each other met: the midpoint at their closest approach (None: never both airborne)."""
-    k = int(np.argmin(per_step))
-    if not np.isfinite(per_step[k]):
+                     tracks: dict[int, Track]) -> Encounter | None:
+    """Where two UAVs flying at each other met: the midpoint at their closest approach (None: never both
+    airborne, or not two UAVs to pair).
+
+    The pair: the scenario's two UAVs if both were recorded, else the two UAVs of the run folder (a
+    scenario of one virtual UAV, with a real UAV's records beside it). Each UAV's start is where the
+    scenario spawned it if this run simulated its flight controller, else its first recorded position
+    (an external UAV stands where its autopilot is, a UAV the scenario does not list where it was)."""
+    planned = [u.id for u in scenario.all_uavs()]
+    pair = [u for u in planned if u in ids] if len(planned) == 2 else []
+    if len(pair) != 2:
+        pair = list(ids) if len(ids) == 2 else []
+    if len(pair) != 2:
         return None
-    a, b = pos[0, k, :2], pos[1, k, :2]
-    mid = (a + b) / 2
-    starts = {u.id: np.array(u.start) for u in scenario.all_uavs()}
+    i, j = ids.index(pair[0]), ids.index(pair[1])
+    d = np.linalg.norm(pos[i] - pos[j], axis=1)
+    airborne = (pos[i, :, 2] > AIRBORNE_Z) & (pos[j, :, 2] > AIRBORNE_Z)
+    d = np.where(airborne & ~np.isnan(d), d, np.inf)
+    k = int(np.argmin(d))
+    if not np.isfinite(d[k]):
+        return None
+    mid = (pos[i, k, :2] + pos[j, k, :2]) / 2
+    spawned = {u.id: np.array(u.start) for u in scenario.all_uavs() if not u.external}
+
+    def start(u: int) -> np.ndarray:
+        return spawned[u] if u in spawned else tracks[u].xyz[0, :2]
+
     return Encounter(
         time_wall=float(grid[k]),
-        separation_m=float(per_step[k]),
+        separation_m=float(d[k]),
         meeting_point=[round(float(mid[0]), 2), round(float(mid[1]), 2)],
-        distance_from_start_m={str(u): round(float(np.linalg.norm(mid - starts[u])), 2) for u in ids},
+        distance_from_start_m={str(u): round(float(np.linalg.norm(mid - start(u))), 2) for u in pair},
     )
+
+
+def tracks_from_recording(run_dir: Path, uavs: list[int]) -> dict[int, Track]:
+    """The trajectories of ``uavs`` from the run's flight recording (``run.mcap``): the poses each UAV
+    shared with the swarm (the FCU's position as its agent published it, at its pose rate). For an
+    external UAV whose agent recorded elsewhere (on its companion computer). Empty without a recording."""
+    path = run_dir / "run.mcap"
+    if not uavs or not path.is_file():
+        return {}
+    import tempfile
+
+    from mrswarm.recorder.export import export_csv
+
+    with tempfile.TemporaryDirectory(prefix="mrswarm-tracks-") as tmp:
+        export_csv(path, Path(tmp))
+        tracks = load_tracks(Path(tmp))
+    return {u: tr for u, tr in tracks.items() if u in uavs}
+
+
+def external_report(scenario: Scenario, run_dir: Path, tracks: dict[int, Track]) -> list[ExternalUav]:
+    """Every UAV whose flight controller is external, and where its trajectory comes from; the ones without
+    their own ``uav<N>.csv`` get the poses they shared, from the recording, into ``tracks``."""
+    external = scenario.external_uavs()
+    missing = [u.id for u in external if u.id not in tracks]
+    error = ""
+    try:
+        from_recording = tracks_from_recording(run_dir, missing)
+    except Exception as exc:  # noqa: BLE001 - a bad recording must not lose the other numbers
+        from_recording, error = {}, f"the recording could not be read: {exc}"
+    tracks.update(from_recording)
+    out = []
+    for u in external:
+        if u.id in from_recording:
+            source, detail = "recording", "the poses it shared, from run.mcap (its agent recorded elsewhere)"
+        elif u.id in tracks:
+            source, detail = "agent", f"uav{u.id}.csv, written by its agent"
+        else:
+            source = "none"
+            detail = error or (f"no uav{u.id}.csv and no poses in a recording: copy uav{u.id}.csv from its companion "
+                               "into the run folder, then `mrswarm results`")
+        out.append(ExternalUav(uav=u.id, realm=u.realm_name, fcu=u.fcu or "", agent=u.agent, trajectory=source, detail=detail))
+    return out
 
 
 def rtf_report(tracks: dict[int, Track], t0: float, t1: float) -> Rtf:
@@ -386,6 +489,36 @@ def security_report(run_dir: Path, mode: str, stats: dict[int, dict[str, Any]]) 
     return Security(mode=mode, refused_by_uavs=uavs, refused_by_router=router)
 
 
+MAVLINK_REFUSED = ("unsigned_refused", "unsigned_commands_refused", "bad_signature", "replayed", "unknown_id_refused",
+                   "setup_signing_dropped", "foreign_source", "spoofed_own_id")
+MAVLINK_ACCEPTED = ("signed", "unsigned_accepted", "to_fcu")
+
+
+def mavlink_report(mode: str, stats: dict[int, dict[str, Any]]) -> Mavlink:
+    """What the UAVs' MAVLink routers accepted and refused, summed over the UAVs."""
+    refused = dict.fromkeys(MAVLINK_REFUSED, 0)
+    accepted = dict.fromkeys(MAVLINK_ACCEPTED, 0)
+    for s in stats.values():
+        rt = s.get("mavlink_router") or {}
+        for out in (refused, accepted):
+            for k in out:
+                v = rt.get(k, 0)
+                out[k] += int(v) if isinstance(v, int) else 0
+    return Mavlink(mode=mode, refused=refused, accepted=accepted)
+def _interrupted_at(summary: RunSummary, info: RunInfo, t_last: float | None) -> None:
+    """An interrupted run's last known time: when the runner stopped it, else (the runner died) the newest
+    thing on disk: a UAV's last record, or run.json's last event."""
+    if not summary.interrupted:
+        return
+    known = [t for t in (t_last, *(e.t for e in info.events), info.mission_start, info.started or None) if t]
+    at = info.stopped if info.stopped is not None else max(known, default=None)
+    if at is None:
+        return
+    summary.interrupted_at_wall = round(at, 3)
+    if info.mission_start is not None:
+        summary.interrupted_at_s = round(at - info.mission_start, 3)
+
+
 def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSummary, RunData | None]:
     """The summary of a finished (or interrupted, or aborted) run, and the series its figures need.
 
@@ -394,6 +527,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     UAV recorded a trajectory (the summary then carries ``error``).
     """
     tracks = load_tracks(run_dir)
+    external = external_report(scenario, run_dir, tracks) if scenario.external_uavs() else None
     stats = load_stats(run_dir)
     fl = scenario.flight
     summary = RunSummary(
@@ -406,8 +540,13 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         aborted=info.aborted,
         stop_signals=list(info.stop_signals),
     )
+    if external is not None:
+        summary.external_uavs = external
     t_ref = info.mission_start or info.started
+    if info.stopped is None:  # run.json has no end: the runner died (SIGKILL, power) before writing it
+        summary.interrupted = summary.runner_lost = True
     summary.lost_uavs = lost_uavs(info, t_ref)
+    summary.stalls = stalls(info, t_ref)
     summary.services = service_outages(info, t_ref)
     summary.failsafes = failsafe_events(stats, t_ref)
     errors = record_errors(stats, info)
@@ -415,16 +554,26 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         summary.records = errors
     if info.security is not None:
         summary.security = security_report(run_dir, info.security, stats)
+    if info.mavlink is not None:
+        summary.mavlink = mavlink_report(info.mavlink, stats)
+    recording = recording_report(info, t_ref)
+    if recording is not None:
+        summary.recording = recording
+    summary.degraded = degraded_reasons(summary, info, run_dir, {u: float(tr.t[-1]) for u, tr in tracks.items()}, stats)
     if not tracks:
         summary.error = "no trajectory was recorded"
+        _interrupted_at(summary, info, None)
         return summary, None
     t_first = float(min(tr.t[0] for tr in tracks.values()))
     t_last = float(max(tr.t[-1] for tr in tracks.values()))
+    _interrupted_at(summary, info, t_last)
     t0 = info.mission_start or t_first
     t_end = min(t_last, t0 + scenario.duration) if info.mission_start else t_last
+    if info.mission_start and info.all_done_at is not None:  # the mission ended early: its end, not the shutdown after it
+        t_end = min(t_end, t0 + info.all_done_at)
     grid, pos, ids = resample(tracks, t_first, t_last)
-    sep = separation(grid, pos, ids, fl.collision_distance)
     in_mission = (grid >= t0) & (grid <= t_end)
+    sep = separation(grid, pos, ids, fl.collision_distance, fl.safety_distance, in_mission)
     sep_mission = sep.per_step[in_mission]
     finite = sep_mission[np.isfinite(sep_mission)]
     summary.separation = Separation(
@@ -455,11 +604,14 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         )
     if m.type == "goto":
         summary.goals = goals_report(scenario, tracks)
-        if len(ids) == 2:
-            summary.encounter = encounter_report(scenario, grid, pos, ids, sep.per_step)
+        if len(ids) == 2 or len(scenario.all_uavs()) == 2:
+            summary.encounter = encounter_report(scenario, grid, pos, ids, tracks)
     for u, tr in sorted(tracks.items()):
         if tr.vz is not None and tr.armed is not None:
             summary.incidents += find_incidents(u, tr.t, tr.xyz[:, 2], tr.vz, tr.armed, t0)
+    summary.incidents += [safety_incident(b.pair, float(grid[b.start] - t0), b.steps / GRID_HZ, b.min,
+                                          float(grid[b.min_at] - t0), fl.safety_distance) for b in sep.breaches]
+    summary.incidents.sort(key=lambda i: i.t_s)
     if info.faults:
         working = working_mask(tracks, grid, pos, ids)
         area = m.area.as_tuple() if m.area is not None else None

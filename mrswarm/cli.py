@@ -13,7 +13,7 @@ from typing import Any
 
 # exit codes of `mrswarm run` (docs/reliability.md)
 EXIT_OK = 0  # the run completed: no collision, no incident
-EXIT_FAILED = 1  # the runner gave up (aborted), or nothing was recorded
+EXIT_FAILED = 1  # the runner gave up (aborted), nothing was recorded, or the records are incomplete (degraded)
 EXIT_USAGE = 2  # bad input: the scenario, an override, --out, or a fleet too large for this machine
 EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell or hit the ground)
 # 128 + N: stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)
@@ -54,11 +54,14 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
     from mrswarm.scenario import ScenarioError, load_scenario
     from mrswarm.summary_table import print_summary
 
+    notes: list[str] = []
     try:
-        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []))
+        scn = load_scenario(args.scenario, args.set + ([f"runtime={args.runtime}"] if args.runtime else []), notes)
     except ScenarioError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return EXIT_USAGE
+    for note in notes:  # a shortened mission: what of its schedule it leaves out
+        console.print(f"[yellow]note:[/] {args.scenario}: {note}", highlight=False, soft_wrap=True)
     problem = check_resources(scn)
     if problem and not args.force:
         console.print(f"[red]error:[/] {args.scenario}: {problem}", highlight=False, soft_wrap=True)
@@ -90,6 +93,8 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
         return EXIT_FAILED
     if summary.safety_events:
         return EXIT_SAFETY
+    if summary.degraded:  # a full or failing disk lost records: the summary's `degraded` says which
+        return EXIT_FAILED
     return EXIT_OK
 
 
@@ -100,6 +105,10 @@ def _results(args: argparse.Namespace) -> int:
     from mrswarm.summary_table import print_summary
 
     console = Console()
+    if args.run_dir is None:  # no folder named: the recent runs, to pick one
+        from mrswarm.results import list_runs
+
+        return list_runs(console, Path("results"))
     path = Path(args.run_dir)
     try:
         if path.is_file():  # a recording (docs/recording.md): its run folder first
@@ -161,8 +170,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-record", action="store_true", help="no flight recording (<run>/run.mcap, docs/recording.md)")
     p.set_defaults(func=_run)
 
-    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap)")
-    p.add_argument("run_dir", help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
+    p = sub.add_parser("results", help="rebuild summary.json and the figures of a run folder (or of a recording, run.mcap); "
+                                       "alone: list the recent runs in ./results")
+    p.add_argument("run_dir", nargs="?", default=None,
+                   help="a folder written by `mrswarm run`, e.g. results/coverage-20250101-120000, or its run.mcap")
     p.add_argument("--out", default=None, help="with a recording: the folder to rebuild the run in (default: run-export)")
     p.set_defaults(func=_results)
 

@@ -35,8 +35,11 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
         raise DeployError(f"--uavs must be at least 1, got {uavs}")
     if scn.fleet is not None:
         scn = replace(scn, fleet=replace(scn.fleet, count=uavs))
-    elif len(scn.uav_list()) < uavs:
-        raise DeployError(f"scenario {scn.name} lists {len(scn.uav_list())} UAVs; cannot deploy {uavs}")
+    elif len(virtual := [u for u in scn.uav_list() if not u.external]) < uavs:
+        external = len(scn.uav_list()) - len(virtual)
+        raise DeployError(f"scenario {scn.name} lists {len(virtual)} virtual UAVs; cannot deploy {uavs}"
+                          + (f" (its {external} with an external flight controller run their own agent: mrswarm agent)"
+                             if external else ""))
     net = scn.network
     if net.interest is not None:  # the deployed edge router runs no near feeds yet (docs/scale.md)
         raise DeployError("network.interest (spatial interest) runs with the process runtime for now")

@@ -1,4 +1,8 @@
-"""The runner's live status: a rich panel on a terminal, a plain line every 5 s otherwise.
+"""The runner's live status: a rich panel on a terminal; otherwise (a pipe, a log, CI) plain lines.
+
+Without a terminal: a line when the stage changes, one per milestone (every UAV acknowledged
+``takeoff``, all airborne), and a progress line every :data:`LINE_EVERY_S` (the mission clock,
+coverage, separation, RTF), each printed once.
 
 It only reads: the scenario, the runner's :class:`~mrswarm.live.RunProgress`, the
 :class:`~mrswarm.live.LiveMetrics` and the observer's view of every UAV.
@@ -16,7 +20,7 @@ from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
 
-from mrswarm.live import LiveMetrics, RunProgress
+from mrswarm.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.scenario import Scenario
 from swarmnet.observer import SwarmObserver
 
@@ -46,26 +50,53 @@ def status_table(scenario: Scenario, progress: RunProgress, metrics: LiveMetrics
     t.add_row("scenario", f"[bold]{scenario.name}[/] ({len(scenario.uav_list())} UAVs, swarm '{scenario.swarm}')")
     t.add_row("stage", str(progress.stage) + (f"  {elapsed:5.1f} / {scenario.duration:.0f} s" if elapsed is not None else "")
               + (f"  ({progress.detail})" if progress.detail else ""))
-    t.add_row("agents", ", ".join(f"{k} {v}" for k, v in sorted(phases.items())) or "-")
+    t.add_row("agents", ", ".join(f"{k} {v}" for k, v in sorted(phases.items())) or "none heard yet")
     if m.coverage is not None:
         t.add_row("coverage", f"{100 * m.coverage:5.1f} %")
-    t.add_row("min separation", "-" if m.min_sep == math.inf else f"{m.min_sep_now:5.1f} m now, {m.min_sep:5.1f} m lowest")
-    t.add_row("RTF", f"mean {np.mean(rtfs):.3f}, min {min(rtfs):.3f}" if rtfs else "-")
-    t.add_row("pose age", (f"transport {float(np.median(transport)):.1f} ms" if transport else "transport -")
+    t.add_row("min separation", "fewer than two UAVs airborne" if m.min_sep == math.inf
+              else f"{m.min_sep_now:5.1f} m now, {m.min_sep:5.1f} m lowest")
+    t.add_row("RTF", f"mean {np.mean(rtfs):.3f}, min {min(rtfs):.3f}" if rtfs else "not reported yet")
+    t.add_row("pose age", (f"transport {float(np.median(transport)):.1f} ms" if transport else "transport not measured yet")
               + (f", at use {float(np.median(use)):.1f} ms" if use else "") + " (p50, median over UAVs)")
     bar = ProgressBar(total=scenario.duration, completed=min(elapsed or 0.0, scenario.duration), width=60)
     return Group(Panel(t, title="mrswarm run", expand=False), bar)
 
 
-def status_line(progress: RunProgress, metrics: LiveMetrics) -> str:
-    """One line for logs and pipes: ``[stage] t=12s coverage=40.1% min_sep=6.0m``."""
-    elapsed = progress.elapsed()
-    cov = metrics.coverage
-    return (f"[{progress.stage}]"
-            + (f" {progress.detail}" if progress.detail else "")
-            + (f" t={elapsed:.0f}s" if elapsed is not None else "")
-            + (f" coverage={100 * cov:.1f}%" if cov is not None else "")
-            + ("" if metrics.min_sep == math.inf else f" min_sep={metrics.min_sep:.1f}m"))
+def fleet_rtf(obs: SwarmObserver | None) -> list[float]:
+    """Each UAV's real-time factor as its telemetry last reported it (only those measured)."""
+    if obs is None:
+        return []
+    return [v.telemetry.rtf for v in obs.uavs.values() if v.telemetry is not None and v.telemetry.rtf > 0]
+
+
+def status_line(progress: RunProgress, metrics: LiveMetrics, obs: SwarmObserver | None, since: float | None = None) -> str:
+    """The progress line for logs and pipes: the mission clock, coverage, separation and RTF.
+
+    ``[mission] 35 of 120 s, coverage 40.1 %, separation 6.0 m (lowest 5.2 m), RTF 1.00 (lowest 0.98)``; before
+    the mission, the stage's own clock (``since``, wall time it began) and the agents per phase."""
+    now = time.time()
+    elapsed = progress.elapsed(now)
+    parts: list[str] = []
+    if elapsed is not None:
+        parts.append(f"{min(elapsed, progress.duration):.0f} of {progress.duration:.0f} s")
+    else:
+        if since is not None:
+            parts.append(f"{now - since:.0f} s")
+        phases: dict[str, int] = {}
+        for v in (obs.uavs.values() if obs is not None else ()):
+            if v.state is not None:
+                phases[v.state.phase] = phases.get(v.state.phase, 0) + 1
+        parts.append(", ".join(f"{k} {n}" for k, n in sorted(phases.items())) or "no UAV heard yet")
+    if metrics.coverage is not None:
+        parts.append(f"coverage {100 * metrics.coverage:.1f} %")
+    if metrics.min_sep != math.inf:
+        parts.append(f"separation {metrics.min_sep_now:.1f} m (lowest {metrics.min_sep:.1f} m)")
+    rtfs = fleet_rtf(obs)
+    if rtfs:
+        parts.append(f"RTF {float(np.mean(rtfs)):.2f} (lowest {min(rtfs):.2f})")
+    elif elapsed is not None:
+        parts.append("RTF not reported yet")
+    return f"[{progress.stage}] " + ", ".join(parts)
 
 
 class Display:
@@ -78,7 +109,11 @@ class Display:
         self.progress = progress
         self.metrics = metrics
         self._live: Live | None = None
-        self._last_line = 0.0  # wall time of the last plain line
+        self._last_line = 0.0  # wall time of the last progress line (without a terminal)
+        self._last_text = ""  # ... and what it said
+        self._stage: RunStage | None = None  # the stage a line was printed for
+        self._stage_since: float | None = None  # wall time it began
+        self._milestones = 0  # of progress.milestones, printed
 
     def __enter__(self) -> Display:
         if self.use_live:
@@ -95,11 +130,29 @@ class Display:
         if self._live is not None:
             self._live.update(self._table(obs))
             return
-        if time.time() - self._last_line < LINE_EVERY_S:
+        # without a terminal: a line when the stage changes and for each milestone, once; a progress line every
+        # LINE_EVERY_S, never the same twice
+        now = time.time()
+        p = self.progress
+        for text in p.milestones[self._milestones:]:  # under the stage they were reached in (the last one shown)
+            self._print(f"[{self._stage or p.stage}] {text}")
+        self._milestones = len(p.milestones)
+        if p.stage != self._stage:
+            self._stage, self._stage_since = p.stage, now
+            self._print(f"[{p.stage}]")
+            # the first progress line of a stage LINE_EVERY_S into it; at the end, at once: where the mission ended
+            self._last_line = -math.inf if p.stage == RunStage.STOPPING else now
+        if now - self._last_line < LINE_EVERY_S:
             return
-        self._last_line = time.time()
+        self._last_line = now
+        line = status_line(p, self.metrics, obs, self._stage_since)
+        if line != self._last_text:
+            self._last_text = line
+            self._print(line)
+
+    def _print(self, line: str) -> None:
         # one line each, never folded at a pipe's 80 columns: a log is read and grepped line by line
-        self.console.print(status_line(self.progress, self.metrics), markup=False, highlight=False, soft_wrap=True)
+        self.console.print(line, markup=False, highlight=False, soft_wrap=True)
 
     def _table(self, obs: SwarmObserver | None) -> Group:
         return status_table(self.scenario, self.progress, self.metrics, obs)

@@ -12,6 +12,11 @@ are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.
 Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
 recorded; a second one stops faster (mrswarm/signals.py).
 
+A UAV whose flight controller is external (``uavs[].fcu``: a real autopilot, a SITL) gets only
+its agent, started first (``Runtime.start_agent``), or, with ``agent: companion``, the
+configuration its companion computer's agent reads, and the run waits for it; each has its own
+wait (``wait_s``). Before the processes stop, every external UAV off the ground is landed.
+
 A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
 services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
 on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
@@ -25,6 +30,7 @@ in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -45,9 +51,12 @@ from mrswarm.results import summarise_run
 from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
+from mrswarm.stalls import StallWatch
 from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
-from mrswarm.supervisor import Supervisor, uav_of
+from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
+from mrswarm.wording import plural
 from mrswarm.world_setup import (
+    external_agents,
     open_observer,
     other_swarm_credentials,
     other_swarm_keys,
@@ -58,7 +67,7 @@ from mrswarm.world_setup import (
 )
 from swarmnet.observer import SwarmObserver
 from swarmnet.schema import to_builtins
-from uav_stack.config import NetworkConfig
+from uav_stack.config import AgentConfig, NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
@@ -71,6 +80,10 @@ TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slo
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
+LAND_SPEED = 0.5  # m/s: the slowest final descent of an autopilot's landing (ArduCopter's LAND_SPEED), for its wait
+LAND_MARGIN_S = 30.0  # s on top of that to land the external UAVs at the end of a run
+LAND_RESEND_S = 2.0  # an external UAV that does not show its landing is sent 'land' again this often
+ON_GROUND = frozenset({AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED})
 
 
 class RunAborted(RuntimeError):
@@ -98,6 +111,8 @@ class Experiment:
         self.run_dir.mkdir(parents=True)
         self.run_info = RunInfo(scenario=scenario.name, started=time.time())
         self.keys = self._credentials()
+        self.mavlink_key_file: Path | None = None  # the passphrase the routers use (network.json names it)
+        self.mavlink_key = self._mavlink_key()
         self.swarm_keys = {scenario.swarm: self.keys, **other_swarm_credentials(scenario, self.run_dir, self.keys is not None)}
         self.runtime = make_runtime(scenario, self.run_dir, log_level=log_level)
         self.progress = RunProgress(duration=scenario.duration)
@@ -113,6 +128,8 @@ class Experiment:
         self.ids: list[int] = []
         self.lost: set[int] = set()  # UAVs whose process exited and is not (yet) back
         self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
+        self.stalls = StallWatch()  # UAVs alive but silent (SIGSTOP, starved): events with their duration
+        self._linked_since: float | None = None  # the runner's link to the edge router up since (wall)
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -132,6 +149,39 @@ class Experiment:
             return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names)
         except KeysError as exc:
             raise RuntimeError(f"network.security.keys: {exc}") from None
+
+    def _mavlink_key(self) -> Path | None:
+        """The MAVLink signing passphrase of the UAVs' routers when it is not in their key directories
+        (docs/security.md): the scenario's ``gcs.signing.key_file``, else, with ``network.security:
+        off``, a throw-away one in ``<run>/mavlink.key``. With the run's key directory, its
+        ``mavlink.key`` (None here). Says in ``run.json`` what the routers accept."""
+        from swarmnet.security.roster import MAVLINK_KEY_FILE
+        from uav_stack.mavlink_signing import SigningKeyError, read_key_file, write_key_file
+
+        g = self.scn.gcs
+        if not g.mavlink:
+            self.run_info.mavlink = "off"
+            return None
+        path: Path | None = None
+        if g.signing is not None and g.signing.key_file is not None:
+            path = Path(g.signing.key_file)
+            try:
+                read_key_file(path)
+            except SigningKeyError as exc:
+                raise RuntimeError(f"gcs.signing.key_file: {exc}") from None
+        elif self.keys is None:
+            path = write_key_file(self.run_dir / MAVLINK_KEY_FILE)
+        key = path if path is not None else (self.keys / MAVLINK_KEY_FILE if self.keys is not None else None)
+        if key is None or not key.is_file():
+            self.console.print(f"[yellow]warning: no MAVLink signing key ({key}): the UAVs' MAVLink routers send "
+                               "telemetry and accept no command; `mrswarm keys mavlink --dir DIR --new` makes one[/]")
+            key = None
+        self.run_info.mavlink = "unsigned-allowed" if g.allow_unsigned else "signed" if key is not None else "telemetry-only"
+        if g.allow_unsigned:
+            self.console.print("[yellow]warning: gcs.allow_unsigned: the UAVs' MAVLink routers accept unsigned commands: "
+                               "any process that reaches their endpoints (on this machine: any) can command every UAV[/]")
+        self.mavlink_key_file = key
+        return path
 
     def run(self) -> RunSummary:
         """Fly the scenario, stop every process, write run.json, then summary.json and the figures."""
@@ -156,27 +206,42 @@ class Experiment:
                 self._stop_all()
             if self.signals.hangup:
                 self.console.quiet = True  # the terminal is gone
-            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast)
+            # the runner's own record: run.json may be missing its last writes (a full disk)
+            return summarise_run(self.run_dir, self.scn, stop=lambda: self.signals.fast, info=self.run_info)
         finally:
             if own_signals:
                 self.signals.restore()
 
     def _stop_all(self) -> None:
-        """Stop every child (faster after a second signal) and write run.json; never raises on a dead observer."""
+        """Land the external UAVs, stop every child (faster after a second signal) and write run.json; never
+        raises on a dead observer."""
+        if self.observer is not None and self.supervisor is not None:
+            self._watch_stalls(final=True)  # a UAV still stalled now: its stall lasted to the end
+        try:
+            self._land_external()
+        except Exception as exc:  # noqa: BLE001 - stopping must go on
+            self._say(f"[yellow]landing the external UAVs failed:[/] {escape(str(exc))}")
         if self.observer is not None:
             try:
                 self.observer.close()
             except Exception as exc:  # noqa: BLE001 - stopping must go on
                 self.run_info.write_errors.append(f"observer close: {exc}")
         grace = FAST_GRACE_S if self.signals.fast else GRACE_S + GRACE_S_PER_PROCESS * len(self.scn.all_uavs())
+        self.run_info.stopping = time.time()
         self.run_info.exit_codes = dict(self.runtime.stop(grace))
         self.run_info.stopped = time.time()
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
         self._save_info()
         # the flight recorder after run.json, which it keeps; faster after a second signal
-        if self.recorder is not None and self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT) not in (0, 130):
-            self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+        if self.recorder is not None:
+            code = self.recorder.stop(FAST_GRACE_S if self.signals.fast else STOP_TIMEOUT)
+            self.run_info.exit_codes[RECORDER] = code
+            if code not in (0, 130):
+                self._say(f"[yellow]the flight recorder failed[/] (see {self.run_dir / 'logs' / 'recorder.log'})")
+            self.run_info.recording_files = list(self.recorder.files)
+            self.run_info.recording_unwritten = self.recorder.unwritten
+            self._save_info()
 
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
@@ -222,12 +287,15 @@ class Experiment:
         discovery_keys = other_swarm_keys(scn)  # swarms sharing the airspace, each with its own key (docs/world.md)
         net = self.runtime.start_network(mode, pose_feed, scn.swarm, connectivity=connectivity, discovery=scn.network.discovery,
                                          keys=self.keys, extra_keys=discovery_keys, interest=scn.network.interest,
-                                         feed_window=scn.network.feed_window_s)
+                                         feed_window=scn.network.feed_window_s,
+                                         extra_identities={s: p for s, p in self.swarm_keys.items() if p and s != scn.swarm})
         net = replace(net, lease_s=scn.network.lease_s)
         # how other tools reach this run's swarm (its edge router): `mrswarm gcs watch --run <dir>`,
         # `mrswarm netem set --run <dir>`; with the key directory they speak as gcs-1 and ctl
         network_info: dict[str, Any] = {"swarm": scn.swarm, "endpoints": list(net.endpoints),
                                         "security": {"mode": "mtls", "keys": str(self.keys)} if self.keys else {"mode": "off"}}
+        if self.mavlink_key_file is not None:  # `mrswarm keys mavlink --run <dir>` prints it for QGroundControl and MAVProxy
+            network_info["mavlink"] = {"mode": self.run_info.mavlink, "key_file": str(self.mavlink_key_file.resolve())}
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
@@ -238,29 +306,42 @@ class Experiment:
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
                 self.recorder = RunRecorder.start(self.run_dir)
+                self.run_info.recording_files = list(self.recorder.files)
                 self._say(f"flight recording: {self.recorder.path}")
-            except RuntimeError as exc:  # a run without its recording still flies
+            except (RuntimeError, OSError) as exc:  # a run without its recording still flies
                 self.console.print(f"[yellow]no flight recording:[/] {exc}", highlight=False)
         nets = swarm_networks(scn, net, self.runtime, discovery_keys, self.swarm_keys)
         world = world_service_config(scn, nets, self.swarm_keys, self.run_dir)
         if world is not None:  # before the UAVs, so that it tracks them from their first pose
             self.runtime.start_world(write_world_config(world, self.run_dir))
-        configs = uav_configs(scn, nets, record_dir=str(self.run_dir))
-        self.ids = ids = [c.agent.uav for c in configs]
+        configs = uav_configs(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
+        agents = external_agents(scn, nets, record_dir=str(self.run_dir), mavlink_key=self.mavlink_key)
+        self.ids = ids = [a.uav for a in agents] + [c.agent.uav for c in configs]
+        for a in agents:  # first: a real autopilot may take its time to be ready (GPS lock, EKF)
+            self.signals.check()
+            self._start_external(a)
         for c in configs:
             self.signals.check()
             self.runtime.start_uav(c)
-        self.run_info.pids = self.runtime.pids()
-        self.supervisor = Supervisor(self.runtime, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+        # the runtime's processes and the runner's flight recorder, each restarted as it should be
+        children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})
+        self.run_info.pids = children.pids()
+        self.supervisor = Supervisor(children, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
         self.supervisor.adopt()
         self._save_info()
-        kind = "containers" if self.runtime.name == "docker" else "processes"
-        self._say(f"[bold]{scn.name}[/]: {len(ids)} virtual UAV {kind}, results in {self.run_dir}")
+        one = len(configs) == 1
+        kind = ("container" if one else "containers") if self.runtime.name == "docker" else ("process" if one else "processes")
+        fleet = f"{len(configs)} virtual UAV {kind}" + (f" and {len(agents)} UAV{'s' if len(agents) > 1 else ''} with an "
+                                                         "external flight controller" if agents else "")
+        self._say(f"[bold]{scn.name}[/]: {fleet}, results in {self.run_dir}")
         self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         if scn.gcs.mavlink and scn.gcs.port is not None:
-            self._say(f"MAVLink: QGroundControl, MAVProxy or MAVSDK on udp {scn.gcs.host}:{scn.gcs.port} "
-                      "(system id = UAV id up to 240, docs/gcs.md)")
+            self._say(f"MAVLink: QGroundControl or MAVProxy on udp {scn.gcs.host}:{scn.gcs.port} (system id = UAV id up to "
+                      "240, docs/gcs.md); " + {
+                          "signed": f"commands signed with the key: mrswarm keys mavlink --run {self.run_dir}",
+                          "unsigned-allowed": "[yellow]unsigned commands accepted (gcs.allow_unsigned)[/]",
+                      }.get(str(self.run_info.mavlink), "telemetry only (no signing key)"))
         # the runner joins as a client of the edge router if there is one (rendezvous, or
         # discovery with the router beside it), else as a discovery peer (role "observer"), as ctl
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
@@ -270,11 +351,12 @@ class Experiment:
         except zenoh.ZError as exc:  # the edge router never accepted the runner: every UAV is stopped, the run says why
             raise RunAborted(f"the runner could not join the swarm: {exc}") from None
         n = len(ids)
-        slowest = min(c.target_rtf for c in configs)
+        slowest = min([c.target_rtf for c in configs] or [1.0])
+        ready_own = {u.id: u.wait_s for u in scn.external_uavs()}  # each external UAV its own wait
         with self.display:
             self.progress.stage = RunStage.WAITING
             self._wait_phase(ids, {AgentPhase.READY}, READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * n,
-                             stall=READY_STALL_S, cap=READY_TIMEOUT_BASE + READY_TIMEOUT_CAP_PER_UAV * n)
+                             stall=READY_STALL_S, cap=READY_TIMEOUT_BASE + READY_TIMEOUT_CAP_PER_UAV * n, own=ready_own)
             self.progress.stage = RunStage.TAKING_OFF
             takeoff = self._command("takeoff", ids, {AgentPhase.ARMING, AgentPhase.TAKEOFF, AgentPhase.OFFBOARD,
                                                      AgentPhase.HOVER})
@@ -282,9 +364,11 @@ class Experiment:
             self.run_info.takeoff_acked_s = takeoff.duration
             self.run_info.takeoff_by_state = len(takeoff.by_state)
             climb = scn.flight.altitude / CLIMB_RATE / slowest
-            self._wait_phase(ids, {AgentPhase.HOVER}, TAKEOFF_MARGIN + climb + command_deadline(n))
+            hover_s = TAKEOFF_MARGIN + climb + command_deadline(n)
+            # a real autopilot may take longer to arm and climb (pre-arm checks, its own climb rate)
+            self._wait_phase(ids, {AgentPhase.HOVER}, hover_s, own={u: hover_s + TAKEOFF_MARGIN for u in ready_own})
             self.run_info.all_airborne_s = time.time() - takeoff.sent_at
-            self.progress.detail = f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff"
+            self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
             self._command("start", ids, set(WORKING))
             start = time.time()
@@ -355,7 +439,7 @@ class Experiment:
 
         def show(r: CommandRound) -> None:
             done = len(r.targets) - len(r.missing) - len(r.gone)
-            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({r.sends} sends)"
+            self.progress.detail = f"{verb}: {done}/{len(r.targets) - len(r.gone)} acknowledged ({plural(r.sends, 'send')})"
             self.display.refresh(self.observer)
 
         def tick() -> None:
@@ -369,32 +453,136 @@ class Experiment:
         if r.missing:
             raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
                              f"({r.sends} sends)")
-        self.progress.detail = f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms " \
-                               f"({r.sends} sends)"
+        self.progress.reached(f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms "
+                              f"({plural(r.sends, 'send')})")
         return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float, stall: float | None = None,
-                    cap: float | None = None) -> None:
+                    cap: float | None = None, own: dict[int, float] | None = None) -> None:
         """Poll until every flying UAV of ``ids`` reports one of ``phases``; RunAborted after ``timeout`` s.
 
         With ``stall`` (s), the wait goes on past ``timeout`` while more UAVs keep reaching the
         phases, until none has for ``stall`` s, and never past ``cap`` s: on a loaded machine a
-        large swarm gets ready slowly but surely, a stuck one is still given up on."""
+        large swarm gets ready slowly but surely, a stuck one is still given up on. ``own``: UAVs
+        with a wait of their own (s from now; the external ones), which the others' deadline does not end."""
+        own = own or {}
         t0 = time.time()
         deadline = t0 + timeout
         hard = t0 + max(timeout, cap if cap is not None else timeout)
         best = 0
-        while time.time() < deadline:
-            self._tick()
+        while True:
+            now = time.time()
             active = [u for u in ids if u in self._active_ids()]
-            there = sum(1 for u in active if self._phase_of(u) in phases)
-            if active and there == len(active):
+            behind = [u for u in active if self._phase_of(u) not in phases]
+            if active and not behind:
                 return
+            late = [u for u in behind if (now >= deadline if u not in own else now >= t0 + own[u])]
+            if late:
+                break
+            there = len(active) - len(behind)
             if stall is not None and there > best:  # progress: allow another ``stall`` s from now
                 best = there
-                deadline = min(max(deadline, time.time() + stall), hard)
-        behind = {u: str(self._phase_of(u) or "?") for u in ids if self._phase_of(u) not in phases}
-        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {behind}")
+                deadline = min(max(deadline, now + stall), hard)
+            waiting = [u for u in behind if u in own]
+            if waiting:
+                u = waiting[0]
+                self.progress.detail = f"{there}/{len(active)} {'/'.join(sorted(phases))}; UAV {u} ({self._external_what(u)}): " \
+                                       f"{max(0.0, t0 + own[u] - now):.0f} s left"
+            self._tick()
+        behind = [u for u in ids if self._phase_of(u) not in phases]
+        said = {u: str(self._phase_of(u) or "?") for u in behind}
+        why = "".join(f"; UAV {u} ({self._external_what(u)}): {self._external_hint(u)}" for u in behind if u in own)
+        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {said}{why}")
+
+    # ---- UAVs whose flight controller is external (docs/scenarios.md, "Physical and external UAVs") ------------------
+    def _start_external(self, cfg: AgentConfig) -> None:
+        """Its agent: a process on this machine against its flight controller (``agent: runner``), or
+        its configuration written for its companion computer, whose agent the run waits for."""
+        u = next(u for u in self.scn.external_uavs() if u.id == cfg.uav)
+        home = self.scn.start_geodetic(u)
+        where = f"its start ({u.start[0]:g}, {u.start[1]:g}) is {home.lat:.6f},{home.lon:.6f},{home.alt:g}"
+        if u.agent == "runner":
+            self.runtime.start_agent(cfg)
+            self._say(f"UAV {u.id}: agent against the external flight controller {u.fcu} (realm {u.realm}; {where}); "
+                      f"log: {self.run_dir / 'logs' / f'uav{u.id}.log'}")
+            return
+        self._companion_config(cfg)
+        self._say(f"UAV {u.id}: its agent runs on its companion computer ({where}). Waiting up to {u.wait_s:g} s for it; "
+                  f"start it there with:\n    {self._companion_command(u.id)}")
+
+    def _companion_config(self, cfg: AgentConfig) -> Path:
+        """``<run>/config/uav<N>.json``, the configuration ``mrswarm agent --config`` reads on the companion (0600: it
+        holds the discovery key)."""
+        path = self.run_dir / "config" / f"uav{cfg.uav}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, cfg.to_json().encode())
+        path.chmod(0o600)
+        return path
+
+    def _companion_command(self, uav: int) -> str:
+        """The command line that starts a companion's agent with the configuration this run wrote for it."""
+        insecure = " --insecure" if not self.scn.network.secured.enabled else ""
+        return f"mrswarm agent --config {self.run_dir / 'config' / f'uav{uav}.json'}{insecure}"
+
+    def _external_what(self, uav: int) -> str:
+        u = next((u for u in self.scn.external_uavs() if u.id == uav), None)
+        if u is None:
+            return "virtual"
+        return f"external FCU {u.fcu}" if u.agent == "runner" else "agent on its companion computer"
+
+    def _external_hint(self, uav: int) -> str:
+        """What to do about an external UAV that is late: what its agent says, and where to look."""
+        u = next(u for u in self.scn.external_uavs() if u.id == uav)
+        v = self.observer.uavs.get(uav) if self.observer is not None else None
+        if v is None or v.state is None:
+            if u.agent == "companion":
+                return (f"its agent never joined the swarm: start `{self._companion_command(uav)}` on its companion "
+                        f"computer, or raise uavs[].wait_s ({u.wait_s:g} s)")
+            return f"its agent never joined the swarm (see {self.run_dir / 'logs' / f'uav{uav}.log'})"
+        said = f"its agent says {v.state.detail!r}" if v.state.detail else f"its agent is in {v.state.phase}"
+        where = f"see {self.run_dir / 'logs' / f'uav{uav}.log'}" if u.agent == "runner" else "see its log on the companion"
+        return f"{said} ({where}; uavs[].wait_s is {u.wait_s:g} s)"
+
+    def _land_external(self) -> None:
+        """Before their agents stop: every external UAV off the ground is sent ``land`` (again every
+        :data:`LAND_RESEND_S` s until its phase shows it), and the run waits until each is down, at
+        most the mission altitude at :data:`LAND_SPEED` plus :data:`LAND_MARGIN_S`. A second stop
+        signal ends the wait; a UAV still up then is left to its autopilot's own failsafe."""
+        obs = self.observer
+        flying = [u.id for u in self.scn.external_uavs() if u.id in self.ids and u.id not in self.lost]
+        if obs is None or not flying or self.signals.fast:
+            return
+        obs.poll()
+        up = [u for u in flying if self._phase_of(u) is not None and self._phase_of(u) not in ON_GROUND]
+        if not up:
+            return
+        self.progress.stage = RunStage.STOPPING
+        self._say(f"landing UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} (external flight controller) before "
+                  "stopping" + (" (stop again to skip)" if self.signals.requested else ""))
+        t0 = time.time()
+        deadline = t0 + self.scn.flight.altitude / LAND_SPEED + LAND_MARGIN_S
+        sent: dict[int, float] = {}
+        while up and time.time() < deadline and not self.signals.fast:
+            now = time.time()
+            resend = [u for u in up if self._phase_of(u) not in (AgentPhase.LANDING, AgentPhase.LANDED)
+                      and now - sent.get(u, 0.0) >= LAND_RESEND_S]
+            if resend:
+                obs.command("land", resend)
+                sent.update({u: now for u in resend})
+            time.sleep(TICK)
+            obs.poll()
+            up = [u for u in up if self._phase_of(u) not in ON_GROUND]
+            self.progress.detail = f"landing {len(up)} external UAV(s), {deadline - time.time():.0f} s left"
+            try:
+                self.display.refresh(obs)
+            except OSError:
+                self.console.quiet = True
+        if up:
+            self._say(f"[yellow]UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} not on the ground after "
+                      f"{time.time() - t0:.0f} s ({', '.join(str(self._phase_of(u)) for u in up)}): its autopilot's own "
+                      "failsafe takes over once its agent stops[/]")
+        else:
+            self._say(f"external UAVs on the ground after {time.time() - t0:.0f} s")
 
     def _tick(self) -> None:
         """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""
@@ -406,6 +594,7 @@ class Experiment:
         self.metrics.add_poses(self.observer, fresh)
         self.metrics.update_separation(self.observer)
         self._supervise()
+        self._watch_stalls()
         self._rejoin_tick()
         try:
             self.display.refresh(self.observer)
@@ -417,6 +606,13 @@ class Experiment:
         """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
         assert self.supervisor is not None
         events = self.supervisor.check()
+        resumed = self.recorder.poll_resumed() if self.recorder is not None else None
+        if resumed is not None:  # a restarted recorder records again: the end of the recording's gap
+            ev = ProcessEvent(t=time.time(), name=RECORDER, event="resumed", detail=Path(resumed).name,
+                              recorded_until=self.recorder.previous_flushed)  # type: ignore[union-attr]
+            self.supervisor.events.append(ev)
+            events.append(ev)
+            self.run_info.recording_files = list(self.recorder.files)  # type: ignore[union-attr]
         for ev in events:
             self._on_event(ev)
         if events:
@@ -424,6 +620,29 @@ class Experiment:
         if self.ids and not self._active_ids() and not self.rejoin and not any(
                 self.supervisor.restarting(f"uav{u}") for u in self.lost):
             raise RunAborted(f"every UAV process has exited (see {self.run_dir / 'logs'})")
+
+    def _watch_stalls(self, final: bool = False) -> None:
+        """Flying UAVs whose poses stopped while their process lives: an event when the stall ends (or the run does)."""
+        assert self.observer is not None and self.supervisor is not None
+        now = time.time()
+        began: list[int] = []
+        if final:
+            ended = self.stalls.close(now)
+        else:
+            last = {u: v.pose_recv for u, v in self.observer.uavs.items()}
+            # the runner's own view: a client of the edge router sees nothing while its link to that router is down
+            path: float | None = None  # a discovery peer: the other UAVs it hears vouch for its view
+            if getattr(self.observer.node.connectivity, "mode", "") == "client":
+                self._linked_since = (self._linked_since or now) if self.observer.node.routers() else None
+                path = self._linked_since if self._linked_since is not None else math.inf
+            began, ended = self.stalls.tick(now, last, set(self._active_ids()), path)
+        for uav in began:
+            self._say(f"[yellow]uav{uav} stalled[/]: no pose for {self.stalls.after:g} s, its process still runs")
+        for ev in ended:
+            self._say(f"[yellow]{ev.name} stalled[/] for {ev.duration_s:.1f} s")
+            self.supervisor.events.append(ev)
+        if ended:
+            self._save_info()
 
     def _on_event(self, ev: ProcessEvent) -> None:
         uav = uav_of(ev.name)
@@ -435,6 +654,8 @@ class Experiment:
             if uav is not None:
                 self.lost.add(uav)
                 self.rejoin.pop(uav, None)
+        elif ev.event == "resumed":
+            self._say(f"[green]{ev.name} recording again[/] into {ev.detail}")
         elif ev.event == "restarted":
             self._say(f"[green]{ev.name} started again[/] ({ev.detail})")
             if uav is not None:

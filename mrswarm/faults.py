@@ -115,6 +115,34 @@ def plan(faults: tuple[FaultSpec, ...], seed: int) -> list[PlannedFault]:
     return sorted(out, key=lambda p: (p.at, p.index))
 
 
+def fit_to_duration(data: dict[str, Any], duration: float) -> list[str]:
+    """A mission shortened on the command line (``--set duration=N``): leave out of the scenario mapping ``data``
+    (before validation) the scheduled faults that cannot happen in ``duration`` s, and say what was left out.
+
+    A fault fits when it is due before the end: ``at`` (or the end of its ``window``) earlier than ``duration``.
+    Entries that are not well formed are left for validation to name. Returns a sentence naming what was
+    left out (numbered as in the scenario file), or nothing.
+    """
+    faults = data.get("faults")
+    if not isinstance(faults, list):
+        return []
+    keep, dropped = [], []
+    for i, f in enumerate(faults):
+        last = None
+        if isinstance(f, dict):
+            window = f.get("window")
+            last = f.get("at") if "at" in f else window[1] if isinstance(window, list) and len(window) == 2 else None
+        if isinstance(last, int | float) and not isinstance(last, bool) and last >= duration:
+            when = f"at {f['at']:g} s" if "at" in f else f"in [{f['window'][0]:g}, {f['window'][1]:g}] s"
+            dropped.append(f"{i} ({f.get('kind', '?')} {when})")
+        else:
+            keep.append(f)
+    data["faults"] = keep
+    if not dropped:
+        return []
+    return [f"faults: {len(keep)} of {len(faults)} kept; left out, not within the {duration:g} s mission: " + ", ".join(dropped)]
+
+
 def check_against(faults: tuple[FaultSpec, ...], ids: set[int], duration: float, connectivity: str) -> None:
     """Rules between the schedule and the rest of the scenario (``ConfigError`` naming ``faults.<i>.<field>``)."""
     for i, f in enumerate(faults):

@@ -1,4 +1,5 @@
-"""Incidents: a UAV that fell, dropped out of control or hit the ground, found in its recorded trajectory.
+"""Incidents: a UAV that fell, dropped out of control or hit the ground, found in its recorded trajectory,
+and two UAVs closer than the safety distance.
 
 Counted beside collisions (mrswarm/analysis.py) and they make ``mrswarm run`` exit with 3
 (docs/reliability.md). From each UAV's own records (a virtual UAV records its FCU's ground
@@ -10,7 +11,10 @@ truth, so an injected GPS glitch cannot fake or hide one), with these thresholds
   row; nothing the agent or the FCU commands goes down faster than 3 m/s (PX4's fastest
   default descent, MPC_Z_VEL_MAX_DN, is 1.5 m/s; the agent's altitude hold is limited to 2 m/s);
 * ``ground_impact``: reaching the ground (lower than :data:`GROUND_Z`) while sinking faster than
-  :data:`IMPACT_MS`; a landing touches down at 0.7 m/s.
+  :data:`IMPACT_MS`; a landing touches down at 0.7 m/s;
+* ``below_safety_distance``: two airborne UAVs closer than ``flight.safety_distance`` during the
+  mission (the distance collision avoidance is there to keep; mrswarm/analysis.py finds the
+  stretches on its 10 Hz grid, gaps under a second joined): the pair, when, for how long, how close.
 """
 
 from __future__ import annotations
@@ -60,3 +64,13 @@ def find_incidents(uav: int, t: np.ndarray, z: np.ndarray, vz: np.ndarray, armed
             out.append(Incident(uav=uav, kind="ground_impact", t_s=round(float(t[k] - t0), 2), z_m=round(float(z[k - 1]), 2),
                                 vz_ms=round(speed, 2), detail=f"hit the ground at {-speed:.1f} m/s (a landing: 0.7 m/s)"))
     return sorted(out, key=lambda i: i.t_s)
+
+
+def safety_incident(pair: tuple[int, int], t_s: float, duration_s: float, min_m: float, min_at_s: float,
+                    safety_m: float) -> Incident:
+    """Two UAVs below the safety distance from ``t_s`` (s after the mission start) for ``duration_s``, ``min_m`` apart
+    at the closest."""
+    return Incident(uav=pair[0], kind="below_safety_distance", t_s=round(t_s, 2), pair=list(pair), min_m=round(min_m, 2),
+                    duration_s=round(duration_s, 2), min_at_s=round(min_at_s, 2),
+                    detail=f"UAVs {pair[0]} and {pair[1]} {min_m:.2f} m apart at the closest (safety distance {safety_m:g} m), "
+                           f"{duration_s:.1f} s below it")

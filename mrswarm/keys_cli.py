@@ -6,10 +6,16 @@
     mrswarm keys revoke --swarm alpha uav-3           # a lost or stolen UAV
     mrswarm keys rotate --swarm alpha                 # a new CA: every old certificate stops working
     mrswarm keys list --swarm alpha
+    mrswarm keys mavlink --swarm alpha                # the MAVLink signing key, for QGroundControl and MAVProxy
+    mrswarm keys mavlink --run results/coverage-...   # the key of a run
 
 Names are ``uav-<id>``, ``gcs-<id>``, ``ctl`` (the experiment controller) and ``edge`` (the edge
 router), or full certificate names such as ``uav-3.alpha``. The key directory is ``keys/<swarm>``
 unless ``--dir`` says otherwise. Exit code 2 on any refusal, with one line saying why.
+
+The MAVLink signing key (``mavlink.key``, a passphrase) is made with the CA and renewed by
+``rotate`` and ``mavlink --new``; UAVs' MAVLink routers take commands only from ground
+stations that sign with it (docs/security.md).
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from pathlib import Path
 
 from swarmnet.security.identity import NodeName
 from swarmnet.security.pki import CA_DAYS, NODE_DAYS, KeyDir, KeysError
-from swarmnet.security.roster import CA_CERT_FILE
+from swarmnet.security.roster import CA_CERT_FILE, MAVLINK_KEY_FILE
 
 
 def _dir(a: argparse.Namespace) -> Path:
@@ -60,8 +66,8 @@ def _init(a: argparse.Namespace) -> int:
     if not a.swarm:
         raise KeysError("init needs --swarm NAME")
     kd = KeyDir.init(_dir(a), a.swarm, days=a.days or CA_DAYS)
-    print(f"{kd.path}: CA of swarm {a.swarm!r} (keep {kd.path / 'ca.key'} off the UAVs); "
-          f"next: mrswarm keys issue --dir {kd.path} edge ctl gcs-1 --uavs 1-10")
+    print(f"{kd.path}: CA of swarm {a.swarm!r} (keep {kd.path / 'ca.key'} off the UAVs) and its MAVLink signing key "
+          f"(mrswarm keys mavlink --dir {kd.path}); next: mrswarm keys issue --dir {kd.path} edge ctl gcs-1 --uavs 1-10")
     return 0
 
 
@@ -80,14 +86,18 @@ def _revoke(a: argparse.Namespace) -> int:
         print(f"{name.cn}: revoked. Give every node the new {kd.path / 'roster.json'} and restart it: its access "
               "control then grants this certificate nothing. Zenoh cannot refuse the handshake itself (no revocation "
               "lists); `mrswarm keys rotate` makes every old certificate fail the handshake.")
+        if name.role in ("uav", "gcs"):
+            print(f"{name.cn} also holds the swarm's MAVLink signing key: `mrswarm keys mavlink --dir {kd.path} --new`, "
+                  "then give the new one to every UAV and ground station.")
     return 0
 
 
 def _rotate(a: argparse.Namespace) -> int:
     kd = KeyDir(_dir(a))
     names = kd.rotate(node_days=a.days or NODE_DAYS)
-    print(f"{kd.path}: new CA; re-issued {', '.join(n.short for n in names) or 'nobody'}. Hand every node its new "
-          "bundle (mrswarm keys bundle): nodes on the old CA can no longer connect.")
+    print(f"{kd.path}: new CA and MAVLink signing key; re-issued {', '.join(n.short for n in names) or 'nobody'}. Hand "
+          "every node its new bundle (mrswarm keys bundle): nodes on the old CA can no longer connect, ground stations "
+          "with the old MAVLink key can no longer command.")
     return 0
 
 
@@ -97,7 +107,8 @@ def _bundle(a: argparse.Namespace) -> int:
     if len(names) != 1:
         raise KeysError("bundle one identity at a time")
     out = kd.bundle(names[0], a.out)
-    print(f"{out}: {CA_CERT_FILE}, roster.json, {names[0].cn}.pem, {names[0].cn}.key (0600): copy it to the node, "
+    mav = f", {MAVLINK_KEY_FILE} (0600)" if (out / MAVLINK_KEY_FILE).is_file() else ""
+    print(f"{out}: {CA_CERT_FILE}, roster.json, {names[0].cn}.pem, {names[0].cn}.key (0600){mav}: copy it to the node, "
           f"then e.g. `mrswarm agent --keys {out} ...`")
     return 0
 
@@ -123,10 +134,56 @@ def _list(a: argparse.Namespace) -> int:
     return 0
 
 
+def _mavlink_key_file(a: argparse.Namespace) -> Path:
+    """The passphrase file ``mavlink`` prints: a run's (``--run``), or the key directory's."""
+    if a.run:
+        from swarmnet.schema import ConfigError, decode_json
+
+        try:
+            info = decode_json((Path(a.run) / "network.json").read_bytes(), dict)
+        except (OSError, ConfigError) as exc:
+            raise KeysError(f"--run {a.run}: cannot read its network.json ({exc}); is it a run folder?") from None
+        key = (info.get("mavlink") or {}).get("key_file") if isinstance(info, dict) else None
+        if not key:
+            raise KeysError(f"--run {a.run}: the run has no MAVLink signing key (gcs.mavlink off, or an older run)")
+        return Path(a.run) / key if not Path(key).is_absolute() else Path(key)
+    kd = KeyDir(_dir(a))
+    if a.new:
+        kd.new_mavlink_key()
+    elif not kd.mavlink_key_path.is_file():
+        raise KeysError(f"{kd.path}: no MAVLink signing key ({MAVLINK_KEY_FILE}); make one: "
+                        f"mrswarm keys mavlink --dir {kd.path} --new")
+    return kd.mavlink_key_path
+
+
+def _mavlink(a: argparse.Namespace) -> int:
+    from uav_stack.mavlink_signing import SigningKeyError, read_key_file
+
+    if a.run and a.new:
+        raise KeysError("--new changes a swarm's key directory, not a run's")
+    path = _mavlink_key_file(a)
+    try:
+        key = read_key_file(path)
+    except SigningKeyError as exc:
+        raise KeysError(str(exc)) from None
+    passphrase = path.read_text(encoding="ascii").strip()
+    if a.json:
+        print(json.dumps({"key_file": str(path), "passphrase": passphrase, "key_hex": key.hex()}))
+        return 0
+    print(f"MAVLink signing key ({path}){': new' if a.new else ''}")
+    print(f"  passphrase      {passphrase}")
+    print(f"  MAVProxy        mavproxy.py --master=... --cmd=\"signing key {passphrase}\"")
+    print("                  (or type `signing key <passphrase>` at its prompt; not `signing setup`)")
+    print("  QGroundControl  Application Settings > MAVLink > MAVLink 2 Signing: the passphrase as the key")
+    print("                  (it derives the same key; no need to send it to the vehicle)")
+    print(f"  key, hex        {key.hex()}   (SHA-256 of the passphrase: pymavlink's setup_signing)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     doc = __doc__.splitlines()
     ap = argparse.ArgumentParser(prog="mrswarm keys", description=doc[0], formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="\n".join(doc[2:9]))
+                                 epilog="\n".join(doc[2:11]))
     sub = ap.add_subparsers(dest="what", required=True, metavar="COMMAND")
 
     def command(name: str, help: str, func: object, names: bool = False) -> argparse.ArgumentParser:
@@ -151,6 +208,11 @@ def main(argv: list[str] | None = None) -> int:
     p = command("bundle", "copy what one node needs (CA, roster, its key pair) into a directory", _bundle, names=True)
     p.add_argument("--out", required=True, help="directory to write (made 0700)")
     p = command("list", "the roster: members, expiry, revocations", _list)
+    p.add_argument("--json", action="store_true")
+    p = command("mavlink", "the MAVLink signing key, in the forms QGroundControl and MAVProxy take", _mavlink)
+    p.add_argument("--run", help="a run's folder: its key (throw-away, like its certificates)")
+    p.add_argument("--new", action="store_true", help="make a new key first: ground stations with the old one can no "
+                                                      "longer command; give every UAV the new one")
     p.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     try:

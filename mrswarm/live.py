@@ -42,6 +42,12 @@ class RunProgress:
     stage: RunStage = RunStage.STARTING
     mission_start: float | None = None  # wall time of the "start" command
     detail: str = ""  # what the stage is doing (a command's acknowledgements so far, the takeoff time)
+    milestones: list[str] = field(default_factory=list)  # what the run reached, in order (a log prints each once)
+
+    def reached(self, text: str) -> None:
+        """A milestone (every UAV acknowledged a command, all airborne): the detail now, and a line of its own in a log."""
+        self.detail = text
+        self.milestones.append(text)
 
     def elapsed(self, now: float | None = None) -> float | None:
         """Seconds since the mission started (None before)."""

@@ -102,7 +102,14 @@ def build_config(a: argparse.Namespace) -> dict[str, Any]:
         if a.file.endswith((".yaml", ".yml")):
             import yaml
 
-            cfg = yaml.safe_load(text) or {}
+            from swarmnet import strict_yaml
+
+            try:
+                cfg = strict_yaml.load(text) or {}
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, "problem_mark", None)
+                raise ValueError(f"{a.file}{f':{mark.line + 1}' if mark else ''}: not valid YAML: "
+                                 f"{getattr(exc, 'problem', exc)}") from None
         else:
             cfg = json.loads(text)
         if isinstance(cfg, dict) and isinstance(cfg.get("network"), dict) and "netem" in cfg["network"]:

@@ -54,7 +54,7 @@ class ResourceEstimate:
 
 
 def estimate(scn: Scenario) -> ResourceEstimate:
-    n = len(scn.all_uavs())  # every swarm of the airspace runs here
+    n = len([u for u in scn.all_uavs() if u.agent != "companion"])  # every swarm of the airspace runs here (not a companion)
     batched = scn.network.pose_feed == "edge" or scn.network.mode == "client"
     per_core = CPU_PER_UAV_BATCHED if batched else CPU_PER_UAV_DIRECT
     per_mb = MB_PER_UAV_CONTAINER if scn.runtime == "docker" else MB_PER_UAV_PROCESS

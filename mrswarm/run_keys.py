@@ -5,9 +5,13 @@
 and a certificate for every identity the run needs: each UAV, the edge router (``edge``), the
 runner (``ctl``) and one ground station (``gcs-1``, for ``mrswarm gcs --run``). They expire a
 day after the run is long over (the CA dies with them), so a copied run folder opens nothing.
+The directory also holds the run's MAVLink signing key (``mavlink.key``): QGroundControl or
+MAVProxy command the run's UAVs with it (``mrswarm keys mavlink --run <run>``).
 
 With ``network.security.keys`` the run uses that directory as it is: each identity must have
-been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI.
+been issued there (``mrswarm keys issue``); the run never changes a swarm's own PKI. (A directory
+made before beacon tokens gets the tokens of the run's identities written from its beacon key,
+docs/security.md: nothing else.)
 """
 
 from __future__ import annotations
@@ -50,12 +54,16 @@ def check_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
     if missing:
         raise KeysError(f"{path} has no certificate for {', '.join(missing)}: "
                         f"`mrswarm keys issue --dir {path} {' '.join(missing)}`")
+    kd.ensure_tokens(names)
     return path.resolve()
 
 
 def ensure_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
-    """A lasting key directory for a deployment: made if missing, the missing identities issued."""
+    """A lasting key directory for a deployment: made if missing, the missing identities (and
+    MAVLink signing key) issued."""
     kd = KeyDir(path) if (path / "roster.json").exists() else KeyDir.init(path, swarm)
+    if not kd.mavlink_key_path.is_file():
+        kd.new_mavlink_key()
     roster = kd.roster
     for n in names:
         if not roster.is_member(n.cn):

@@ -13,26 +13,28 @@ from typing import TYPE_CHECKING, Protocol
 
 from discovery.options import DiscoveryService
 from swarmnet.interest import Interest
-from uav_stack.config import NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
+from uav_stack.config import AgentConfig, NetworkConfig, PoseFeed, VirtualUavConfig, ZenohMode
 
 if TYPE_CHECKING:
     from mrswarm.scenario import Scenario
 
 
 class Runtime(Protocol):
-    """Starts a swarm's network services and its virtual UAVs, and stops them all."""
+    """Starts a swarm's network services, its virtual UAVs and the agents of its external ones, and stops them all."""
 
     name: str  # "process" or "docker"
 
     def start_network(self, mode: ZenohMode = "peer", pose_feed: PoseFeed = "direct", swarm: str = "*",
                       connectivity: str = "rendezvous", discovery: DiscoveryService | None = None,
                       keys: Path | None = None, extra_keys: dict[str, str] | None = None,
-                      interest: Interest | None = None, feed_window: float | None = None) -> NetworkConfig:
+                      interest: Interest | None = None, feed_window: float | None = None,
+                      extra_identities: dict[str, Path] | None = None) -> NetworkConfig:
         """Start what the connectivity needs (router, discovery server); return how UAVs reach it.
 
         ``keys``: the swarm's key directory (mutual TLS and access control on every link,
-        docs/security.md); None: plain TCP. ``extra_keys``: the discovery keys of more swarms
-        sharing the airspace (swarm -> key; docs/world.md). ``interest``: spatial interest of
+        docs/security.md; the discovery server binds beacons to its identities); None: plain TCP.
+        ``extra_keys``: the discovery keys of more swarms sharing the airspace (swarm -> key;
+        docs/world.md), ``extra_identities`` their key directories. ``interest``: spatial interest of
         the edge pose feed (docs/scale.md; only with ``pose_feed`` edge). ``feed_window``: the
         edge pose feed's batch window, s (None: the router's default, ``swarmnet.feed.DEFAULT_WINDOW``).
         """
@@ -49,6 +51,11 @@ class Runtime(Protocol):
 
     def start_uav(self, cfg: VirtualUavConfig) -> None:
         """Start one virtual UAV (FCU + agent) with this configuration."""
+        ...
+
+    def start_agent(self, cfg: AgentConfig) -> None:
+        """Start the agent of a UAV whose flight controller is external (``mrswarm agent`` against
+        ``cfg.fcu``, named ``uav<id>`` like a virtual UAV), on this machine."""
         ...
 
     def pids(self) -> dict[str, int]:

@@ -25,7 +25,8 @@ from msgspec.structs import force_setattr, replace
 
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
-from mrswarm.faults import FaultSpec, check_against
+from mrswarm.faults import FaultSpec, check_against, fit_to_duration
+from swarmnet import strict_yaml
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
@@ -284,13 +285,67 @@ class Fleet(Config, frozen=True):
     restart: Literal["no", "on-failure"] = "no"  # on-failure: a crashed UAV process is started again and rejoins
 
 
+DEFAULT_WAIT_S = 120.0  # s an external UAV's agent has to report ready (docs/scenarios.md, "Physical and external UAVs")
+
+
 class Uav(Config, frozen=True):
+    """One UAV of an explicit ``uavs`` list: a virtual one (its flight controller simulated by this
+    run), or, with ``fcu``, one whose flight controller is external (a real autopilot, a SITL).
+
+    An external UAV's agent is started by the runner on this machine against ``fcu``
+    (``agent: runner``), or runs on the UAV's companion computer and joins the run by itself
+    (``agent: companion``; the runner writes its configuration and waits for it). Either way it
+    counts like any other UAV: separation, encounters, summary, figures, recording, map.
+    """
+
     id: UavId
-    start: tuple[Coord, Coord]  # x, y (ENU m)
+    start: tuple[Coord, Coord]  # x, y (ENU m); an external UAV: where it stands (its autopilot's home)
     goal: tuple[Coord, Coord] | None = None  # goto missions
     rtf: Rtf = 1.0
     heading: Heading = 0.0  # initial heading, degrees from north
     flavour: Flavour = "px4"  # px4, or ardupilot for MAVProxy users (docs/gcs.md)
+    # an external flight controller's MAVLink connection string (udpin:127.0.0.1:14540 for PX4 SITL,
+    # tcp:127.0.0.1:5760 for ArduPilot SITL, serial:/dev/ttyACM0:921600 for a Pixhawk); None: a virtual FCU
+    fcu: Annotated[str, Meta(min_length=1, max_length=256)] | None = None
+    realm: Literal["virtual", "physical"] | None = None  # default: physical with an external fcu, else virtual
+    agent: Literal["runner", "companion"] = "runner"  # who runs an external UAV's agent: this machine, or its companion
+    # s the runner waits for an external UAV's agent to report ready (GPS lock, EKF, someone starting the companion)
+    wait_s: Annotated[float, Meta(gt=0.0, le=3600.0, description="s")] = DEFAULT_WAIT_S
+
+    def __post_init__(self) -> None:
+        if self.fcu is None:
+            for name, value, default in (("realm", self.realm, "virtual"), ("wait_s", self.wait_s, DEFAULT_WAIT_S),
+                                         ("agent", self.agent, "runner")):
+                if value is not None and value != default:
+                    raise ConfigError(name, f"only for a UAV whose flight controller is external: give its fcu "
+                                            f"(e.g. udpin:127.0.0.1:14540), or leave {name} out")
+            force_setattr(self, "realm", "virtual")
+            return
+        from uav_stack.config import fcu_url_problem
+
+        problem = fcu_url_problem(self.fcu)
+        if problem:
+            raise ConfigError("fcu", f"{self.fcu}: {problem}")
+        virtual_only: list[tuple[str, object, object, str]] = [
+            ("rtf", self.rtf, 1.0, "the real-time factor of a virtual FCU"),
+            ("flavour", self.flavour, "px4", "the autopilot a virtual FCU emulates"),
+            ("heading", self.heading, 0.0, "a virtual FCU's initial heading")]
+        for name, given, usual, what in virtual_only:
+            if given != usual:
+                raise ConfigError(name, f"{what}; UAV {self.id}'s flight controller is external ({self.fcu})")
+        if self.realm is None:
+            force_setattr(self, "realm", "physical")
+
+    @property
+    def external(self) -> bool:
+        """Its flight controller is not this run's (``fcu`` given)."""
+        return self.fcu is not None
+
+    @property
+    def realm_name(self) -> Literal["virtual", "physical"]:
+        """``realm`` as ``__post_init__`` resolved it."""
+        assert self.realm is not None
+        return self.realm
 
 
 def uav_list(fleet: Fleet | None, uavs: tuple[Uav, ...] | None) -> list[Uav]:
@@ -332,8 +387,11 @@ class Gcs(Config, frozen=True):
     listen_base: Port | None = None  # UAV i also listens on listen_base + i
     geofence: Area | None = None  # goto limits; default: the mission area, or starts and goals + 50 m
     max_alt: Annotated[float, Meta(gt=2.0, le=1000.0, description="highest goto altitude above the origin, m")] = 120.0
-    # MAVLink 2 signing on every router's ground-station links (docs/security.md); None: unsigned
+    # the MAVLink signing key of every router's ground-station links (docs/security.md); None: the run's own
+    # (mavlink.key in its key directory, made with its certificates)
     signing: MavlinkSigning | None = None
+    # route unsigned frames from ground stations too (MAVSDK cannot sign): any local process can command every UAV
+    allow_unsigned: bool = False
     # the run also ends once every UAV is on the ground, however it got there (a ground station's land --all, a
     # takeover); by default only the duration or the mission's own end (every UAV done, or landed by its mission) end it
     landing_ends_run: bool = False
@@ -341,6 +399,8 @@ class Gcs(Config, frozen=True):
     def __post_init__(self) -> None:
         if self.signing is not None and not self.mavlink:
             raise ConfigError("signing", "signs the MAVLink routers' links: set gcs.mavlink: true too")
+        if self.allow_unsigned and not self.mavlink:
+            raise ConfigError("allow_unsigned", "opens the MAVLink routers' links: set gcs.mavlink: true too")
 
 
 class Scenario(Config, kw_only=True, frozen=True):
@@ -392,6 +452,7 @@ class Scenario(Config, kw_only=True, frozen=True):
                                   f"UAV {u.id} spawns at {u.start}, farther than {MAX_OFFSET_M:g} m from the origin")
         if self.faults:
             check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.topology[0])
+        self._check_external()
         g = self.gcs
         if g.mavlink:
             from uav_stack.sysid import allocate_sysid
@@ -416,6 +477,23 @@ class Scenario(Config, kw_only=True, frozen=True):
             m = o.mission or self.mission
             if m.type == "goto" and any(u.goal is None for u in o.uav_list()):
                 raise ConfigError(f"other_swarms.{i}", "a goto mission needs a goal for every UAV")
+
+    def _check_external(self) -> None:
+        """External flight controllers: process runtime only, no faults injected into them."""
+        external = {u.id for u in self.external_uavs()}
+        if not external:
+            return
+        if self.runtime == "docker":
+            places = [("uavs", self.uavs or ())] + [(f"other_swarms.{j}.uavs", o.uavs or ())
+                                                    for j, o in enumerate(self.other_swarms)]
+            where, u = next((f"{name}.{i}.fcu", u) for name, us in places for i, u in enumerate(us) if u.external)
+            raise ConfigError(where, f"UAV {u.id}'s flight controller is external: its agent runs as a process on this "
+                                     "machine or on its companion (runtime: process); the container runtime runs virtual UAVs")
+        for i, f in enumerate(self.faults):
+            hit = sorted(set(f.targets()) & external)
+            if hit:
+                raise ConfigError(f"faults.{i}", f"UAV {hit[0]}'s flight controller is external: faults are injected "
+                                                 "into virtual UAVs only")
 
     def _check_world(self) -> None:
         missions = [("mission", self.mission)] + [(f"other_swarms.{i}.mission", o.mission) for i, o in
@@ -485,11 +563,41 @@ class Scenario(Config, kw_only=True, frozen=True):
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None,
-                            other: OtherSwarm | None = None) -> list[VirtualUavConfig]:
-        """One UAV process's configuration per UAV of the scenario's swarm (or of ``other``), on the
-        network the runtime started."""
+                            other: OtherSwarm | None = None, mavlink_key: str | None = None) -> list[VirtualUavConfig]:
+        """One UAV process's configuration per virtual UAV of the scenario's swarm (or of ``other``), on
+        the network the runtime started (the external ones: :meth:`external_agent_configs`). Their MAVLink
+        signing key: ``gcs.signing``, else ``mavlink_key`` (a run without key directory makes one), else
+        ``mavlink.key`` in their key directory."""
+        frame = LocalFrame(self.origin.point())
+        out = []
+        for u, agent in self._agent_configs(network, record_dir, other, mavlink_key):
+            if u.external:
+                continue
+            lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)
+            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
+                                        heading=math.radians(u.heading), flavour=u.flavour))
+        return out
+
+    def external_agent_configs(self, network: NetworkConfig, record_dir: str | None,
+                               other: OtherSwarm | None = None, mavlink_key: str | None = None) -> list[AgentConfig]:
+        """The agent's configuration of every UAV whose flight controller is external (``uavs[].fcu``), for
+        ``mrswarm agent --config``: the runner's own (``agent: runner``, recording into ``record_dir``)
+        or a companion computer's (``agent: companion``, recording where its ``--record-dir`` says)."""
+        return [replace(agent, record_dir=record_dir if u.agent == "runner" else None)
+                for u, agent in self._agent_configs(network, record_dir, other, mavlink_key) if u.external]
+
+    def external_uavs(self) -> list[Uav]:
+        """Every UAV of the airspace whose flight controller is external."""
+        return [u for u in self.all_uavs() if u.external]
+
+    def start_geodetic(self, u: Uav) -> GeoPoint:
+        """Where ``u`` starts as latitude, longitude and altitude (an external autopilot's home goes there)."""
+        lat, lon, alt = LocalFrame(self.origin.point()).to_geodetic(u.start[0], u.start[1], 0.0)
+        return GeoPoint(lat, lon, alt)
+
+    def _agent_configs(self, network: NetworkConfig, record_dir: str | None,
+                       other: OtherSwarm | None, mavlink_key: str | None) -> list[tuple[Uav, AgentConfig]]:
         origin = self.origin.point()
-        frame = LocalFrame(origin)
         fl = self.flight
         m = self.mission if other is None or other.mission is None else other.mission
         swarm, uavs = (self.swarm, self.uav_list()) if other is None else (other.swarm, other.uav_list())
@@ -500,7 +608,6 @@ class Scenario(Config, kw_only=True, frozen=True):
             network = replace(network, netem=netem)
         out = []
         for u in uavs:
-            lat, lon, alt = frame.to_geodetic(u.start[0], u.start[1], 0.0)
             mission = MissionConfig(
                 type=m.type,
                 strategy=m.strategy,
@@ -512,20 +619,20 @@ class Scenario(Config, kw_only=True, frozen=True):
                 wildfire=m.wildfire,
             )
             agent = AgentConfig(
-                swarm=swarm, uav=u.id, origin=origin, fcu="", realm="virtual", altitude=fl.altitude, speed=fl.speed,
-                seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
+                swarm=swarm, uav=u.id, origin=origin, fcu=u.fcu or "", realm=u.realm_name, altitude=fl.altitude,
+                speed=fl.speed, seed=self.seed, autostart=False, record_dir=record_dir, mission=mission,
                 avoidance=AvoidanceConfig(enabled=fl.avoidance, safety_distance=fl.safety_distance, time_horizon=fl.time_horizon,
                                           zones=w.zones if w is not None else ()),
                 network=network,
                 gcs=GcsConfig(mavlink_endpoints=self.mavlink_endpoints(u.id), geofence=self.geofence(), max_alt=self.gcs.max_alt,
-                              signing=self.gcs.signing),
+                              signing=self.gcs.signing or MavlinkSigning(key_file=mavlink_key),
+                              allow_unsigned=self.gcs.allow_unsigned),
                 failsafe=self.failsafe,
                 sensors=w.sensors if w is not None else (), actuators=w.actuators if w is not None else (),
                 traffic=w is not None and w.airspace.feed and bool(self.other_swarms),
                 align_ticks=self.network.align_ticks,
             )
-            out.append(VirtualUavConfig(agent=agent, home=GeoPoint(lat, lon, alt), target_rtf=u.rtf,
-                                        heading=math.radians(u.heading), flavour=u.flavour))
+            out.append((u, agent))
         return out
 
 
@@ -569,7 +676,7 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise ScenarioError(f"--set {text!r}: expected key.path=value")
     key, raw = text.split("=", 1)
     try:
-        return key.strip(), yaml.safe_load(raw)
+        return key.strip(), strict_yaml.load(raw)
     except yaml.YAMLError as exc:
         raise ScenarioError(f"--set {text!r}: bad value: {exc}") from None
 
@@ -631,18 +738,38 @@ def read_scenario_text(path: Path) -> str:
                             "a scenario is a YAML file") from None
 
 
-def load_scenario(path: str | Path, overrides: list[str] | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: list[str] | None = None, notes: list[str] | None = None) -> Scenario:
+    """The scenario file with ``--set`` overrides, validated. A ``duration`` override shortens the schedule too:
+    the faults that no longer fit are left out, and ``notes`` (if given) gets a sentence for each, and for a
+    timed world event that will not come (:func:`shortened`)."""
     path = Path(path)
     text = read_scenario_text(path)
     try:
-        data = yaml.safe_load(text)
+        data = strict_yaml.load(text)  # duplicate keys and over-deep nesting are errors with their line, too
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
         raise ScenarioError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{path}: a scenario must be a YAML mapping, got {type(data).__name__}")
+    shorter = False
     for o in overrides or []:
         key, value = parse_override(o)
         _set_path(data, key, value)
-    return parse_scenario(data, str(path))
+        shorter = shorter or key == "duration"
+    said = fit_to_duration(data, data["duration"]) if shorter and isinstance(data.get("duration"), int | float) else []
+    scn = parse_scenario(data, str(path))
+    if shorter:
+        said += shortened(scn)
+    if notes is not None:
+        notes += said
+    return scn
+
+
+def shortened(scn: Scenario) -> list[str]:
+    """What a shortened mission will not see besides its faults: a wind turn after its end."""
+    w = scn.world
+    if w is not None and w.wind.turn_after_s is not None and w.wind.turn_after_s >= scn.duration:
+        return [f"world.wind.turn_after_s: the wind turns at {w.wind.turn_after_s:g} s, after the {scn.duration:g} s mission: "
+                "it will not turn"]
+    return []

@@ -38,6 +38,8 @@ class ProcessEvent(Struct):
     last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
     detail: str = ""
     error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
+    recorded_until: float | None = None  # "resumed" (the flight recorder): its previous file holds the records up to then
+    duration_s: float | None = None  # "stalled": how long no pose of the UAV came while its process ran (from ``t``)
 
 
 class FaultRecord(Struct):
@@ -73,12 +75,17 @@ class RunInfo(Struct):
     takeoff_sends: int = 0
     takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
     exit_codes: dict[str, int | None] = {}
-    stopped: float | None = None  # wall
+    stopping: float | None = None  # wall: the runner began stopping every process
+    stopped: float | None = None  # wall: ... and every process had stopped
     stop_signals: list[str] = []  # SIGINT, SIGTERM, SIGHUP received by the runner, in order
     events: list[ProcessEvent] = []  # processes that exited during the run, and restarts
     faults: list[FaultRecord] = []  # the scenario's fault schedule as it went
     write_errors: list[str] = []  # runner files that could not be written (a full or read-only disk)
     security: str | None = None  # network.security.mode: "mtls" or "off" (None: a run from before it existed)
+    # the UAVs' MAVLink routers: "signed", "telemetry-only", "unsigned-allowed" or "off" (no routers); None: an older run
+    mavlink: str | None = None
+    recording_files: list[str] = []  # the flight recording's files, in order (run.mcap, run-2.mcap after a restart, ...)
+    recording_unwritten: int = 0  # records of the flight recording a full disk took none of
 
     @classmethod
     def load(cls, path: Path, scenario: str) -> RunInfo:
@@ -311,6 +318,14 @@ class LostUav(Struct):
     error: str = ""  # its last error, from its log ("" if it logged none)
 
 
+class Stall(Struct):
+    """A UAV whose process ran but sent no pose for more than a second (stopped, starved: mrswarm/stalls.py)."""
+
+    uav: int
+    from_s: float  # its last pose before the stall, s after the mission start
+    duration_s: float
+
+
 class ServiceOutage(Struct):
     """The discovery server or the edge router down during the run, and its restart."""
 
@@ -345,14 +360,19 @@ class FailsafeEvent(Struct):
 
 
 class Incident(Struct):
-    """A UAV that fell or hit the ground (mrswarm/incidents.py): counted beside collisions."""
+    """A UAV that fell or hit the ground, or two UAVs closer than the safety distance (mrswarm/incidents.py):
+    counted beside collisions."""
 
-    uav: int
-    kind: str  # ground_impact, uncontrolled_descent, motors_stopped_in_air
+    uav: int  # below_safety_distance: the first of the pair
+    kind: str  # ground_impact, uncontrolled_descent, motors_stopped_in_air, below_safety_distance
     t_s: float  # s after the mission start
-    z_m: float  # height above the origin when it began
-    vz_ms: float  # vertical speed (up positive), m/s
     detail: str
+    z_m: float | UnsetType = UNSET  # height above the origin when it began (a UAV's own incidents)
+    vz_ms: float | UnsetType = UNSET  # vertical speed (up positive), m/s (a UAV's own incidents)
+    pair: list[int] | UnsetType = UNSET  # below_safety_distance: the two UAVs
+    min_m: float | UnsetType = UNSET  # ... their closest distance, m
+    min_at_s: float | UnsetType = UNSET  # ... when, s after the mission start
+    duration_s: float | UnsetType = UNSET  # ... time below the safety distance, s
 
 
 class RecordErrors(Struct):
@@ -363,12 +383,50 @@ class RecordErrors(Struct):
     rows_dropped: int  # trajectory or pose-age rows given up (beyond the in-memory backlog)
     files_not_written: int  # counter-file replacements that failed
     runner: list[str]  # runner files that could not be written
+
+
+class RecordingGap(Struct):
+    """The flight recorder down, and recording again (mrswarm/supervisor.py restarts it)."""
+
+    from_s: float  # s after the mission start: its file holds the records up to then (its last flush before it died)
+    to_s: float | None  # recording again, into the next file (None: not before the end of the run)
+    gap_s: float | None
+    cause: str  # what ended it: a signal, an exit code
+
+
+class Recording(Struct):
+    """The flight recording (docs/recording.md): its files, the recorder's gaps, what a full disk took none of."""
+
+    files: list[str]
+    gaps: list[RecordingGap] = []
+    unwritten: int = 0
+
+
 class Security(Struct):
     """How the run's network was secured, and what it refused (docs/security.md, "What is counted")."""
 
     mode: str  # "mtls": mutual TLS and access control on every link; "off": plain TCP
     refused_by_uavs: dict[str, int]  # summed over UAVs: tls_handshake (their listeners), non_member_link
     refused_by_router: dict[str, int]  # the edge router's: tls_handshake, non_member_link (process runtime)
+
+
+class ExternalUav(Struct):
+    """A UAV whose flight controller is external (a real autopilot, a SITL; docs/scenarios.md): counted like any other."""
+
+    uav: int
+    realm: str  # physical or virtual (a SITL may be flown as a virtual UAV)
+    fcu: str  # its flight controller's connection string, as the scenario gives it
+    agent: str  # runner: its agent ran on this machine; companion: on the UAV's companion computer
+    trajectory: str  # agent: its own uav<N>.csv; recording: the poses it shared, from run.mcap; none: neither
+    detail: str = ""
+
+
+class Mavlink(Struct):
+    """What the UAVs' MAVLink routers took from ground stations (docs/security.md, "MAVLink")."""
+
+    mode: str  # "signed": commands signed with the key only; "telemetry-only" (no key); "unsigned-allowed"; "off"
+    refused: dict[str, int]  # summed over UAVs: unsigned_refused (of which unsigned_commands_refused), bad_signature, ...
+    accepted: dict[str, int]  # summed over UAVs: signed frames, unsigned_accepted, to_fcu (frames routed to the FCUs)
 
 
 class RunSummary(Struct):
@@ -378,7 +436,11 @@ class RunSummary(Struct):
     run_dir: str
     uavs_planned: int
     uavs_recorded: int
-    interrupted: bool
+    interrupted: bool  # stopped by a signal, or the runner died before writing its end (runner_lost)
+    # the runner died (killed) before writing the end of run.json: its results are rebuilt from what was on disk
+    runner_lost: bool = False
+    interrupted_at_wall: float | UnsetType = UNSET  # the last known time of an interrupted run: its stop, else its newest record
+    interrupted_at_s: float | UnsetType = UNSET  # the same, s after the mission start (left out if the mission never started)
     error: str | UnsetType = UNSET  # nothing to analyse (no trajectory recorded)
     separation: Separation | UnsetType = UNSET
     coverage: Coverage | UnsetType = UNSET
@@ -389,6 +451,7 @@ class RunSummary(Struct):
     network: Network | UnsetType = UNSET
     world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
+    mavlink: Mavlink | UnsetType = UNSET  # left out for runs from before the routers were locked
     processes: dict[str, int | None] = {}  # exit code per process
     duration_s: float | UnsetType = UNSET  # mission time analysed
     plot: str | UnsetType = UNSET  # <scenario>.png
@@ -397,10 +460,16 @@ class RunSummary(Struct):
     stop_signals: list[str] = []  # signals that stopped the runner
     incidents: list[Incident] = []
     lost_uavs: list[LostUav] = []
+    stalls: list[Stall] = []  # UAVs alive but silent for more than a second
     services: list[ServiceOutage] = []
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
+    external_uavs: list[ExternalUav] | UnsetType = UNSET  # only with UAVs whose flight controller is external
+    recording: Recording | UnsetType = UNSET  # the flight recording (runs with one)
+    # why the run's records are incomplete (records lost to a full or failing disk, a recorder gap, a file not
+    # written); empty when they are whole. Not empty: ``mrswarm run`` exits 1 (3 with collisions or incidents)
+    degraded: list[str] = []
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property
@@ -445,7 +514,10 @@ def write_atomic(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # a read-only disk refuses it too (and took no temporary file)
+            pass
     fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(fd)

@@ -7,6 +7,9 @@ Every tick the runner asks the :class:`Supervisor` what exited. Each exit become
   (0.5 s, doubling up to 10 s; the delay starts again from 0.5 s once a service has stayed up
   30 s). Their state comes back by itself: every node re-announces itself to the discovery
   server each beacon period, and every Zenoh node dials its configured edge router again.
+* the runner's **flight recorder** (mrswarm/recorder/run_recorder.py) too, from 0.1 s: its file
+  is sealed where it stopped, and the new recorder continues in the next file (``run-2.mcap``);
+  the runner records when it records again (an event ``resumed``), so the gap is known.
 * a **UAV** that exits is *lost*: the runner goes on without it (its neighbours expire it
   within the liveliness lease and re-split the coverage). With ``fleet.restart: on-failure``,
   a UAV that exited with a non-zero code or a signal is started again (same backoff, at most
@@ -26,14 +29,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
-from mrswarm.runtime import Runtime
 from mrswarm.summary import ProcessEvent
 
 log = logging.getLogger(__name__)
 
-SERVICES = ("discovery", "router")
+SERVICES = ("discovery", "router", "recorder")
+RECORDER = "recorder"
 BACKOFF_FIRST_S = 0.5
+FIRST_BACKOFF_S = {RECORDER: 0.1}  # a recorder that is down loses data: back at once, then the usual backoff
 BACKOFF_MAX_S = 10.0
 STABLE_AFTER_S = 30.0  # up this long: the next failure starts the backoff from the beginning again
 MAX_UAV_RESTARTS = 3
@@ -43,8 +48,8 @@ _RAISED = re.compile(r"^(?:[\w.]+\.)?\w*(?:Error|Exception|Exit)\b.*$")  # a tra
 
 
 def is_service(name: str) -> bool:
-    """Restarted whenever it exits: the discovery server and every swarm's edge router (``router-<swarm>``
-    for the other swarms of an airspace, docs/world.md). Not the world service: a restarted world
+    """Restarted whenever it exits: the discovery server, every swarm's edge router (``router-<swarm>``
+    for the other swarms of an airspace, docs/world.md) and the flight recorder. Not the world service: a restarted world
     would start its experiment again (the fire lit anew), so its exit stays an event."""
     return name in SERVICES or name.startswith("router-")
 
@@ -89,6 +94,52 @@ def last_error(log_path: Path | None) -> str:
     return ""
 
 
+class Processes(Protocol):
+    """What the supervisor watches: the runtime (mrswarm.runtime.Runtime), or :class:`RunnerChildren`."""
+
+    def pids(self) -> dict[str, int]: ...
+
+    def exited(self) -> dict[str, int]: ...
+
+    def restart(self, name: str, grace: float = 3.0) -> None: ...
+
+
+class OwnChild(Protocol):
+    """A process the runner starts itself, beside the runtime's (the flight recorder)."""
+
+    @property
+    def pid(self) -> int: ...
+
+    def poll(self) -> int | None: ...
+
+    def restart(self, grace: float = 3.0) -> None: ...
+
+
+class RunnerChildren:
+    """The runtime's processes and the runner's own, as one set for the supervisor."""
+
+    def __init__(self, runtime: Processes, own: dict[str, OwnChild]):
+        self.runtime = runtime
+        self.own = own
+
+    def pids(self) -> dict[str, int]:
+        return {**self.runtime.pids(), **{n: c.pid for n, c in self.own.items()}}
+
+    def exited(self) -> dict[str, int]:
+        out = dict(self.runtime.exited())
+        for n, c in self.own.items():
+            code = c.poll()
+            if code is not None:
+                out[n] = code
+        return out
+
+    def restart(self, name: str, grace: float = 3.0) -> None:
+        if name in self.own:
+            self.own[name].restart(grace)
+        else:
+            self.runtime.restart(name, grace)
+
+
 @dataclass
 class _Watch:
     pid: int
@@ -101,7 +152,7 @@ class _Watch:
 class Supervisor:
     """Turns process exits into events, and restarts what should come back."""
 
-    def __init__(self, runtime: Runtime, restart_uavs: bool = False, clock: Callable[[], float] = time.time,
+    def __init__(self, runtime: Processes, restart_uavs: bool = False, clock: Callable[[], float] = time.time,
                  last_pose: Callable[[int], list[float] | None] = lambda uav: None,
                  log_of: Callable[[str], Path | None] = lambda name: None):
         """``last_pose``: a UAV's last pose the runner received; ``log_of``: a process's log file,
@@ -121,7 +172,7 @@ class Supervisor:
         now = self.clock()
         for name, pid in self.runtime.pids().items():
             if name not in self._watch:
-                self._watch[name] = _Watch(pid, now)
+                self._watch[name] = _Watch(pid, now, backoff=FIRST_BACKOFF_S.get(name, BACKOFF_FIRST_S))
 
     def check(self) -> list[ProcessEvent]:
         """New events since the last call: exits seen now, restarts done now."""
@@ -154,7 +205,7 @@ class Supervisor:
         ev = ProcessEvent(t=now, name=name, event="exited", exit_code=code, signal=signal_name(code),
                           last_pose=self.last_pose(uav) if uav is not None else None)
         if now - w.started >= STABLE_AFTER_S:
-            w.backoff = BACKOFF_FIRST_S
+            w.backoff = FIRST_BACKOFF_S.get(name, BACKOFF_FIRST_S)
         failed = code is None or code != 0
         if failed:
             ev.error = last_error(self.log_of(name))

@@ -1,11 +1,13 @@
 """The figure of a world scenario (``<scenario>.png``): the world and the trajectories, and how it went over time.
 
-Left, the map: the fire grid at the end (unburnt fuel green, burnt out dark, extinguished blue,
-still burning red, no fuel grey) or the plume (the cone before and after the wind turned, or
-the Gaussian plume's concentration at flight altitude), the no-fly zones, the hub, each UAV's
-trajectory (coloured by swarm when several share the airspace), where the UAVs sprayed, and
-their last source estimates. Right: the localisation error over time (plume), the burnt area
-and burning cells (fire), the separation between swarms (shared airspace).
+The map: the fire grid at the end (unburnt fuel green, burnt out dark, extinguished blue,
+still burning red, no fuel grey) or the plume (the cone before and, if the wind turned during the
+mission, after the turn; or the Gaussian plume's concentration at flight altitude), the mission
+or search area, the no-fly zones, the hub, each UAV's trajectory (a colour family per swarm when
+several share the airspace), the goals, where the UAVs sprayed, and their last source estimates.
+Beside it (below it, for a map much wider than tall): the localisation error over time (plume),
+the burnt area and burning cells (fire), the separation between swarms (shared airspace), up to
+the end of the mission.
 """
 
 from __future__ import annotations
@@ -17,13 +19,27 @@ from typing import Any
 import numpy as np
 
 from mrswarm.analysis import RunData
-from mrswarm.plots import _pyplot
+from mrswarm.plots import (
+    DPI,
+    MAX_LEGEND,
+    _pyplot,
+    draw_area,
+    draw_tracks,
+    legend_below,
+    map_and_time,
+    map_extent,
+    separation_over_time,
+    uav_colors,
+)
 from mrswarm.scenario import Scenario
 from world.config import ConePlume, GaussianPlume
 from world.fire import BURNING, BURNT, EXTINGUISHED
 
 
-def _fire_layer(ax: Any, grid: dict[str, np.ndarray]) -> None:
+def _fire_layer(ax: Any, grid: dict[str, np.ndarray]) -> list[Any]:
+    """The fire grid at the end; returns the legend's keys to its colours."""
+    from matplotlib.patches import Patch
+
     xs, ys, fuel, state = grid["xs"], grid["ys"], grid["fuel"], grid["state"]
     rgba = np.ones(state.shape + (4,))
     green = np.array([0.55, 0.78, 0.45])
@@ -35,6 +51,10 @@ def _fire_layer(ax: Any, grid: dict[str, np.ndarray]) -> None:
     c = float(grid["cell_m"])
     ax.imshow(rgba, origin="lower", extent=(xs[0] - c / 2, xs[-1] + c / 2, ys[0] - c / 2, ys[-1] + c / 2), aspect="equal",
               interpolation="nearest", zorder=0)
+    keys: list[tuple[tuple[float, float, float], str]] = [
+        ((float(green[0]), float(green[1]), float(green[2])), "forest (paler: less fuel)"), ((0.25, 0.18, 0.15), "burnt out"),
+        ((0.35, 0.55, 0.95), "put out"), ((0.95, 0.3, 0.1), "still burning"), ((0.82, 0.82, 0.82), "nothing to burn")]
+    return [Patch(facecolor=col, edgecolor="none", label=label) for col, label in keys]
 
 
 def _plume_layer(ax: Any, scn: Scenario, extent: tuple[float, float, float, float], t_end: float) -> None:
@@ -67,109 +87,112 @@ def _plume_layer(ax: Any, scn: Scenario, extent: tuple[float, float, float, floa
 
 
 def plot_world(path: Path, scn: Scenario, data: RunData) -> None:
-    """The world map with the trajectories (left) and the world's outcome over time (right) -> ``path`` (PNG)."""
+    """The world map with the trajectories and the world's outcome over time -> ``path`` (PNG)."""
+    plt = _pyplot()
+    fig = world_figure(scn, data)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def world_figure(scn: Scenario, data: RunData) -> Any:
+    """The figure of :func:`plot_world` (a matplotlib Figure; the caller closes it)."""
     plt = _pyplot()
     wd = data.world
     w = scn.world
     assert w is not None
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 6.5), gridspec_kw={"width_ratios": [1.3, 1]})
-    pos, ids = data.pos, data.ids
-    finite = pos[~np.isnan(pos[..., 0])]
-    lo, hi = finite[:, :2].min(axis=0), finite[:, :2].max(axis=0)
-    if w.fire is not None:
-        a = w.fire.area
-        lo, hi = np.minimum(lo, (a.x_min, a.y_min)), np.maximum(hi, (a.x_max, a.y_max))
+    ext = map_extent(data, scn)
+    fig, ax, ax2 = map_and_time(plt, ext)
+    ids = data.ids
     m = scn.mission
-    if m.area is not None:
-        lo, hi = np.minimum(lo, (m.area.x_min, m.area.y_min)), np.maximum(hi, (m.area.x_max, m.area.y_max))
-    pad = 5.0
-    extent = (float(lo[0] - pad), float(hi[0] + pad), float(lo[1] - pad), float(hi[1] + pad))
+    t_end = data.t_end - data.t0
+    fire_keys: list[Any] = []
     if wd is not None and wd.fire_grid is not None:
-        _fire_layer(ax, wd.fire_grid)
+        fire_keys = _fire_layer(ax, wd.fire_grid)
     if w.plume is not None:
-        _plume_layer(ax, scn, extent, data.t_end - data.t0)
+        _plume_layer(ax, scn, ext, t_end)
     for z in w.zones:
         poly = list(z.polygon) + [z.polygon[0]]
-        ax.fill(*zip(*poly, strict=True), facecolor="none", edgecolor="k", hatch="///", lw=1.2, zorder=3)
+        ax.fill(*zip(*poly, strict=True), facecolor="none", edgecolor="k", hatch="///", lw=1.2, zorder=3,
+                label="no-fly zone" if z is w.zones[0] else None)
         cx, cy = np.mean([p[0] for p in z.polygon]), np.mean([p[1] for p in z.polygon])
         ax.text(cx, cy, z.name or z.kind.replace("_", "-"), ha="center", va="center", fontsize=8, zorder=7,
-                bbox={"fc": "white", "alpha": 0.7, "lw": 0})
-    if m.area is not None and m.type == "plume":
-        ar = m.area
-        ax.plot([ar.x_min, ar.x_max, ar.x_max, ar.x_min, ar.x_min], [ar.y_min, ar.y_min, ar.y_max, ar.y_max, ar.y_min],
-                "k--", lw=0.8)
+                bbox={"fc": "white", "alpha": 0.8, "lw": 0})
+    draw_area(ax, scn, "search area" if m.type == "plume" else "mission area")
     if m.wildfire is not None:
-        hub = plt.Circle(m.wildfire.hub, m.wildfire.hub_radius, color="tab:blue", fill=False, lw=1.5, zorder=4)
+        hub = plt.Circle(m.wildfire.hub, m.wildfire.hub_radius, color="tab:blue", fill=False, lw=1.5, zorder=4, label="hub")
         ax.add_patch(hub)
         ax.text(*m.wildfire.hub, "hub", ha="center", va="center", fontsize=8, color="tab:blue", zorder=7)
     swarm_of = scn.swarm_of()
     swarms = list(dict.fromkeys(swarm_of[u] for u in ids if u in swarm_of))
-    cmap = plt.get_cmap("tab10" if len(swarms) > 1 else "tab20")
-    labelled: set[str] = set()
-    for k, u in enumerate(ids):
-        p = pos[k]
-        sw = swarm_of.get(u, scn.swarm)
-        color = cmap(swarms.index(sw) % 10) if len(swarms) > 1 else cmap(k % 20)
-        label = (f"swarm {sw}" if sw not in labelled else None) if len(swarms) > 1 else (f"UAV {u}" if len(ids) <= 12 else None)
-        labelled.add(sw)
-        ax.plot(p[:, 0], p[:, 1], "-", lw=1.0, color=color, label=label, zorder=5)
-        tr = data.tracks[u]
-        ax.plot(tr.xyz[0, 0], tr.xyz[0, 1], "o", color=color, ms=3.5, zorder=5)
+    if len(swarms) > 1:  # one family of colours per swarm, a shade per UAV
+        families = ("Blues", "Oranges", "Greens", "Purples", "Reds")
+        colors: list[Any] = []
+        labels: list[str | None] = []
+        for u in ids:
+            sw = swarm_of.get(u, scn.swarm)
+            mates = [v for v in ids if swarm_of.get(v, scn.swarm) == sw]
+            shade = 0.55 + 0.4 * (mates.index(u) / max(len(mates) - 1, 1))
+            colors.append(plt.get_cmap(families[swarms.index(sw) % len(families)])(shade))
+            labels.append(f"{sw} UAV {u}")
+    else:
+        colors, labels = uav_colors(len(ids)), [f"UAV {u}" for u in ids]
+    lines = draw_tracks(ax, data, scn, colors, labels)
+    goals = [g.goal for g in scn.all_uavs() if g.goal is not None]
+    for k, goal in enumerate(goals):
+        ax.plot(*goal, "x", color="k", ms=8, mew=2, zorder=7, label="goal" if k == 0 else None)
     if wd is not None and wd.sprays is not None:
-        ax.plot(wd.sprays[:, 0], wd.sprays[:, 1], ".", color="tab:blue", ms=2, alpha=0.5, zorder=5, label="sprays")
+        ax.plot(wd.sprays[:, 0], wd.sprays[:, 1], ".", color="navy", ms=2.5, alpha=0.6, zorder=6, label="sprays")
     if wd is not None and wd.estimates:
         last = np.array([e[-1, 1:] for e in wd.estimates.values() if len(e)])
         ax.plot(last[:, 0], last[:, 1], "x", color="tab:red", ms=8, mew=2, zorder=6, label="last source estimates")
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
+    ax.set_xlim(ext[0], ext[1])
+    ax.set_ylim(ext[2], ext[3])
     ax.set_aspect("equal")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
-    ax.set_title(f"{scn.name}: world and trajectories")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.set_title(f"{scn.name}: world and trajectories (dot: start, triangle: end)", fontsize=10)
+    others = [h for h in ax.get_legend_handles_labels()[0] if h not in lines]
+    legend_below(ax, (lines if len(ids) <= MAX_LEGEND else []) + others + fire_keys,
+                 ncol=min(len(lines) + len(others) + len(fire_keys), 6))
     _over_time(ax2, scn, data)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _over_time(ax: Any, scn: Scenario, data: RunData) -> None:
+    """The world's outcome over the mission; the time axis ends where the analysed mission did."""
     wd = data.world
     w = scn.world
     assert w is not None
+    t_end = max(data.t_end - data.t0, 1.0)
     if wd is not None and wd.error_curve is not None and len(wd.error_curve):
         c = wd.error_curve
         ax.plot(c[:, 0], c[:, 1], color="tab:red", lw=2, label="median over UAVs")
         ax.plot(c[:, 0], c[:, 2], color="tab:red", lw=1, ls=":", label="best UAV")
-        if w.wind.turn_after_s is not None:
+        if w.wind.turn_after_s is not None and w.wind.turn_after_s <= t_end:  # only a turn that happened
             ax.axvline(w.wind.turn_after_s, color="tab:purple", ls="--", lw=1, label=f"wind turns {w.wind.turn_deg:g} deg")
         ax.set_ylabel("source localisation error (m)")
         ax.set_ylim(bottom=0)
-        ax.set_title("plume source localisation error over time")
+        ax.set_title("plume source localisation error over the mission", fontsize=10)
+        legend_below(ax)
     elif wd is not None and wd.fire_curve is not None and len(wd.fire_curve):
         c = wd.fire_curve
-        ax.plot(c[:, 0], c[:, 1], color="tab:brown", lw=2, label="burnt area (m^2)")
-        ax.set_ylabel("burnt area (m^2)", color="tab:brown")
+        ax.plot(c[:, 0], c[:, 1], color="tab:brown", lw=2, label="burnt area (m²)")
+        ax.set_ylabel("burnt area (m²)", color="tab:brown")
+        ax.set_ylim(bottom=0)
         ax3 = ax.twinx()
         ax3.plot(c[:, 0], c[:, 2], color="tab:red", lw=1, label="cells burning")
         ax3.set_ylabel("cells burning", color="tab:red")
         ax3.set_ylim(bottom=0)
-        ax.set_title("fire over time")
+        ax.set_title("fire over the mission", fontsize=10)
+        legend_below(ax, ax.get_legend_handles_labels()[0] + ax3.get_legend_handles_labels()[0])
     elif wd is not None and wd.cross_separation is not None:
-        sel = (data.grid >= data.t0) & (data.grid <= data.t_end)
-        sep = np.where(np.isfinite(wd.cross_separation[sel]), wd.cross_separation[sel], np.nan)
-        ax.plot(data.grid[sel] - data.t0, sep, color="tab:red", lw=1.5, label="closest UAVs of different swarms")
-        ax.axhline(scn.flight.safety_distance, color="tab:red", ls=":", lw=1, label="safety distance")
-        ax.axhline(scn.flight.collision_distance, color="k", ls="--", lw=1, label="collision distance")
-        ax.set_ylabel("separation (m)")
-        ax.set_ylim(bottom=0)
-        ax.set_title("separation between swarms" + ("" if w.airspace.feed else " (airspace feed off)"))
+        separation_over_time(ax, scn, data, wd.cross_separation, label="closest UAVs of different swarms")
+        ax.set_title("separation between swarms" + ("" if w.airspace.feed else " (airspace feed off)"), fontsize=10)
+        legend_below(ax, ncol=2)
     else:
-        sel = (data.grid >= data.t0) & (data.grid <= data.t_end)
-        ms = np.where(np.isfinite(data.min_separation[sel]), data.min_separation[sel], np.nan)
-        ax.plot(data.grid[sel] - data.t0, ms, color="tab:red", lw=1, label="min pairwise separation")
-        ax.set_ylabel("separation (m)")
-        ax.set_title("separation over time")
+        separation_over_time(ax, scn, data)
+        ax.set_title("separation over the mission", fontsize=10)
+        legend_below(ax, ncol=2)
+    ax.set_xlim(0, t_end)
     ax.set_xlabel("time since mission start (s)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")

@@ -92,7 +92,7 @@ def sensor_report(scn: Scenario, stats: dict[int, dict[str, Any]]) -> dict[str, 
     assert scn.world is not None
     out = {}
     for spec in scn.world.sensors:
-        h = LogHistogram()
+        h, wait = LogHistogram(), LogHistogram()
         received = 0
         rates = []
         for s in stats.values():
@@ -102,10 +102,11 @@ def sensor_report(scn: Scenario, stats: dict[int, dict[str, Any]]) -> dict[str, 
             received += int(st.get("received", 0))
             if st.get("rate_hz"):
                 rates.append(float(st["rate_hz"]))
-            try:
-                h.merge(LogHistogram.from_dict(st["delay_hist"]))
-            except (KeyError, ValueError, TypeError):
-                pass
+            for into, key in ((h, "delay_hist"), (wait, "wait_hist")):
+                try:
+                    into.merge(LogHistogram.from_dict(st[key]))
+                except (KeyError, ValueError, TypeError):
+                    pass
 
         def ms(v: float) -> float | None:
             return round(v * 1000.0, 2) if v == v else None
@@ -113,7 +114,9 @@ def sensor_report(scn: Scenario, stats: dict[int, dict[str, Any]]) -> dict[str, 
         out[spec.name] = SensorDelivery(type=spec.type, received=received,
                                         rate_hz_median=float(np.median(rates)) if rates else None,
                                         delay_ms_p50=ms(h.percentile(50)), delay_ms_p99=ms(h.percentile(99)),
-                                        latency_s=spec.latency_s)
+                                        latency_s=spec.latency_s, wait_ms_p50=ms(wait.percentile(50)) if wait.n else None,
+                                        wait_ms_p99=ms(wait.percentile(99)) if wait.n else None,
+                                        world_tick_ms=round(1000.0 / scn.world.tick_hz, 2))
     return out
 
 

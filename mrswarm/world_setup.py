@@ -23,7 +23,7 @@ from swarmnet.messages import Command, Pose
 from swarmnet.observer import PendingCommand, SwarmObserver
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
-from uav_stack.config import NetworkConfig, VirtualUavConfig
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.runtime import OPEN_TIMEOUT_S, make_connectivity
 from world.config import ServedSwarm, WorldServiceConfig
 
@@ -66,11 +66,25 @@ def observer_network(net: NetworkConfig, keys: Path | None) -> NetworkConfig:
     return replace(net, security=own)
 
 
-def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None) -> list[VirtualUavConfig]:
-    """Every UAV process of every swarm."""
-    out = scn.virtual_uav_configs(nets[scn.swarm], record_dir)
+def uav_configs(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None,
+                mavlink_key: Path | None = None) -> list[VirtualUavConfig]:
+    """Every virtual UAV process of every swarm; ``mavlink_key``: the MAVLink signing passphrase file when
+    it is not in the UAVs' key directories (Scenario.virtual_uav_configs)."""
+    key = str(mavlink_key) if mavlink_key is not None else None
+    out = scn.virtual_uav_configs(nets[scn.swarm], record_dir, mavlink_key=key)
     for o in scn.other_swarms:
-        out += scn.virtual_uav_configs(nets[o.swarm], record_dir, other=o)
+        out += scn.virtual_uav_configs(nets[o.swarm], record_dir, other=o, mavlink_key=key)
+    return out
+
+
+def external_agents(scn: Scenario, nets: dict[str, NetworkConfig], record_dir: str | None,
+                    mavlink_key: Path | None = None) -> list[AgentConfig]:
+    """The agent of every UAV whose flight controller is external, in every swarm (``uavs[].fcu``);
+    ``mavlink_key`` as for :func:`uav_configs`."""
+    key = str(mavlink_key) if mavlink_key is not None else None
+    out = scn.external_agent_configs(nets[scn.swarm], record_dir, mavlink_key=key)
+    for o in scn.other_swarms:
+        out += scn.external_agent_configs(nets[o.swarm], record_dir, other=o, mavlink_key=key)
     return out
 
 

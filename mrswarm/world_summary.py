@@ -11,7 +11,9 @@ from msgspec import UNSET, Struct, UnsetType
 
 
 class SensorDelivery(Struct):
-    """One sensor over every UAV: readings received, their rate and their delay (receipt minus the instant described)."""
+    """One sensor over every UAV: readings received, their rate and their delay (arrival in the UAV's process minus
+    the instant described: the configured latency, the world's tick, the transport), then the wait for the UAV's
+    next control tick."""
 
     type: str
     received: int
@@ -19,6 +21,9 @@ class SensorDelivery(Struct):
     delay_ms_p50: float | None
     delay_ms_p99: float | None
     latency_s: float  # what the sensor's configuration asks for
+    wait_ms_p50: float | None = None  # arrival to the control tick that took the reading in (None: a run before it was kept)
+    wait_ms_p99: float | None = None
+    world_tick_ms: float | None = None  # the world service's tick (world.tick_hz): a reading is released up to one late
 
 
 class PlumeReport(Struct):

@@ -199,8 +199,8 @@ class SwarmNode:
             return self
         ident = self.identity
         bind = getattr(self.connectivity, "bind", None)
-        if callable(bind):  # strategies that announce the node (discovery) take its identity
-            bind(ident)
+        if callable(bind):  # strategies that announce the node (discovery) take its identity, and count its refusals
+            bind(ident, self.stats.refused)
         if self.waker.closed:  # opened again after a close
             self.waker = Waker()
         self.session = s = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))

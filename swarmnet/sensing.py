@@ -53,8 +53,9 @@ class UavSensing:
         s = _session(node)
         self.node = node
         me = node.identity.uav
-        # drained by the owner's loop (no arrival stamps needed: a reading carries its own times)
-        self._readings = Inlet(256, how="ring")
+        # stamped as they arrive (a rare stream: a few readings a second per sensor), so that a reading's measured
+        # delay is its latency and transport, not also the wait for the owner's next tick
+        self._readings = Inlet(256, how="callback")
         self._subs = [subscribe(s, node.keys.all_senses(me), self._readings)]
         self._traffic: Inlet | None = None
         if traffic:
@@ -66,8 +67,13 @@ class UavSensing:
 
     def poll(self, budget: int = DRAIN_BUDGET) -> tuple[list[Reading], list[Traffic]]:
         """The readings and traffic messages that arrived since the last call, oldest first."""
+        readings, traffic = self.poll_arrivals(budget)
+        return [r for _, r in readings], traffic
+
+    def poll_arrivals(self, budget: int = DRAIN_BUDGET) -> tuple[list[tuple[float, Reading]], list[Traffic]]:
+        """As :meth:`poll`, each reading with the wall time it arrived in this process."""
         stats = self.node.stats
-        readings = [a.item for a in receive(self._readings, self._accept_reading, stats, budget)]
+        readings = [(a.at, a.item) for a in receive(self._readings, self._accept_reading, stats, budget)]
         stats.received["reading"] += len(readings)
         traffic: list[Traffic] = []
         if self._traffic is not None:

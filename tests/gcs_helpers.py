@@ -20,13 +20,13 @@ HOME = GeoPoint(47.397742, 8.545594, 488.0)
 def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoints: tuple[str, ...] = (),
                       flavour: str = "px4", autostart: bool = False, swarm: str = "gcs",
                       area: tuple[float, float, float, float] = (-40.0, 40.0, -40.0, 40.0),
-                      signing: MavlinkSigning | None = None) -> subprocess.Popen[bytes]:
-    """One virtual UAV process (virtual FCU + agent, as the runtimes launch it) whose router sends to ``endpoints``
-    (signing its links with ``signing``)."""
+                      signing: MavlinkSigning | None = None, allow_unsigned: bool = False) -> subprocess.Popen[bytes]:
+    """One virtual UAV process (virtual FCU + agent, as the runtimes launch it) whose router sends to ``endpoints``,
+    taking commands signed with ``signing``'s key (None: no key, telemetry only) or, with ``allow_unsigned``, any."""
     agent = AgentConfig(
         swarm=swarm, uav=uav, origin=HOME, fcu="", altitude=8.0, autostart=autostart, record_dir=str(tmp),
         mission=MissionConfig(area=area), network=NetworkConfig(endpoints=(router_endpoint,), mode="client"),
-        gcs=GcsConfig(mavlink_endpoints=endpoints, signing=signing),
+        gcs=GcsConfig(mavlink_endpoints=endpoints, signing=signing or MavlinkSigning(), allow_unsigned=allow_unsigned),
     )
     cfg = VirtualUavConfig(agent=agent, home=HOME, flavour=flavour)
     path = tmp / f"uav{uav}.config.json"
@@ -34,6 +34,22 @@ def start_virtual_uav(tmp: Path, router_endpoint: str, *, uav: int = 1, endpoint
     with open(tmp / f"uav{uav}.log", "ab") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen([sys.executable, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", "INFO"],
                                 cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def mavproxy_args(mavproxy: str, port: int, passphrase: str | None) -> tuple[list[str], dict[str, str]]:
+    """MAVProxy's command line (and environment) as a ground station on the UAV router endpoint at ``port``,
+    signing with ``passphrase`` from its first frame (``signing key``: MAVLink 2 only, so MAVLINK20 is set)."""
+    cmd = "set requireexit 0" + (f"; signing key {passphrase}" if passphrase is not None else "")
+    return ([mavproxy, f"--master=udpout:127.0.0.1:{port}", "--no-state", f"--cmd={cmd}"],
+            {**os.environ, "MAVLINK20": "1"})
+
+
+def mavlink_passphrase(*where: str) -> str:
+    """The passphrase ``mrswarm keys mavlink`` prints for ``where`` (``--run DIR`` or ``--dir DIR``)."""
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "keys", "mavlink", *where, "--json"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    return str(json.loads(res.stdout)["passphrase"])
 
 
 def stop_process(proc: subprocess.Popen[bytes] | subprocess.Popen[str], grace: float = 10.0) -> None:

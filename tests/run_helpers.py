@@ -57,11 +57,13 @@ def kill_survivors(tag: str) -> None:
 class BackgroundRun:
     """``mrswarm run`` as a child process with its own tag, output captured to a file."""
 
-    def __init__(self, scenario: Path, out: Path, sets: list[str] = (), extra: list[str] = ()):  # type: ignore[assignment]
+    def __init__(self, scenario: Path, out: Path, sets: list[str] = (), extra: list[str] = (),  # type: ignore[assignment]
+                 log: Path | None = None):
+        """``log``: where the run's output goes (default: beside ``out``)."""
         self.out = out
         out.mkdir(parents=True, exist_ok=True)
         self.tag = uuid.uuid4().hex
-        self.log_path = out.parent / f"{out.name}.stdout"
+        self.log_path = log or out.parent / f"{out.name}.stdout"
         args = [sys.executable, "-m", "mrswarm", "run", str(scenario), "--out", str(out), "--no-live", *extra]
         for s in sets:
             args += ["--set", s]

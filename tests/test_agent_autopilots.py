@@ -218,3 +218,17 @@ def test_px4_back_in_offboard_after_a_landing_is_armed_and_flown_again(tmp_path:
             assert status(st2)["agent"]["arm_refused"] == 0  # it left OFFBOARD first: no refusal to learn from
         out = p2.stdout.read() if p2.stdout else ""  # type: ignore[union-attr]
         assert "switching from OFFBOARD to HOLD to arm" in out, out[-3000:]
+
+
+@pytest.mark.parametrize("flavour", ["px4", "ardupilot"])
+def test_started_with_the_autopilot_it_arms_on_its_signals_not_its_refusals(tmp_path: Path, router: str,
+                                                                             flavour: str) -> None:
+    """The agent starts with the autopilot, through its boot (the firmware's own timeline, run 4x: ArduCopter
+    has its position after about 42 s): it waits for the position and the pre-arm checks the autopilot
+    reports, then arms once, accepted."""
+    with virtual_fcu("--flavour", flavour, "--boot", "firmware", "--rtf", "4") as addr, \
+            agent(tmp_path, f"udpout:{addr}", router) as (p, st):
+        assert wait_for(lambda: status(st).get("phase") in ("hover", "mission", "done"), 60.0), status(st)
+        s = status(st)
+        assert s["agent"]["arm_refused"] == 0, s["detail"]
+        assert s["fcu_link"]["no_position"] > 0 or flavour == "px4"  # ArduCopter's zeros, then its EKF without GPS

@@ -56,6 +56,15 @@ def test_a_chaos_run_goes_on_recovers_and_reports_every_fault(tmp_path: Path) ->
     assert faults["fcu_link_loss"]["detection_s"] <= 4.5  # the heartbeat timeout, 3 s after the last heartbeat
     assert faults["fcu_link_loss"]["recovery_s"] >= 5.0  # not before the link came back (5 s cut)
     assert faults["stop_uav"]["detection_s"] <= 2.5  # its pose goes stale after 1 s
+    # ... and the stopped UAV is a stall of about the 3 s it was stopped, in run.json and the summary; so is UAV 2,
+    # which withholds its pose while its FCU link is cut (5 s); the killed router silenced nobody but the runner
+    stalls = {st["uav"]: st for st in s["stalls"]}
+    assert set(stalls) == {2, 3}, s["stalls"]
+    assert 2.3 <= stalls[3]["duration_s"] <= 4.5 and abs(stalls[3]["from_s"] - 10.0) < 1.5, stalls
+    assert 3.5 <= stalls[2]["duration_s"] <= 8.0 and abs(stalls[2]["from_s"] - 8.0) < 1.5, stalls
+    assert sorted(e["duration_s"] for e in info["events"] if e["event"] == "stalled") == sorted(
+        st["duration_s"] for st in stalls.values())
+    assert s["degraded"] == []  # faults of the flight, none of the records
     assert faults["kill_uav"]["detection_s"] <= 1.5  # its liveliness token goes with the process (the runner ticks at 10 Hz)
     assert faults["kill_router"]["recovery_s"] <= 10.0 and faults["kill_discovery"]["recovery_s"] <= 10.0
     assert faults["gps_jump"]["detection_s"] <= 1.5  # a 7 m jump in one position update, then the state at once
@@ -75,3 +84,25 @@ def test_a_chaos_run_goes_on_recovers_and_reports_every_fault(tmp_path: Path) ->
 
     # the printed per-fault table
     assert "faults: mini_chaos" in out and "kill_discovery" in out and "detected" in out
+
+
+def test_a_shortened_chaos_run_keeps_the_faults_that_fit_and_says_which_it_left_out(tmp_path: Path) -> None:
+    """``--set duration=14``: the four faults due in the first 14 s are injected and reported, the later four left
+    out with a note (before: exit 2, "faults.4.at: 16 s is not within the mission's 14 s")."""
+    run = BackgroundRun(SCENARIO, tmp_path / "out", sets=["duration=14"])
+    try:
+        code = run.wait(180)
+        out = run.output
+        assert code == 0, out[-4000:]
+        run_dir = run.run_dir()
+        assert run_dir is not None
+        s = json.loads((run_dir / "summary.json").read_text())
+    finally:
+        run.cleanup()
+    said = " ".join(out.split())
+    assert "faults: 4 of 8 kept; left out, not within the 14 s mission: 4 (kill_discovery at 16 s), 5 (kill_uav at 18 s), " \
+           "6 (partition in [22, 26] s), 7 (battery_drop at 34 s)" in said, out[:3000]
+    faults = {f["kind"]: f for f in s["faults"]}
+    assert set(faults) == {"gps_jump", "kill_router", "fcu_link_loss", "stop_uav"}
+    assert all(f["ok"] and f["detection_s"] is not None for f in faults.values()), faults
+    assert s["separation"]["collisions"] == 0 and s["aborted"] is None

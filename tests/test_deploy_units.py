@@ -59,8 +59,11 @@ def test_stack_has_router_service_and_replicas_with_unique_ids() -> None:
     # credentials as Swarm secrets, never in the image: the router gets edge's pair, the replicas every UAV's
     assert {m["target"] for m in stack["services"]["router"]["secrets"]} == {"ca.pem", "roster.json", "edge.alpha.pem",
                                                                             "edge.alpha.key"}
+    # the discovery server the beacon key, with which it checks every node's beacon token; each replica its UAV's token
+    assert "beacon.key" in {m["target"] for m in stack["services"]["discovery"]["secrets"]}
     uav_secrets = {m["target"] for m in uav["secrets"]}
-    assert {"uav-1.alpha.key", "uav-7.alpha.pem", "ca.pem"} <= uav_secrets and "edge.alpha.key" not in uav_secrets
+    assert {"uav-1.alpha.key", "uav-7.alpha.pem", "uav-7.alpha.beacon", "ca.pem"} <= uav_secrets
+    assert "edge.alpha.key" not in uav_secrets and "beacon.key" not in uav_secrets
     assert stack["secrets"]["ca_pem"]["file"] == "./keys/ca.pem"  # the stack's key directory beside stack.yml
     insecure = stack_spec(swarm_fleet(load_scenario(COVERAGE, ["network.security=off"]), 2), StackOptions(image="img:1"))[0]
     assert "secrets" not in insecure and "--insecure" in insecure["services"]["router"]["command"]

@@ -4,6 +4,8 @@
 * a human taking over through the MAVLink router makes the agent yield and stop its setpoints,
   both when the FCU's mode leaves OFFBOARD (PX4) and when the mode stays GUIDED (ArduPilot);
 * ``resume`` takes control back.
+
+The ground stations sign their frames with the UAVs' MAVLink key, as the routers require.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ from swarmnet.connectivity import Rendezvous
 from swarmnet.observer import SwarmObserver
 from tests.conftest import free_port, wait_for
 from tests.gcs_helpers import HOME, start_virtual_uav, stop_process
+from uav_stack.config import MavlinkSigning
 from uav_stack.geo import LocalFrame
 from uav_stack.mav import mavlink
+from uav_stack.mavlink_signing import read_key_file, signing_timestamp, write_key_file
 
 pytestmark = pytest.mark.e2e
 
@@ -47,15 +51,22 @@ def _tx_setpoints(tmp: Path, uav: int) -> int:
     return json.loads((tmp / f"uav{uav}.json").read_text())["fcu_link"]["tx_setpoints"]
 
 
+def signing(key: bytes, sysid: int = 255) -> mavlink.MAVLink:
+    """A ground station's packer that signs every frame with ``key``."""
+    mav = mavlink.MAVLink(None, sysid, 190)
+    mav.signing.secret_key, mav.signing.sign_outgoing, mav.signing.timestamp = key, True, signing_timestamp()
+    return mav
+
+
 class RawGcs:
     """A ground station on a raw UDP socket talking to an agent's udpin router endpoint."""
 
-    def __init__(self, port: int, sysid: int = 255):
+    def __init__(self, port: int, key: bytes, sysid: int = 255):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.1)
         self.addr = ("127.0.0.1", port)
-        self.mav = mavlink.MAVLink(None, sysid, 190)
+        self.mav = signing(key, sysid)
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
 
@@ -86,12 +97,12 @@ class QgcLike:
     """A ground station on one shared port that, like QGroundControl's UDP link, sends every
     message to every address it has heard from (so each router sees traffic for other vehicles)."""
 
-    def __init__(self) -> None:
+    def __init__(self, key: bytes) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.1)
         self.port = self.sock.getsockname()[1]
-        self.mav = mavlink.MAVLink(None, 255, 190)
+        self.mav = signing(key)
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.vehicles: dict[int, tuple[str, int]] = {}
@@ -120,15 +131,17 @@ class QgcLike:
 
 def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None:
     p2 = free_port(socket.SOCK_DGRAM)
-    qgc = QgcLike()  # one shared ground-station port, like QGroundControl's 14550
+    key_file = write_key_file(tmp_path / "mavlink.key")
+    key, signed = read_key_file(key_file), MavlinkSigning(key_file=str(key_file))
+    qgc = QgcLike(key)  # one shared ground-station port, like QGroundControl's 14550 (with the key set)
     shared = f"udpout:127.0.0.1:{qgc.port}"
     procs = [
-        start_virtual_uav(tmp_path, router, uav=1, endpoints=(shared,), autostart=True),
+        start_virtual_uav(tmp_path, router, uav=1, endpoints=(shared,), autostart=True, signing=signed),
         start_virtual_uav(tmp_path, router, uav=2, endpoints=(shared, f"udpin:127.0.0.1:{p2}"), autostart=True,
-                          flavour="ardupilot"),
+                          flavour="ardupilot", signing=signed),
     ]
     obs = SwarmObserver("gcs", Rendezvous((router,), mode="client"), role="gcs", name="test").open()
-    gcs2 = RawGcs(p2)
+    gcs2 = RawGcs(p2, key)
     try:
         for u in (1, 2):  # both flavours take off and fly the mission on their own (ArduPilot: GUIDED first)
             assert wait_for(lambda u=u: _phase_is(obs, u, "mission"), 90, 0.1), _state(obs, u)

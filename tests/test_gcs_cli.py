@@ -271,3 +271,33 @@ def test_record_exits_130_on_ctrl_c_with_everything_written(tmp_path: Path, rout
             proc.wait(5)
     assert proc.returncode == 130, stdout + stderr
     assert "recorded" in stdout and "Traceback" not in stderr
+
+
+def test_watch_says_when_the_run_it_watches_has_ended(tmp_path: Path) -> None:
+    """`gcs watch --run DIR` reads the run's run.json: once the runner has stopped, the view says so, and where
+    its summary is."""
+    import time
+
+    from rich.console import Console
+
+    from mrswarm.gcs.watch import WatchView
+    from mrswarm.summary import RunInfo
+    from swarmnet.connectivity import Rendezvous
+    from swarmnet.observer import SwarmObserver
+
+    obs = SwarmObserver("alpha", Rendezvous(("tcp/127.0.0.1:1",), mode="client"))  # never opened: nothing heard
+    view = WatchView("alpha", run_dir=tmp_path)
+
+    def shown(now: float) -> str:
+        console = Console(width=200, record=True, file=io.StringIO())
+        console.print(view.render(obs, now, 40, 200))
+        return console.export_text()
+
+    now = time.time()
+    RunInfo(scenario="coverage", started=now - 60).write(tmp_path / "run.json")
+    assert "has ended" not in shown(now)
+    RunInfo(scenario="coverage", started=now - 60, stopped=now + 1.0).write(tmp_path / "run.json")
+    text = shown(now + 6.0)
+    assert "the run has ended (5 s ago" in text and "summary is being written" in text
+    (tmp_path / "summary.json").write_text("{}")
+    assert f"summary: {tmp_path / 'summary.json'}" in shown(now + 8.0)

@@ -1,5 +1,7 @@
-"""MAVProxy, a real ground station: takes one UAV of a running swarm mission to RTL through its agent's router;
-flies a QGC WPL mission file in AUTO and climbs a UAV with `rc 3 1700` in LOITER (ArduPilot flavour)."""
+"""MAVProxy, a real ground station, signing with the key `mrswarm keys mavlink` prints: takes one UAV of a running
+swarm mission to RTL through its agent's router, while a process on the ground-station port watches every UAV and
+its unsigned commands are refused; flies a QGC WPL mission file in AUTO and climbs a UAV with `rc 3 1700` in LOITER
+(ArduPilot flavour)."""
 
 from __future__ import annotations
 
@@ -21,7 +23,21 @@ from swarmnet.connectivity import Rendezvous
 from swarmnet.observer import SwarmObserver
 from tests.conftest import free_port, wait_for
 from tests.fcu_helpers import DatagramParser
-from tests.gcs_helpers import HOME, ROOT, gcs, run_dir, start_run, start_virtual_uav, stop_process, stop_run
+from tests.gcs_helpers import (
+    HOME,
+    ROOT,
+    gcs,
+    mavlink_passphrase,
+    mavproxy_args,
+    run_dir,
+    start_run,
+    start_virtual_uav,
+    stop_process,
+    stop_run,
+)
+from uav_stack.config import MavlinkSigning
+from uav_stack.mav import mavlink as M
+from uav_stack.mavlink_signing import write_key_file
 
 pytestmark = pytest.mark.e2e
 SCENARIO = ROOT / "tests" / "scenarios" / "gcs_mavproxy.yaml"
@@ -53,7 +69,12 @@ def _free_udp_block(n: int) -> int:
 def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp_path: Path) -> None:
     assert MAVPROXY is not None, "mavproxy.py not found: MAVProxy is in the test extra (pip install -e '.[test]')"
     base = _free_udp_block(3)
-    run = start_run(SCENARIO, tmp_path, [f"gcs.listen_base={base}"])
+    # a local process on the ground-station port (QGroundControl's 14550 in a default run): the UAVs send it telemetry
+    qgc_port = free_port(socket.SOCK_DGRAM)
+    rogue = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rogue.bind(("127.0.0.1", qgc_port))
+    rogue.settimeout(0.2)
+    run = start_run(SCENARIO, tmp_path, [f"gcs.listen_base={base}", f"gcs.port={qgc_port}"])
     mp: subprocess.Popen[str] | None = None
     obs = None
     try:
@@ -66,11 +87,35 @@ def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp
 
         assert wait_for(lambda: [phases().get(u) for u in (1, 2, 3)] == ["mission"] * 3, 120, 0.2), \
             f"swarm never reached the mission: {phases()}"
-        # MAVProxy connects to UAV 2's router (udpout to the agent's listening endpoint) and is fed
-        # commands on stdin once it has detected the vehicle (its --cmd runs before any heartbeat).
-        mp = subprocess.Popen([MAVPROXY, f"--master=udpout:127.0.0.1:{base + 2}", "--no-state", "--cmd=set requireexit 0"],
-                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              cwd=tmp_path, start_new_session=True)
+        # it sees every UAV, and its unsigned force-disarm and LAND to each are refused: they all fly on
+        routers: dict[tuple[str, int], int] = {}  # each UAV's router (its udpout socket) -> its FCU's sysid
+        gcs_mav = M.MAVLink(None, 255, 190)
+        parser = DatagramParser()
+        end = time.monotonic() + 4.0
+        while time.monotonic() < end:
+            try:
+                data, addr = rogue.recvfrom(65535)
+            except OSError:
+                continue
+            for m in parser.parse(data)[0]:
+                if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1:
+                    sysid = routers[addr] = m.get_srcSystem()
+                    rogue.sendto(M.MAVLink_command_long_message(sysid, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196,
+                                                                0, 0, 0, 0, 0).pack(gcs_mav)
+                                 + M.MAVLink_set_mode_message(sysid, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 9).pack(gcs_mav),
+                                 addr)
+        assert sorted(routers.values()) == [1, 2, 3], routers
+        time.sleep(1.5)  # the stats files are rewritten every second
+        for u in (1, 2, 3):
+            rt = __import__("json").loads((rdir / f"uav{u}.json").read_text())["mavlink_router"]
+            assert rt["unsigned_commands_refused"] >= 2 and rt["to_fcu"] == 0 and rt["signing"] == "signed", (u, rt)
+        assert [phases().get(u) for u in (1, 2, 3)] == ["mission"] * 3
+        # MAVProxy connects to UAV 2's router (udpout to the agent's listening endpoint), signing with the run's
+        # key as `mrswarm keys mavlink --run` prints it, and is fed commands on stdin once it has detected the
+        # vehicle (its --cmd runs before any heartbeat).
+        args, env = mavproxy_args(MAVPROXY, base + 2, mavlink_passphrase("--run", str(rdir)))
+        mp = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              cwd=tmp_path, start_new_session=True, env=env)
         out: list[str] = []
         threading.Thread(target=lambda: out.extend(iter(mp.stdout.readline, "")), daemon=True).start()  # type: ignore[union-attr]
         assert wait_for(lambda: any("Detected vehicle 2:1" in line for line in out), 60, 0.2), "".join(out)[-2000:]
@@ -116,7 +161,13 @@ def test_mavproxy_switches_one_uav_to_rtl_it_yields_and_the_swarm_carries_on(tmp
         tx = __import__("json").loads(stats_file.read_text())["fcu_link"]["tx_setpoints"]
         time.sleep(2.5)
         assert __import__("json").loads(stats_file.read_text())["fcu_link"]["tx_setpoints"] == tx  # no more setpoints
+        rt2 = __import__("json").loads(stats_file.read_text())["mavlink_router"]
+        assert rt2["signed"] > 0 and rt2["to_fcu"] > 0 and rt2["bad_signature"] == 0, rt2
+        stop_run(run)
+        summary = __import__("json").loads((rdir / "summary.json").read_text())
+        assert summary["mavlink"]["mode"] == "signed" and summary["mavlink"]["refused"]["unsigned_commands_refused"] >= 2
     finally:
+        rogue.close()
         if obs is not None:
             obs.close()
         if mp is not None and mp.poll() is None:
@@ -181,13 +232,14 @@ def test_mavproxy_flies_a_wpl_file_in_auto_and_climbs_with_rc_override_in_loiter
     points = _wpl(tmp_path / "survey.waypoints", (HOME.lat, HOME.lon, HOME.alt), legs, 8.0)
     watch = _Listener(watch_port)
     obs = SwarmObserver("gcs", Rendezvous((router,), mode="client"), role="gcs", name="test").open()
-    proc = start_virtual_uav(tmp_path, router, uav=3, flavour="ardupilot",
+    key = write_key_file(tmp_path / "mavlink.key")
+    proc = start_virtual_uav(tmp_path, router, uav=3, flavour="ardupilot", signing=MavlinkSigning(key_file=str(key)),
                              endpoints=(f"udpin:127.0.0.1:{port}", f"udpout:127.0.0.1:{watch_port}"))
     mp: subprocess.Popen[str] | None = None
     try:
-        mp = subprocess.Popen([MAVPROXY, f"--master=udpout:127.0.0.1:{port}", "--no-state", "--cmd=set requireexit 0"],
-                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              cwd=tmp_path, start_new_session=True)
+        args, env = mavproxy_args(MAVPROXY, port, key.read_text().strip())
+        mp = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              cwd=tmp_path, start_new_session=True, env=env)
         out: list[str] = []
         threading.Thread(target=lambda: out.extend(iter(mp.stdout.readline, "")), daemon=True).start()  # type: ignore[union-attr]
 

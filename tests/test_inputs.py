@@ -15,6 +15,7 @@ import pytest
 
 from mrswarm.resources import check_resources, estimate
 from mrswarm.scenario import load_scenario
+from swarmnet import strict_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 MINI = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"
@@ -73,6 +74,28 @@ def test_files_that_are_not_scenarios(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     assert_usage_error(run([str(fifo)], tmp_path / "o4", timeout=20.0), str(fifo), "not a regular file (a FIFO)")
     assert_usage_error(run([str(tmp_path)], tmp_path / "o5"), str(tmp_path), "not a regular file (a folder)")
+
+
+def test_what_yaml_cannot_mean_is_refused_naming_the_line(tmp_path: Path) -> None:
+    """Two ``duration:`` lines (PyYAML keeps the last without a word) and 5,000 levels of nesting (a
+    RecursionError traceback before): exit 2, with the file and the line."""
+    text = MINI.read_text()
+    twice = tmp_path / "twice.yaml"
+    lines = text.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("duration:")) + 1
+    twice.write_text(text + "duration: 600\n")
+    assert_usage_error(run([str(twice)], tmp_path / "o1"), f"{twice}:{len(lines) + 1}:1",
+                       f"duplicate key 'duration' (first on line {first})")
+    inner = tmp_path / "inner.yaml"
+    inner.write_text(text + "mission_notes: {a: 1, b: 2, a: 3}\n")
+    assert_usage_error(run([str(inner)], tmp_path / "o2"), f"{inner}:{len(lines) + 1}:", "duplicate key 'a'")
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("a: " + "[" * 5000 + "]" * 5000 + "\n")
+    assert_usage_error(run([str(deep)], tmp_path / "o3"), f"{deep}:1:", "nested deeper than 64 levels")
+    assert_usage_error(run([str(MINI), "--set", "fleet.count={a: 1, a: 2}"], tmp_path / "o4"), "duplicate key 'a'")
+    assert not any(p.is_dir() for p in tmp_path.iterdir() if p.name.startswith("o"))
+    # YAML's merge keys still override, as YAML says
+    assert strict_yaml.load("b: &b {speed: 3.0, alt: 5}\no:\n  <<: *b\n  speed: 4.0\n")["o"] == {"speed": 4.0, "alt": 5}
 
 
 def test_out_naming_a_file_is_a_usage_error(tmp_path: Path) -> None:

@@ -3,7 +3,7 @@
 A real UAV-side session (built by the UAV's own ``make_connectivity`` from a ``NetworkConfig``) in
 its own process, a real router, real SIGSTOP: frozen for 2 s, a UAV with a 1 s lease is dropped
 (its liveliness token goes), one with a 6 s lease is kept. This is what let 100 UAVs on 2 cores
-take off (docs/benchmarks.md): with the 3 s default the edge router closed live UAVs' sessions.
+take off (docs/scale.md): with the 3 s default the edge router closed live UAVs' sessions.
 """
 
 from __future__ import annotations

@@ -1,4 +1,7 @@
-"""The agent's MAVLink router over real UDP sockets: raw forwarding, routing rules, no loops, bad input."""
+"""The agent's MAVLink router over real UDP sockets: raw forwarding, routing rules, no loops, bad input.
+
+The routing rules are those of an open router (``UNSIGNED``, ``gcs.allow_unsigned``: every frame
+routed); what a locked one refuses is tests/test_mavlink_security.py."""
 
 from __future__ import annotations
 
@@ -10,7 +13,7 @@ import pytest
 from tests.conftest import free_port, wait_for
 from uav_stack.fcu_link import FcuLink
 from uav_stack.mav import mavlink
-from uav_stack.mavlink_router import PROBE_EVERY_S, MavlinkRouter, parse_endpoint
+from uav_stack.mavlink_router import PROBE_EVERY_S, UNSIGNED, MavlinkRouter, SigningPolicy, parse_endpoint
 from uav_stack.sysid import SHARD_SIZE, allocate_sysid, uav_of
 
 SYSID = 7
@@ -51,11 +54,11 @@ def parse(datagrams: list[bytes]) -> list:  # noqa: ANN001
 class Rig:
     """A fake FCU (a raw UDP socket) <- FcuLink + MavlinkRouter -> ground-station sockets."""
 
-    def __init__(self, endpoints: list[str]):
+    def __init__(self, endpoints: list[str], signing: SigningPolicy = UNSIGNED):
         self.fcu = udp()
         fcu_port = self.fcu.getsockname()[1]
         self.link = FcuLink(f"udpout:127.0.0.1:{fcu_port}", source_system=SYSID)
-        self.router = MavlinkRouter(endpoints, self.link.write, own=COMPANION).open()
+        self.router = MavlinkRouter(endpoints, self.link.write, own=COMPANION, signing=signing).open()
         self.link.on_message = self.router.from_fcu
         self.link.open()
         self.fcu_mav = packer(SYSID, 1)
@@ -275,7 +278,8 @@ def test_a_taken_ground_station_port_is_an_error_that_names_the_endpoint_and_ope
     holder = udp()
     taken = holder.getsockname()[1]
     free = free_port(socket.SOCK_DGRAM)
-    router = MavlinkRouter([f"udpin:127.0.0.1:{free}", f"udpin:127.0.0.1:{taken}"], lambda _b: None, own=COMPANION)
+    router = MavlinkRouter([f"udpin:127.0.0.1:{free}", f"udpin:127.0.0.1:{taken}"], lambda _b: None, own=COMPANION,
+                           signing=UNSIGNED)
     try:
         with pytest.raises(LinkOpenError, match=rf"gcs\.mavlink_endpoints: udpin:127\.0\.0\.1:{taken}: cannot listen on "
                                                 rf"127\.0\.0\.1:{taken}: Address already in use"):

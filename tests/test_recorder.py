@@ -25,6 +25,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from mrswarm.recorder.capture import Sample
 from mrswarm.recorder.export import export_csv, export_jsonl
+from mrswarm.recorder.mcap_writer import seal
 from mrswarm.recorder.reader import Recording, read_recording
 from mrswarm.recorder.recording import record_swarm
 from mrswarm.recorder.records import Translator
@@ -181,6 +182,11 @@ def test_a_recorder_killed_with_sigkill_leaves_a_readable_file_missing_at_most_t
         if m.schema == "mrswarm.Pose":
             recorded[json.loads(m.data)["uav"]].add(m.sequence)
     assert not rec.complete and seen_by_mcap == rec.messages > 0
+    # sealed (what the runner does when its recorder dies): the file ends as a closed one, every message still there
+    assert seal(path) and seal(path)  # a sealed file is left as it is
+    closed = sum(1 for _ in NonSeekingReader(io.BytesIO(path.read_bytes())).iter_messages(log_time_order=False))
+    after = Recording(path)
+    assert closed == sum(1 for _ in read_recording(path, after)) == rec.messages and after.complete and after.error is None
     for u, sent in stamps.items():
         # everything published more than a second (the flush period, plus 0.2 s for the drain and the kill) before the kill
         must = {seq for seq, t in sent if t < t_kill - 1.2}

@@ -125,6 +125,8 @@ def web_map_check(page: Any, obs: SwarmObserver, shot: Path) -> dict[str, Any]:
     out["offsets"] = {int(k): math.dist((u["x"], u["y"]), truth[int(k)]) for k, u in shown.items()}
     out["rows"] = rows
     out["shown"] = {int(k): (u["x"], u["y"]) for k, u in shown.items()}
+    out["scene"] = page.evaluate("window.mrswarm.scene")  # the run's mission area, from its scenario.yaml
+    out["trails"] = page.evaluate("Object.fromEntries(Object.entries(window.mrswarm.trails).map(([k, t]) => [k, t.length]))")
     at = page.evaluate("window.mrswarm.screenOf(3)")
     page.mouse.click(at["x"], at["y"])
     out["selected"] = page.evaluate("window.mrswarm.selected")
@@ -224,6 +226,8 @@ def test_a_recorded_run_live_in_foxglove_and_the_web_map_then_read_rebuilt_and_r
         assert sorted(r[0] for r in web["rows"]) == IDS
         assert all(web["shown"][u] == (x, y) for u, x, y in web["rows"])  # the table shows the state the map draws
         assert web["selected"] == [3]
+        assert web["scene"]["area"] == [-100, 100, -80, 80]  # coverage.yaml's field, drawn
+        assert sorted(int(k) for k in web["trails"]) == IDS and min(web["trails"].values()) >= 5, web["trails"]
         assert web["ack"].startswith("#1 hold → UAV 3: ok") and "holding at" in web["ack"]
         assert shot.stat().st_size > 20_000
         assert proc.wait(180) == 0

@@ -18,6 +18,15 @@ the two UAVs fly at each other they try to:
 while a ground station with its own certificate holds and resumes UAV 1, which obeys. The
 assertions are the swarm's outcome (goals reached, no collision, not ended early, no netem
 change, no kill) and the refusals the router and the UAVs counted.
+
+A second secured run takes issue 43's probe: forged Hellos at every UAV's scouting sockets,
+UAV 3's stolen beacon token speaking for UAVs 1 and 2, junk at a UAV's TLS listener. The rest
+of that probe runs where its parts live: a full or read-only results disk in
+tests/test_disk_e2e.py, the recorder killed and a UAV stopped mid-run in
+tests/test_fault_probe_e2e.py, the killed runner's results in tests/test_run_signals_e2e.py,
+the loader's duplicate keys and deep nesting in tests/test_inputs.py, exact handshake counts
+and floods in tests/test_security.py, the scouting guard and identity-bound beacons on their
+own in tests/test_scouting_guard.py and tests/test_discovery_identity.py.
 """
 
 from __future__ import annotations
@@ -250,6 +259,107 @@ def test_an_attacked_head_on_flies_as_if_nothing_happened(tmp_path: Path) -> Non
     assert sec["refused_by_router"].get("tls_handshake", 0) >= 3, sec
     assert sec["refused_by_router"].get("non_member_link", 0) >= 1, sec
     assert sec["refused_by_uavs"].get("tls_handshake", 0) >= 2, sec
+
+
+class Rogue:
+    """A listener that counts the connections it gets: where forged Hellos and beacons point."""
+
+    def __init__(self) -> None:
+        import socket as so
+
+        self.sock = so.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(64)
+        self.sock.setblocking(False)
+        self.port = self.sock.getsockname()[1]
+        self.accepted = 0
+
+    def count(self) -> int:
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except BlockingIOError:
+                return self.accepted
+            conn.close()
+            self.accepted += 1
+
+
+def scouting_ports(pid: int) -> list[int]:
+    """A UAV process's UDP sockets on the wildcard address: its Zenoh session's scouting sockets."""
+    import psutil
+
+    return [c.laddr.port for c in psutil.Process(pid).net_connections(kind="udp4") if c.laddr.ip == "0.0.0.0"]
+
+
+def test_forged_hellos_stolen_beacons_and_junk_handshakes_draw_nothing_and_are_counted(tmp_path: Path) -> None:
+    """Issue 43's probe on a real secured head_on: a forged Hello (a "router" at a rogue's tcp/ and tls/ locators)
+    at every UAV's scouting sockets, UAV 3's stolen credentials beaconing as UAV 1 (at the rogue) and saying UAV 2's
+    goodbye, and junk connections at a UAV's TLS listener. No UAV opens a connection to the rogue, the registry keeps
+    every real entry, the run completes (exit 0), and every refusal is counted: each forged datagram, each junk
+    connection, each stolen beacon."""
+    import socket as so
+
+    from discovery.protocol import Beacon, MsgType, NodeEntry, beacon_body, seal
+    from discovery.wire import WHATAMI_PEER, WHATAMI_ROUTER, Hello, encode_hello, zid_from_hex
+    from swarmnet.security.beacon import read_token
+    from tests.test_security import junk_connections
+
+    keys, _, other = make_keys(tmp_path)
+    out = tmp_path / "results"
+    out.mkdir()
+    run = start_run(HEAD_ON, out, [f"network.security.keys={keys}"])
+    rogue = Rogue()
+    try:
+        assert wait_for(lambda: any(out.glob("*/network.json")) or run.poll() is not None, 60.0)
+        run_dir = next(out.glob("*/network.json")).parent
+        net = json.loads((run_dir / "network.json").read_text())
+        disc = net["discovery"]
+        key = load_keys(run_dir / disc["key_file"])[SWARM]
+        assert wait_for(lambda: {m.entry.node for m in query_registry(disc["server"], SWARM, key)[0]} >= {1, 2}, 60.0)
+        real = {m.entry.node: m.entry.locators for m in query_registry(disc["server"], SWARM, key)[0]}
+        pids = json.loads((run_dir / "run.json").read_text())["pids"]
+        targets = {u: scouting_ports(pids[f"uav{u}"]) for u in (1, 2)}
+        assert all(len(p) == 4 for p in targets.values()), targets
+        hello = encode_hello(Hello(zid_from_hex("f0f0f0f0f0f0f0f0"), WHATAMI_ROUTER,
+                                   (f"tcp/127.0.0.1:{rogue.port}", f"tls/127.0.0.1:{rogue.port}")))
+        token = read_token(keys, f"uav-3.{SWARM}")
+        host, port = disc["server"].rsplit(":", 1)
+        server = (host, int(port))
+        sent = {1: 0, 2: 0}
+        entries = []
+        with so.socket(so.AF_INET, so.SOCK_DGRAM) as attacker:
+            for n in range(40):  # 4 s
+                for u, ports in targets.items():
+                    for p in ports:
+                        attacker.sendto(hello, ("127.0.0.1", p))
+                        sent[u] += 1
+                forged = NodeEntry("uav", 1, "virtual", "rogue", zid_from_hex("abcd0123abcd0123"), WHATAMI_PEER,
+                                   (f"tls/127.0.0.1:{rogue.port}",))
+                attacker.sendto(seal(MsgType.BEACON, SWARM, key.encode(), beacon_body(Beacon(forged, b"\0" * 8, 1.0)),
+                                     token=token), server)
+                attacker.sendto(seal(MsgType.BYE, SWARM, key.encode(), ["uav", 2], token=token), server)
+                if n % 5 == 0:
+                    rows, stats = query_registry(disc["server"], SWARM, key)
+                    entries.append({m.entry.node: m.entry.locators for m in rows})
+                time.sleep(0.1)
+        junk = junk_connections(int(real[1][0].rsplit(":", 1)[1]), (other / f"uav-3.{SWARM}.pem", other / f"uav-3.{SWARM}.key"),
+                                each=5)
+        rows, stats = query_registry(disc["server"], SWARM, key)
+        assert run.wait(90) == 0, (out / "run.stdout").read_text()[-3000:]
+    finally:
+        stop_process(run)
+        shutil.rmtree(tmp_path / "stolen", ignore_errors=True)
+    assert rogue.count() == 0, "a secured UAV opened a connection to a locator no discovery vouched for"
+    assert all(e.get(1) == real[1] and e.get(2) == real[2] for e in entries), entries  # never replaced, never removed
+    assert stats["drop_bad_identity"] >= 80 and stats.get("left", 0) == 0, stats
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["degraded"] == [] and summary["separation"]["collisions"] == 0
+    per_uav = {u: json.loads((run_dir / f"uav{u}.json").read_text())["net"]["refused"] for u in (1, 2)}
+    for u in (1, 2):
+        assert per_uav[u]["scouting"] >= sent[u], (u, per_uav[u], sent[u])  # every forged Hello dropped and counted
+        assert per_uav[u]["foreign_scheme"] == 0  # ... none got as far as the proxy
+    assert per_uav[1]["tls_handshake"] == junk == 20, per_uav  # each junk connection, once
+    assert summary["security"]["refused_by_uavs"]["tls_handshake"] == junk
 
 
 def test_without_security_the_same_impersonation_makes_them_collide(tmp_path: Path) -> None:

@@ -9,6 +9,8 @@ the field. ``mrswarm results`` then runs as a user would, as a real subprocess.
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
 import subprocess
 import sys
@@ -107,6 +109,39 @@ def test_head_on_summary_reports_the_collision_where_and_when_it_happened(head_o
     assert sorted(p.name for p in head_on_dir.iterdir() if p.name.startswith(".")) == []
 
 
+def test_two_uavs_below_the_safety_distance_are_an_incident_with_the_pair_the_minimum_and_the_duration(tmp_path: Path) -> None:
+    """Head-on along y = +-1.5 m: they pass 3 m apart, no collision, but 0.8 s closer than the 5 m safety distance
+    (4 m of closing at 10 m/s)."""
+    run_dir = tmp_path / "near-miss-run"
+    scn = save_scenario(run_dir, ROOT / "scenarios" / "head_on.yaml")
+    t = T0 + np.arange(0.0, 10.0, 0.1)
+    x = -20.0 + 5.0 * (t - T0)
+    for uav, sign in ((1, 1.0), (2, -1.0)):
+        record(run_dir, uav, np.stack([sign * x, np.full_like(t, 1.5 * sign), np.full_like(t, 10.0)], axis=1),
+               [AgentPhase.MISSION] * len(t), t)
+    RunInfo(scenario=scn.name, started=T0 - 20, mission_start=T0).write(run_dir / "run.json")
+    s = rebuild_results(run_dir)
+    assert s.separation and s.separation.collisions == 0 and s.separation.min_m == pytest.approx(3.0, abs=0.01)
+    (inc,) = s.incidents
+    assert inc.kind == "below_safety_distance" and inc.pair == [1, 2] and inc.uav == 1
+    assert inc.min_m == pytest.approx(3.0, abs=0.01) and inc.min_at_s == pytest.approx(4.0, abs=0.1)
+    assert inc.duration_s == pytest.approx(0.8, abs=0.15) and inc.t_s == pytest.approx(3.6, abs=0.15)
+    assert s.safety_events == 1  # `mrswarm run` exits with 3
+    on_disk = json.loads((run_dir / "summary.json").read_text())["incidents"][0]
+    assert {k: on_disk[k] for k in ("kind", "pair", "min_m")} == {"kind": "below_safety_distance", "pair": [1, 2], "min_m": 3.0}
+    assert "z_m" not in on_disk  # a pair's incident has no one height
+    # printed in words: the pair, when, for how long, how close
+    from rich.console import Console
+
+    from mrswarm.summary_table import print_summary
+
+    console = Console(width=300, record=True)
+    print_summary(console, s)
+    text = console.export_text()
+    assert re.search(r"UAVs 1 and 2 below the safety distance at 3\.[67] s for 0\.[789] s \(closest 3\.00 m\)", text), text
+    assert "0.8 s below the 5 m safety distance" in text
+
+
 def test_coverage_summary_counts_only_cells_seen_while_working(tmp_path: Path) -> None:
     """Two UAVs fly along y = -15 and y = +15 across the 60 x 40 m field; UAV 2 reports HOVER (not working) for its first half."""
     run_dir = tmp_path / "cov-run"
@@ -182,3 +217,19 @@ def test_mrswarm_results_rebuilds_the_summary_from_the_cli(head_on_dir: Path, tm
 def test_the_analysis_does_not_load_matplotlib() -> None:
     code = "import sys, mrswarm.analysis, mrswarm.results; sys.exit(int('matplotlib' in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=60).returncode == 0
+
+
+def test_mrswarm_results_alone_lists_the_recent_runs_with_their_outcome(head_on_dir: Path, tmp_path: Path) -> None:
+    cwd = tmp_path / "work"
+    (cwd / "results").mkdir(parents=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "200"}
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "results"], cwd=cwd, capture_output=True, text=True, timeout=60,
+                         env=env)
+    assert res.returncode == 0 and "no run folders in results/" in res.stdout, res.stdout + res.stderr
+    rebuild_results(head_on_dir)
+    shutil.move(str(head_on_dir), cwd / "results" / head_on_dir.name)
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "results"], cwd=cwd, capture_output=True, text=True, timeout=60,
+                         env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert f"results/{head_on_dir.name}" in res.stdout
+    assert "2 UAVs, 10 s, closest 0.60 m, 1 collision, 1 incident" in res.stdout, res.stdout

@@ -80,10 +80,21 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000
     run = json.loads((run_dir / "run.json").read_text())
-    # discovery is the default; the edge router runs beside it as the way in for ground stations
-    assert set(run["pids"]) == {"discovery", "router", "uav1", "uav2", "uav3", "uav4"}
+    # discovery is the default; the edge router runs beside it as the way in for ground stations; the flight
+    # recorder is supervised with them
+    assert set(run["pids"]) == {"discovery", "router", "recorder", "uav1", "uav2", "uav3", "uav4"}
+    assert summary["degraded"] == [] and summary["stalls"] == [] and summary["recording"]["gaps"] == []
     assert not [n for n, pid in run["pids"].items() if alive(pid)], "processes left behind"
     assert "coverage" in res.stdout and "collisions" in res.stdout  # the printed summary
+    # without a terminal: a line per stage and milestone, progress with the mission clock, coverage, separation and
+    # RTF, and no line twice
+    lines = [ln for ln in res.stdout.splitlines() if ln.startswith("[")]
+    assert len(lines) == len(set(lines)), "\n".join(lines)
+    assert {"[waiting for UAVs]", "[taking off]", "[mission]", "[stopping]"} <= set(lines), "\n".join(lines)
+    assert sum("acknowledged by all 4" in ln for ln in lines) == 2  # takeoff, start: once each
+    progress = [ln for ln in lines if ln.startswith("[mission] ") and " of 20 s" in ln]
+    assert len(progress) >= 2, "\n".join(lines)
+    assert all("coverage" in ln and "separation" in ln and "RTF 1.0" in ln for ln in progress[1:]), "\n".join(progress)
 
 
 def test_ctrl_c_stops_every_process_and_still_summarises(tmp_path: Path) -> None:
@@ -134,6 +145,20 @@ def test_bad_scenario_fails_fast_with_the_field_name(tmp_path: Path) -> None:
     res = run_cli([str(MINI), "--set", "flight.altitude=500"], tmp_path, timeout=60)
     assert res.returncode == 2
     assert "flight.altitude" in res.stdout + res.stderr
+
+
+def test_two_uavs_that_pass_closer_than_the_safety_distance_are_an_incident_and_the_run_exits_3(tmp_path: Path) -> None:
+    """Head-on without collision avoidance, on lanes 3 m apart: no collision (1 m), but under the 5 m safety distance."""
+    lanes = ["flight.avoidance=false", "uavs.0.start=[-20, 1.5]", "uavs.0.goal=[20, 1.5]", "uavs.1.start=[20, -1.5]",
+             "uavs.1.goal=[-20, -1.5]"]
+    res = run_cli([str(ROOT / "scenarios" / "head_on.yaml"), *[a for s in lanes for a in ("--set", s)]], tmp_path, timeout=240)
+    assert res.returncode == 3, res.stdout[-3000:] + res.stderr[-3000:]
+    s = json.loads((only_run_dir(tmp_path) / "summary.json").read_text())
+    assert s["separation"]["collisions"] == 0 and 2.0 < s["separation"]["min_m"] < 4.0, s["separation"]
+    (inc,) = s["incidents"]
+    assert inc["kind"] == "below_safety_distance" and inc["pair"] == [1, 2], inc
+    assert inc["min_m"] == pytest.approx(s["separation"]["min_m"], abs=0.01) and 0.2 < inc["duration_s"] < 3.0, inc
+    assert "UAVs 1 and 2 below the safety distance at" in " ".join(res.stdout.split())
 
 
 def test_head_on_at_three_rtfs_meets_closer_to_the_slow_uav(tmp_path: Path) -> None:

@@ -86,6 +86,11 @@ def test_the_runner_stops_cleanly_on_every_signal_and_leaves_nothing_behind(tmp_
         assert s["uavs_recorded"] == 2 and s["separation"]["collisions"] == 0 and s["coverage"]["final"] > 0
         for uav, last in last_rows(run_dir).items():
             assert last >= sent["kill9"] - 1.0, f"UAV {uav}: {sent['kill9'] - last:.2f} s of records lost"
+        # the results of a run whose runner died say so, with its last known time (not a complete 60 s run)
+        assert s["interrupted"] is True and s["runner_lost"] is True, s
+        assert s["interrupted_at_wall"] == pytest.approx(sent["kill9"], abs=1.5)
+        assert s["interrupted_at_s"] == pytest.approx(sent["kill9"] - starts["kill9"], abs=1.5)
+        assert "the runner died" in " ".join(res.stdout.split())
 
         for name, sig in (("hup", signal.SIGHUP), ("term", signal.SIGTERM), ("int2", signal.SIGINT)):
             r = runs[name]

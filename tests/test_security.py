@@ -81,8 +81,11 @@ def test_key_directory_issue_revoke_rotate(tmp_path: Path) -> None:
     assert (kd.path / "ca.pem").read_bytes() != old_ca and kd.roster.revoked == {}
     kd.issue(uav3)  # a new CA: the name is free again
     bundle = kd.bundle(uav3, tmp_path / "b3")
-    assert sorted(p.name for p in bundle.iterdir()) == ["ca.pem", "roster.json", "uav-3.alpha.key", "uav-3.alpha.pem"]
-    assert stat.S_IMODE(os.stat(bundle / "uav-3.alpha.key").st_mode) == 0o600
+    assert sorted(p.name for p in bundle.iterdir()) == ["ca.pem", "mavlink.key", "roster.json", "uav-3.alpha.beacon",
+                                                        "uav-3.alpha.key", "uav-3.alpha.pem"]
+    for private in ("uav-3.alpha.key", "uav-3.alpha.beacon", "mavlink.key"):
+        assert stat.S_IMODE(os.stat(bundle / private).st_mode) == 0o600
+    assert "beacon.key" in {p.name for p in kd.bundle(NodeName("edge", 0, SWARM), tmp_path / "be").iterdir()}
     with pytest.raises(KeysError, match="no CA"):  # a bundle cannot issue
         KeyDir(bundle).issue(NodeName.uav(4, SWARM))
 
@@ -283,6 +286,60 @@ def test_intruders_without_a_swarm_certificate_cannot_connect(secured_router: tu
             pytest.fail(f"{what}: connected")
     refused = lambda: json.loads(stats_file.read_text())["refused"].get("tls_handshake", 0)  # noqa: E731
     assert wait_for(lambda: refused() >= 3, 3.0), refused()  # each refused handshake counted by the router
+
+
+def junk_connections(port: int, other: tuple[Path, Path], each: int) -> int:
+    """Connections a TLS listener refuses, ``each`` of four kinds: HTTP bytes, nothing (connect, close), TLS without a
+    client certificate, TLS with ``other``, another CA's (certificate, key); the number made."""
+    import socket
+    import ssl
+
+    made = 0
+    for kind in ("bytes", "nothing", "no certificate", "another CA"):
+        for _ in range(each):
+            with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+                if kind == "bytes":
+                    s.sendall(b"GET / HTTP/1.1\r\nHost: uav\r\n\r\n")
+                elif kind != "nothing":
+                    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+                    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+                    if kind == "another CA":
+                        ctx.load_cert_chain(*other)
+                    try:
+                        with ctx.wrap_socket(s) as t:
+                            t.recv(1)
+                    except (OSError, ssl.SSLError):
+                        pass
+            made += 1
+    return made
+
+
+def test_every_refused_handshake_is_counted_once(secured_router: tuple[str, Path], swarm_keys: Path, tmp_path: Path) -> None:
+    """Zenoh refuses at most 10 handshakes a second (a fixed 100 ms pause after each); the count catches up, exactly."""
+    ep, stats_file = secured_router
+    other = (tmp_path / "other" / "uav-1.alpha.pem", tmp_path / "other" / "uav-1.alpha.key")
+    made = junk_connections(int(ep.rsplit(":", 1)[1]), other, each=10)
+    refused = lambda: json.loads(stats_file.read_text())["refused"]  # noqa: E731
+    assert wait_for(lambda: refused().get("tls_handshake", 0) >= made, 15.0), (refused(), made)
+    with client(ep, creds(swarm_keys, "uav-1")):  # a member's link is no refusal
+        time.sleep(2.0)
+    assert refused()["tls_handshake"] == made == 40 and refused()["accept_queue_full"] == 0, refused()
+
+
+def test_a_connection_flood_beyond_the_accept_queue_is_counted_there(secured_router: tuple[str, Path]) -> None:
+    import socket
+
+    ep, stats_file = secured_router
+    port = int(ep.rsplit(":", 1)[1])
+    for _ in range(3000):  # far more than the 1,024 connections the listener's queue holds, in well under a second
+        s = socket.socket()
+        s.setblocking(False)
+        with contextlib.suppress(BlockingIOError):
+            s.connect(("127.0.0.1", port))
+        s.close()
+    refused = lambda: json.loads(stats_file.read_text())["refused"]  # noqa: E731
+    assert wait_for(lambda: refused().get("accept_queue_full", 0) > 0, 5.0), refused()
+    assert refused().get("tls_handshake", 0) < 100  # Zenoh's pace: 10 a second
 
 
 def test_a_rotated_ca_refuses_every_older_certificate_at_the_handshake(swarm_keys: Path, tmp_path: Path) -> None:

@@ -161,3 +161,35 @@ def test_stop_signals_count_and_never_raise_in_the_handler() -> None:
     finally:
         s.restore()
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_a_silent_uav_whose_process_lives_is_a_stall_with_its_duration() -> None:
+    from mrswarm.stalls import StallWatch, stalls
+    from mrswarm.summary import RunInfo
+
+    w = StallWatch()
+    t0 = 1000.0
+    assert w.tick(t0 + 0.5, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}) == ([], [])
+    assert w.tick(t0 + 1.6, {1: t0 + 1.5, 2: t0 + 0.4}, {1, 2}) == ([2], [])  # UAV 2: nothing for 1.2 s
+    assert w.tick(t0 + 3.0, {1: t0 + 2.9, 2: t0 + 0.4}, {1, 2}) == ([], [])  # still silent: no second start
+    began, ended = w.tick(t0 + 3.6, {1: t0 + 3.5, 2: t0 + 3.5}, {1, 2})  # a pose again: the stall ends
+    assert began == [] and [(e.name, e.event, e.t, e.duration_s) for e in ended] == [("uav2", "stalled", t0 + 0.4, 3.1)]
+    assert w.tick(t0 + 5.0, {1: t0 + 3.6, 2: t0 + 4.9}, {2}) == ([], [])  # UAV 1 exited: its exit is the event
+    assert w.tick(t0 + 7.0, {2: t0 + 4.9}, {2}) == ([2], [])
+    (last,) = w.close(t0 + 8.0)  # still silent at the end: it lasted to the end
+    assert last.duration_s == 3.1 and "end of the run" in last.detail
+    info = RunInfo(scenario="s", started=t0 - 10, mission_start=t0, events=[*ended, last])
+    assert [(s.uav, s.from_s, s.duration_s) for s in stalls(info, t0)] == [(2, 0.4, 3.1), (2, 4.9, 3.1)]
+
+
+def test_silence_the_runner_cannot_tell_from_its_own_blindness_is_no_stall() -> None:
+    from mrswarm.stalls import StallWatch
+
+    w = StallWatch()
+    t0 = 1000.0
+    # the edge router died at t0 + 0.4: the runner's link came back at t0 + 1.0, the UAVs' poses only later
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=t0 + 1.0) == ([], [])
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=float("inf")) == ([], [])  # link down
+    # a discovery peer (no router): silent UAV 2 counts only while it hears UAV 1
+    assert w.tick(t0 + 2.0, {1: t0 + 0.4, 2: t0 + 0.4}, {1, 2}, path_since=None) == ([], [])
+    assert w.tick(t0 + 2.1, {1: t0 + 2.0, 2: t0 + 0.4}, {1, 2}, path_since=None) == ([2], [])

@@ -8,9 +8,11 @@ from __future__ import annotations
 import asyncio
 import http.client
 import json
+import shutil
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from websockets.asyncio.client import connect
@@ -21,14 +23,30 @@ from swarmnet.connectivity import Rendezvous
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
 from tests.conftest import free_port, router, wait_for  # noqa: F401 (router is a fixture)
+from uav_stack.recorder import TrajectoryRecorder
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_folder(run_dir: Path) -> Path:
+    """A run folder as `mrswarm run` leaves it mid-flight: the wildfire scenario, and UAV 1's first 20 s flown
+    east along y = 50 at 5 m/s (the trail a page opened now must still show)."""
+    run_dir.mkdir()
+    shutil.copy(ROOT / "scenarios" / "wildfire.yaml", run_dir / "scenario.yaml")
+    rec = TrajectoryRecorder(run_dir / "uav1.csv")
+    for k in range(200):
+        t = 1000.0 + 0.1 * k
+        rec.write(t, (t, t, -25.0 + 0.5 * k, 50.0, 15.0, 5.0, 0.0, 0.0, 0.0, "mission", "OFFBOARD", 1, 1.0))
+    rec.close()
+    return run_dir
 
 
 @pytest.fixture
-def web(router: str) -> Iterator[tuple[int, SwarmNode]]:  # noqa: F811
+def web(router: str, tmp_path: Path) -> Iterator[tuple[int, SwarmNode]]:  # noqa: F811
     uav = SwarmNode(NodeIdentity("webt", 1), Rendezvous((router,), mode="client")).open()
     obs = SwarmObserver("webt", Rendezvous((router,), mode="client"), role="gcs", name="web").open()
     port = free_port()
-    wm = WebMap(obs, "127.0.0.1", port)
+    wm = WebMap(obs, "127.0.0.1", port, run_folder(tmp_path / "run"))
     stop = threading.Event()
 
     def pump() -> None:  # the UAV publishes and acks while the test runs
@@ -98,6 +116,14 @@ def test_the_page_is_served_to_loopback_names_only_and_its_socket_to_its_own_pag
 
     hello, state, kill, goto, unknown, notalist, junk, hold, acked = asyncio.run(talk())
     assert hello["swarm"] == "webt" and "kill" not in hello["verbs"]
+    # the run's fixed layer and the trails from its start, for a page opened mid-run
+    scene = hello["scene"]
+    assert scene["area"] == [0, 100, 0, 100] and scene["area_label"] == "forest" and scene["hub"] == [-25, 50, 15]
+    assert scene["zones"] == [{"name": "village", "kind": "no_fly", "polygon": [[5, 35], [15, 35], [15, 65], [5, 65]]}]
+    trail = hello["trails"]["1"]
+    recorded = [pt for pt in trail if pt[1] == 50.0]
+    assert recorded[0] == [-25.0, 50.0] and recorded[-1][0] >= 73.0 and len(recorded) >= 95  # 99.5 m, a point a metre
+    assert trail[-1] == [3.0, 4.0]  # then the live poses
     assert state["uavs"][0]["id"] == 1 and (state["uavs"][0]["x"], state["uavs"][0]["y"]) == (3.0, 4.0)
     assert kill["type"] == "error" and kill["message"].startswith("verb:")
     assert goto["type"] == "error" and goto["message"].startswith("args.x:")

@@ -15,10 +15,10 @@ import pytest
 
 from swarmnet.messages import Traffic, TrafficReport
 from tests.sim_pointmass import PointMassSim, SimAgent, SimConfig
-from uav_stack.behaviours.avoidance import CollisionAvoidance
+from uav_stack.behaviours.avoidance import YIELD_MARGIN, CollisionAvoidance
 from uav_stack.behaviours.base import Rect, SelfState
 from uav_stack.behaviours.coverage import GoTo, RandomDirectionCoverage
-from uav_stack.behaviours.firefighting import FIGHTING, IDLE, ON_DUTY, RETURNING, FireFighter
+from uav_stack.behaviours.firefighting import DEPART_GAP_S, FIGHTING, IDLE, ON_DUTY, RETURNING, FireFighter
 from uav_stack.behaviours.plume import DETECTION_TOPIC, ESTIMATE_TOPIC, Detection, PlumeSearch, SourceEstimate
 from uav_stack.behaviours.zones import ZoneField, ZoneShape, convex_hull
 from uav_stack.config import Firefighting, PlumeSeeking
@@ -70,7 +70,8 @@ def test_a_uav_flies_round_a_zone_and_never_enters_it(zone: ZoneShape, start: tu
 
 
 def test_zones_outrank_neighbours_and_apply_only_at_their_heights() -> None:
-    """Pushed towards a zone by a neighbour, a UAV gives way along the zone's edge, not into it."""
+    """Pushed towards a zone by a neighbour, a UAV gives way along the zone's edge, not into it: boxed in between the
+    neighbour and the zone's margin, into the margin, never closer to the zone than YIELD_MARGIN of it."""
     ca = CollisionAvoidance(5.0, 6.0, zones=ZoneField([ZoneShape(((0, -50), (20, -50), (20, 50), (0, 50)), 0.0, 50.0)],
                                                       margin=3.0))
     me = SelfState(1, (-4.0, 0.0), (0.0, 0.0), 0.0)
@@ -78,13 +79,53 @@ def test_zones_outrank_neighbours_and_apply_only_at_their_heights() -> None:
 
     intruder = NeighbourView(2, (-10.0, 0.0), (5.0, 0.0), 0.0, reciprocal=False)  # coming from the west, at us
     v = ca.adjust(me, (0.0, 0.0), [intruder], altitude=20.0).velocity
-    assert v[0] <= (4.0 - 3.0) / 2.0 + 1e-6  # never faster towards the zone than its margin allows
+    assert v[0] <= (4.0 - 3.0 * YIELD_MARGIN) / 2.0 + 1e-6  # never faster towards the zone than 30 % of its margin allows
     assert abs(v[1]) > 1.0  # it gets out of the way sideways
     # above the zone's ceiling the zone does not apply
     free = ca.adjust(me, (5.0, 0.0), [], altitude=80.0).velocity
     assert free == pytest.approx((5.0, 0.0))
     blocked = ca.adjust(me, (5.0, 0.0), [], altitude=20.0).velocity
     assert blocked[0] <= 0.5 + 1e-6
+
+
+def test_uavs_aimed_behind_a_wide_zone_go_round_its_nearer_end() -> None:
+    """Square on to the middle of the village, a UAV north of the middle goes round the north end and one south of
+    it round the south end: they part, rather than slide towards each other along the edge and meet head-on there,
+    where the one nearer the edge cannot give way (the wildfire's 3.3 m with a 5 m safety distance)."""
+    village = ZoneShape(((5, 35), (15, 35), (15, 65), (5, 65)))
+    for y, north in ((52.0, True), (47.0, False), (64.0, True), (36.0, False)):
+        ca = CollisionAvoidance(5.0, 6.0, zones=ZoneField([village], margin=3.0))
+        me = SelfState(1, (-5.0, y), (5.0, 0.0), 0.0)
+        v = ca.adjust(me, (5.0, 0.0), []).velocity  # towards the fire, straight behind the village
+        assert (v[1] > 1.0) if north else (v[1] < -1.0), (y, v)
+        assert v[0] <= (10.0 - 3.0) / 2.0 + 1e-6  # and not into the margin
+
+
+def test_at_the_first_alarm_the_uavs_leave_the_hub_one_after_another_in_id_order() -> None:
+    members = (1, 2, 3, 7)
+    left: dict[int, float] = {}
+    fighters = {}
+    for uav in members:
+        s = {n: SetSensor(n) for n in ("fire", "tank", "alarm")}
+        cfg = Firefighting(hub=(0.0, 0.0), fire_hint=(50.0, 0.0), hub_radius=10.0)
+        fighters[uav] = (FireFighter(cfg, 5.0, Payload(s, {"spray": Sprayer()}), 10.0, 6.0, random.Random(uav)), s)
+    for k in range(120):
+        t = 10.0 + 0.1 * k
+        for uav, (ff, s) in fighters.items():
+            s["alarm"].set(t, 3.0)
+            s["tank"].set(t, 10.0)
+            ff.velocity(SelfState(uav, (float(uav), 0.0), (0.0, 0.0), t), members)
+            if ff.state == ON_DUTY and uav not in left:
+                left[uav] = t
+    assert [round(left[u] - 10.0, 1) for u in members] == [0.0, DEPART_GAP_S, 2 * DEPART_GAP_S, 3 * DEPART_GAP_S]
+    # back at the hub and refilled, a UAV leaves again at once
+    ff, s = fighters[7]
+    ff._go(RETURNING, 30.0)
+    for t in (30.0, 30.1):
+        s["alarm"].set(t, 3.0)
+        s["tank"].set(t, 10.0)
+        ff.velocity(SelfState(7, (1.0, 0.0), (0.0, 0.0), t), members)
+    assert ff.state == ON_DUTY
 
 
 def test_convex_hull_of_a_concave_zone() -> None:

@@ -68,9 +68,8 @@ def test_each_uav_gets_its_own_readings_at_the_rate_after_the_latency(router: st
                 pose(u1, 30.0, 0.0)
                 pose(u2, -30.0, 0.0)
                 for uav, s in ((1, s1), (2, s2)):
-                    readings, _ = s.poll()
-                    now = time.time()
-                    got[uav] += [(now, r) for r in readings]
+                    readings, _ = s.poll_arrivals()  # each stamped as it arrived, not when this loop took it
+                    got[uav] += readings
                 if first is None and got[1] and got[2]:
                     first = time.time()
                     t_end = first + 4.0  # measure 4 s from the first reading
@@ -93,12 +92,12 @@ def test_each_uav_gets_its_own_readings_at_the_rate_after_the_latency(router: st
             seqs = [r.seq for _, r in rs]
             assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
             # the latency: never released before LATENCY_S after the instant it describes; typically
-            # within one service tick (10 ms) of it, and delivered within the network's time after that
+            # within one service tick (10 ms) of it, and arrived within the network's few ms after that
             held = sorted(r.t_sent - r.t_meas for _, r in rs)
             delay = sorted(t_recv - r.t_meas for t_recv, r in rs)
             assert held[0] >= LATENCY_S - US and delay[0] >= LATENCY_S - US
             assert statistics.median(held) == pytest.approx(LATENCY_S, abs=0.02)
-            assert statistics.median(delay) <= LATENCY_S + 0.1
+            assert statistics.median(delay) <= LATENCY_S + 0.01 + 0.01  # one world tick, and the transport
             assert delay[-1] <= LATENCY_S + 1.0  # bounded even on a loaded machine
         assert u1.stats.rejected == {} and u2.stats.rejected == {}
         assert svc.sensors.computed["pollutant"] >= 2 * RATE_HZ * 4

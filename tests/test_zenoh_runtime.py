@@ -9,7 +9,7 @@ process's threads by name.
 
 Zenoh 1.x turns its shared-memory transport on by default, and a session with it on runs a task
 (the SHM "handoff" reactor) that wakes the process every 100 ms whatever the traffic; a lone UAV
-spent about a tenth of its CPU on it (docs/benchmarks.md). mrswarm's sessions turn it off
+spent 5-11 % of its CPU on it (docs/scale.md). mrswarm's sessions turn it off
 (``TransportTuning.shared_memory``).
 """
 
@@ -118,7 +118,7 @@ def test_an_idle_session_does_not_wake_its_process_ten_times_a_second() -> None:
     assert off["wakes_per_s"] < 5.0, off
     # the same with Zenoh's shared memory on: the reactor's ten a second per session (about 21
     # measured); if a later Zenoh drops it, this fails: then the setting no longer matters, and
-    # docs/benchmarks.md needs a new look
+    # docs/scale.md needs a new look
     on = _child("lean", None, shm=True, idle_s=4.0)
     assert on["received"], "the sample did not cross the link"
     assert on["wakes_per_s"] >= 9.0, on

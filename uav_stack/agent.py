@@ -400,8 +400,8 @@ class Agent(OverridesMixin):
         self._set_phase(AgentPhase.ARMING, detail)
         self._handle = None
         self._refusal = None
-        self._arming_since = self._arm_at = self.clock()  # (the first arm is sent at once unless pre-arm checks fail)
-        self._arm_at -= PREARM_PROBE_S
+        # the first arm goes at once if the pre-arm checks pass; while they fail, the first probe after PREARM_PROBE_S
+        self._arming_since = self._arm_at = self.clock()
         self._arm_tries = 0
 
     def _land(self) -> None:

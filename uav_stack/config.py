@@ -43,6 +43,34 @@ ActuatorType = Literal["spray"]
 ZoneKind = Literal["no_fly", "obstacle"]
 
 
+# the schemes of a flight controller's connection string: pymavlink's, plus serial:<device>[:<baud>]
+FCU_SCHEMES = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin", "serial")
+
+
+def fcu_url_problem(url: str) -> str:
+    """"" if ``url`` is a flight controller's connection string the agent can open, else what is wrong with it.
+
+    Accepted: ``udpin:HOST:PORT``, ``udpout:HOST:PORT`` (``udp:`` is ``udpin:``), ``tcp:HOST:PORT``,
+    ``tcpin:HOST:PORT``, ``udpbcast:HOST:PORT``, ``serial:<device>[:<baud>]`` and a bare serial
+    device (``/dev/ttyACM0``)."""
+    if not url:
+        return "empty: a MAVLink connection string such as udpin:127.0.0.1:14540 or serial:/dev/ttyACM0:921600"
+    if url.startswith("/dev/"):
+        return ""
+    scheme, sep, rest = url.partition(":")
+    if not sep or scheme not in FCU_SCHEMES:
+        return f"unknown scheme {scheme + ':' if sep else url!r}; use one of {', '.join(s + ':' for s in FCU_SCHEMES)} " \
+               "or a serial device (/dev/ttyACM0)"
+    if scheme == "serial":
+        return "" if rest.lstrip("/") else "no serial device; use serial:/dev/ttyACM0:921600"
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host:
+        return f"expected {scheme}:HOST:PORT"
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        return f"port {port!r} is not a port number (1-65535)"
+    return ""
+
+
 class NetworkConfig(Config, frozen=True):
     """How the node reaches its swarm (``swarmnet.connectivity``, docs/discovery.md)."""
 
@@ -191,16 +219,18 @@ class AvoidanceConfig(Config, frozen=True):
 
 
 class MavlinkSigning(Config, frozen=True):
-    """MAVLink 2 signing on the router's ground-station links (docs/security.md)."""
+    """The MAVLink 2 signing key of the router's ground-station links (docs/security.md)."""
 
-    # a passphrase file; the key is its SHA-256, as MAVProxy's `signing key <passphrase>` derives it
-    key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")]
-    require: bool = True  # refuse (and count) unsigned frames from ground stations; False: accept them, counted
+    # a passphrase file; the key is its SHA-256, as MAVProxy's `signing key <passphrase>` and QGroundControl derive it.
+    # None: mavlink.key in the UAV's key directory (network.security.keys, where `mrswarm keys` puts it)
+    key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")] | None = None
 
     def read_key(self) -> bytes:
         """The 32-byte secret; :class:`~swarmnet.schema.ConfigError` on ``key_file`` if the file is unusable."""
         from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
+        if self.key_file is None:
+            raise ConfigError("key_file", "no key file given")
         try:
             return read_key_file(self.key_file)
         except SigningKeyError as exc:
@@ -213,7 +243,10 @@ class GcsConfig(Config, frozen=True):
     mavlink_endpoints: tuple[str, ...] = ()  # udpout:HOST:PORT / udpin:HOST:PORT; empty = no router
     # local address of the router's udpout sockets; None: the address that routes to each ground station
     bind: str | None = None
-    signing: MavlinkSigning | None = None  # sign the ground-station links (None: unsigned, open to local processes)
+    # the signing key: ground stations that sign with it may command; without one, telemetry only
+    signing: MavlinkSigning = field(default_factory=MavlinkSigning)
+    # route unsigned frames from ground stations too (MAVSDK cannot sign): any process that reaches an endpoint commands
+    allow_unsigned: bool = False
     sysid: Annotated[int, Meta(ge=0, le=250)] = 0  # MAVLink sysid of this UAV's FCU; 0 = uav_stack.sysid.allocate_sysid(uav)
     geofence: Rect | None = None  # goto limits x_min, x_max, y_min, y_max (ENU m); None = mission area
     min_alt: float = 2.0  # goto altitude limits above the swarm origin, m
@@ -277,6 +310,18 @@ class AgentConfig(Config, frozen=True):
 
     def actuator(self, name: str) -> ActuatorSpec:
         return next(a for a in self.actuators if a.name == name)
+
+    def mavlink_key_file(self) -> Path | None:
+        """Where this UAV's MAVLink signing passphrase is: ``gcs.signing.key_file``, else
+        ``mavlink.key`` in its key directory if there is one there; None: no key."""
+        from swarmnet.security.roster import MAVLINK_KEY_FILE
+
+        if self.gcs.signing.key_file is not None:
+            return Path(self.gcs.signing.key_file)
+        sec = self.network.security
+        if sec is not None and (Path(sec.keys) / MAVLINK_KEY_FILE).is_file():
+            return Path(sec.keys) / MAVLINK_KEY_FILE
+        return None
 
     @property
     def mavlink_sysid(self) -> int:

@@ -20,15 +20,22 @@ Routing rules (mavlink.io's routing guide, as mavlink-router implements them):
   only to channels where the target system (and component, unless 0) has been seen;
 * messages addressed to the agent itself (its sysid and companion compid 191) stay here.
 
-Locked down (docs/security.md):
+Locked by default (docs/security.md): every endpoint sends telemetry, but takes commands only
+from ground stations that sign them.
 
 * every socket is bound to one address: a ``udpin`` endpoint to the host of its spec, a
   ``udpout`` endpoint to the local address that routes to its ground station (or ``bind``),
   never to all interfaces unless a spec says ``0.0.0.0``;
-* a ``udpout`` endpoint takes datagrams only from its ground station's address; a ``udpin``
-  endpoint answers a sender only once it has sent a valid (and, with signing, signed) frame;
-* with :class:`SigningPolicy`, frames to the ground stations are signed (MAVLink 2 signing)
-  and, when ``require`` is set, unsigned frames from them are refused and counted;
+* a ``udpout`` endpoint takes datagrams only from its ground station's address;
+* :class:`SigningPolicy`: with a key, frames to the ground stations are signed (MAVLink 2
+  signing) and only frames signed with it go anywhere; unsigned, badly signed and replayed
+  frames, and frames whose id the dialect does not know, are dropped and counted. Without a
+  key the router is telemetry only: nothing from a ground station is routed. Only
+  :data:`UNSIGNED` (``gcs.allow_unsigned``, asked for by name) routes unsigned frames;
+* a ``udpin`` endpoint answers a sender once it has sent a well-formed frame: one whose frames
+  are accepted is a ground station (:data:`MAX_PEERS`), one whose frames are refused only
+  listens (telemetry, at most :data:`MAX_LISTENERS`, never at the expense of a ground
+  station); garbage makes neither;
 * SETUP_SIGNING from a ground station never reaches the FCU: keys are set from files, not
   over the air.
 
@@ -50,13 +57,14 @@ from typing import Any
 
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.mav import mavlink
-from uav_stack.mavlink_signing import Signer, VerifyingParser
+from uav_stack.mavlink_signing import REFUSED_REASONS, Signer, VerifyingParser, is_signed
 from uav_stack.udp import clear_errors, drain, report_refusals, source_address_for
 
 log = logging.getLogger(__name__)
 
 MAX_DATAGRAM = 1400
-MAX_PEERS = 4  # server endpoints: ground stations answered at once
+MAX_PEERS = 4  # server endpoints: ground stations whose frames were accepted, answered at once
+MAX_LISTENERS = 4  # server endpoints: senders of well-formed but refused (unsigned) frames, sent telemetry only
 PEER_TIMEOUT = 30.0  # s: a silent server-endpoint peer is forgotten
 MAX_SOURCES = 1024  # (sysid, compid) pairs remembered per channel
 PROBE_EVERY_S = 1.0  # s between the datagrams to a udpout ground station whose port refused the last one
@@ -76,11 +84,24 @@ TAKEOVER_MESSAGES = frozenset({"SET_MODE", "SET_POSITION_TARGET_LOCAL_NED", "SET
 
 @dataclass(frozen=True)
 class SigningPolicy:
-    """MAVLink 2 signing on every ground-station endpoint: ``key`` (32 bytes, see
-    :func:`uav_stack.mavlink_signing.read_key_file`); ``require``: refuse unsigned frames."""
+    """What the ground-station endpoints accept. ``key`` (32 bytes, see
+    :func:`uav_stack.mavlink_signing.read_key_file`): frames are signed both ways and only
+    frames signed with it are routed; None: nothing is routed (telemetry only), unless
+    ``allow_unsigned``. ``allow_unsigned``: unsigned frames are routed too (counted)."""
 
-    key: bytes
-    require: bool = True
+    key: bytes | None = None
+    allow_unsigned: bool = False
+
+    @property
+    def mode(self) -> str:
+        """``signed``, ``telemetry-only`` or ``unsigned-allowed`` (the stats' and the summary's word for it)."""
+        if self.allow_unsigned:
+            return "unsigned-allowed"
+        return "signed" if self.key is not None else "telemetry-only"
+
+
+LOCKED = SigningPolicy()  # no key: telemetry to every ground station, nothing from them
+UNSIGNED = SigningPolicy(allow_unsigned=True)  # no key, every frame routed: any process that reaches an endpoint commands
 
 
 def parse_endpoint(spec: str) -> tuple[str, str, int]:
@@ -116,14 +137,19 @@ class RouterStats:
     foreign_source: int = 0  # datagrams to a udpout endpoint from another address than its ground station's
     peers_evicted: int = 0  # udpin: a ground station forgotten to make room for another
     setup_signing_dropped: int = 0  # SETUP_SIGNING from a ground station (keys come from files)
-    signed: int = 0  # frames with a good signature (signing on)
-    bad_signature: int = 0  # wrong signature, or a replayed timestamp: refused
-    unsigned_refused: int = 0  # unsigned frames refused (signing required)
-    unsigned_accepted: int = 0  # unsigned frames let through (signing on, not required)
+    signed: int = 0  # frames with a good signature
+    bad_signature: int = 0  # wrong signature (or a signed frame with no key to check it): refused
+    replayed: int = 0  # a good signature with a timestamp already seen on its stream, or too old: refused
+    unsigned_refused: int = 0  # unsigned frames refused (every one, unless unsigned frames are allowed)
+    unsigned_commands_refused: int = 0  # of those, COMMAND_LONG, COMMAND_INT and SET_MODE
+    unknown_id_refused: int = 0  # frames whose id the dialect does not know (never routed unless unsigned is allowed)
+    unsigned_accepted: int = 0  # unsigned frames routed (gcs.allow_unsigned)
+    listeners_evicted: int = 0  # udpin: a sender of refused frames forgotten to make room for another
     unsignable: int = 0  # frames that could not be signed for a signed link (outside our dialect): not sent
     unheard: int = 0  # frames not sent to a udpout ground station whose port refuses them (nobody listens there)
+    signing: str = LOCKED.mode  # the policy (SigningPolicy.mode)
 
-    def as_dict(self) -> dict[str, int]:
+    def as_dict(self) -> dict[str, int | str]:
         return dict(self.__dict__)
 
 
@@ -153,10 +179,10 @@ class Channel:
 
 class UdpEndpoint(Channel):
     """One ground-station endpoint: its socket, the ground stations it answers, its decoder
-    (verifying signatures if signing is on) and its signer."""
+    (verifying signatures, unless the policy routes everything unsigned) and its signer."""
 
     def __init__(self, spec: str, clock: Callable[[], float], *, bind: str | None = None,
-                 signing: SigningPolicy | None = None, link_id: int = 0):
+                 signing: SigningPolicy = LOCKED, link_id: int = 0):
         super().__init__(spec)
         self.spec = spec
         self.mode, self.host, self.port = parse_endpoint(spec)
@@ -164,10 +190,12 @@ class UdpEndpoint(Channel):
         self.bind = bind
         self.sock: socket.socket | None = None
         self.dest: tuple[str, int] | None = None
-        self.peers: dict[tuple[str, int], float] = {}
-        self.parser: Any = VerifyingParser(signing.key, signing.require) if signing else mavlink.MAVLink(None)
+        self.peers: dict[tuple[str, int], float] = {}  # udpin: ground stations whose frames were accepted
+        self.listeners: dict[tuple[str, int], float] = {}  # udpin: senders of well-formed refused frames (telemetry only)
+        self.verifying = signing != UNSIGNED
+        self.parser: Any = VerifyingParser(signing.key, signing.allow_unsigned) if self.verifying else mavlink.MAVLink(None)
         self.parser.robust_parsing = True
-        self.signer = Signer(signing.key, link_id) if signing else None
+        self.signer = Signer(signing.key, link_id) if signing.key is not None else None
         self._out: list[bytes | bytearray] = []
         self._out_len = 0
         self.rx_datagrams = 0
@@ -236,19 +264,32 @@ class UdpEndpoint(Channel):
         """udpin: answer ``a`` from now on (it sent a frame we accepted); the least recently heard goes."""
         if self.mode != "udpin":
             return
+        self.listeners.pop(a, None)
         if a not in self.peers and len(self.peers) >= MAX_PEERS:
             del self.peers[min(self.peers, key=self.peers.__getitem__)]
             stats.peers_evicted += 1
         self.peers[a] = self.clock()
 
+    def note_listener(self, a: tuple[str, int], stats: RouterStats) -> None:
+        """udpin: send telemetry to ``a`` (it sent a well-formed frame we refused: a ground station
+        without the key). Listeners make room only for each other, never for a peer."""
+        if self.mode != "udpin":
+            return
+        if a in self.peers:  # a ground station stays one by its accepted frames
+            return
+        if a not in self.listeners and len(self.listeners) >= MAX_LISTENERS:
+            del self.listeners[min(self.listeners, key=self.listeners.__getitem__)]
+            stats.listeners_evicted += 1
+        self.listeners[a] = self.clock()
+
     def targets(self) -> list[tuple[str, int]]:
         if self.mode == "udpout":
             return [self.dest] if self.dest else []
         now = self.clock()
-        stale = [a for a, t in self.peers.items() if now - t > PEER_TIMEOUT]
-        for a in stale:
-            del self.peers[a]
-        return list(self.peers)
+        for table in (self.peers, self.listeners):
+            for a in [a for a, t in table.items() if now - t > PEER_TIMEOUT]:
+                del table[a]
+        return [*self.peers, *self.listeners]
 
     def queue(self, msg: Any, stats: RouterStats) -> bool:
         """Queue ``msg``'s frame (signed, on a signed link); False if it cannot be sent here."""
@@ -301,14 +342,14 @@ class MavlinkRouter:
 
     def __init__(self, endpoints: list[str] | tuple[str, ...], write_fcu: Callable[[bytes], None], *,
                  own: tuple[int, int] = (1, mavlink.MAV_COMP_ID_ONBOARD_COMPUTER), clock: Callable[[], float] = time.time,
-                 bind: str | None = None, signing: SigningPolicy | None = None):
+                 bind: str | None = None, signing: SigningPolicy = LOCKED):
         self.endpoints = [UdpEndpoint(e, clock, bind=bind, signing=signing, link_id=i) for i, e in enumerate(endpoints)]
         self.signing = signing
         self.write_fcu = write_fcu
         self.own = own
         self.clock = clock
         self.fcu = Channel("fcu")
-        self.stats = RouterStats()
+        self.stats = RouterStats(signing=signing.mode)
         # the latest ground-station command that moves our vehicle or changes its mode:
         # (wall time, description); the agent treats it as a human taking over
         self.takeover: tuple[float, str] | None = None
@@ -368,19 +409,19 @@ class MavlinkRouter:
             for data, addr in ep.recv(self.stats):
                 n += self._route_datagram(ep, data, addr)
         self._all_quiet = bool(self.endpoints) and all(ep.quiet for ep in self.endpoints)
-        if self.signing is not None:
+        if self.signing != UNSIGNED:
             self._sum_signing()
         return n
 
     def _sum_signing(self) -> None:
         st = self.stats
-        st.signed = sum(ep.parser.signed for ep in self.endpoints)
-        st.bad_signature = sum(ep.parser.bad_signature for ep in self.endpoints)
-        st.unsigned_refused = sum(ep.parser.unsigned_refused for ep in self.endpoints)
-        st.unsigned_accepted = sum(ep.parser.unsigned_accepted for ep in self.endpoints)
+        for name in _VERIFIER_COUNTERS:
+            setattr(st, name, sum(getattr(ep.parser, name) for ep in self.endpoints))
 
     def _route_datagram(self, ep: UdpEndpoint, data: bytes, addr: tuple[str, int]) -> int:
         p = ep.parser
+        if ep.verifying:
+            p.heard_refused = False
         try:
             msgs = p.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - a decoder failure is bad input, never a crash
@@ -395,14 +436,18 @@ class MavlinkRouter:
         bad = False
         for m in msgs:
             if isinstance(m, mavlink.MAVLink_bad_data):
-                bad = bad or m.reason != "Invalid signature"  # refused by signing: counted there
+                bad = bad or m.reason not in REFUSED_REASONS  # refused by the policy: counted by the parser
                 continue
+            if not ep.verifying and not is_signed(m.get_msgbuf()):
+                self.stats.unsigned_accepted += 1  # (a verifying parser counts its own)
             self._route_from_gcs(ep, m)
             n += 1
         if bad or (not msgs and data):
             self.stats.bad_datagrams += 1
         if n:
             ep.note_peer(addr, self.stats)
+        elif ep.verifying and p.heard_refused:  # a ground station without the key: it may watch, not command
+            ep.note_listener(addr, self.stats)
         return n
 
     def _route_from_gcs(self, ep: UdpEndpoint, m: Any) -> None:
@@ -467,6 +512,10 @@ class MavlinkRouter:
             except OSError as exc:
                 self.stats.send_errors += 1
                 log.debug("router -> fcu: %s", exc)
+
+
+_VERIFIER_COUNTERS = ("signed", "bad_signature", "replayed", "unsigned_refused", "unsigned_commands_refused",
+                      "unknown_id_refused", "unsigned_accepted")
 
 
 def _command_name(cmd: int) -> str:

@@ -6,7 +6,9 @@ frames whose signature does not match or whose timestamp does not grow per strea
 (link id, system id, component id) (mavlink.io, "Message signing").
 
 The key is a passphrase in a file, hashed with SHA-256 into the 32-byte secret, as MAVProxy
-derives it (``signing key <passphrase>``), so the same file configures the router and MAVProxy.
+(``signing key <passphrase>``) and QGroundControl (its MAVLink 2 signing key setting) derive
+it, so the same file configures the router and both ground stations. ``mrswarm keys`` keeps
+one per swarm (``mavlink.key``) and prints it.
 
 * :class:`Signer` signs frames going out to one endpoint. Frames keep their sender's ids and
   sequence number; only the signing flag, the CRC and the signature block change, so the
@@ -14,8 +16,10 @@ derives it (``signing key <passphrase>``), so the same file configures the route
 * :class:`VerifyingParser` is a pymavlink decoder that checks the signature *before* it
   records a stream's timestamp. (pymavlink's own check records the timestamp first, so one
   forged frame with a far-future timestamp would make every later genuine frame of that
-  stream look like a replay.) Unsigned frames are accepted or refused by policy; a frame with
-  a wrong signature is always refused. Every outcome is counted.
+  stream look like a replay.) Unsigned frames are refused unless the policy allows them; a
+  frame with a wrong signature or a replayed timestamp is always refused, and so is, unless
+  unsigned frames are allowed, a frame whose id the dialect does not know (pymavlink returns
+  those before it checks any signature). Every outcome is counted.
 
 SHA-256 is the interpreter's built-in one: ``hashlib`` would load OpenSSL into every UAV
 process (see ``uav_stack.mav``).
@@ -24,6 +28,7 @@ process (see ``uav_stack.mav``).
 from __future__ import annotations
 
 import copy
+import os
 import struct
 import time
 from pathlib import Path
@@ -77,14 +82,17 @@ def read_key_file(path: str | Path) -> bytes:
 
 
 def write_key_file(path: str | Path) -> Path:
-    """A new random passphrase (256 bits) in ``path``, readable by its owner only (0600)."""
-    import os
+    """A new random passphrase (256 bits, as ``mrswarm keys`` makes them) in ``path``, which must
+    not exist yet, readable by its owner only (0600)."""
     import secrets
 
+    passphrase = secrets.token_urlsafe(32)
+    while passphrase.startswith("-"):  # a command line would read it as an option
+        passphrase = secrets.token_urlsafe(32)
     p = Path(path)
     fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w") as f:
-        f.write(secrets.token_urlsafe(32) + "\n")
+        f.write(passphrase + "\n")
     return p
 
 
@@ -127,39 +135,73 @@ class Signer:
         return copy.copy(msg).pack(p)  # a copy: pack() rewrites the message's own buffer
 
 
+REFUSED_SIGNATURE = "Invalid signature"  # pymavlink's reason for a frame its signature check refused
+REFUSED_UNKNOWN_ID = "unknown message id refused"  # ours: an id outside the dialect, on a link that needs signatures
+REFUSED_REASONS = frozenset({REFUSED_SIGNATURE, REFUSED_UNKNOWN_ID})  # BAD_DATA that is a refusal, not garbage
+# what an unsigned ground station would command with: counted apart among the unsigned frames refused
+COMMAND_IDS = frozenset({mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT,
+                         mavlink.MAVLINK_MSG_ID_SET_MODE})
+
+
 class VerifyingParser(mavlink.MAVLink):
     """A MAVLink decoder that verifies signatures with ``key`` (see the module docstring).
 
-    ``require``: refuse unsigned frames (else accept them, counted). Counters: ``signed``
-    (good signature), ``bad_signature`` (wrong signature, or a replayed/old timestamp),
-    ``unsigned_accepted``, ``unsigned_refused``.
+    ``allow_unsigned``: accept unsigned frames (counted), else refuse them. ``key`` None: no
+    signature can be checked, so every signed frame is refused as badly signed (a router
+    without a key takes no frame from a ground station unless unsigned ones are allowed).
+    Unless unsigned frames are allowed, a frame whose id the dialect does not know is refused
+    before anything else: pymavlink would return it as ``MAVLink_unknown`` without checking
+    its signature (it cannot check its CRC either).
+
+    Counters: ``signed`` (good signature), ``bad_signature`` (wrong signature), ``replayed``
+    (a good signature with a timestamp already seen on its stream, or a new stream older than
+    :data:`NEW_STREAM_SLACK`), ``unsigned_accepted``, ``unsigned_refused`` (of which
+    ``unsigned_commands_refused`` were COMMAND_LONG, COMMAND_INT or SET_MODE) and
+    ``unknown_id_refused``. ``heard_refused`` is set when a well-formed frame (its CRC good) was
+    refused for its signature or for having none; the router clears it per datagram.
     """
 
-    def __init__(self, key: bytes, require: bool):
+    def __init__(self, key: bytes | None, allow_unsigned: bool = False):
         super().__init__(None)
         self.robust_parsing = True
-        self.require = require
-        self.signing.secret_key = key
+        self.allow_unsigned = allow_unsigned
+        # no key: a random one nobody has, so every signature fails and pymavlink still asks about unsigned frames
+        self.signing.secret_key = key if key is not None else os.urandom(32)
         self.signing.timestamp = signing_timestamp()
         self.signing.allow_unsigned_callback = self._allow_unsigned
-        self.signed = self.bad_signature = self.unsigned_accepted = self.unsigned_refused = 0
+        self.signed = self.bad_signature = self.replayed = self.unsigned_accepted = self.unsigned_refused = 0
+        self.unsigned_commands_refused = self.unknown_id_refused = 0
+        self.heard_refused = False
         self._last_bad = False
+
+    def decode(self, msgbuf: bytearray) -> Any:
+        """pymavlink's decode, after refusing (unless unsigned frames are allowed) an id outside the dialect."""
+        if not self.allow_unsigned:
+            if msgbuf[0] == _V2:
+                msg_id = msgbuf[7] | msgbuf[8] << 8 | msgbuf[9] << 16 if len(msgbuf) >= mavlink.HEADER_LEN_V2 else -1
+            else:
+                msg_id = msgbuf[5] if len(msgbuf) > 5 else -1
+            if msg_id not in mavlink.mavlink_map:
+                self.unknown_id_refused += 1
+                raise mavlink.MAVError(REFUSED_UNKNOWN_ID)
+        return super().decode(msgbuf)
 
     def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:  # noqa: N803 - pymavlink's names
         """Signature first, then the timestamp; a stream's timestamp moves only on a good frame."""
         sig = self.signing
         expected = _sha256(sig.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+        self._last_bad = True
+        if expected != bytes(msgbuf[-6:]):
+            self.bad_signature += 1
+            return False
         stamp = bytes(msgbuf[-12:-6]) + b"\0\0"
         timestamp = struct.unpack("<Q", stamp)[0]
         stream = (msgbuf[-13], srcSystem, srcComponent)
-        ok = expected == bytes(msgbuf[-6:])
-        if ok:
-            last = sig.stream_timestamps.get(stream)
-            ok = timestamp > last if last is not None else timestamp + NEW_STREAM_SLACK >= sig.timestamp
-        if not ok:
-            self.bad_signature += 1
-            self._last_bad = True
+        last = sig.stream_timestamps.get(stream)
+        if not (timestamp > last if last is not None else timestamp + NEW_STREAM_SLACK >= sig.timestamp):
+            self.replayed += 1
             return False
+        self._last_bad = False
         streams = sig.stream_timestamps
         streams.pop(stream, None)
         streams[stream] = timestamp
@@ -170,16 +212,22 @@ class VerifyingParser(mavlink.MAVLink):
         return True
 
     def _allow_unsigned(self, mav: Any, msg_id: int) -> bool:
-        """pymavlink asks this for unsigned frames and for frames whose signature failed."""
+        """pymavlink asks this for unsigned frames and for frames whose signature failed (in
+        both cases after their CRC was found good: a well-formed frame)."""
         if self._last_bad:  # a wrong signature is never let through as "unsigned"
             self._last_bad = False
+            self.heard_refused = True
             return False
-        if self.require:
-            self.unsigned_refused += 1
-            return False
-        self.unsigned_accepted += 1
-        return True
+        if self.allow_unsigned:
+            self.unsigned_accepted += 1
+            return True
+        self.unsigned_refused += 1
+        if msg_id in COMMAND_IDS:
+            self.unsigned_commands_refused += 1
+        self.heard_refused = True
+        return False
 
     def counters(self) -> dict[str, int]:
-        return {"signed": self.signed, "bad_signature": self.bad_signature,
-                "unsigned_accepted": self.unsigned_accepted, "unsigned_refused": self.unsigned_refused}
+        return {"signed": self.signed, "bad_signature": self.bad_signature, "replayed": self.replayed,
+                "unsigned_accepted": self.unsigned_accepted, "unsigned_refused": self.unsigned_refused,
+                "unsigned_commands_refused": self.unsigned_commands_refused, "unknown_id_refused": self.unknown_id_refused}

@@ -13,6 +13,7 @@ import ctypes
 import logging
 import math
 import os
+import re
 import signal
 import sys
 import time
@@ -27,9 +28,11 @@ from swarmnet.schema import ConfigError, convert
 from swarmnet.security.identity import NodeName
 from uav_stack import tick_meter
 from uav_stack.agent import Agent
-from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
+from uav_stack.cli_args import ArgumentParser
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig, fcu_url_problem
 from uav_stack.fcu_link import FcuLink, LinkOpenError
 from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
+from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
 if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
     from uav_stack.fcu import VirtualFcu
@@ -120,9 +123,33 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
     return open_retrying(node.open, timeout, f"UAV {cfg.uav}", lambda: stop.stopped)
 
 
+def signing_policy(cfg: AgentConfig) -> SigningPolicy:
+    """What the router's ground-station endpoints accept (docs/security.md), said in the log when
+    it is not "signed": commands signed with the swarm's MAVLink key, by default; without a key,
+    telemetry only; every frame with ``gcs.allow_unsigned``. A key file that cannot be read
+    (:func:`check_signing_key` said so at start; it went since) leaves the router telemetry only."""
+    path = cfg.mavlink_key_file()
+    key = None
+    if path is not None:
+        try:
+            key = read_key_file(path)
+        except SigningKeyError as exc:
+            log.error("gcs.signing.key_file: %s", exc)
+    policy = SigningPolicy(key, cfg.gcs.allow_unsigned)
+    if not cfg.gcs.mavlink_endpoints:
+        return policy
+    if policy.allow_unsigned:
+        log.warning("MAVLink: unsigned ground-station commands accepted (gcs.allow_unsigned): any process that reaches %s "
+                    "can command this UAV (docs/security.md)", ", ".join(cfg.gcs.mavlink_endpoints))
+    elif key is None:
+        log.warning("MAVLink: no signing key (gcs.signing.key_file, or mavlink.key in the UAV's key directory): ground "
+                    "stations get telemetry, and no command is accepted (docs/security.md)")
+    return policy
+
+
 def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
-    (signing its links if ``gcs.signing`` says so). ``target_system``: the FCU's sysid, if known.
+    (:func:`signing_policy`). ``target_system``: the FCU's sysid, if known.
 
     Raises :class:`~uav_stack.fcu_link.LinkOpenError`, naming the setting and the link, when a
     ground-station socket or the FCU link cannot be opened (a ``udpin`` port another process
@@ -131,10 +158,8 @@ def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) 
     link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
     router = None
     if cfg.gcs.mavlink_endpoints:
-        sg = cfg.gcs.signing
-        signing = SigningPolicy(sg.read_key(), sg.require) if sg is not None else None
         router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
-                               bind=cfg.gcs.bind, signing=signing).open()
+                               bind=cfg.gcs.bind, signing=signing_policy(cfg)).open()
         link.on_message = router.from_fcu
     try:
         link.open()
@@ -147,11 +172,12 @@ def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) 
 
 def check_signing_key(cfg: AgentConfig, ap: argparse.ArgumentParser) -> None:
     """A MAVLink signing key file that cannot be used: a usage error naming the field, before anything starts."""
-    if cfg.gcs.signing is not None:
+    path = cfg.mavlink_key_file()
+    if cfg.gcs.mavlink_endpoints and path is not None:
         try:
-            cfg.gcs.signing.read_key()
-        except ConfigError as exc:
-            ap.error(f"gcs.signing.{exc}")
+            read_key_file(path)
+        except SigningKeyError as exc:
+            ap.error(f"gcs.signing.key_file: {exc}")
 
 
 def tick_hz_for(cfg: AgentConfig) -> float:
@@ -369,7 +395,20 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
     except LinkOpenError as exc:
         log.error("%s", exc)
         return 2
-    node = open_node(cfg, stop, tap_zenoh_log)
+    import zenoh
+
+    try:
+        node = open_node(cfg, stop, tap_zenoh_log)
+    except zenoh.ZError as exc:  # the swarm unreachable for OPEN_TIMEOUT_S, or refused: one line, not a traceback
+        link.close()
+        if router is not None:
+            router.close()
+        if stop.stopped:
+            return 0
+        net = cfg.network
+        via = f"the discovery server {net.discovery.server}" if net.discovery is not None else ", ".join(net.endpoints)
+        log.error("network: cannot join swarm %r through %s: %s", cfg.swarm, via, str(exc).splitlines()[0] if str(exc) else exc)
+        return 1
     agent = Agent(cfg, node, link, router=router)
     try:
         run_loop(agent, stop, None, duration)
@@ -383,11 +422,19 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
 
 
 def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
+    """Log records to stderr, or to ``log_file`` (its folder made if missing; stderr if it cannot be opened)."""
     handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    problem = ""
     if log_file:
-        handlers = [logging.FileHandler(log_file)]
+        try:
+            Path(log_file).parent.mkdir(parents=True, exist_ok=True)
+            handlers = [logging.FileHandler(log_file)]
+        except OSError as exc:
+            problem = f"cannot write the log file {log_file} ({exc.strerror or exc}): logging to stderr"
     logging.basicConfig(level=getattr(logging, level.upper(), logging.WARNING), handlers=handlers,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if problem:
+        log.warning("%s", problem)
 
 
 def virtual_uav_main(argv: list[str] | None = None) -> int:
@@ -410,22 +457,45 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
     return run_virtual_uav(cfg, stop, tap_zenoh_log=True)
 
 
-def agent_main(argv: list[str] | None = None) -> int:
-    """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
-    ap = argparse.ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
-    ap.add_argument("--fcu", required=True,
-                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:127.0.0.1:14540, tcp:...")
+# `mrswarm agent`'s flags beside --config: the ones a companion computer's own setup gives (where
+# its flight controller, its credentials and its records are), replacing the file's
+WITH_CONFIG = ("fcu", "keys", "identity", "record_dir", "insecure", "duration", "log_level")
+# where a field of the agent's configuration comes from on the command line, to name it in an error
+FLAG_OF = {"fcu_bind": "--fcu-bind", "fcu": "--fcu", "swarm": "--swarm", "uav": "--uav", "origin": "--origin",
+           "realm": "--realm", "record_dir": "--record-dir", "avoidance.zones": "--zones",
+           "network.endpoints": "--connect", "network.listen": "--listen", "network.mode": "--mode",
+           "network.pose_feed": "--pose-feed", "network.discovery.server": "--discovery",
+           "network.discovery.key_file": "--discovery-key-file", "network.discovery.advertise": "--advertise",
+           "network.discovery": "--discovery", "network.security.identity": "--identity", "network.security": "--keys",
+           "gcs.mavlink_endpoints": "--mavlink-endpoint", "gcs.bind": "--mavlink-bind",
+           "gcs.signing.key_file": "--mavlink-key-file", "gcs.sysid": "--sysid"}
+
+
+# a Zenoh endpoint as the agent takes it: <protocol>/<address>, the address a HOST:PORT (IPv6 in brackets)
+ZENOH_ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|wss)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):\d{1,5}([?#]\S*)?$")
+
+
+def _flags(dests: tuple[str, ...]) -> str:
+    return ", ".join("--" + d.replace("_", "-") for d in dests)
+
+
+def agent_parser() -> argparse.ArgumentParser:
+    ap = ArgumentParser(prog="mrswarm agent", description="run the swarm agent against any MAVLink flight controller")
+    ap.add_argument("--fcu", default=None,
+                    help="pymavlink connection string: serial:/dev/ttyACM0:921600, udpin:127.0.0.1:14540, tcp:... (required)")
     ap.add_argument("--fcu-bind", default=None, metavar="ADDR",
                     help="local address of a udpout FCU link (default: the one that routes to the FCU)")
-    ap.add_argument("--swarm", required=True)
-    ap.add_argument("--uav", type=int, required=True, help="this UAV's id (1..65535)")
-    ap.add_argument("--origin", required=True, help="swarm origin LAT,LON,ALT (degrees, degrees, m AMSL)")
+    ap.add_argument("--swarm", default=None, help="the swarm's name (required)")
+    ap.add_argument("--uav", type=int, default=None, help="this UAV's id (1..65535; required)")
+    ap.add_argument("--origin", default=None, metavar="LAT,LON,ALT",
+                    help="swarm origin: degrees, degrees, m AMSL, e.g. --origin -35.36,149.16,584 (required)")
     ap.add_argument("--realm", default="physical", choices=["physical", "virtual"])
     ap.add_argument("--connect", action="append", default=[], help="Zenoh endpoint of the rendezvous/edge router (repeatable)")
     ap.add_argument("--mode", default="peer", choices=["peer", "client"], help="client behind carrier NAT")
     ap.add_argument("--pose-feed", default="direct", choices=["direct", "edge"],
                     help="edge: receive neighbour poses as batches from the edge router's feed")
-    ap.add_argument("--listen", action="append", default=None, help="Zenoh listen endpoint (peer mode)")
+    ap.add_argument("--listen", action="append", default=None,
+                    help="Zenoh listen endpoint (peer mode; default tcp/127.0.0.1:0: a UAV on a network names its own address)")
     ap.add_argument("--discovery", default=None, metavar="HOST:PORT",
                     help="find the swarm through this discovery server (instead of --connect's router)")
     ap.add_argument("--discovery-key-file", default=None, help="the swarm's discovery key (mrswarm discovery keygen)")
@@ -435,50 +505,147 @@ def agent_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--identity", default=None, help="certificate to speak as (default: uav-<id>.<swarm>)")
     ap.add_argument("--insecure", action="store_true",
                     help="plain TCP without access control: anyone on the network can command this UAV (labs only)")
-    ap.add_argument("--config", default=None, help="JSON AgentConfig with the mission etc. (overrides the flags above)")
+    ap.add_argument("--config", default=None, metavar="FILE",
+                    help="JSON AgentConfig with the mission etc., as `mrswarm run` writes it for a companion computer; "
+                         f"only {_flags(WITH_CONFIG)} go beside it (they replace the file's)")
     ap.add_argument("--autostart", action="store_true", help="take off and start the mission without waiting for 'start'")
-    ap.add_argument("--record-dir", default=None)
+    ap.add_argument("--record-dir", default=None, metavar="DIR",
+                    help="write the trajectory and counters here (made if missing)")
     ap.add_argument("--mavlink-endpoint", action="append", default=[], metavar="udpout:HOST:PORT",
                     help="route the FCU's MAVLink to a ground station (udpout:HOST:14550 for QGC; udpin:HOST:PORT to listen);"
                          " repeatable")
     ap.add_argument("--mavlink-bind", default=None, metavar="ADDR",
                     help="local address of the udpout ground-station endpoints (default: the one that routes to each)")
     ap.add_argument("--mavlink-key-file", default=None, metavar="FILE",
-                    help="sign the ground-station links with this passphrase file and refuse unsigned frames "
-                         "(MAVProxy: signing key <passphrase>)")
+                    help="the MAVLink signing passphrase: ground stations that sign with it may command (default: "
+                         "mavlink.key in --keys; without one, telemetry only; `mrswarm keys mavlink` prints it)")
     ap.add_argument("--mavlink-allow-unsigned", action="store_true",
-                    help="with --mavlink-key-file: still accept unsigned frames (counted)")
+                    help="also route unsigned frames from ground stations (MAVSDK cannot sign): anyone who reaches "
+                         "an endpoint can command this UAV")
     ap.add_argument("--sysid", type=int, default=0, help="MAVLink sysid of the FCU (default: from the UAV id, see docs/gcs.md)")
     ap.add_argument("--zones", default=None, metavar="FILE",
                     help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
                          "YAML or JSON (docs/world.md)")
-    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until signalled)")
     ap.add_argument("--log-level", default="INFO")
-    args = ap.parse_args(argv)
-    lean_zenoh_runtime()
-    stop = StopFlag().install()
-    setup_logging(args.log_level)
-    if not 0 <= args.sysid <= 250:
-        ap.error("--sysid must be in 1..250 (0: from the UAV id)")
-    for spec in args.mavlink_endpoint:
-        from uav_stack.mavlink_router import parse_endpoint
+    return ap
 
+
+def parse_agent(argv: list[str] | None = None) -> tuple[AgentConfig, argparse.Namespace]:
+    """The configuration ``mrswarm agent``'s command line describes, checked before anything starts.
+
+    Every mistake is a usage error (exit 2) of one line naming the flag: a missing or malformed
+    flag, no way to the swarm (neither ``--connect`` nor ``--discovery``), credentials or a key
+    file that cannot be used, an FCU connection string that is not one. The folder of
+    ``--record-dir`` is made if missing."""
+    ap = agent_parser()
+    args = ap.parse_args(argv)
+    if args.config:
+        given = [a for a in ap._actions if a.dest not in (*WITH_CONFIG, "config", "help")
+                 and getattr(args, a.dest) != a.default]
+        if given:
+            ap.error(f"{given[0].option_strings[0]}: the --config file sets it (beside --config only {_flags(WITH_CONFIG)})")
+        cfg = load_agent_config(args, ap)
+    else:
+        missing = [flag for flag, v in (("--fcu", args.fcu), ("--swarm", args.swarm), ("--uav", args.uav),
+                                        ("--origin", args.origin)) if v is None]
+        if missing:
+            ap.error(f"{missing[0]} is required" + (f" (also {', '.join(missing[1:])})" if missing[1:] else "")
+                     + "; or --config FILE")
+        if not 0 <= args.sysid <= 250:
+            ap.error("--sysid must be in 1..250 (0: from the UAV id)")
+        for spec in args.mavlink_endpoint:
+            from uav_stack.mavlink_router import parse_endpoint
+
+            try:
+                parse_endpoint(spec)
+            except ValueError as exc:
+                ap.error(f"--mavlink-endpoint: {exc}")
         try:
-            parse_endpoint(spec)
-        except ValueError as exc:
-            ap.error(str(exc))
-    try:
-        cfg = AgentConfig.load(args.config) if args.config else convert(agent_settings(args, ap), AgentConfig)
-    except (ConfigError, OSError) as exc:
-        ap.error(f"{args.config}: {exc}" if args.config else str(exc))
+            cfg = convert(agent_settings(args, ap), AgentConfig)
+        except ConfigError as exc:
+            ap.error(flag_error(exc))
     if cfg.network.discovery is not None:
         try:
             cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node
         except ConfigError as exc:
-            ap.error(f"network.discovery.{exc}")
+            ap.error(f"{'--discovery-key-file' if not args.config else 'network.discovery.key_file'}: {exc.msg}")
     check_security(cfg, args.insecure, ap)
     check_signing_key(cfg, ap)
+    problem = fcu_url_problem(cfg.fcu)
+    if problem:
+        ap.error(f"--fcu {cfg.fcu}: {problem}")
+    check_network(cfg, ap, from_file=bool(args.config))
+    if cfg.record_dir:
+        try:
+            Path(cfg.record_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            ap.error(f"--record-dir {cfg.record_dir}: cannot make it: {exc.strerror or exc}")
+    return cfg, args
+
+
+def agent_main(argv: list[str] | None = None) -> int:
+    """``mrswarm agent``: the agent alone, for a real UAV's companion computer (or SITL)."""
+    cfg, args = parse_agent(argv)
+    lean_zenoh_runtime()
+    stop = StopFlag().install()
+    setup_logging(args.log_level)
     return run_agent(cfg, stop, args.duration, tap_zenoh_log=True)
+
+
+def flag_error(exc: ConfigError) -> str:
+    """A configuration error from the flags, naming the flag rather than the field (``--origin: lat: ...``)."""
+    path = exc.path
+    for field_path in sorted(FLAG_OF, key=len, reverse=True):
+        if path == field_path or path.startswith(field_path + "."):
+            rest = path[len(field_path) + 1:]
+            return f"{FLAG_OF[field_path]}: {rest + ': ' if rest else ''}{exc.msg}"
+    return str(exc)
+
+
+def load_agent_config(args: argparse.Namespace, ap: argparse.ArgumentParser) -> AgentConfig:
+    """``--config FILE``, with the flags that may go beside it (:data:`WITH_CONFIG`) replacing its fields."""
+    from msgspec.structs import replace
+
+    from swarmnet.security.credentials import Credentials
+
+    try:
+        cfg = AgentConfig.load(args.config)
+    except ConfigError as exc:
+        ap.error(f"--config {args.config}: {exc}")
+    except OSError as exc:
+        ap.error(f"--config {args.config}: cannot read it: {exc.strerror or exc}")
+    changes: dict[str, Any] = {}
+    if args.fcu is not None:
+        changes["fcu"] = args.fcu
+    if args.record_dir is not None:
+        changes["record_dir"] = args.record_dir
+    net = cfg.network
+    if args.keys is not None:
+        net = replace(net, security=Credentials(keys=args.keys, identity=args.identity or ""))
+    elif args.identity is not None:
+        if net.security is None:
+            ap.error("--identity needs credentials: --keys DIR (the --config file has none)")
+        net = replace(net, security=replace(net.security, identity=args.identity))
+    return replace(cfg, network=net, **changes)
+
+
+def check_network(cfg: AgentConfig, ap: argparse.ArgumentParser, from_file: bool = False) -> None:
+    """A way to the swarm that can be used: a router (``--connect``) or a discovery server (``--discovery``)."""
+    net = cfg.network
+    if net.connectivity != "discovery" and not net.endpoints:
+        ap.error("no way to the swarm: give --connect ENDPOINT (its edge or rendezvous router, e.g. tls/<edge-server>:7447) "
+                 "or --discovery HOST:PORT with --discovery-key-file" if not from_file else
+                 f"network.endpoints: none in the --config file, and its connectivity is {net.connectivity!r}")
+    for flag, endpoints in (("--connect", net.endpoints), ("--listen", net.listen)):
+        for e in endpoints:
+            if not ZENOH_ENDPOINT.match(e):
+                ap.error(f"{flag if not from_file else 'network.' + flag[2:]} {e}: not a Zenoh endpoint; "
+                         "expected PROTOCOL/HOST:PORT, e.g. tls/192.0.2.1:7447")
+    try:
+        make_connectivity(net, NodeName.uav(cfg.uav, cfg.swarm))
+    except ValueError as exc:
+        ap.error(f"{'--connect/--listen' if not from_file else 'network'}: {exc}")
 
 
 def check_security(cfg: AgentConfig, insecure: bool, ap: argparse.ArgumentParser) -> None:
@@ -494,17 +661,18 @@ def check_security(cfg: AgentConfig, insecure: bool, ap: argparse.ArgumentParser
         creds.files()
         creds.roster()
     except ConfigError as exc:
-        ap.error(f"network.security.{exc}")
-
-
+        ap.error(f"--keys: {exc.msg}" if exc.path == "keys" else f"network.security.{exc}")
 def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dict[str, Any]:
     """The AgentConfig the flags of ``mrswarm agent`` describe, as a mapping to validate."""
     try:
         lat, lon, alt = (float(v) for v in args.origin.split(","))
     except ValueError:
-        ap.error("--origin must be LAT,LON,ALT")
+        ap.error(f"--origin {args.origin}: expected LAT,LON,ALT (degrees, degrees, m AMSL), e.g. -35.36,149.16,584")
+    for what, v, lo, hi in (("latitude", lat, -90.0, 90.0), ("longitude", lon, -180.0, 180.0), ("altitude", alt, -500.0, 9000.0)):
+        if not lo <= v <= hi:  # also NaN
+            ap.error(f"--origin {args.origin}: {what} {v:g} is outside {lo:g}..{hi:g}")
     net: dict[str, Any] = {"endpoints": args.connect, "mode": args.mode, "pose_feed": args.pose_feed,
-                           "listen": args.listen or ["tcp/0.0.0.0:0"]}
+                           "listen": args.listen or ["tcp/127.0.0.1:0"]}  # a UAV on a network names its address
     if args.keys:
         net["security"] = {"keys": args.keys, "identity": args.identity or ""}
     if args.discovery:
@@ -512,11 +680,10 @@ def agent_settings(args: argparse.Namespace, ap: argparse.ArgumentParser) -> dic
             ap.error("--discovery needs --discovery-key-file")
         net.update(connectivity="discovery", discovery={"server": args.discovery, "key_file": args.discovery_key_file,
                                                          "advertise": args.advertise})
-    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind}
+    gcs: dict[str, Any] = {"mavlink_endpoints": args.mavlink_endpoint, "sysid": args.sysid, "bind": args.mavlink_bind,
+                           "allow_unsigned": args.mavlink_allow_unsigned}
     if args.mavlink_key_file:
-        gcs["signing"] = {"key_file": args.mavlink_key_file, "require": not args.mavlink_allow_unsigned}
-    elif args.mavlink_allow_unsigned:
-        ap.error("--mavlink-allow-unsigned needs --mavlink-key-file")
+        gcs["signing"] = {"key_file": args.mavlink_key_file}
     out = {"swarm": args.swarm, "uav": args.uav, "origin": {"lat": lat, "lon": lon, "alt": alt}, "fcu": args.fcu,
            "fcu_bind": args.fcu_bind, "realm": args.realm, "autostart": args.autostart, "record_dir": args.record_dir,
            "network": net, "gcs": gcs}

@@ -91,8 +91,9 @@ class Payload:
 class VirtualSensor:
     """A sensor fed by the world service: keeps the newest reading and measures what arrives.
 
-    ``delay`` is the receive time minus the instant the reading describes (the sensor's
-    latency plus the transport), ``interval`` the EWMA of the time between readings.
+    ``delay`` is the arrival time minus the instant the reading describes (the sensor's
+    latency plus the transport), ``wait`` the time from its arrival to the control tick that took
+    it in (up to one tick), ``interval`` the EWMA of the time between readings.
     """
 
     def __init__(self, spec: SensorSpec):
@@ -101,6 +102,7 @@ class VirtualSensor:
         self.received = 0
         self.out_of_order = 0
         self.delay = LogHistogram()
+        self.wait = LogHistogram()
         self.interval = 0.0
         self._last_recv = math.nan
 
@@ -111,9 +113,12 @@ class VirtualSensor:
     def latest(self) -> SensorReading | None:
         return self._latest
 
-    def feed(self, r: Reading, now: float) -> None:
+    def feed(self, r: Reading, now: float, arrived: float | None = None) -> None:
+        """Take in ``r`` at ``now`` (the control tick), which arrived at ``arrived`` (default: now)."""
         self.received += 1
-        self.delay.add(now - r.t_meas)
+        at = now if arrived is None else arrived
+        self.delay.add(at - r.t_meas)
+        self.wait.add(max(now - at, 0.0))
         if self._last_recv == self._last_recv:
             dt = now - self._last_recv
             self.interval = dt if self.interval == 0.0 else 0.8 * self.interval + 0.2 * dt
@@ -131,7 +136,9 @@ class VirtualSensor:
                 "rate_hz": round(1.0 / self.interval, 2) if self.interval > 0 else 0.0,
                 "delay_ms": {"p50": ms(self.delay.percentile(50)), "p99": ms(self.delay.percentile(99)),
                              "max": ms(self.delay.max) if self.delay.n else None},
-                "delay_hist": self.delay.to_dict()}
+                "delay_hist": self.delay.to_dict(),
+                "wait_ms": {"p50": ms(self.wait.percentile(50)), "p99": ms(self.wait.percentile(99))},
+                "wait_hist": self.wait.to_dict()}
 
 
 class VirtualActuator:
@@ -209,13 +216,13 @@ class VirtualPayload(Payload):
 
     def poll(self, now: float) -> None:
         """Take in the readings and traffic that arrived (call once per tick, after ``node.poll``)."""
-        readings, traffic = self.link.poll()
-        for r in readings:
+        readings, traffic = self.link.poll_arrivals()
+        for at, r in readings:
             s = self.virtual.get(r.sensor)
             if s is None:
                 self.unknown += 1
                 continue
-            s.feed(r, now)
+            s.feed(r, now, at)
         if self.traffic is not None:
             for t in traffic:
                 self.traffic.update(t)

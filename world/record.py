@@ -12,13 +12,21 @@ Flushed every second, so an interrupted run keeps what happened:
 - ``world_estimates.csv``: every source estimate a UAV broadcast (``plume/estimate``);
 - ``world_actuations.csv``: every actuator request: who, where the world placed it, litres
   asked and released, cells extinguished.
+
+A write the disk refuses (full, read-only) never stops the service: it is counted (``unwritten``,
+in ``world.json`` once the disk takes it again) and logged once a minute.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
+import logging
+import math
 import os
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
@@ -28,6 +36,7 @@ from world.model import World
 
 SAMPLE_S = 1.0
 GRID_EVERY_S = 10.0
+log = logging.getLogger(__name__)
 
 
 class WorldRecorder:
@@ -44,6 +53,17 @@ class WorldRecorder:
                                                              "released_l", "extinguished"])
         self._next = 0.0
         self._next_grid = 0.0
+        self.unwritten = 0  # writes the disk refused
+        self._warned = -math.inf
+
+    def _guard(self, write: Callable[[], None]) -> None:
+        try:
+            write()
+        except OSError as exc:
+            self.unwritten += 1
+            if time.monotonic() - self._warned >= 60.0:
+                self._warned = time.monotonic()
+                log.warning("world records degraded (%s); the service goes on, counting it", exc.strerror or exc)
 
     def _csv(self, name: str, header: list[str]) -> Any:
         f = open(self.dir / name, "w", newline="")  # noqa: SIM115 - open until close()
@@ -53,18 +73,21 @@ class WorldRecorder:
         return w
 
     def estimate(self, t_wall: float, swarm: str, uav: int, x: float, y: float) -> None:
-        self.estimates.writerow([f"{t_wall:.3f}", swarm, uav, f"{x:.2f}", f"{y:.2f}"])
+        self._guard(lambda: self.estimates.writerow([f"{t_wall:.3f}", swarm, uav, f"{x:.2f}", f"{y:.2f}"]))
 
     def actuation(self, t_wall: float, swarm: str, uav: int, actuator: str, x: float, y: float, asked: float,
                   released: float, extinguished: int) -> None:
-        self.actuations.writerow([f"{t_wall:.3f}", swarm, uav, actuator, f"{x:.2f}", f"{y:.2f}", f"{asked:.4f}",
-                                  f"{released:.4f}", extinguished])
+        self._guard(lambda: self.actuations.writerow([f"{t_wall:.3f}", swarm, uav, actuator, f"{x:.2f}", f"{y:.2f}",
+                                                      f"{asked:.4f}", f"{released:.4f}", extinguished]))
 
     def sample(self, now: float, stats: dict[str, Any]) -> None:
         """Once a second: a row per model, the counters, flushed; the fire grid every 10 s."""
         if now < self._next:
             return
         self._next = now + SAMPLE_S
+        self._guard(lambda: self._sample(now, stats))
+
+    def _sample(self, now: float, stats: dict[str, Any]) -> None:
         w = self.world
         if w.started:
             t = w.time(now)
@@ -85,8 +108,13 @@ class WorldRecorder:
     def write_stats(self, stats: dict[str, Any]) -> None:
         path = self.dir / "world.json"
         tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(stats, indent=1))
-        os.replace(tmp, path)
+        try:
+            tmp.write_text(json.dumps({**stats, "unwritten": self.unwritten} if self.unwritten else stats, indent=1))
+            os.replace(tmp, path)
+        except OSError:
+            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
+                tmp.unlink(missing_ok=True)
+            raise
 
     def write_grid(self) -> None:
         fire = self.world.fire
@@ -94,13 +122,18 @@ class WorldRecorder:
             return
         path = self.dir / "world_fire.npz"
         tmp = path.with_name(".world_fire.tmp.npz")
-        np.savez_compressed(tmp, xs=fire.xs, ys=fire.ys, fuel=fire.fuel, state=fire.state, t_ignited=fire.t_ignited,
-                            t_over=fire.t_over, t=np.array(fire.t), cell_m=np.array(fire.cfg.cell_m))
-        os.replace(tmp, path)
+        try:
+            np.savez_compressed(tmp, xs=fire.xs, ys=fire.ys, fuel=fire.fuel, state=fire.state, t_ignited=fire.t_ignited,
+                                t_over=fire.t_over, t=np.array(fire.t), cell_m=np.array(fire.cfg.cell_m))
+            os.replace(tmp, path)
+        except OSError:
+            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
+                tmp.unlink(missing_ok=True)
+            raise
 
     def close(self, stats: dict[str, Any]) -> None:
-        self.write_stats(stats)
-        self.write_grid()
+        self._guard(lambda: self.write_stats(stats))
+        self._guard(self.write_grid)
         for f in self._files:
-            f.close()
+            self._guard(f.close)
         self._files.clear()

@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+from uav_stack.cli_args import ArgumentParser
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -36,7 +37,7 @@ def _targets(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog=prog, description="Ground station: live swarm telemetry and overrides (docs/gcs.md).")
+    ap = ArgumentParser(prog=prog, description="Ground station: live swarm telemetry and overrides (docs/gcs.md).")
     sub = ap.add_subparsers(dest="sub", required=True, metavar="SUBCOMMAND")
 
     p = sub.add_parser("nodes", help="who is alive: id, role, realm, version, address, last seen")
@@ -84,7 +85,7 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
         if verb == "goto":
             p.add_argument("xyz", nargs="*", type=float, metavar="X Y Z", help="m east, north, up from the swarm origin")
             p.add_argument("--geo", metavar="LAT,LON,ALT",
-                           help="a geodetic target instead: degrees, degrees, m above sea level (negative: --geo=-33.9,...)")
+                           help="a geodetic target instead: degrees, degrees, m above sea level (e.g. --geo -33.9,151.2,50)")
         if verb == "kill":
             p.add_argument("--yes", action="store_true", help="skip the confirmation (scripts)")
 
@@ -95,6 +96,8 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     p.add_argument("--die-with-parent", action="store_true", help="finish the file and stop when the parent process exits")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--status", action="store_true",
+                   help="MCAP: a line 'recorder-status {json}' on stdout per file begun or sealed, and at the end")
 
     p = sub.add_parser("foxglove", help="serve the swarm live to Foxglove (WebSocket protocol; docs/recording.md)")
     _common(p)
@@ -162,18 +165,23 @@ def _dispatch(args: argparse.Namespace, console: Any) -> int:
         if args.sub == "nodes":
             return _nodes(obs, args, console, target)
         if args.sub == "watch":
+            from pathlib import Path
+
             from mrswarm.gcs.watch import run_watch
 
-            view = WatchView(target.swarm, args.sort, args.reverse, filt)
+            view = WatchView(target.swarm, args.sort, args.reverse, filt, run_dir=Path(args.run) if args.run else None)
             return run_watch(obs, view, console, refresh_hz=args.refresh, duration=args.duration, once=args.once)
         if args.sub == "telemetry":
             return _telemetry(obs, args, console)
         if args.sub == "foxglove":
             return _foxglove(obs, args, console)
         if args.sub == "web":
+            from pathlib import Path
+
             from mrswarm.gcs.web.server import serve_web
 
-            return serve_web(obs, host=args.host, port=args.port, duration=args.duration)
+            return serve_web(obs, host=args.host, port=args.port, duration=args.duration,
+                             run_dir=Path(args.run) if args.run else None)
         if args.sub == "record" and (args.mcap or args.file.endswith(".mcap")):
             return _record_mcap(obs, args, console)
         if args.sub == "record":
@@ -192,6 +200,7 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
     from pathlib import Path
 
     from mrswarm.recorder.recording import Stop, record_swarm
+    from mrswarm.recorder.run_recorder import STATUS_PREFIX
 
     if Path(args.file).exists():
         raise GcsError(f"{args.file} exists: a recording is never overwritten")
@@ -199,10 +208,20 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
     stop.install()
     last = [time.monotonic()]
 
+    def say(line: str) -> None:  # a full disk under the log, or a runner gone, must not end the recording
+        try:
+            print(line, flush=True)
+        except OSError:
+            pass
+
     def report(counts: dict[str, int]) -> None:
         if not args.quiet and time.monotonic() - last[0] >= 5.0:
             last[0] = time.monotonic()
-            print(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())), flush=True)
+            say(f"recording {args.file}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+
+    def status(st: dict[str, object]) -> None:
+        if args.status:
+            say(f"{STATUS_PREFIX}{json.dumps(st)}")
 
     parent = os.getppid() if args.die_with_parent else None  # the runner: a runner killed hard still leaves a whole file
 
@@ -210,8 +229,10 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
         return stop.requested or (parent is not None and os.getppid() != parent)
 
     counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
-                          stop=stopped, report=report)
-    console.print(f"recorded {sum(counts.values())} messages to {args.file}", highlight=False)
+                          stop=stopped, report=report, status=status)
+    unwritten = counts.pop("unwritten", 0)
+    say(f"recorded {sum(counts.values())} messages to {args.file}"
+        + (f"; {unwritten} could not be written (the disk refused them)" if unwritten else ""))
     return 130 if stop.signum == signal.SIGINT else EXIT_OK
 
 

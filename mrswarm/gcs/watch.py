@@ -9,6 +9,7 @@ phase filter, ``n``/``p`` (PgDn/PgUp, arrows) page, ``c`` clear the filters.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import select
@@ -17,6 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console, Group, JustifyMethod
@@ -193,7 +195,8 @@ def _f(v: float, fmt: str) -> str:
 class WatchView:
     """Sorting, filtering, paging and rendering (separate from the terminal loop)."""
 
-    def __init__(self, swarm: str, sort: str = "id", reverse: bool = False, filt: Filter | None = None):
+    def __init__(self, swarm: str, sort: str = "id", reverse: bool = False, filt: Filter | None = None,
+                 run_dir: Path | None = None):
         sort_rows([], sort)  # validates
         self.swarm = swarm
         self.sort = sort
@@ -201,6 +204,22 @@ class WatchView:
         self.filter = filt or Filter()
         self.page = 0
         self.started = time.time()
+        self.run_dir = run_dir  # --run: the run folder, whose run.json says when the run has ended
+        self._ended: float | None = None  # wall time the run stopped
+        self._next_look = 0.0
+
+    def run_ended(self, now: float) -> float | None:
+        """When the watched run stopped (its run.json's ``stopped``), looked up once a second; None while it flies."""
+        if self.run_dir is None or self._ended is not None or now < self._next_look:
+            return self._ended
+        self._next_look = now + 1.0
+        try:
+            stopped = json.loads((self.run_dir / "run.json").read_text()).get("stopped")
+        except (OSError, ValueError, AttributeError):
+            return None  # not written yet, or being replaced
+        if isinstance(stopped, int | float):
+            self._ended = float(stopped)
+        return self._ended
 
     def render(self, obs: SwarmObserver, now: float, height: int, width: int = 200) -> Group:
         rows = rows_from(obs, now)
@@ -250,6 +269,13 @@ class WatchView:
                 "detail": r.detail,
             }
             t.add_row(*(cells[c] for c in cols), style=style)
+        ended = self.run_ended(now)
+        if ended is not None and self.run_dir is not None:
+            summary = self.run_dir / "summary.json"
+            at = time.strftime("%H:%M:%S", time.localtime(ended))
+            head.append(Text(f"\nthe run has ended ({now - ended:.0f} s ago, at {at})"
+                             + (f"; summary: {summary}" if summary.exists() else "; its summary is being written"),
+                             style="bold red"))
         waits = [Text.assemble((f"UAV {r.id} {r.phase}: ", "bold red" if r.phase == AgentPhase.ERROR else "bold"), r.detail,
                                no_wrap=True, overflow="ellipsis") for r in waiting[:wait_lines]]
         if len(waiting) > wait_lines:

@@ -1,20 +1,28 @@
-"""An MCAP file that survives its writer being killed: chunks closed and flushed every second.
+"""An MCAP file that survives its writer being killed, and a full disk: whole records on disk, flushed every second.
 
 The file is written with the ``mcap`` package (pure Python): records go into a zstd-compressed
 chunk, and :meth:`McapWriter.maybe_flush` closes the chunk, writes it with its message index and
-fsyncs at least every :data:`FLUSH_EVERY` s. A writer killed with SIGKILL therefore leaves a file
-whose complete chunks hold everything but the last second; it has no summary section (indexes,
-statistics), which a reader rebuilds by reading the chunks in order (mrswarm/recorder/reader.py,
-and Foxglove does the same). :meth:`McapWriter.close` writes the summary.
+fsyncs at least every :data:`FLUSH_EVERY` s. The ``mcap`` writer writes into memory
+(:class:`_Sink`), and only whole records reach the file, at those flushes: a writer killed with
+SIGKILL leaves a file whose records are complete up to its last flush (everything but the last
+second), and a write the disk refuses (full, read-only, failing) is cut back to the last whole
+record (:class:`DiskError`), so the file stays readable up to the fault. Such a file has no summary
+section (indexes, statistics), which a reader rebuilds by reading the records in order
+(mrswarm/recorder/reader.py, and Foxglove does the same); :func:`seal` gives it the ending a closed
+file has (DataEnd, Footer), and :meth:`McapWriter.close` writes the whole summary.
 """
 
 from __future__ import annotations
 
 import os
+import struct
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import DataEnd, Footer
 from mcap.writer import CompressionType, Writer
 
 from mrswarm.recorder.records import Record
@@ -23,6 +31,53 @@ from swarmnet.version import __version__
 
 FLUSH_EVERY = 1.0  # s: at most this much is lost when the writer dies
 CHUNK_BYTES = 4 * 1024 * 1024  # a chunk closes earlier when it reaches this size (uncompressed)
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, content length
+
+
+class DiskError(OSError):
+    """The disk refused the file's next records; the file is cut back to its last whole record."""
+
+
+class _Sink:
+    """The stream the ``mcap`` writer writes to: bytes held in memory until :meth:`commit` writes them."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.committed = 0  # bytes on disk, all of them whole records
+        self.pending = bytearray()
+
+    def write(self, data: bytes) -> int:
+        self.pending += data
+        return len(data)
+
+    def tell(self) -> int:
+        return self.committed + len(self.pending)
+
+    def flush(self) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+    def commit(self) -> None:
+        """Write what is pending; on a refusal, cut the file back to its last whole record and raise DiskError
+        (what was pending stays pending: the next commit tries it again, at the same offset)."""
+        view = memoryview(self.pending)
+        done = 0
+        try:
+            while done < len(view):
+                done += os.pwrite(self.fd, view[done:], self.committed + done)
+        except OSError as exc:
+            view.release()
+            try:
+                os.ftruncate(self.fd, self.committed)
+            except OSError:
+                pass
+            raise DiskError(exc.errno, exc.strerror, exc.filename) from None
+        view.release()
+        self.committed += done
+        self.pending.clear()
 
 
 class McapWriter:
@@ -31,8 +86,9 @@ class McapWriter:
     def __init__(self, path: str | Path, *, flush_every: float = FLUSH_EVERY, clock: Callable[[], float] = time.monotonic):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "xb")  # noqa: SIM115 (open until close()); "x": never overwrite a recording
-        self._w = Writer(self._f, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)  # never overwrite a recording
+        self._sink = _Sink(self._fd)
+        self._w = Writer(self._sink, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
         self._w.start(profile="", library=f"mrswarm {__version__}")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
@@ -67,27 +123,122 @@ class McapWriter:
         self._w.add_metadata(name, data)
         self.flush()
 
-    def maybe_flush(self) -> None:
+    def maybe_flush(self) -> bool:
+        """Flush if the last flush is :attr:`flush_every` old; whether it did (DiskError as :meth:`flush`)."""
         if self.clock() - self._last_flush >= self.flush_every:
             self.flush()
+            return True
+        return False
+
+    @property
+    def unflushed(self) -> int:
+        """Messages not on disk yet (since the last flush the disk took)."""
+        return self.messages - self._flushed_messages
+
+    @property
+    def backlog(self) -> int:
+        """Bytes waiting in memory for the disk (after a refusal; 0 otherwise between flushes)."""
+        return len(self._sink.pending)
+
+    _flushed_messages = 0
 
     def flush(self) -> None:
-        """Close the chunk in progress, write it out and fsync: what is flushed survives a SIGKILL."""
+        """Close the chunk in progress, write it out and fsync: what is flushed survives a SIGKILL. DiskError
+        if the disk refuses it: the file then ends at the last flush, and the records stay in memory
+        (:attr:`backlog`) for the next flush to try again."""
         self._w.flush()
+        self._last_flush = self.clock()
+        self._sink.commit()
+        self._flushed_messages = self.messages
         try:
-            os.fsync(self._f.fileno())
+            os.fsync(self._fd)
         except OSError:
             pass
-        self._last_flush = self.clock()
 
     def close(self) -> None:
-        """Write the summary (indexes, statistics) and close the file."""
+        """Write the summary (indexes, statistics) and close the file. DiskError if the disk refuses it: the
+        file is then sealed at its last flush instead (readable, without the summary)."""
         if self._closed:
             return
         self._closed = True
         try:
             self._w.finish()
-            self._f.flush()
-            os.fsync(self._f.fileno())
+            self._sink.commit()
+            os.fsync(self._fd)
+        except DiskError:
+            seal_fd(self._fd, self._sink.committed)
+            raise
         finally:
-            self._f.close()
+            os.close(self._fd)
+
+    def abandon(self) -> None:
+        """After a DiskError: stop writing; the file ends with its last flush, sealed (DataEnd, Footer) if there is room."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            seal_fd(self._fd, self._sink.committed)
+        finally:
+            os.close(self._fd)
+
+
+def _ending() -> bytes:
+    b = RecordBuilder()
+    DataEnd(data_section_crc=0).write(b)
+    Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
+    return bytes(b.end()) + MAGIC
+
+
+def whole_records_end(fd: int) -> tuple[int, bool]:
+    """(offset after the file's last whole record, whether that record is the Footer): the MCAP framing
+    (opcode, length, content) walked from the start, without reading the contents."""
+    size = os.fstat(fd).st_size
+    if size < len(MAGIC) or os.pread(fd, len(MAGIC), 0) != MAGIC:
+        return 0, False
+    pos = len(MAGIC)
+    while pos + _RECORD_HEAD.size <= size:
+        op, length = _RECORD_HEAD.unpack(os.pread(fd, _RECORD_HEAD.size, pos))
+        end = pos + _RECORD_HEAD.size + length
+        if end > size:
+            break
+        pos = end
+        if op == Opcode.FOOTER:
+            return pos, True
+    return pos, False
+
+
+def seal_fd(fd: int, end: int | None = None) -> bool:
+    """Give a file its ending (DataEnd, Footer, magic) after its last whole record (or at ``end``), cutting off a
+    torn tail; a file that has its Footer already is left as it is. False if the disk refused it."""
+    last, footed = whole_records_end(fd)
+    if footed:
+        return True
+    end = last if end is None else min(end, last)
+    if end < len(MAGIC):
+        return False
+    try:
+        os.ftruncate(fd, end)
+        ending = _ending()
+        if os.pwrite(fd, ending, end) != len(ending):
+            os.ftruncate(fd, end)
+            return False
+        os.fsync(fd)
+    except OSError:
+        try:
+            os.ftruncate(fd, end)
+        except OSError:
+            pass
+        return False
+    return True
+
+
+def seal(path: str | Path) -> bool:
+    """:func:`seal_fd` on a file whose writer died (killed, or its disk full): it then ends as a closed file does."""
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        return seal_fd(fd)
+    finally:
+        os.close(fd)

@@ -7,7 +7,8 @@ plain session configuration into a secured one:
 * every link is TLS with mutual authentication: the node presents its certificate when it
   listens and when it dials, and accepts only certificates of the swarm's CA;
 * every ``tcp/`` endpoint becomes ``tls/`` (the discovery proxy then advertises ``tls/``
-  locators, and peers dial them as such);
+  locators, and peers dial them as such), and ``tls`` is the only link protocol the session
+  opens or accepts (``transport.link.protocols``): nothing makes it dial a plaintext locator;
 * the swarm's access control, generated from the roster (:mod:`swarmnet.security.acl`).
 
 Names are not verified on connect (``verify_name_on_connect: false``): peers dial each other
@@ -74,6 +75,16 @@ class Credentials(Config, frozen=True):
                                           f"--dir <the swarm's key directory>` and copy its bundle here")
         return ca, cert, key
 
+    def beacon_token(self) -> bytes | None:
+        """This identity's beacon token (``<cn>.beacon``), which binds its discovery beacons to it; None
+        if the directory has none (one made before beacon tokens: ``mrswarm keys bundle`` writes it)."""
+        from swarmnet.security.beacon import read_token
+
+        try:
+            return read_token(self.keys, self.name.cn)
+        except ValueError as exc:
+            raise ConfigError("keys", str(exc)) from None
+
     def roster(self) -> Roster:
         roster = Roster.load(self.keys)
         if roster.swarm != self.name.swarm:
@@ -103,6 +114,10 @@ class Credentials(Config, frozen=True):
                 cfg[section]["endpoints"] = [secure_endpoint(e) for e in cfg[section].get("endpoints", [])]
             except ValueError as exc:
                 raise ConfigError(section, str(exc)) from None
-        cfg.setdefault("transport", {}).setdefault("link", {})["tls"] = self.tls()
+        link = cfg.setdefault("transport", {}).setdefault("link", {})
+        link["tls"] = self.tls()
+        # the only link protocol the session opens or accepts: a Hello, a gossip message or a registry
+        # entry with a tcp/ (or any other) locator never makes a secured node open a plaintext link
+        link["protocols"] = list(SECURE_SCHEMES)
         cfg["access_control"] = access_control(self.roster())
         return cfg

@@ -6,10 +6,17 @@ node is (:mod:`swarmnet.security.identity`). The key directory holds::
     ca.pem            the CA certificate: every node trusts exactly this
     ca.key            the CA's private key (0600): keep it off the UAVs
     roster.json       who was issued a certificate, who was revoked
+    beacon.key        the swarm's beacon key (0600): the discovery server derives every node's
+                      beacon token from it (swarmnet/security/beacon.py)
     <cn>.pem, <cn>.key  one certificate and private key (0600) per node, e.g. uav-3.alpha.pem
+    mavlink.key       the swarm's MAVLink 2 signing passphrase (0600): UAVs' MAVLink routers
+                      take commands only from ground stations that sign with it (docs/security.md)
+    <cn>.beacon       the node's beacon token (0600): binds its discovery beacons to this certificate
 
-A node needs only ``ca.pem``, ``roster.json`` and its own pair: :meth:`KeyDir.bundle` copies
-those into a directory of their own for a UAV's companion computer or a container.
+A node needs only ``ca.pem``, ``roster.json``, its own pair and its token, and a UAV or a ground
+station ``mavlink.key`` too: :meth:`KeyDir.bundle` copies those into a directory of their own for a
+UAV's companion computer or a container (the edge's bundle also carries ``beacon.key``, for the
+discovery server beside the edge router).
 
 Keys are ECDSA P-256 (small, fast handshakes, supported by Zenoh's TLS). Certificates carry
 the CN as a DNS name too (TLS libraries verify names against the subject alternative names),
@@ -38,8 +45,9 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from swarmnet.security.beacon import BEACON_KEY_FILE, derive_token, new_beacon_key, token_path
 from swarmnet.security.identity import NodeName
-from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, Issued, Revoked, Roster
+from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, MAVLINK_KEY_FILE, Issued, Revoked, Roster
 
 CA_DAYS = 5 * 365  # the CA outlives many node certificates
 NODE_DAYS = 90  # short-lived: expiry is the revocation Zenoh does enforce (close_link_on_expiration)
@@ -60,6 +68,19 @@ def write_private(path: Path, data: bytes) -> None:
     finally:
         os.close(fd)
     os.replace(tmp, path)
+
+
+def write_passphrase(path: Path) -> Path:
+    """A new random passphrase in ``path`` (0600, replacing any): 256 bits as 43 URL-safe
+    characters, which MAVProxy (``signing key``) and QGroundControl take as typed (never one
+    that starts with ``-``, which a command line would read as an option)."""
+    import secrets
+
+    passphrase = secrets.token_urlsafe(32)
+    while passphrase.startswith("-"):
+        passphrase = secrets.token_urlsafe(32)
+    write_private(path, (passphrase + "\n").encode("ascii"))
+    return path
 
 
 def _new_key() -> ec.EllipticCurvePrivateKey:
@@ -100,6 +121,16 @@ class KeyDir:
         return self.path / f"{name.cn}.key"
 
     @property
+    def mavlink_key_path(self) -> Path:
+        return self.path / MAVLINK_KEY_FILE
+
+    def new_mavlink_key(self) -> Path:
+        """A new MAVLink signing passphrase for the swarm (the old one stops working once each
+        UAV has the new one); needs the CA, as only the swarm's own directory may change it."""
+        self._ca()
+        return write_passphrase(self.mavlink_key_path)
+
+    @property
     def roster(self) -> Roster:
         from swarmnet.schema import ConfigError
 
@@ -131,7 +162,36 @@ class KeyDir:
         kd.path.chmod(0o700)
         serial = kd._write_ca(swarm, days)
         Roster(swarm=swarm, ca_serial=serial).save(kd.path)
+        write_passphrase(kd.mavlink_key_path)
+        kd.beacon_key()
         return kd
+
+    def beacon_key(self) -> bytes:
+        """The swarm's beacon key, made now if this directory (one with the CA) has none yet."""
+        path = self.path / BEACON_KEY_FILE
+        try:
+            return path.read_bytes().strip()
+        except FileNotFoundError:
+            if not (self.path / CA_KEY_FILE).exists():
+                raise KeysError(f"{self.path}: no {BEACON_KEY_FILE} here, and no CA to make one (a node's bundle?)") from None
+        write_private(path, new_beacon_key())
+        return path.read_bytes().strip()
+
+    def ensure_tokens(self, names: Iterable[NodeName]) -> list[NodeName]:
+        """Write the beacon tokens a directory made before them lacks, for these members; the ones written."""
+        roster = self.roster
+        done = []
+        for name in names:
+            if roster.is_member(name.cn) and not token_path(self.path, name.cn).exists():
+                self.write_token(name, roster.nodes[name.cn].serial)
+                done.append(name)
+        return done
+
+    def write_token(self, name: NodeName, serial: str, dest: Path | None = None) -> Path:
+        """``<cn>.beacon``: the beacon token of ``name``'s certificate ``serial`` (in ``dest``, default here)."""
+        path = token_path(dest or self.path, name.cn)
+        write_private(path, derive_token(self.beacon_key(), name.cn, serial).hex().encode() + b"\n")
+        return path
 
     def _write_ca(self, swarm: str, days: int) -> str:
         key = _new_key()
@@ -157,16 +217,18 @@ class KeyDir:
         return format(cert.serial_number, "x")
 
     def rotate(self, days: int = CA_DAYS, node_days: int = NODE_DAYS) -> list[NodeName]:
-        """A new CA, and a new certificate for every member: every older certificate, revoked or
-        not, stops working at once. Revoked names may be issued again afterwards. Returns the
-        re-issued identities (hand each its new bundle)."""
+        """A new CA, a new certificate for every member and a new MAVLink signing key: every
+        older certificate, revoked or not, and the old MAVLink key stop working at once. Revoked
+        names may be issued again afterwards. Returns the re-issued identities (hand each its
+        new bundle)."""
         old = self.roster
         members = old.names()
         serial = self._write_ca(old.swarm, days)
+        write_passphrase(self.mavlink_key_path)
         roster = Roster(swarm=old.swarm, ca_serial=serial)
         roster.save(self.path)
         for cn in old.revoked:  # their certificates no longer chain to the CA: delete the leftovers
-            for p in (self.path / f"{cn}.pem", self.path / f"{cn}.key"):
+            for p in (self.path / f"{cn}.pem", self.path / f"{cn}.key", token_path(self.path, cn)):
                 p.unlink(missing_ok=True)
         for name in members:
             self.issue(name, days=node_days)
@@ -216,6 +278,7 @@ class KeyDir:
         write_private(self.key_path(name), _key_pem(key))
         self.cert_path(name).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         entry = Issued(serial=format(cert.serial_number, "x"), not_after=not_after.timestamp(), issued=time.time())
+        self.write_token(name, entry.serial)
         self._save_roster(roster, nodes={**roster.nodes, name.cn: entry})
         return entry
 
@@ -231,6 +294,7 @@ class KeyDir:
         self._save_roster(roster, nodes=nodes, revoked=revoked)
         self.key_path(name).unlink(missing_ok=True)
         self.cert_path(name).unlink(missing_ok=True)
+        token_path(self.path, name.cn).unlink(missing_ok=True)
         return rev
 
     def _save_roster(self, roster: Roster, **changes: object) -> None:
@@ -239,7 +303,9 @@ class KeyDir:
         msgspec.structs.replace(roster, **changes).save(self.path)
 
     def bundle(self, name: NodeName, out: str | Path) -> Path:
-        """Copy what node ``name`` needs (CA certificate, roster, its own pair) into directory ``out``."""
+        """Copy what node ``name`` needs (CA certificate, roster, its own pair, its beacon token, and for
+        a UAV or a ground station the MAVLink signing key) into directory ``out``; the edge's bundle also
+        gets the beacon key (its discovery server checks every token)."""
         roster = self.roster
         if not roster.is_member(name.cn):
             raise KeysError(f"{name.cn} is not a member of swarm {roster.swarm!r} (issue it first)")
@@ -250,4 +316,13 @@ class KeyDir:
         roster.save(dest)
         shutil.copyfile(self.cert_path(name), dest / self.cert_path(name).name)
         write_private(dest / self.key_path(name).name, self.key_path(name).read_bytes())
+        if name.role in ("uav", "gcs") and self.mavlink_key_path.is_file():
+            write_private(dest / MAVLINK_KEY_FILE, self.mavlink_key_path.read_bytes())
+        token = token_path(self.path, name.cn)
+        if token.exists():
+            write_private(token_path(dest, name.cn), token.read_bytes())
+        else:  # a directory from before beacon tokens: made from its beacon key
+            self.write_token(name, roster.nodes[name.cn].serial, dest)
+        if name.role == "edge":
+            write_private(dest / BEACON_KEY_FILE, self.beacon_key() + b"\n")
         return dest

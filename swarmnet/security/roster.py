@@ -21,6 +21,7 @@ from swarmnet.security.identity import NodeName
 ROSTER_FILE = "roster.json"
 CA_CERT_FILE = "ca.pem"
 CA_KEY_FILE = "ca.key"
+MAVLINK_KEY_FILE = "mavlink.key"  # the swarm's MAVLink 2 signing passphrase (uav_stack.mavlink_signing reads it)
 
 Seconds = Annotated[float, Meta(ge=0.0, description="Unix time, s")]
 

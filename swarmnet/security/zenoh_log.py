@@ -7,6 +7,11 @@ the process's standard output. :class:`ZenohLogTap` puts a pipe in front of that
 line still reaches where it went before (the process's log), and each refused handshake is
 counted in ``NodeStats.refused["tls_handshake"]``.
 
+Zenoh 1.10's listener pauses 100 ms after each handshake it refuses (a fixed throttle), so it
+refuses at most 10 a second: under a flood the count grows at that pace while the other connections
+wait in the kernel's accept queue, each counted when Zenoh reaches it; what the full queue turns
+away is counted apart (``refused.accept_queue_full``, swarmnet/security/links.py).
+
 Zenoh's access-control denials are not counted here: Zenoh logs them only at trace level (one
 line per key expression, as it caches decisions), and zenoh-python is built without Zenoh's
 drop statistics. docs/security.md says what is counted where.

@@ -59,6 +59,7 @@ class _Constraint:
 
 
 _BY_DIST = operator.attrgetter("dist")
+YIELD_MARGIN = 0.3  # of a zone's margin still kept when the full margin leaves no way to give way to a neighbour
 
 
 class CollisionAvoidance:
@@ -215,7 +216,7 @@ class CollisionAvoidance:
         if self.zones:
             zone_planes = self.zones.planes(me.pos, altitude)
             hard = [h for _, h in zone_planes]
-            pref = self.zones.steer(pref, zone_planes)
+            pref = self.zones.steer(pref, zone_planes, me.pos)
         v_a = me.vel if is_finite(me.vel) else (0.0, 0.0)
         px, py = me.pos
         vax, vay = v_a
@@ -265,6 +266,12 @@ class CollisionAvoidance:
             del cons[self.max_neighbours :]
         planes = hard + [c.plane for c in cons]
         v, feasible = solve(planes, self.max_speed, pref, hard=len(hard))
+        if not feasible and hard and self.zones is not None and cons:
+            # boxed in between a zone's margin and a neighbour: give way into the margin (never into the zone)
+            # rather than towards the neighbour
+            hard = [h for _, h in self.zones.planes(me.pos, altitude, margin=self.zones.margin * YIELD_MARGIN)]
+            planes = hard + [c.plane for c in cons]
+            v, feasible = solve(planes, self.max_speed, pref, hard=len(hard))
         sp = math.hypot(pref[0], pref[1])
         if self.bias_angle > 0.0 and sp > 1e-9 and cons:
             # keep-right: the more progress is blocked by traffic coming our way, the more the

@@ -27,6 +27,12 @@ inside which every other known cell is out), and flies to the nearest burning ce
 of. With none known, it flies to the last known fire and searches around it (random points
 within ``search_radius``). The tank, its refilling at the hub and the effect of spraying are the world's
 (a virtual actuator and a ``tank`` sensor); the UAV only asks for litres.
+
+The first time the alarm goes up, the UAVs leave the hub one after another in the order of their
+ids, :data:`DEPART_GAP_S` apart, not as a pack: eight UAVs waiting 6 m apart that all set off
+for the same fire reached the no-fly zone in its way together, and squeezed between its edge and
+each other they came closer than the safety distance. Later departures (after a refill) are
+spread out by the refills themselves.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ FULL = 0.98  # of the capacity: the tank counts as full
 EMPTY_L = 0.05  # litres: the tank counts as empty
 MAX_SHARED_CELLS = 48
 HUB_INSIDE = 0.8  # of the hub's radius: far enough inside to refill, so wait there
+DEPART_GAP_S = 1.5  # s between two UAVs leaving the hub at the first alarm (7.5 m at 5 m/s, one and a half safety distances)
 
 IDLE, ON_DUTY, FIGHTING, RETURNING = "idle", "on duty", "fire fighting", "returning"
 
@@ -83,6 +90,7 @@ class FireFighter:
         self._next_share = 0.0
         self._out: list[tuple[str, Any]] = []
         self._seen_t = -math.inf
+        self._alarm_at: float | None = None  # when this UAV first saw the fire burning: the swarm's departures begin
 
     @property
     def done(self) -> bool:
@@ -166,7 +174,9 @@ class FireFighter:
         hub = self.cfg.hub
         if self.state == IDLE:
             full = tank is not None and tank >= FULL * self.capacity
-            if burning and full:
+            if burning and self._alarm_at is None:
+                self._alarm_at = now
+            if burning and full and self._my_turn(me.uav, members, now):
                 self._go(ON_DUTY, now)
             elif math.dist(me.pos, hub) <= HUB_INSIDE * self.cfg.hub_radius:
                 return (0.0, 0.0)  # anywhere in the hub will do (the thesis' assumption): no crowding at its centre
@@ -198,6 +208,13 @@ class FireFighter:
             return (0.0, 0.0)
         target = self._target(me.pos)
         return self._towards(me.pos, target, slow_within=self.cfg.arrive_m * 2)
+
+    def _my_turn(self, me: int, members: Sequence[int], now: float) -> bool:
+        """At the first alarm, the UAVs leave in the order of their ids, DEPART_GAP_S apart (module docstring)."""
+        if self._alarm_at is None or self.transitions:
+            return True  # not the first departure
+        rank = sorted({*members, me}).index(me)
+        return now >= self._alarm_at + rank * DEPART_GAP_S
 
     def _burning_under(self, p: Vec2) -> Vec2 | None:
         """The nearest known burning cell within the spray's reach."""

@@ -2,7 +2,9 @@
 
 The page (``static/``, shipped in the package, no external asset) draws what this server pushes
 five times a second: every UAV's position, heading, phase, realm, link age and failsafe state, and
-the commands sent from the page with each UAV's acknowledgement. Commands go through the same
+the commands sent from the page with each UAV's acknowledgement. On connecting, a page gets the
+run's mission area, zones and hub, and every UAV's trail from the start of the run
+(:mod:`mrswarm.gcs.web.scene`; with ``--run``, else the trails since the server started). Commands go through the same
 :class:`~swarmnet.observer.SwarmObserver` as ``mrswarm gcs hold`` (the ground station's identity,
 role ``gcs``), with the CLI's rules: only UAVs alive in the swarm, one re-send to the silent ones
 halfway, ``timeout`` after :data:`COMMAND_TIMEOUT` s. The page offers hold, resume, land, rtl and
@@ -31,6 +33,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from mrswarm.gcs.session import GcsError
+from mrswarm.gcs.web.scene import Trails, recorded_trails, scene_of
 from swarmnet.observer import PendingCommand, SwarmObserver
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -92,8 +95,10 @@ def uav_json(obs: SwarmObserver, uav: int, now: float, alive: set[int]) -> dict[
 class WebMap:
     """The server's state: one observer, the pages connected, the commands they sent."""
 
-    def __init__(self, obs: SwarmObserver, host: str, port: int):
+    def __init__(self, obs: SwarmObserver, host: str, port: int, run_dir: Path | None = None):
         self.obs = obs
+        self.scene = scene_of(run_dir) if run_dir is not None else {}  # mission area, zones, hub
+        self.trails = recorded_trails(run_dir) if run_dir is not None else Trails()  # from the run's start
         self.host = host
         self.port = port  # the bound port once serving (0 asks the system for one)
         self.clients: set[ServerConnection] = set()
@@ -133,7 +138,8 @@ class WebMap:
         self.clients.add(ws)
         try:
             await ws.send(json.dumps({"type": "hello", "swarm": self.obs.keys.swarm, "verbs": list(VERBS),
-                                      "command_timeout_s": COMMAND_TIMEOUT}))
+                                      "command_timeout_s": COMMAND_TIMEOUT, "scene": self.scene,
+                                      "trails": self.trails.to_json()}))
             await ws.send(json.dumps(self.snapshot(time.time())))
             async for raw in ws:
                 reply = self.on_message(raw)
@@ -216,7 +222,8 @@ class WebMap:
             end = loop.time() + duration if duration is not None else math.inf
             next_push = 0.0
             while loop.time() < end and not self.stopping:
-                self.obs.poll()
+                for p in self.obs.poll():
+                    self.trails.add(p.uav, p.x, p.y)
                 self.track()
                 if loop.time() >= next_push:
                     next_push = loop.time() + PUSH_PERIOD
@@ -236,11 +243,12 @@ def _text(status: HTTPStatus, text: str) -> Response:
                                                           "Content-Length": str(len(body))}), body)
 
 
-def serve_web(obs: SwarmObserver, *, host: str = "127.0.0.1", port: int = 8088, duration: float | None = None) -> int:
+def serve_web(obs: SwarmObserver, *, host: str = "127.0.0.1", port: int = 8088, duration: float | None = None,
+              run_dir: Path | None = None) -> int:
     """Serve the map until Ctrl-C or ``duration`` s; returns the exit code (0, or 130 on Ctrl-C)."""
     if not 0 <= port <= 65535:
         raise GcsError(f"--port {port}: expected 0..65535")
-    web = WebMap(obs, host, port)
+    web = WebMap(obs, host, port, run_dir)
 
     def ready(bound: int) -> None:
         shown = f"[{host}]" if ":" in host else host

@@ -3,7 +3,8 @@
 // window.mrswarm holds the state the page draws (tests read it; so can a user in the console).
 "use strict";
 (() => {
-  const TRAIL = 300;           // points kept per UAV trail (60 s at the 5 Hz push)
+  const TRAIL = 4000;          // points kept per UAV trail, a metre apart (the server sends the trails from the run's start)
+  const TRAIL_STEP = 1.0;      // m between two trail points
   const HIT_PX = 14;           // a click this close to a UAV selects it
   const COLORS = { virtual: "#4a90e2", physical: "#f08c2a", stale: "#5b6570", override: "#e6c35c", failsafe: "#ff5b4b" };
   const canvas = document.getElementById("map");
@@ -11,7 +12,7 @@
   const $ = (id) => document.getElementById(id);
 
   const S = window.mrswarm = {
-    swarm: "", connected: false, t: 0, uavs: {}, trails: {}, selected: [], commands: [], lastReply: null,
+    swarm: "", connected: false, t: 0, uavs: {}, trails: {}, scene: {}, selected: [], commands: [], lastReply: null,
     view: { scale: 3, cx: 0, cy: 0, fitted: false }, gotoMode: false,
     // where UAV `id` is drawn, in page coordinates (CSS px): what a click on it needs
     screenOf(id) {
@@ -41,9 +42,14 @@
   }
   function fit() {
     const us = Object.values(S.uavs);
-    if (!us.length) return;
+    const pts = us.map((u) => [u.x, u.y]), sc = S.scene;
+    if (sc.area) pts.push([sc.area[0], sc.area[2]], [sc.area[1], sc.area[3]]);
+    for (const z of sc.zones || []) pts.push(...z.polygon);
+    if (sc.hub) pts.push([sc.hub[0] - sc.hub[2], sc.hub[1] - sc.hub[2]], [sc.hub[0] + sc.hub[2], sc.hub[1] + sc.hub[2]]);
+    for (const tr of Object.values(S.trails)) pts.push(...tr);
+    if (!pts.length) return;
     let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
-    for (const u of us) { x0 = Math.min(x0, u.x); x1 = Math.max(x1, u.x); y0 = Math.min(y0, u.y); y1 = Math.max(y1, u.y); }
+    for (const [x, y] of pts) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
     const { w, h } = size();
     S.view.cx = (x0 + x1) / 2; S.view.cy = (y0 + y1) / 2;
     S.view.scale = Math.max(0.02, Math.min(40, Math.min(w / (x1 - x0 + 60), h / (y1 - y0 + 60))));
@@ -80,10 +86,11 @@
     const o = toScreen(0, 0);
     ctx.strokeStyle = "#56616c"; ctx.beginPath(); ctx.moveTo(o.x - 8, o.y); ctx.lineTo(o.x + 8, o.y); ctx.moveTo(o.x, o.y - 8); ctx.lineTo(o.x, o.y + 8); ctx.stroke();
     $("scale").textContent = `grid ${step} m · origin +`;
+    drawScene();
     for (const [id, pts] of Object.entries(S.trails)) {
       const u = S.uavs[id];
-      if (!u || pts.length < 2) continue;
-      ctx.strokeStyle = colorOf(u); ctx.globalAlpha = 0.35; ctx.lineWidth = 1.5; ctx.beginPath();
+      if (pts.length < 2) continue;
+      ctx.strokeStyle = u ? colorOf(u) : COLORS.stale; ctx.globalAlpha = 0.45; ctx.lineWidth = 1.5; ctx.beginPath();
       pts.forEach((p, i) => { const s = toScreen(p[0], p[1]); if (i) ctx.lineTo(s.x, s.y); else ctx.moveTo(s.x, s.y); });
       ctx.stroke(); ctx.globalAlpha = 1;
     }
@@ -97,6 +104,35 @@
       ctx.fillStyle = u.stale ? COLORS.stale : "#dde3ea";
       ctx.fillText(`${u.id} ${u.phase}${u.override ? " (" + u.override + ")" : ""}`, s.x + 13, s.y - 9);
     }
+  }
+
+  // the run's fixed layer: mission area (dashed), no-fly zones and obstacles (hatched red), the hub (circle)
+  function drawScene() {
+    const sc = S.scene;
+    ctx.save();
+    if (sc.area) {
+      const a = toScreen(sc.area[0], sc.area[3]), b = toScreen(sc.area[1], sc.area[2]);
+      ctx.setLineDash([6, 4]); ctx.strokeStyle = "#8fa3b8"; ctx.lineWidth = 1.2;
+      ctx.strokeRect(a.x, a.y, b.x - a.x, b.y - a.y); ctx.setLineDash([]);
+      ctx.fillStyle = "#8fa3b8"; ctx.font = "11px system-ui, sans-serif"; ctx.fillText(sc.area_label || "mission area", a.x + 4, a.y + 13);
+    }
+    for (const z of sc.zones || []) {
+      if (!z.polygon.length) continue;
+      ctx.beginPath();
+      z.polygon.forEach(([x, y], i) => { const s = toScreen(x, y); if (i) ctx.lineTo(s.x, s.y); else ctx.moveTo(s.x, s.y); });
+      ctx.closePath();
+      ctx.fillStyle = "rgba(255, 91, 75, 0.18)"; ctx.fill();
+      ctx.strokeStyle = "#ff5b4b"; ctx.lineWidth = 1.5; ctx.stroke();
+      const c = z.polygon.reduce((m, p) => [m[0] + p[0] / z.polygon.length, m[1] + p[1] / z.polygon.length], [0, 0]), s = toScreen(c[0], c[1]);
+      ctx.fillStyle = "#ff8a7d"; ctx.font = "11px system-ui, sans-serif"; ctx.textAlign = "center";
+      ctx.fillText(z.name || z.kind.replace("_", "-"), s.x, s.y); ctx.textAlign = "start";
+    }
+    if (sc.hub) {
+      const s = toScreen(sc.hub[0], sc.hub[1]);
+      ctx.strokeStyle = "#5fb3f0"; ctx.lineWidth = 1.5; ctx.beginPath(); ctx.arc(s.x, s.y, sc.hub[2] * S.view.scale, 0, 2 * Math.PI); ctx.stroke();
+      ctx.fillStyle = "#5fb3f0"; ctx.font = "11px system-ui, sans-serif"; ctx.textAlign = "center"; ctx.fillText("hub", s.x, s.y + 4); ctx.textAlign = "start";
+    }
+    ctx.restore();
   }
 
   // ---- side panel -------------------------------------------------------------------------------
@@ -142,7 +178,12 @@
     };
     ws.onmessage = (ev) => {
       const m = JSON.parse(ev.data);
-      if (m.type === "hello") { S.swarm = m.swarm; $("swarm").textContent = "swarm " + m.swarm; document.title = `mrswarm ${m.swarm}`; }
+      if (m.type === "hello") {
+        S.swarm = m.swarm; $("swarm").textContent = "swarm " + m.swarm; document.title = `mrswarm ${m.swarm}`;
+        S.scene = m.scene || {};
+        for (const [id, pts] of Object.entries(m.trails || {})) S.trails[id] = pts.slice(-TRAIL);  // from the run's start
+        S.view.fitted = false;
+      }
       else if (m.type === "state") update(m);
       else if (m.type === "sent" || m.type === "error") { S.lastReply = m; if (m.type === "error") $("selection").textContent = "error: " + m.message; }
     };
@@ -153,10 +194,9 @@
     for (const u of m.uavs) {
       now[u.id] = u;
       const tr = S.trails[u.id] || (S.trails[u.id] = []), last = tr[tr.length - 1];
-      if (!last || Math.hypot(last[0] - u.x, last[1] - u.y) > 0.2) { tr.push([u.x, u.y]); if (tr.length > TRAIL) tr.shift(); }
+      if (!last || Math.hypot(last[0] - u.x, last[1] - u.y) >= TRAIL_STEP) { tr.push([u.x, u.y]); if (tr.length > TRAIL) tr.shift(); }
     }
-    S.uavs = now;
-    for (const id of Object.keys(S.trails)) if (!(id in now)) delete S.trails[id];
+    S.uavs = now;  // a UAV gone from the swarm keeps its trail (where it flew), drawn grey
     S.selected = S.selected.filter((id) => id in now);
     S.commands = m.commands;
     if (!S.view.fitted) fit();
