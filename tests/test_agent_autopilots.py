@@ -72,8 +72,8 @@ def agent(tmp_path: Path, fcu_url: str, router: str, *, autostart: bool = True, 
                    "failsafe": {"arm_timeout_s": arm_timeout_s}, **more}, AgentConfig)
     path = tmp_path / f"{name}.json"
     path.write_text(cfg.to_json())
-    p = subprocess.Popen([sys.executable, "-m", "mrswarm", "agent", "--fcu", fcu_url, "--swarm", "solo", "--uav", "3",
-                          f"--origin={','.join(map(str, origin))}", "--config", str(path), "--insecure", "--duration", "90"],
+    p = subprocess.Popen([sys.executable, "-m", "mrswarm", "agent", "--fcu", fcu_url, "--config", str(path), "--insecure",
+                          "--duration", "90"],  # (the config sets the swarm, UAV and origin: beside it only these flags)
                          cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
     try:
         yield p, rec / "uav3.json"

@@ -67,12 +67,48 @@ def test_cli_rejects_bad_arguments(capsys) -> None:
         main(["--home", "1,2"])
     assert main(["--listen", "127.0.0.1:0", "--param", "NO_SUCH_PARAM=1", "--duration", "0.1"]) == 2
     assert "NO_SUCH_PARAM" in capsys.readouterr().err
+    # the old ArduPilot names are not 4.7's: a clear error, as for any unknown parameter
+    assert main(["--listen", "127.0.0.1:0", "--flavour", "ardupilot", "--param", "SYSID_THISMAV=3", "--duration", "0.1"]) == 2
+    assert "SYSID_THISMAV" in capsys.readouterr().err
+    assert main(["--listen", "127.0.0.1:0", "--rate", "AHRS2=4", "--duration", "0.1"]) == 2  # an ArduPilot message, not PX4's
+    assert "AHRS2" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--boot", "slow"])
+    with pytest.raises(ValueError, match="boot: expected one of 'short', 'firmware', got 'slow'"):
+        VehicleConfig(boot="slow")
+    with pytest.raises(ValueError, match="stream_rates: unknown message names"):
+        FcuConfig([VehicleConfig()], stream_rates={"NOPE": 1.0})
 
 
 def test_cli_duration_runs_and_returns() -> None:
     t0 = time.monotonic()
-    assert main(["--listen", "127.0.0.1:0", "--duration", "0.5", "--flavour", "ardupilot"]) == 0
+    assert main(["--listen", "127.0.0.1:0", "--duration", "0.5", "--flavour", "ardupilot", "--boot", "firmware"]) == 0
     assert 0.4 < time.monotonic() - t0 < 5.0
+
+
+def test_cli_boot_firmware_runs_the_firmwares_timeline() -> None:
+    """``--boot firmware``: ArduCopter's own boot (its first heartbeat about 1 s after launch, BOOT, then
+    STANDBY about 3 s after, not armable until its EKF uses GPS about 42 s after)."""
+    cmd = [sys.executable, "-m", "uav_stack.fcu", "--listen", "127.0.0.1:0", "--flavour", "ardupilot", "--boot", "firmware",
+           "--duration", "30"]  # fmt: skip
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    try:
+        (line,) = _read_lines(p, 1, 10.0)
+        host, port = line.split()[2].rsplit(":", 1)
+        with MavClient((host, int(port))) as c:
+            c.heartbeat()
+            hb = c.recv_match("HEARTBEAT", 3.0)
+            assert hb is not None and hb.system_status == M.MAV_STATE_BOOT
+            assert c.recv_match("HEARTBEAT", 4.0, lambda m: m.system_status == M.MAV_STATE_STANDBY) is not None
+            assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_FAILED
+            assert c.wait(lambda: any(t.startswith("Arm: ") for t in c.statustexts), 1.0)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(5.0) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait(5.0)
+        p.stdout.close()
 
 
 def test_fleet_of_vehicles_in_one_fcu_are_independent() -> None:

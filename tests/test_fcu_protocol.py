@@ -376,3 +376,18 @@ def test_fuzzed_messages_never_break_the_vehicle() -> None:
         for i, addr in enumerate(ft.addrs):
             with MavClient(addr, target_sysid=i + 1) as fresh:
                 assert fresh.command_long(M.MAV_CMD_REQUEST_MESSAGE, 242) == M.MAV_RESULT_ACCEPTED
+
+
+def test_a_turned_down_link_carries_only_what_is_wanted() -> None:
+    """streams.turned_down: the FCU configured as a companion turns a PX4 down (every unasked stream off)."""
+    from uav_stack.fcu.streams import turned_down
+
+    wanted = {"GLOBAL_POSITION_INT": 10.0, "SYS_STATUS": 1.0, "AHRS2": 4.0}  # (AHRS2: not a PX4 message)
+    rates = turned_down("px4", wanted)
+    assert rates["GLOBAL_POSITION_INT"] == 10.0 and rates["ATTITUDE"] == 0.0 and "AHRS2" not in rates
+    assert turned_down("ardupilot", wanted) == wanted
+    with FcuThread(FcuConfig([VehicleConfig(sysid=1)], stream_rates=rates)) as ft, MavClient(ft.addrs[0]) as c:
+        c.heartbeat()
+        c.drain(2.0)
+        assert {n for n, k in c.counts.items() if k > 1} == {"GLOBAL_POSITION_INT", "SYS_STATUS", "HEARTBEAT"}, c.counts
+        assert 16 <= c.counts["GLOBAL_POSITION_INT"] <= 24

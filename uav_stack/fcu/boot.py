@@ -75,13 +75,3 @@ class BootTimeline:
         self.at = {name: -math.inf for name in self.at}
         self.ready_at = self.done_at = -math.inf
         self._next = len(self._events)
-
-    def hold(self, name: str) -> None:
-        """A milestone (and everything after it) not reached until :meth:`release` (tests)."""
-        t0 = self.at[name]
-        for k, t in self.at.items():
-            if t >= t0:
-                self.at[k] = math.inf
-        if self.ready_at >= t0:
-            self.ready_at = math.inf
-        self.done_at = math.inf

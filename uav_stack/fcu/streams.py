@@ -81,6 +81,17 @@ def firmware_rates(flavour: str, param: Callable[[str], float] | None = None) ->
     return rates
 
 
+def turned_down(flavour: str, wanted: dict[str, float]) -> dict[str, float]:
+    """``FcuConfig.stream_rates`` for a link that carries only ``wanted`` (name -> Hz): every stream the
+    flavour sends unasked off, the wanted ones at their rates. What a companion does to a real PX4 with
+    SET_MESSAGE_INTERVAL −1 when it reads few of its onboard link's 400 messages a second; for an
+    ArduPilot (silent until asked) it only sets the wanted ones."""
+    unasked = firmware_rates(flavour).items() if flavour == "px4" else ()
+    rates = {name: 0.0 for name, hz in unasked if hz > 0 and name != "HEARTBEAT"}
+    rates.update({name: hz for name, hz in wanted.items() if name in ENCODERS_BY_FLAVOUR[flavour]})
+    return rates
+
+
 def ardupilot_group_hz(name: str, group_hz: float) -> float:
     """The rate of one message of a stream group set to ``group_hz``."""
     if name == "TERRAIN_REQUEST":

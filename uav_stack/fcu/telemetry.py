@@ -159,18 +159,15 @@ def attitude(v: Vehicle) -> mavlink.MAVLink_message:
 
 def attitude_quaternion(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
-    r, p, y = float(d.roll[i]) / 2, float(d.pitch[i]) / 2, float(d.yaw[i]) / 2
+    get = d.get
+    r, p, y = get(ROLL, i) / 2, get(PITCH, i) / 2, get(YAW, i) / 2
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return v.mav.attitude_quaternion_encode(
-        _ms(v),
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        float(d.roll_rate[i]),
-        float(d.pitch_rate[i]),
-        float(d.yaw_rate[i]),
-    )
+    m = _reuse(v, "ATTITUDE_QUATERNION", lambda: v.mav.attitude_quaternion_encode(0, 1, 0, 0, 0, 0, 0, 0))
+    m.time_boot_ms = _ms(v)
+    m.q1, m.q2 = cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy
+    m.q3, m.q4 = cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy
+    m.rollspeed, m.pitchspeed, m.yawspeed = get(ROLL_RATE, i), get(PITCH_RATE, i), get(YAW_RATE, i)
+    return m
 
 
 def sys_status(v: Vehicle) -> mavlink.MAVLink_message:

@@ -79,12 +79,15 @@ def distance_sensor(v: Vehicle) -> mavlink.MAVLink_message:
 def odometry(v: Vehicle) -> mavlink.MAVLink_message:
     d, i = v.ctx.dyn, v.i
     get = d.get
-    x, y, z = get(POS, i)
-    vx, vy, vz = get(VEL, i)
-    q = _quaternion(get(ROLL, i), get(PITCH, i), get(YAW, i))
-    return v.mav.odometry_encode(int(v.now * 1e6), M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD, x, y, z, q, vx, vy, vz,
-                                 get(ROLL_RATE, i), get(PITCH_RATE, i), get(YAW_RATE, i), [NAN] * 21, [NAN] * 21, 0,
-                                 M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100)  # fmt: skip
+    m = _reuse(v, "ODOMETRY", lambda: v.mav.odometry_encode(0, M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD, 0, 0, 0,
+                                                            [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0, 0, 0, [NAN] * 21,
+                                                            [NAN] * 21, 0, M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 100))  # fmt: skip
+    m.time_usec = int(v.now * 1e6)
+    m.x, m.y, m.z = get(POS, i)
+    m.vx, m.vy, m.vz = get(VEL, i)
+    m.q = _quaternion(get(ROLL, i), get(PITCH, i), get(YAW, i))
+    m.rollspeed, m.pitchspeed, m.yawspeed = get(ROLL_RATE, i), get(PITCH_RATE, i), get(YAW_RATE, i)
+    return m
 
 
 def estimator_status(v: Vehicle) -> mavlink.MAVLink_message:
