@@ -320,6 +320,31 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
             break
 
 
+# What a ground station's map and instruments read, at the rates the virtual FCU once sent unasked: a virtual
+# PX4 UAV with a MAVLink endpoint keeps these on its link beside the agent's own (a ground station may ask
+# for more with SET_MESSAGE_INTERVAL)
+GCS_VIEW_HZ = {"ATTITUDE": 5.0, "VFR_HUD": 2.0, "LOCAL_POSITION_NED": 2.0, "BATTERY_STATUS": 0.5,
+               "SYSTEM_TIME": 1.0, "MISSION_CURRENT": 1.0}
+
+
+def virtual_stream_rates(cfg: VirtualUavConfig) -> dict[str, float]:
+    """The virtual FCU's streams, set up as a companion sets a real PX4's onboard link when it reads few of its
+    400 messages a second (SET_MESSAGE_INTERVAL -1 for the rest): the ones its agent asks for (the start-up
+    contract's), and a ground station's view if the UAV has a MAVLink endpoint. A virtual ArduPilot stays as
+    its firmware boots, silent until asked (its agent and ground stations ask)."""
+    if cfg.flavour != "px4":
+        return {}
+    from uav_stack.autopilot import PX4_PROFILE
+    from uav_stack.fcu.streams import turned_down
+    from uav_stack.fcu_contract import wants_for
+
+    a = cfg.agent
+    wanted = {w.name: w.hz for w in wants_for(PX4_PROFILE, a.pose_rate_hz)}
+    if a.gcs.mavlink_endpoints:
+        wanted = {**GCS_VIEW_HZ, **wanted}
+    return turned_down(cfg.flavour, wanted)
+
+
 def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
@@ -327,6 +352,7 @@ def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool =
     fcu = VirtualFcu(
         FcuConfig(
             vehicles=[VehicleConfig(sysid=a.mavlink_sysid, home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
+            stream_rates=virtual_stream_rates(cfg),
             physics_hz=cfg.physics_hz,
             target_rtf=cfg.target_rtf,
             # the loop comes back once per tick: a tick's lateness beyond that drops sim time, not less
