@@ -2,7 +2,8 @@
 
 ``setup.py`` builds them when a C compiler and Python's headers are there (``optional=True``);
 each has a Python twin that runs the same rules. ``MRSWARM_PURE_PYTHON=1`` in the environment
-makes every one of them count as absent, to run (or measure) the Python twins instead.
+makes every one of them count as absent, to run (or measure) the Python twins instead; a
+comma-separated list of module names (``swarmnet._intake,uav_stack._udp``) makes those absent.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from types import ModuleType
 
 def compiled_module(name: str) -> ModuleType | None:
     """The compiled module ``name`` (``"swarmnet._intake"``...), or None when it was not built
-    (no C compiler at install, or built for another Python) or ``MRSWARM_PURE_PYTHON`` is set."""
-    if os.environ.get("MRSWARM_PURE_PYTHON", "") not in ("", "0"):
+    (no C compiler at install, or built for another Python) or ``MRSWARM_PURE_PYTHON`` names it (or is 1)."""
+    pure = os.environ.get("MRSWARM_PURE_PYTHON", "")
+    if pure == "1" or name in pure.split(","):
         return None
     try:
         return importlib.import_module(name)
