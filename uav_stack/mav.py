@@ -33,13 +33,6 @@ import types
 from uav_stack import dialect
 
 os.environ["MAVLINK20"] = "1"
-# mavutil loads the dialect that MAVLINK_DIALECT names when it is imported. Ours is registered as
-# pymavlink.dialects.v20.mrswarm first, and the variable is put back afterwards: a child process
-# (MAVProxy, a test's tool) would look for a dialect of that name among pymavlink's own.
-_asked = os.environ.get("MAVLINK_DIALECT")
-if _asked in (None, dialect.NAME):
-    dialect.load()
-    os.environ["MAVLINK_DIALECT"] = dialect.NAME
 sys.modules.setdefault("pymavlink.dialects.v10.all", types.ModuleType("pymavlink.dialects.v10.all"))
 
 
@@ -57,6 +50,15 @@ class _Deferred(types.ModuleType):
 for _name in ("ssl", "hashlib"):
     if _name not in sys.modules:
         sys.modules[_name] = _Deferred(_name)
+
+# After the stand-ins: the generated dialect imports hashlib. mavutil loads the dialect that
+# MAVLINK_DIALECT names when it is imported. Ours is registered as pymavlink.dialects.v20.mrswarm
+# first, and the variable is put back afterwards: a child process (MAVProxy, a test's tool) would
+# look for a dialect of that name among pymavlink's own.
+_asked = os.environ.get("MAVLINK_DIALECT")
+if _asked in (None, dialect.NAME):
+    dialect.load()
+    os.environ["MAVLINK_DIALECT"] = dialect.NAME
 
 from pymavlink import mavutil  # noqa: E402
 

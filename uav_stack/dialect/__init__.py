@@ -16,17 +16,11 @@ temporary name and renamed, so no process ever imports half a module.
 from __future__ import annotations
 
 import contextlib
-import fcntl
-import hashlib
-import importlib.metadata
 import importlib.util
-import io
 import os
-import py_compile
-import shutil
 import sys
-import tempfile
 import types
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -43,13 +37,18 @@ def _pymavlink_dir() -> Path:
 
 
 def _key() -> str:
-    digest = hashlib.sha256(XML.read_bytes() + importlib.metadata.version("pymavlink").encode()).hexdigest()[:16]
-    return f"{NAME}_{digest}"
+    # zlib's CRC, not hashlib: hashlib loads OpenSSL's libcrypto, several MB in every UAV process (uav_stack/mav.py)
+    import pymavlink
+
+    version = str(getattr(pymavlink, "__version__", ""))
+    return f"{NAME}_{zlib.crc32(XML.read_bytes() + version.encode()):08x}"
 
 
 def _cache_dirs() -> Iterator[Path]:
     yield Path(__file__).with_name("_generated")
     yield Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mrswarm"
+    import tempfile
+
     yield Path(tempfile.gettempdir()) / f"mrswarm-{os.getuid()}"
 
 
@@ -63,6 +62,8 @@ def _writable(folder: Path) -> bool:
 
 @contextlib.contextmanager
 def _locked(folder: Path) -> Iterator[None]:
+    import fcntl
+
     with open(folder / ".lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
@@ -73,6 +74,11 @@ def _locked(folder: Path) -> Iterator[None]:
 
 def _generate(target: Path) -> None:
     """mavgen from ``mrswarm.xml`` into ``target``, then byte-compiled (atomically both)."""
+    import io
+    import py_compile
+    import shutil
+    import tempfile
+
     from pymavlink.generator import mavgen, mavparse
 
     with tempfile.TemporaryDirectory(prefix="mrswarm-dialect-") as work:
