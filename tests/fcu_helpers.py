@@ -181,7 +181,7 @@ class MavClient:
 
     def command_long(self, command: int, *params: float, timeout: float = 2.0, confirmation: int = 0) -> int | None:
         self._forget_acks(command)
-        p = [float(x) for x in params] + [NAN] * (7 - len(params))
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))  # as ground stations pad them
         self.send(self.mav.command_long_encode(self.target_sysid, 1, command, confirmation, *p))
         ack = self.recv_match("COMMAND_ACK", timeout, lambda m: m.command == command)
         return None if ack is None else ack.result

@@ -97,13 +97,14 @@ def test_unknown_command_unsupported_and_ack_addressing(px4) -> None:
 def test_nan_and_int32_max_params_are_unset(px4) -> None:
     ft, c = px4
     # MAVSDK style: every unused param NaN
-    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, NAN) == M.MAV_RESULT_ACCEPTED
-    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 0, NAN) == M.MAV_RESULT_ACCEPTED
-    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_DENIED  # p1 NaN: nothing to do
-    assert c.command_long(M.MAV_CMD_DO_SET_MODE, NAN, NAN, NAN) == M.MAV_RESULT_DENIED
-    assert c.command_long(M.MAV_CMD_REQUEST_MESSAGE) == M.MAV_RESULT_DENIED
-    assert c.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, NAN, NAN) == M.MAV_RESULT_DENIED
-    assert c.command_long(M.MAV_CMD_DO_CHANGE_SPEED) == M.MAV_RESULT_ACCEPTED
+    unset = (NAN,) * 6
+    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1, *unset) == M.MAV_RESULT_ACCEPTED
+    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 0, *unset) == M.MAV_RESULT_ACCEPTED
+    assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, NAN, *unset) == M.MAV_RESULT_DENIED  # p1 NaN: nothing to do
+    assert c.command_long(M.MAV_CMD_DO_SET_MODE, NAN, *unset) == M.MAV_RESULT_DENIED
+    assert c.command_long(M.MAV_CMD_REQUEST_MESSAGE, NAN, *unset) == M.MAV_RESULT_DENIED
+    assert c.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, NAN, *unset) == M.MAV_RESULT_DENIED
+    assert c.command_long(M.MAV_CMD_DO_CHANGE_SPEED, NAN, *unset) == M.MAV_RESULT_ACCEPTED
     # COMMAND_INT with INT32_MAX x/y and NaN z: reposition keeps the position (but needs arming)
     i32 = 2**31 - 1
     assert c.command_int(M.MAV_CMD_DO_REPOSITION, M.MAV_FRAME_GLOBAL_INT, x=i32, y=i32) == M.MAV_RESULT_DENIED
@@ -391,3 +392,14 @@ def test_a_turned_down_link_carries_only_what_is_wanted() -> None:
         c.drain(2.0)
         assert {n for n, k in c.counts.items() if k > 1} == {"GLOBAL_POSITION_INT", "SYS_STATUS", "HEARTBEAT"}, c.counts
         assert 16 <= c.counts["GLOBAL_POSITION_INT"] <= 24
+
+
+def test_ardupilot_takes_no_nan_where_it_makes_integers() -> None:
+    """A real ArduCopter 4.7 SITL stops (floating-point trap) on a COMMAND_LONG with NaN in param 5 or 6,
+    which it turns into COMMAND_INT's integers: the virtual one leaves such a command unanswered and counts it,
+    and takes the same command with 0 there."""
+    nan = float("nan")
+    with FcuThread(cfg(flavour="ardupilot")) as ft, MavClient(ft.addrs[0]) as c:
+        assert c.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, 33, 100000, 0, 0, nan, nan, 0, timeout=1.0) is None
+        assert ft.fcu.stats.nan_integer_params == 1
+        assert c.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, 33, 100000) == M.MAV_RESULT_ACCEPTED

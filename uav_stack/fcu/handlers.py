@@ -38,6 +38,13 @@ def on_heartbeat(v: Vehicle, m: mavlink.MAVLink_message) -> None:
 
 
 def on_command_long(v: Vehicle, m: mavlink.MAVLink_message) -> None:
+    if not v.flavour.is_px4 and (m.param5 != m.param5 or m.param6 != m.param6):
+        # ArduPilot turns COMMAND_LONG into COMMAND_INT, params 5 and 6 into integers: NaN there is undefined,
+        # and a real ArduCopter SITL stops on the floating-point trap. Never answered here, always counted.
+        v.ctx.stats.nan_integer_params += 1
+        v.ctx.log.error("COMMAND_LONG %d with NaN in param 5 or 6: ArduPilot makes them integers (undefined; "
+                    "its SITL stops), ignored", m.command)
+        return
     handle_command(v, MavCommand.from_long(m))
 
 

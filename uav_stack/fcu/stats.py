@@ -25,6 +25,9 @@ class FcuStats:
     peers_evicted: int = 0  # learned peers replaced by newer ones (never the owner)
     commands: Counter[str] = field(default_factory=Counter)  # by MAV_RESULT name
     commands_by_id: Counter[int] = field(default_factory=Counter)
+    # COMMAND_LONGs an ArduPilot cannot take: NaN in param 5 or 6, which it makes integers (its SITL stops on
+    # the floating-point trap); the virtual one ignores them, unanswered
+    nan_integer_params: int = 0
     handler_errors: int = 0
     handler_errors_by_type: Counter[str] = field(default_factory=Counter)
     physics_steps: int = 0
@@ -45,6 +48,7 @@ class FcuStats:
             "peers_evicted": self.peers_evicted,
             "commands": dict(self.commands),
             "commands_by_id": dict(self.commands_by_id),
+            "nan_integer_params": self.nan_integer_params,
             "handler_errors": self.handler_errors,
             "handler_errors_by_type": dict(self.handler_errors_by_type),
             "physics_steps": self.physics_steps,
