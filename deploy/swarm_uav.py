@@ -23,6 +23,7 @@ from pathlib import Path
 from msgspec.structs import replace
 
 from deploy.plan import edge_service
+from groundfloor.errors import MrswarmError
 from swarmnet.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
@@ -30,7 +31,7 @@ from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
 log = logging.getLogger(__name__)
 
 
-class SlotError(ValueError):
+class SlotError(ValueError, MrswarmError):
     pass
 
 

@@ -41,6 +41,7 @@ import zenoh
 from rich.console import Console
 from rich.markup import escape
 
+from groundfloor.errors import MrswarmError
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
@@ -83,7 +84,7 @@ LAND_RESEND_S = 2.0  # an external UAV that does not show its landing is sent 'l
 ON_GROUND = frozenset({AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED})
 
 
-class RunAborted(RuntimeError):
+class RunAborted(RuntimeError, MrswarmError):
     """The runner gives up: a UAV refused or ignored a command, missed a phase in time, or its process died."""
 
 

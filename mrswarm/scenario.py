@@ -27,6 +27,7 @@ from msgspec.structs import force_setattr, replace
 from deploy.plan import NetworkPlan, SwarmPlan
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
+from groundfloor.errors import MrswarmError
 from mrswarm.faults import FaultSpec, check_against, fit_to_duration
 from swarmnet import strict_yaml
 from swarmnet.feed import DEFAULT_WINDOW
@@ -68,7 +69,7 @@ Coord = Annotated[float, Meta(ge=-MAX_OFFSET_M, le=MAX_OFFSET_M, description="m 
 Heading = Annotated[float, Meta(ge=-360.0, le=360.0, description="degrees from north")]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ValueError, MrswarmError):
     """A scenario that cannot be used; the message names the file and the field."""
 
 

@@ -21,6 +21,8 @@ from typing import Any, TypeVar
 
 import msgspec
 
+from groundfloor.errors import MrswarmError
+
 T = TypeVar("T")
 
 
@@ -28,7 +30,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Base of every configuration type: immutable, no unknown fields."""
 
 
-class ConfigError(ValueError):
+class ConfigError(ValueError, MrswarmError):
     """An invalid configuration: ``path`` is the dotted field (``""``: the whole thing), ``msg`` what is wrong.
 
     Raised from ``__post_init__`` with the path below the Struct (``ConfigError("r", "required")``);

@@ -38,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundfloor.errors import MrswarmError
 from uav_stack.autopilot import (
     PX4_ARMING_SUMMARY,
     PX4_HEALTH_SUMMARY,
@@ -91,7 +92,7 @@ VELOCITY_ONLY_MASK = (
 )
 
 
-class LinkOpenError(OSError):
+class LinkOpenError(OSError, MrswarmError):
     """One of the agent's MAVLink links cannot be opened: the FCU link (a udpin port another
     process holds, a serial device that is not there) or a ground-station endpoint of its router.
     The message names the setting (``fcu``, ``gcs.mavlink_endpoints``) and the link, so that the

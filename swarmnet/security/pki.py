@@ -45,6 +45,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from groundfloor.errors import MrswarmError
 from swarmnet.security.beacon import BEACON_KEY_FILE, derive_token, new_beacon_key, token_path
 from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, MAVLINK_KEY_FILE, Issued, Revoked, Roster
@@ -54,7 +55,7 @@ NODE_DAYS = 90  # short-lived: expiry is the revocation Zenoh does enforce (clos
 CLOCK_SKEW = dt.timedelta(minutes=5)  # not_before this far back: a node whose clock is a little behind accepts it
 
 
-class KeysError(ValueError):
+class KeysError(ValueError, MrswarmError):
     """A key directory that cannot do what was asked; the message says why and what to do."""
 
 
