@@ -70,6 +70,8 @@ from typing import Any
 
 import psutil
 
+from groundfloor.process import stop_event
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -102,8 +104,7 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     aligned = "aligned" in variant  # ticks on the wall clock's grid, as network.align_ticks has the UAVs'
     if aligned:  # imported only here: the other skeletons load no more than their I/O needs
         from uav_stack.runtime import next_grid_instant
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_event((signal.SIGTERM,))
     if io:
         fcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

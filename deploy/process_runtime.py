@@ -14,14 +14,12 @@ from SIGTERM to SIGKILL, so nothing outlives the run. :meth:`ProcessRuntime.sign
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,32 +27,10 @@ from typing import Any
 from deploy.plan import LocalSite, NetworkPlan, PlacedService, SwarmPlan
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryServerOptions, RouterOptions
+from groundfloor.process import die_with_parent_preexec
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
 log = logging.getLogger(__name__)
-
-_PR_SET_PDEATHSIG = 1
-try:  # resolved once in the parent: the child between fork and exec only calls it
-    _prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
-except (OSError, AttributeError):
-    _prctl = None
-
-
-def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
-    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies.
-
-    Runs in the child between fork and exec, so no start-up race: if the parent is already gone
-    by then, the child exits at once instead of running as an orphan.
-    """
-
-    def set_pdeathsig() -> None:
-        if _prctl is not None:
-            _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-        if os.getppid() != parent:
-            os._exit(1)
-
-    return set_pdeathsig
-
 
 def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str]]:
     """argv prefix and environment for lean child Python processes.

@@ -27,7 +27,6 @@ import contextlib
 import json
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -36,6 +35,7 @@ from typing import Any
 
 import zenoh
 
+from groundfloor.process import stop_event
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
 from swarmnet.interest import Interest
@@ -189,9 +189,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--interest: {exc}")
         if not args.feed:
             ap.error("--interest-radius-m filters the pose feed: give --feed SWARM too")
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event()
     stats = NodeStats()
     credentials = None
     if args.keys:

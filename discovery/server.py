@@ -32,7 +32,6 @@ import json
 import logging
 import os
 import selectors
-import signal
 import socket
 import sys
 import threading
@@ -70,6 +69,7 @@ from discovery.protocol import (
     seal,
     unseal,
 )
+from groundfloor.process import die_with_parent, stop_event
 
 log = logging.getLogger(__name__)
 
@@ -552,13 +552,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log-level", default="INFO")
     ap.add_argument("--die-with-parent", action="store_true", help="exit when the launching process dies (runtimes)")
     args = ap.parse_args(argv)
-    if args.die_with_parent and sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-        except OSError:
-            pass
+    if args.die_with_parent:
+        die_with_parent()
     logging.basicConfig(level=getattr(logging, args.log_level.upper(), logging.INFO), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -576,9 +571,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"mrswarm discovery serve: error: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event()
     bound = f"; beacons bound to identities for {', '.join(sorted(cfg.identities))}" if cfg.identities else ""
     say(f"discovery server on udp/{host}:{port} for swarms {', '.join(sorted(cfg.keys))} "
         f"(period {DEFAULT_PERIOD:g} s, ttl {cfg.ttl:g} s){bound}")

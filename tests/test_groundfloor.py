@@ -7,9 +7,17 @@ Real files, real processes and real signals; the error-root check reads the sour
 from __future__ import annotations
 
 import ast
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
+import pytest
+
 from groundfloor.errors import MrswarmError, Rejected
+from groundfloor.process import STOP_SIGNALS, die_with_parent_preexec, on_stop_signals
 from tests.test_layers import LAYERS, ROOT
 
 BUILTIN_ERRORS = {"Exception", "ValueError", "RuntimeError", "OSError", "TimeoutError", "KeyError", "TypeError",
@@ -81,3 +89,90 @@ def test_the_checker_sees_a_rootless_error(tmp_path: Path) -> None:
     errors = exception_classes(tmp_path, ("pkg",))
     assert set(errors) == {"Base", "Deep", "Good"}
     assert rootless(errors) == ["pkg/m.py:3 Base", "pkg/m.py:6 Deep"]
+
+
+# ---- process helpers: real processes, real signals -------------------------------------------------
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie nobody reaped yet has ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state not in ("Z", "X")
+
+
+def wait_gone(pid: int, timeout: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return not alive(pid)
+
+
+# a launcher that starts a sleeper (both ways of asking to die with the parent), prints its pid, then waits
+LAUNCHER = """
+import os, subprocess, sys, time
+from groundfloor.process import die_with_parent_preexec
+sleeper = "import sys, time\\nfrom groundfloor.process import die_with_parent\\n" + (
+    "die_with_parent()\\n" if sys.argv[1] == "self" else "") + "print('ready', flush=True)\\ntime.sleep(120)\\n"
+preexec = die_with_parent_preexec(os.getpid()) if sys.argv[1] == "preexec" else None
+child = subprocess.Popen([sys.executable, "-c", sleeper], stdout=subprocess.PIPE, text=True, preexec_fn=preexec)
+assert child.stdout is not None and child.stdout.readline() == "ready\\n"
+print(child.pid, flush=True)
+time.sleep(120)
+"""
+
+
+@pytest.mark.parametrize("how", ["preexec", "self"])
+def test_a_child_dies_with_its_parent_even_on_sigkill(how: str) -> None:
+    launcher = subprocess.Popen([sys.executable, "-c", LAUNCHER, how], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert launcher.stdout is not None
+        child = int(launcher.stdout.readline())
+        assert alive(child)
+        launcher.kill()  # SIGKILL: the launcher cannot clean up after itself
+        launcher.wait(10)
+        assert wait_gone(child), f"the {how} child outlived its parent"
+    finally:
+        launcher.kill()
+
+
+def test_a_child_whose_parent_is_gone_before_exec_exits() -> None:
+    # a parent pid that is not ours: as if the parent had died between fork and exec
+    proc = subprocess.run([sys.executable, "-c", "print('ran')"], preexec_fn=die_with_parent_preexec(os.getpid() + 10**7),
+                          capture_output=True, text=True, timeout=30)
+    assert (proc.returncode, proc.stdout) == (1, "")
+
+
+STOPPER = """
+import signal, sys
+from groundfloor.process import stop_event
+stop = stop_event()
+print('ready', flush=True)
+print('stopped' if stop.wait(60) else 'timed out', flush=True)
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_signal_sets_the_event_and_the_loop_ends_cleanly(sig: int) -> None:
+    proc = subprocess.Popen([sys.executable, "-c", STOPPER], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=ROOT)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+        assert (proc.returncode, out, err) == (0, "stopped\n", "")
+    finally:
+        proc.kill()
+
+
+def test_on_stop_signals_returns_what_it_replaced() -> None:
+    before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    seen: list[int] = []
+    old = on_stop_signals(lambda signum, frame: seen.append(signum))
+    try:
+        assert old == before
+        signal.raise_signal(signal.SIGTERM)
+        assert seen == [signal.SIGTERM]
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)

@@ -9,7 +9,6 @@ handled as soon as it arrives. No asyncio: it would cost ~10 MB per process.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import logging
 import math
 import os
@@ -21,6 +20,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from groundfloor.process import die_with_parent, on_stop_signals
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, lean_zenoh_runtime, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
@@ -40,7 +40,6 @@ if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
 log = logging.getLogger(__name__)
 
 OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
-_PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
 
@@ -54,8 +53,7 @@ class StopFlag:
         self.stopped = True
 
     def install(self) -> StopFlag:
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, self._on_signal)
+        on_stop_signals(self._on_signal)
         # no part of a UAV process uses signal-driven I/O, and SIGIO's default ends the process: the
         # lease the counters file takes (uav_stack.recorder.SwappedJsonFile) can raise one
         signal.signal(signal.SIGIO, signal.SIG_IGN)
@@ -66,17 +64,6 @@ class StopFlag:
         # the records are written first thing on the way out; should closing the sessions then
         # hang, SIGALRM's default action ends the process (no orphan when the runner is gone)
         signal.alarm(SHUTDOWN_WATCHDOG_S)
-
-
-def die_with_parent() -> None:
-    """Ask Linux to SIGTERM us when the launching process dies (no orphans, even on SIGKILL)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
 
 
 def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Connectivity:
