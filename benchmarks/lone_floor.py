@@ -70,6 +70,7 @@ from typing import Any
 
 import psutil
 
+from groundfloor.files import write_json_atomic
 from groundfloor.process import stop_event
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -215,10 +216,8 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
             if now >= next_second:
                 next_second += 1.0
                 trajectory.flush()
-                tmp = counters.with_name(f".{counters.name}.tmp")
-                tmp.write_text(json.dumps({"tick": tick, "t": now - t0, "batches": taken[0], "poses": taken[1],
-                                           "rx": list(range(40))}))
-                os.replace(tmp, counters)
+                write_json_atomic(counters, {"tick": tick, "t": now - t0, "batches": taken[0], "poses": taken[1],
+                                             "rx": list(range(40))})
     stop.set()
     if session is not None:
         session.close()

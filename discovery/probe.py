@@ -18,7 +18,6 @@ without ``--status``, prints a line per change of its peer set.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import threading
@@ -85,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import zenoh
 
+    from groundfloor.files import write_json_atomic
     from groundfloor.process import die_with_parent, stop_event
     from swarmnet.messages import DecodeError, Realm, decode_pose
     from swarmnet.node import NodeIdentity, SwarmNode
@@ -193,9 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                     "discovery": conn.status() if hasattr(conn, "status") else {},
                     "rejects": dict(node.stats.rejected),
                 }
-                tmp = status_path.with_suffix(".tmp")
-                tmp.write_text(json.dumps(st))
-                os.replace(tmp, status_path)
+                write_json_atomic(status_path, st)
             time.sleep(args.poll)
     finally:
         spy_sub.undeclare()

@@ -23,10 +23,8 @@ Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
-import os
 import sys
 import threading
 import time
@@ -35,6 +33,7 @@ from typing import Any
 
 import zenoh
 
+from groundfloor.files import write_json_atomic
 from groundfloor.process import stop_event
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
@@ -85,15 +84,11 @@ class StatsFile:
                            "sent": dict(feed.stats.sent)}
         if self.unwritten:
             out["unwritten"] = self.unwritten
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}")
         try:
-            tmp.write_text(json.dumps(out))
-            os.replace(tmp, self.path)
+            write_json_atomic(self.path, out)
             return True
         except OSError as exc:
             self.unwritten += 1
-            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
-                tmp.unlink(missing_ok=True)
             if time.monotonic() - self._warned >= 60.0:
                 self._warned = time.monotonic()
                 say(f"warning: cannot write {self.path} ({exc.strerror or exc}); the router goes on, counting it")

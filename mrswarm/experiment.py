@@ -42,6 +42,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from groundfloor.errors import MrswarmError
+from groundfloor.files import write_atomic
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
@@ -52,7 +53,7 @@ from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
 from mrswarm.stalls import StallWatch
-from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
+from mrswarm.summary import ProcessEvent, RunInfo, RunSummary
 from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
 from mrswarm.wording import plural
 from mrswarm.world_setup import (
@@ -244,7 +245,7 @@ class Experiment:
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
         try:
-            write_atomic(self.run_dir / name, data)
+            write_atomic(self.run_dir / name, data, fsync=True)
             return True
         except OSError as exc:
             msg = f"{name}: {exc.strerror or exc}"
@@ -509,8 +510,7 @@ class Experiment:
         holds the discovery key)."""
         path = self.run_dir / "config" / f"uav{cfg.uav}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, cfg.to_json().encode())
-        path.chmod(0o600)
+        write_atomic(path, cfg.to_json(), fsync=True, private=True)
         return path
 
     def _companion_command(self, uav: int) -> str:

@@ -7,8 +7,10 @@ Real files, real processes and real signals; the error-root check reads the sour
 from __future__ import annotations
 
 import ast
+import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -17,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from groundfloor.errors import MrswarmError, Rejected
+from groundfloor.files import replacing, write_atomic, write_json_atomic
 from groundfloor.process import STOP_SIGNALS, die_with_parent_preexec, on_stop_signals
 from tests.test_layers import LAYERS, ROOT
 
@@ -176,3 +179,59 @@ def test_on_stop_signals_returns_what_it_replaced() -> None:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+
+
+# ---- atomic writes: real files, a real full disk (/dev/full) and a read-only folder -----------------
+def test_write_atomic_replaces_the_whole_file_and_leaves_nothing_beside_it(tmp_path: Path) -> None:
+    path = tmp_path / "summary.json"
+    write_atomic(path, b"old")
+    write_atomic(path, "new: \u00e9", fsync=True)
+    write_json_atomic(tmp_path / "c.json", {"rx": [1, 2]}, indent=1)
+    assert path.read_text() == "new: \u00e9"
+    assert json.loads((tmp_path / "c.json").read_text()) == {"rx": [1, 2]}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "summary.json"]
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~current_umask()
+
+
+def current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def test_a_private_file_is_the_owners_only_from_the_first_byte(tmp_path: Path) -> None:
+    path = tmp_path / "node.key"
+    old = os.umask(0)  # the most permissive umask: 0600 must not depend on it
+    try:
+        with replacing(path, private=True) as f:
+            assert stat.S_IMODE(os.fstat(f.fileno()).st_mode) == 0o600
+            f.write(b"secret")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600 and path.read_bytes() == b"secret"
+
+
+def test_a_failed_write_keeps_the_old_file_and_no_temporary_one(tmp_path: Path) -> None:
+    path = tmp_path / "world.json"
+    write_atomic(path, "old")
+    with pytest.raises(RuntimeError), replacing(path) as f:
+        f.write(b"half of the new")
+        raise RuntimeError("the writer failed midway")
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["world.json"]
+    # the kernel refuses the write past 1 kB (RLIMIT_FSIZE: EFBIG), as a full disk refuses it (ENOSPC)
+    refused = subprocess.run([sys.executable, "-c", FILE_LIMITED, str(path)], capture_output=True, text=True, cwd=ROOT,
+                             timeout=30)
+    assert (refused.returncode, refused.stdout, refused.stderr) == (0, "EFBIG\n", "")
+    assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["world.json"]
+
+
+FILE_LIMITED = """
+import errno, resource, signal, sys
+from groundfloor.files import write_atomic
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
+try:
+    write_atomic(sys.argv[1], b"x" * 100_000)
+except OSError as exc:
+    print(errno.errorcode[exc.errno])
+"""

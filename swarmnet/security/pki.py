@@ -34,7 +34,6 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import ipaddress
-import os
 import shutil
 import time
 from collections.abc import Iterable
@@ -46,6 +45,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from groundfloor.errors import MrswarmError
+from groundfloor.files import write_atomic
 from swarmnet.security.beacon import BEACON_KEY_FILE, derive_token, new_beacon_key, token_path
 from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, MAVLINK_KEY_FILE, Issued, Revoked, Roster
@@ -61,14 +61,7 @@ class KeysError(ValueError, MrswarmError):
 
 def write_private(path: Path, data: bytes) -> None:
     """Write ``data`` to a file only its owner can read (0600 from the first byte, no window)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        os.fchmod(fd, 0o600)  # O_CREAT's mode is filtered by the umask; this is not
-        os.write(fd, data)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
+    write_atomic(path, data, private=True)
 
 
 def write_passphrase(path: Path) -> Path:

@@ -8,13 +8,13 @@ cryptography, so a UAV process never imports the ``cryptography`` package.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated
 
 import msgspec
 from msgspec import Meta, field
 
+from groundfloor.files import write_atomic
 from swarmnet.schema import Config, ConfigError, decode_json
 from swarmnet.security.identity import NodeName
 
@@ -82,7 +82,4 @@ class Roster(Config, frozen=True):
 
     def save(self, keys: str | Path) -> None:
         """Write atomically (a node reading it meanwhile sees the old or the new roster, never half)."""
-        path = Path(keys) / ROSTER_FILE
-        tmp = path.with_name(f".{path.name}.{os.getpid()}")
-        tmp.write_bytes(self.to_json())
-        os.replace(tmp, path)
+        write_atomic(Path(keys) / ROSTER_FILE, self.to_json())
