@@ -54,6 +54,7 @@ HOT_MODULES = [
     *(f"swarmnet/{m}.py" for m in ("node", "receive", "messages", "stats", "neighbours", "feed", "interest",
                                    "keyspace")),
     "swarmnet/netem/shim.py",
+    "groundfloor/histogram.py",
     "discovery/proxy.py",
     "discovery/wire.py",
 ]
