@@ -24,7 +24,7 @@ from msgspec.structs import replace
 
 from deploy.plan import edge_service
 from groundfloor.errors import MrswarmError
-from swarmnet.schema import ConfigError, decode_json
+from groundfloor.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
 
@@ -36,7 +36,7 @@ class SlotError(ValueError, MrswarmError):
 
 
 def load_fleet(path: str | Path) -> list[VirtualUavConfig]:
-    """The fleet file: a JSON list of UAV configs (:class:`~swarmnet.schema.ConfigError` names a bad field)."""
+    """The fleet file: a JSON list of UAV configs (:class:`~groundfloor.schema.ConfigError` names a bad field)."""
     return decode_json(Path(path).read_bytes(), list[VirtualUavConfig])
 
 

@@ -35,10 +35,10 @@ import zenoh
 
 from groundfloor.files import write_json_atomic
 from groundfloor.process import stop_event
+from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
 from swarmnet.interest import Interest
-from swarmnet.schema import ConfigError, convert
 from swarmnet.security.credentials import Credentials
 from swarmnet.stats import NodeStats
 

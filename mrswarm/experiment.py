@@ -43,6 +43,7 @@ from rich.markup import escape
 
 from groundfloor.errors import MrswarmError
 from groundfloor.files import write_atomic
+from groundfloor.schema import to_builtins
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
@@ -65,7 +66,6 @@ from mrswarm.world_setup import (
     write_world_config,
 )
 from swarmnet.observer import SwarmObserver
-from swarmnet.schema import to_builtins
 from uav_stack.config import AgentConfig, NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
 

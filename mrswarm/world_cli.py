@@ -17,9 +17,9 @@ import argparse
 from pathlib import Path
 
 from groundfloor.process import die_with_parent
+from groundfloor.schema import ConfigError
 from mrswarm.scenario import ScenarioError, load_scenario
 from mrswarm.world_setup import observer_network
-from swarmnet.schema import ConfigError
 from uav_stack.config import NetworkConfig
 from uav_stack.runtime import StopFlag, setup_logging
 from world.config import ServedSwarm, WorldServiceConfig

@@ -68,9 +68,9 @@ def test_every_error_class_derives_from_the_root() -> None:
 
 def test_the_root_keeps_what_each_error_was() -> None:
     from discovery.protocol import ProtocolError
+    from groundfloor.schema import ConfigError
     from mrswarm.recorder.mcap_writer import DiskError
     from swarmnet.messages import DecodeError
-    from swarmnet.schema import ConfigError
 
     disk = DiskError(28, "No space left on device")
     assert isinstance(disk, OSError) and isinstance(disk, MrswarmError) and disk.errno == 28

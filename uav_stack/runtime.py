@@ -21,10 +21,10 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from groundfloor.process import die_with_parent, on_stop_signals
+from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, lean_zenoh_runtime, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.schema import ConfigError, convert
 from swarmnet.security.identity import NodeName
 from uav_stack import tick_meter
 from uav_stack.agent import Agent

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 from groundfloor.process import die_with_parent
+from groundfloor.schema import ConfigError
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.schema import ConfigError
 from swarmnet.security.identity import NodeName
 from swarmnet.sensing import WorldSensing
 from uav_stack.behaviours.plume import ESTIMATE_TOPIC

@@ -126,7 +126,7 @@ class KeyDir:
 
     @property
     def roster(self) -> Roster:
-        from swarmnet.schema import ConfigError
+        from groundfloor.schema import ConfigError
 
         try:
             return Roster.load(self.path)

@@ -15,7 +15,7 @@ import msgspec
 from msgspec import Meta, field
 
 from groundfloor.files import write_atomic
-from swarmnet.schema import Config, ConfigError, decode_json
+from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.security.identity import NodeName
 
 ROSTER_FILE = "roster.json"
@@ -68,7 +68,7 @@ class Roster(Config, frozen=True):
 
     @classmethod
     def load(cls, keys: str | Path) -> Roster:
-        """The roster in key directory ``keys``; :class:`~swarmnet.schema.ConfigError` names what is wrong."""
+        """The roster in key directory ``keys``; :class:`~groundfloor.schema.ConfigError` names what is wrong."""
         path = Path(keys) / ROSTER_FILE
         try:
             data = path.read_bytes()
