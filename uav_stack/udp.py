@@ -6,7 +6,7 @@ import socket
 import sys
 from collections.abc import Callable
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
 
 Addr = tuple[str, int]
 _IP_RECVERR = 11  # <linux/in.h>; Python's socket module does not export it
