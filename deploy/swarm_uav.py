@@ -24,6 +24,7 @@ from msgspec.structs import replace
 
 from deploy.plan import edge_service
 from groundfloor.errors import MrswarmError
+from groundfloor.net import Addr
 from groundfloor.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
 from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
@@ -46,7 +47,7 @@ def pick(fleet: Sequence[VirtualUavConfig], slot: int) -> VirtualUavConfig:
     return fleet[slot - 1]
 
 
-def endpoint_host(endpoint: str) -> tuple[str, int]:
+def endpoint_host(endpoint: str) -> Addr:
     """``tcp/router:7447`` -> ("router", 7447)."""
     addr = endpoint.split("/", 1)[1].split("#", 1)[0]
     host, _, port = addr.rpartition(":")

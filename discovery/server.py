@@ -69,11 +69,11 @@ from discovery.protocol import (
     seal,
     unseal,
 )
+from groundfloor.net import Addr
 from groundfloor.process import die_with_parent, stop_event
 
 log = logging.getLogger(__name__)
 
-Addr = tuple[str, int]
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: a receive-queue drop counter with each datagram
 _CMSG_SPACE = socket.CMSG_SPACE(4)
 

@@ -7,8 +7,8 @@ import sys
 from collections.abc import Callable
 
 from groundfloor.compiled import compiled_module
+from groundfloor.net import Addr
 
-Addr = tuple[str, int]
 _IP_RECVERR = 11  # <linux/in.h>; Python's socket module does not export it
 
 # Four sockets are read each tick in every virtual UAV, most often to find one datagram or none:
