@@ -25,9 +25,10 @@ from msgspec.structs import replace
 from deploy.plan import edge_service
 from groundfloor.errors import MrswarmError
 from groundfloor.net import Addr
+from groundfloor.process import setup_logging
 from groundfloor.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
-from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
+from uav_stack.runtime import StopFlag, run_virtual_uav
 
 log = logging.getLogger(__name__)
 

@@ -34,7 +34,7 @@ from typing import Any
 import zenoh
 
 from groundfloor.files import write_json_atomic
-from groundfloor.process import stop_event
+from groundfloor.process import say, stop_event
 from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
@@ -93,14 +93,6 @@ class StatsFile:
                 self._warned = time.monotonic()
                 say(f"warning: cannot write {self.path} ({exc.strerror or exc}); the router goes on, counting it")
             return False
-
-
-def say(line: str) -> None:
-    """A line on standard output; one the disk under the log refuses is dropped, never the router's end."""
-    try:
-        print(line, flush=True)
-    except OSError:
-        pass
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,

@@ -70,7 +70,7 @@ from discovery.protocol import (
     unseal,
 )
 from groundfloor.net import Addr
-from groundfloor.process import die_with_parent, stop_event
+from groundfloor.process import die_with_parent, say, setup_logging, stop_event
 
 log = logging.getLogger(__name__)
 
@@ -527,14 +527,6 @@ def parse_listen(text: str) -> Addr:
         raise ValueError(f"--listen {text!r}: expected HOST:PORT") from None
 
 
-def say(line: str) -> None:
-    """A line on standard output; one that cannot be written (a full disk under the log) is dropped, not fatal."""
-    try:
-        print(line, flush=True)
-    except OSError:
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm discovery serve", description=__doc__.splitlines()[0])
     ap.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}",
@@ -554,8 +546,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
-    logging.basicConfig(level=getattr(logging, args.log_level.upper(), logging.INFO), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging(args.log_level, unknown=logging.INFO)
     try:
         keys: dict[str, str] = load_keys(args.keys) if args.keys else {}
         for kv in args.key:

@@ -1,4 +1,4 @@
-"""A process that dies with its parent, and stop signals that only set a flag.
+"""A process's life: it dies with its parent, stops on a signal, and its output never ends it.
 
 **Dying with the parent.** Linux sends a process the signal it asked for with
 ``prctl(PR_SET_PDEATHSIG)`` when the thread that started it ends, even when that parent was
@@ -14,18 +14,26 @@ Elsewhere than on Linux both do nothing.
 **Stop signals.** :func:`on_stop_signals` installs one handler for SIGTERM and SIGINT (and
 returns the handlers it replaced); :func:`stop_event` gives a ``threading.Event`` they set. A
 handler only records the request: the process's own loop looks at it and stops from there.
+
+**Output.** :func:`say` prints a line and drops it if it cannot be written (a full disk under the
+log file); :func:`setup_logging` sends log records to stderr or a file, and falls back to stderr
+when the file cannot be opened. Neither ever ends the process.
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import signal
 import sys
 import threading
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from types import FrameType
 from typing import Any
+
+log = logging.getLogger(__name__)
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
@@ -81,3 +89,30 @@ def stop_event(signals: Iterable[int] = STOP_SIGNALS) -> threading.Event:
     stop = threading.Event()
     on_stop_signals(lambda *_: stop.set(), signals)
     return stop
+
+
+def say(line: str) -> None:
+    """A line on standard output; one that cannot be written (a full disk under the log) is dropped, not fatal."""
+    try:
+        print(line, flush=True)
+    except OSError:
+        pass
+
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+def setup_logging(level: str = "WARNING", log_file: str | None = None, *, unknown: int = logging.WARNING) -> None:
+    """Log records at ``level`` (a name; ``unknown`` if it names no level) to stderr, or to ``log_file``
+    (its folder made if missing; stderr, with a warning, if it cannot be opened)."""
+    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    problem = ""
+    if log_file:
+        try:
+            Path(log_file).parent.mkdir(parents=True, exist_ok=True)
+            handlers = [logging.FileHandler(log_file)]
+        except OSError as exc:
+            problem = f"cannot write the log file {log_file} ({exc.strerror or exc}): logging to stderr"
+    logging.basicConfig(level=getattr(logging, level.upper(), unknown), handlers=handlers, format=LOG_FORMAT)
+    if problem:
+        log.warning("%s", problem)

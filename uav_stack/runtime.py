@@ -14,13 +14,12 @@ import math
 import os
 import re
 import signal
-import sys
 import time
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from groundfloor.process import die_with_parent, on_stop_signals
+from groundfloor.process import die_with_parent, on_stop_signals, setup_logging
 from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, lean_zenoh_runtime, open_retrying
 from swarmnet.messages import Realm
@@ -406,22 +405,6 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
         if router is not None:
             router.close()
     return 0
-
-
-def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
-    """Log records to stderr, or to ``log_file`` (its folder made if missing; stderr if it cannot be opened)."""
-    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
-    problem = ""
-    if log_file:
-        try:
-            Path(log_file).parent.mkdir(parents=True, exist_ok=True)
-            handlers = [logging.FileHandler(log_file)]
-        except OSError as exc:
-            problem = f"cannot write the log file {log_file} ({exc.strerror or exc}): logging to stderr"
-    logging.basicConfig(level=getattr(logging, level.upper(), logging.WARNING), handlers=handlers,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if problem:
-        log.warning("%s", problem)
 
 
 def virtual_uav_main(argv: list[str] | None = None) -> int:
