@@ -10,6 +10,7 @@ import ast
 import json
 import math
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -269,3 +270,30 @@ def test_a_compiled_module_loads_unless_absent_or_asked_away(monkeypatch: pytest
     assert compiled_module("_json") is None
     monkeypatch.setenv("MRSWARM_PURE_PYTHON", "0")
     assert compiled_module("_json") is not None
+
+
+# ---- one copy: the helpers above are not written again in a package above ---------------------------
+ONE_COPY = {  # what a package above writes only by calling groundfloor: pattern -> where it lives
+    r"\bos\.replace\(": "groundfloor.files (write_atomic, replacing)",
+    r"\bprctl\b": "groundfloor.process (die_with_parent, die_with_parent_preexec)",
+    r"^Addr\b[^=]*=": "groundfloor.net",
+    r"\blogging\.basicConfig\(": "groundfloor.process.setup_logging",
+    r"^class (Rejected|MrswarmError)\b": "groundfloor.errors",
+}
+# uav_stack/fcu/ is being restructured on another branch; these go when it imports groundfloor's
+PENDING = {("uav_stack/fcu/link.py", r"^Addr\b[^=]*="), ("uav_stack/fcu/__main__.py", r"\blogging\.basicConfig\(")}
+
+
+def test_each_shared_helper_is_written_once() -> None:
+    again = []
+    for pkg in LAYERS[1:]:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT)
+            if "results" in rel.parts or "_generated" in rel.parts:
+                continue
+            for n, line in enumerate(path.read_text().splitlines(), 1):
+                code = line.split("#", 1)[0].rstrip()
+                for pattern, home in ONE_COPY.items():
+                    if re.search(pattern, code) and (str(rel), pattern) not in PENDING:
+                        again.append(f"{rel}:{n}: {code.strip()!r}: call {home}")
+    assert not again, "helpers written again:\n" + "\n".join(again)
