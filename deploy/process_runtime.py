@@ -27,6 +27,7 @@ from typing import Any
 from deploy.plan import LocalSite, NetworkPlan, PlacedService, SwarmPlan
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryServerOptions, RouterOptions
+from groundfloor.files import write_atomic
 from groundfloor.process import die_with_parent_preexec
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
@@ -124,9 +125,7 @@ class ProcessRuntime:
         from discovery.client import QueryTimeout, query_registry
 
         if options.keys_file is not None:
-            keys = Path(options.keys_file)
-            keys.write_text(options.keys_text())
-            keys.chmod(0o600)
+            write_atomic(options.keys_file, options.keys_text(), private=True)
         # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         self._spawn(svc.name, [*self._py, *svc.argv()])
         child = self.children[svc.name]
@@ -160,8 +159,7 @@ class ProcessRuntime:
         """The agent of a UAV whose flight controller is external: ``mrswarm agent --config`` against
         ``cfg.fcu``, a child like a UAV process (``uav<id>``: its own process group, dies with the runner)."""
         path = self.run_dir / "config" / f"uav{cfg.uav}.json"
-        path.write_text(cfg.to_json())
-        path.chmod(0o600)  # it holds the discovery key
+        write_atomic(path, cfg.to_json(), private=True)  # it holds the discovery key
         argv = [*self._py, "-m", "mrswarm", "agent", "--config", str(path), "--log-level", self.log_level]
         if cfg.network.security is None:  # the run asked for it by name (network.security: off)
             argv.append("--insecure")

@@ -295,8 +295,7 @@ class Experiment:
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
-            key_file.write_text(f"{scn.swarm} {net.discovery.key}\n")
-            key_file.chmod(0o600)
+            write_atomic(key_file, f"{scn.swarm} {net.discovery.key}\n", private=True)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         self._save("network.json", json.dumps(network_info).encode())
         if self.record:  # before the first UAV, so its first pose is recorded

@@ -275,6 +275,7 @@ def test_a_compiled_module_loads_unless_absent_or_asked_away(monkeypatch: pytest
 # ---- one copy: the helpers above are not written again in a package above ---------------------------
 ONE_COPY = {  # what a package above writes only by calling groundfloor: pattern -> where it lives
     r"\bos\.replace\(": "groundfloor.files (write_atomic, replacing)",
+    r"\.chmod\(0o600\)": "groundfloor.files (write_atomic with private=True: owner-only from the first byte)",
     r"\bprctl\b": "groundfloor.process (die_with_parent, die_with_parent_preexec)",
     r"^Addr\b[^=]*=": "groundfloor.net",
     r"\blogging\.basicConfig\(": "groundfloor.process.setup_logging",
