@@ -54,10 +54,11 @@ HOT_MODULES = [
     *(f"swarmnet/{m}.py" for m in ("node", "receive", "messages", "stats", "neighbours", "feed", "interest",
                                    "keyspace")),
     "swarmnet/netem/shim.py",
+    "groundfloor/histogram.py",
     "discovery/proxy.py",
     "discovery/wire.py",
 ]
-PACKAGES = ["swarmnet", "discovery", "uav_stack", "world", "deploy", "mrswarm", "benchmarks", "scenarios"]
+PACKAGES = ["groundfloor", "swarmnet", "discovery", "uav_stack", "world", "deploy", "mrswarm", "benchmarks", "scenarios"]
 
 # mypyc: the per-tick modules it compiles as they are (failsafe.py and swarmnet/messages.py
 # define msgspec structs whose annotations the config loader reads; mavcodec.py subclasses
@@ -70,8 +71,8 @@ MYPYC_MODULES = [
 # (file, text, replacement): what mypyc rejects and Python does not mind
 MYPYC_EDITS = [
     # an exception class that subclasses OSError cannot be a native class
-    ("uav_stack/fcu_link.py", "class LinkOpenError(OSError):",
-     "from mypy_extensions import mypyc_attr\n\n\n@mypyc_attr(native_class=False)\nclass LinkOpenError(OSError):"),
+    ("uav_stack/fcu_link.py", "class LinkOpenError(OSError, MrswarmError):",
+     "from mypy_extensions import mypyc_attr\n\n\n@mypyc_attr(native_class=False)\nclass LinkOpenError(OSError, MrswarmError):"),
     # a native class has no __dict__
     ("uav_stack/mavlink_router.py", "return dict(self.__dict__)", "return dict(__import__('dataclasses').asdict(self))"),
     # an attribute named _thread becomes a C field named __thread, a keyword of gcc

@@ -70,6 +70,9 @@ from typing import Any
 
 import psutil
 
+from groundfloor.files import write_json_atomic
+from groundfloor.process import stop_event
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -102,8 +105,7 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
     aligned = "aligned" in variant  # ticks on the wall clock's grid, as network.align_ticks has the UAVs'
     if aligned:  # imported only here: the other skeletons load no more than their I/O needs
         from uav_stack.runtime import next_grid_instant
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_event((signal.SIGTERM,))
     if io:
         fcu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -214,10 +216,8 @@ def skeleton(variant: str, endpoint: str, seconds: float, workdir: Path, keys: s
             if now >= next_second:
                 next_second += 1.0
                 trajectory.flush()
-                tmp = counters.with_name(f".{counters.name}.tmp")
-                tmp.write_text(json.dumps({"tick": tick, "t": now - t0, "batches": taken[0], "poses": taken[1],
-                                           "rx": list(range(40))}))
-                os.replace(tmp, counters)
+                write_json_atomic(counters, {"tick": tick, "t": now - t0, "batches": taken[0], "poses": taken[1],
+                                             "rx": list(range(40))})
     stop.set()
     if session is not None:
         session.close()

@@ -8,18 +8,12 @@ interrupted run leaves the previous results whole.
 from __future__ import annotations
 
 import csv
+import io
 import json
-import os
-from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-
-def _replace(path: Path, write: Callable[[IO[str]], object]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as f:
-        write(f)
-    os.replace(tmp, path)
+from groundfloor.files import write_atomic
 
 
 def write_results(out: Path, name: str, record: Any, rows: list[dict[str, Any]],
@@ -31,15 +25,14 @@ def write_results(out: Path, name: str, record: Any, rows: list[dict[str, Any]],
     (rows of different configurations may carry different keys).
     """
     out.mkdir(parents=True, exist_ok=True)
-    _replace(out / f"{name}.json", lambda f: f.write(json.dumps(record, indent=2) + "\n"))
+    write_atomic(out / f"{name}.json", json.dumps(record, indent=2) + "\n")
     cols = fieldnames if fieldnames is not None else list(dict.fromkeys(k for r in rows for k in r))
 
-    def table(f: IO[str]) -> None:
-        w = csv.DictWriter(f, fieldnames=cols)
-        w.writeheader()
-        w.writerows(rows)
-
-    _replace(out / f"{name}.csv", table)
+    table = io.StringIO(newline="")
+    w = csv.DictWriter(table, fieldnames=cols)
+    w.writeheader()
+    w.writerows(rows)
+    write_atomic(out / f"{name}.csv", table.getvalue())
 
 
 def plot_shares(path: Path, labels: list[str], values: list[float], xlabel: str, title: str, height: float = 5.5) -> None:

@@ -75,7 +75,7 @@ class Recorder:
     """Ages and counts inside the measurement window (thread-safe enough: one writer per transport)."""
 
     def __init__(self, w0: float, w1: float):
-        from swarmnet.stats import LogHistogram
+        from groundfloor.histogram import LogHistogram
 
         self.w0, self.w1 = w0, w1
         self.hist = LogHistogram()
@@ -283,7 +283,7 @@ def run_cell(n: int, kind: str, args: argparse.Namespace, workdir: Path) -> dict
     """One transport at one N: the broker/router if any, N agents, their reports merged."""
     import psutil
 
-    from swarmnet.stats import LogHistogram
+    from groundfloor.histogram import LogHistogram
 
     service = None
     spec: dict[str, Any] = {"transport": kind, "warmup": args.warmup, "window": args.window}
@@ -366,7 +366,7 @@ def worst_of(rows: list[dict[str, Any]]) -> float | None:
 
 def merge_rounds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (N, transport): ages merged over rounds, medians of the per-round figures."""
-    from swarmnet.stats import LogHistogram
+    from groundfloor.histogram import LogHistogram
 
     out = []
     for key in dict.fromkeys((r["n"], r["transport"]) for r in rows):

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.dockerutil import DeployError
+from groundfloor.files import write_json_atomic
 
 DEFAULT_ROOT = Path("/var/tmp/mrswarm-cluster")
 DEFAULT_PREFIX = "mrsc"
@@ -91,9 +92,7 @@ class Cluster:
 
     def save(self) -> None:
         Path(self.root).mkdir(parents=True, exist_ok=True)
-        tmp = Path(self.root) / f".{STATE}.tmp"
-        tmp.write_text(json.dumps(asdict(self), indent=1))
-        tmp.replace(Path(self.root) / STATE)
+        write_json_atomic(Path(self.root) / STATE, asdict(self), indent=1)
 
 
 def load(root: Path = DEFAULT_ROOT) -> Cluster:
@@ -389,7 +388,8 @@ def _ours(root: Path) -> bool:
     if not root.is_dir():
         return False
     names = {p.name for p in root.iterdir()}
-    return all(n in (STATE, f".{STATE}.tmp", "images.tar") or (n[:1] == "n" and n[1:].isdigit()) for n in names)
+    return all(n in (STATE, "images.tar") or (n.startswith(f".{STATE}.") and n.endswith(".tmp"))
+               or (n[:1] == "n" and n[1:].isdigit()) for n in names)
 
 
 def _in_cgroup_of(pid: int, prefix: str) -> bool:

@@ -48,7 +48,7 @@ from deploy.plan import CONTAINERS, KEYS_IN_CONTAINER, NetworkPlan
 from deploy.settings import ContainerSettings
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryServerOptions
-from swarmnet.schema import to_builtins
+from groundfloor.schema import to_builtins
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from groundfloor.errors import MrswarmError
+
 LABEL = "org.mrswarm"  # every container, network, service and config we create carries org.mrswarm.* labels
 L_RUN = f"{LABEL}.run"  # run id: one `mrswarm run` or one swarm-mode stack
 L_SWARM = f"{LABEL}.swarm"
@@ -11,7 +13,7 @@ L_ROLE = f"{LABEL}.role"  # uav | router | discovery | probe
 L_UAV = f"{LABEL}.uav"
 
 
-class DeployError(RuntimeError):
+class DeployError(RuntimeError, MrswarmError):
     """A deployment that cannot start; the message says what is wrong and how to fix it."""
 
 

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCKERFILE = Path(__file__).resolve().parent / "Dockerfile"
 BASE_TAG = "mrswarm-base:bookworm"
 DEFAULT_MIRROR = "http://deb.debian.org/debian"
-PACKAGES = ("mrswarm", "swarmnet", "uav_stack", "discovery", "deploy")
+PACKAGES = ("mrswarm", "groundfloor", "swarmnet", "uav_stack", "discovery", "world", "deploy")
 # Trimmed from the debootstrap tree: nothing at run time reads these.
 TRIM = ("var/cache/apt", "var/lib/apt/lists", "usr/share/doc", "usr/share/man", "usr/share/info", "usr/share/locale",
         "var/cache/debconf/templates.dat-old", "var/log")

@@ -30,6 +30,7 @@ from typing import Literal, Protocol
 
 from discovery.netutil import free_port
 from discovery.options import DiscoveryServerOptions, DiscoveryService, FeedOptions, ProxyOptions, RouterOptions
+from groundfloor.net import Addr
 from swarmnet.interest import Interest
 from swarmnet.keyspace import check_swarm
 from swarmnet.security.credentials import Credentials
@@ -94,11 +95,11 @@ class Site(Protocol):
     """Where a runtime puts the plan's services and UAVs: the only parts of the plan that differ between runtimes."""
 
     @property
-    def uav_listen(self) -> tuple[str, int]:
+    def uav_listen(self) -> Addr:
         """The host and port a UAV listens on."""
         ...
 
-    def bind(self, service: Service) -> tuple[str, int]:
+    def bind(self, service: Service) -> Addr:
         """The host and port ``service`` listens on."""
         ...
 
@@ -121,9 +122,9 @@ class LocalSite:
     the swarms' key directories as they are, a secured router's counters and the discovery keys in the run folder."""
 
     run_dir: Path
-    uav_listen: tuple[str, int] = ("127.0.0.1", 0)
+    uav_listen: Addr = ("127.0.0.1", 0)
 
-    def bind(self, service: Service) -> tuple[str, int]:
+    def bind(self, service: Service) -> Addr:
         return "127.0.0.1", free_port(socket.SOCK_DGRAM if service.proto == "udp" else socket.SOCK_STREAM)
 
     def keys(self, swarm: SwarmPlan) -> str:
@@ -145,9 +146,9 @@ class ContainerSite:
     """Each service and UAV in a network namespace of its own (a Docker container, a Swarm stack's task): fixed
     ports on every address of that namespace, credentials in :data:`KEYS_IN_CONTAINER`, keys on the command line."""
 
-    uav_listen: tuple[str, int] = ("0.0.0.0", UAV_PORT)
+    uav_listen: Addr = ("0.0.0.0", UAV_PORT)
 
-    def bind(self, service: Service) -> tuple[str, int]:
+    def bind(self, service: Service) -> Addr:
         return "0.0.0.0", service.port
 
     def keys(self, swarm: SwarmPlan) -> str:

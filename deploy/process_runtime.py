@@ -14,14 +14,12 @@ from SIGTERM to SIGKILL, so nothing outlives the run. :meth:`ProcessRuntime.sign
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,32 +27,11 @@ from typing import Any
 from deploy.plan import LocalSite, NetworkPlan, PlacedService, SwarmPlan
 from discovery.netutil import wait_tcp
 from discovery.options import DiscoveryServerOptions, RouterOptions
+from groundfloor.files import write_atomic
+from groundfloor.process import die_with_parent_preexec
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 
 log = logging.getLogger(__name__)
-
-_PR_SET_PDEATHSIG = 1
-try:  # resolved once in the parent: the child between fork and exec only calls it
-    _prctl = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
-except (OSError, AttributeError):
-    _prctl = None
-
-
-def die_with_parent_preexec(parent: int, sig: int = signal.SIGTERM) -> Callable[[], None]:
-    """A ``preexec_fn`` that makes the child get ``sig`` when ``parent`` (this process) dies.
-
-    Runs in the child between fork and exec, so no start-up race: if the parent is already gone
-    by then, the child exits at once instead of running as an orphan.
-    """
-
-    def set_pdeathsig() -> None:
-        if _prctl is not None:
-            _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-        if os.getppid() != parent:
-            os._exit(1)
-
-    return set_pdeathsig
-
 
 def child_python(python: str = sys.executable) -> tuple[list[str], dict[str, str]]:
     """argv prefix and environment for lean child Python processes.
@@ -148,9 +125,7 @@ class ProcessRuntime:
         from discovery.client import QueryTimeout, query_registry
 
         if options.keys_file is not None:
-            keys = Path(options.keys_file)
-            keys.write_text(options.keys_text())
-            keys.chmod(0o600)
+            write_atomic(options.keys_file, options.keys_text(), private=True)
         # (no --die-with-parent: _spawn arranges SIGKILL on the runner's death for every service)
         self._spawn(svc.name, [*self._py, *svc.argv()])
         child = self.children[svc.name]
@@ -184,8 +159,7 @@ class ProcessRuntime:
         """The agent of a UAV whose flight controller is external: ``mrswarm agent --config`` against
         ``cfg.fcu``, a child like a UAV process (``uav<id>``: its own process group, dies with the runner)."""
         path = self.run_dir / "config" / f"uav{cfg.uav}.json"
-        path.write_text(cfg.to_json())
-        path.chmod(0o600)  # it holds the discovery key
+        write_atomic(path, cfg.to_json(), private=True)  # it holds the discovery key
         argv = [*self._py, "-m", "mrswarm", "agent", "--config", str(path), "--log-level", self.log_level]
         if cfg.network.security is None:  # the run asked for it by name (network.security: off)
             argv.append("--insecure")

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from msgspec import Meta
 
-from swarmnet.schema import Config
+from groundfloor.schema import Config
 
 ImageName = Annotated[str, Meta(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.:/@-]{0,199}$", description="docker image reference")]
 

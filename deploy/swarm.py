@@ -48,7 +48,7 @@ from deploy.multicast import IPV6_OFF
 from deploy.plan import ROUTER_PORT, PlacedNetwork, edge_service
 from deploy.settings import ContainerSettings
 from discovery.options import RouterOptions
-from swarmnet.schema import to_builtins
+from groundfloor.schema import to_builtins
 from swarmnet.security.beacon import BEACON_KEY_FILE
 from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import CA_CERT_FILE, MAVLINK_KEY_FILE, ROSTER_FILE

@@ -23,19 +23,22 @@ from pathlib import Path
 from msgspec.structs import replace
 
 from deploy.plan import edge_service
-from swarmnet.schema import ConfigError, decode_json
+from groundfloor.errors import MrswarmError
+from groundfloor.net import Addr
+from groundfloor.process import setup_logging
+from groundfloor.schema import ConfigError, decode_json
 from uav_stack.config import VirtualUavConfig
-from uav_stack.runtime import StopFlag, run_virtual_uav, setup_logging
+from uav_stack.runtime import StopFlag, run_virtual_uav
 
 log = logging.getLogger(__name__)
 
 
-class SlotError(ValueError):
+class SlotError(ValueError, MrswarmError):
     pass
 
 
 def load_fleet(path: str | Path) -> list[VirtualUavConfig]:
-    """The fleet file: a JSON list of UAV configs (:class:`~swarmnet.schema.ConfigError` names a bad field)."""
+    """The fleet file: a JSON list of UAV configs (:class:`~groundfloor.schema.ConfigError` names a bad field)."""
     return decode_json(Path(path).read_bytes(), list[VirtualUavConfig])
 
 
@@ -45,7 +48,7 @@ def pick(fleet: Sequence[VirtualUavConfig], slot: int) -> VirtualUavConfig:
     return fleet[slot - 1]
 
 
-def endpoint_host(endpoint: str) -> tuple[str, int]:
+def endpoint_host(endpoint: str) -> Addr:
     """``tcp/router:7447`` -> ("router", 7447)."""
     addr = endpoint.split("/", 1)[1].split("#", 1)[0]
     host, _, port = addr.rpartition(":")

@@ -27,11 +27,12 @@ from discovery.protocol import (
     unseal,
 )
 from discovery.proxy import parse_server, resolve
+from groundfloor.errors import MrswarmError
 
 RECV_BUFFER = 4 << 20  # bytes
 
 
-class QueryTimeout(TimeoutError):
+class QueryTimeout(TimeoutError, MrswarmError):
     pass
 
 

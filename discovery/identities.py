@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from swarmnet.schema import ConfigError
+from groundfloor.schema import ConfigError
 from swarmnet.security.beacon import BEACON_KEY_FILE, derive_token
 from swarmnet.security.roster import ROSTER_FILE, Roster
 

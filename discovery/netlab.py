@@ -28,12 +28,14 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
+from groundfloor.errors import MrswarmError
+
 PREFIX = "mrsnl"
 NAME_RE = re.compile(r"^[a-z0-9]{1,12}$")
 _TEST_OWNER_RE = re.compile(rf"^{PREFIX}-t(\d+)x[0-9a-f]+-")
 
 
-class NetlabError(RuntimeError):
+class NetlabError(RuntimeError, MrswarmError):
     pass
 
 

@@ -22,8 +22,8 @@ from typing import Annotated, Literal
 from msgspec import Meta, field
 
 from discovery.protocol import DEFAULT_PERIOD, MIN_KEY_LEN
+from groundfloor.schema import Config, ConfigError
 from swarmnet.interest import Interest
-from swarmnet.schema import Config, ConfigError
 
 Key = Annotated[str, Meta(min_length=MIN_KEY_LEN, description="a swarm's discovery key (`mrswarm discovery keygen`)")]
 ServerAddress = Annotated[str, Meta(pattern=r"^\S+$", min_length=1, max_length=300, description="HOST:PORT (or HOST)")]

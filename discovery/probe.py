@@ -18,9 +18,7 @@ without ``--status``, prints a line per change of its peer set.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import signal
 import sys
 import threading
 import time
@@ -86,20 +84,14 @@ def main(argv: list[str] | None = None) -> int:
 
     import zenoh
 
+    from groundfloor.files import write_json_atomic
+    from groundfloor.process import die_with_parent, stop_event
     from swarmnet.messages import DecodeError, Realm, decode_pose
     from swarmnet.node import NodeIdentity, SwarmNode
     from swarmnet.receive import Inlet, subscribe
 
-    if sys.platform.startswith("linux"):  # die with whoever launched us (a test harness): no orphans
-        import ctypes
-
-        try:
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-        except OSError:
-            pass
-    stop = {"flag": False}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.__setitem__("flag", True))
+    die_with_parent()  # with whoever launched us (a test harness): no orphans
+    stop = stop_event()
     ident = NodeIdentity(args.swarm, args.id, Realm.parse(args.realm), args.role)
     conn = build_connectivity(args)
     rate = args.publish if args.role == "uav" else 0.0
@@ -136,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     stalls: list[list[float]] = []  # [from, to] when this loop itself did not run for > STALL (busy machine)
     last_loop = time.time()
     try:
-        while not stop["flag"] and time.time() < end:
+        while not stop.is_set() and time.time() < end:
             now = time.time()
             if now - last_loop > STALL and len(stalls) < 500:
                 stalls.append([last_loop, now])
@@ -201,9 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                     "discovery": conn.status() if hasattr(conn, "status") else {},
                     "rejects": dict(node.stats.rejected),
                 }
-                tmp = status_path.with_suffix(".tmp")
-                tmp.write_text(json.dumps(st))
-                os.replace(tmp, status_path)
+                write_json_atomic(status_path, st)
             time.sleep(args.poll)
     finally:
         spy_sub.undeclare()

@@ -55,6 +55,7 @@ from typing import Any
 
 import msgpack
 
+from groundfloor.errors import Rejected
 from swarmnet.keyspace import SWARM_RE, check_swarm
 
 # The interpreter's own SHA-256: hashlib/hmac would load OpenSSL (~4 MB RSS per UAV process).
@@ -113,13 +114,8 @@ class MsgType(IntEnum):
     REGISTRY = 7
 
 
-class ProtocolError(ValueError):
+class ProtocolError(Rejected):
     """A datagram we drop; ``reason`` is the counter it is counted under."""
-
-    def __init__(self, reason: str, detail: str = ""):
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-        self.reason = reason
-        self.detail = detail
 
 
 def check_key(key: str | bytes, what: str = "discovery key") -> bytes:

@@ -61,13 +61,13 @@ from discovery.protocol import (
 )
 from discovery.scout_guard import GuardError, ScoutGuard
 from discovery.wire import Hello, Locator, WireError, advertised_locators, decode_hello, encode_hello, encode_scout
+from groundfloor.net import Addr
 from swarmnet.connectivity import TransportTuning, base_config
 from swarmnet.security.credentials import Credentials
 from swarmnet.version import __version__
 
 log = logging.getLogger(__name__)
 
-Addr = tuple[str, int]
 LOCAL_HOST = "127.0.0.1"
 SOFTWARE = f"mrswarm/{__version__}"
 

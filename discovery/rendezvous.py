@@ -23,11 +23,8 @@ Run: ``python -m discovery.rendezvous --listen tcp/127.0.0.1:7447 [--feed alpha]
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
-import os
-import signal
 import sys
 import threading
 import time
@@ -36,10 +33,12 @@ from typing import Any
 
 import zenoh
 
+from groundfloor.files import write_json_atomic
+from groundfloor.process import say, stop_event
+from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
 from swarmnet.interest import Interest
-from swarmnet.schema import ConfigError, convert
 from swarmnet.security.credentials import Credentials
 from swarmnet.stats import NodeStats
 
@@ -85,27 +84,15 @@ class StatsFile:
                            "sent": dict(feed.stats.sent)}
         if self.unwritten:
             out["unwritten"] = self.unwritten
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}")
         try:
-            tmp.write_text(json.dumps(out))
-            os.replace(tmp, self.path)
+            write_json_atomic(self.path, out)
             return True
         except OSError as exc:
             self.unwritten += 1
-            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
-                tmp.unlink(missing_ok=True)
             if time.monotonic() - self._warned >= 60.0:
                 self._warned = time.monotonic()
                 say(f"warning: cannot write {self.path} ({exc.strerror or exc}); the router goes on, counting it")
             return False
-
-
-def say(line: str) -> None:
-    """A line on standard output; one the disk under the log refuses is dropped, never the router's end."""
-    try:
-        print(line, flush=True)
-    except OSError:
-        pass
 
 
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
@@ -189,9 +176,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--interest: {exc}")
         if not args.feed:
             ap.error("--interest-radius-m filters the pose feed: give --feed SWARM too")
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event()
     stats = NodeStats()
     credentials = None
     if args.keys:

@@ -28,6 +28,7 @@ import socket
 import struct
 from collections.abc import Iterable
 
+from groundfloor.errors import MrswarmError
 from swarmnet.own_sockets import kernel_drops, udp_sockets
 
 SO_ATTACH_FILTER = getattr(socket, "SO_ATTACH_FILTER", 26)
@@ -40,7 +41,7 @@ _LOOPBACK_NET, _LOOPBACK_MASK = 0x7F000000, 0xFF000000
 _ACCEPT, _DROP = 0xFFFFFFFF, 0
 
 
-class GuardError(OSError):
+class GuardError(OSError, MrswarmError):
     """The scouting sockets could not be found or filtered."""
 
 

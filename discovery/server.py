@@ -32,7 +32,6 @@ import json
 import logging
 import os
 import selectors
-import signal
 import socket
 import sys
 import threading
@@ -70,10 +69,11 @@ from discovery.protocol import (
     seal,
     unseal,
 )
+from groundfloor.net import Addr
+from groundfloor.process import die_with_parent, say, setup_logging, stop_event
 
 log = logging.getLogger(__name__)
 
-Addr = tuple[str, int]
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: a receive-queue drop counter with each datagram
 _CMSG_SPACE = socket.CMSG_SPACE(4)
 
@@ -527,14 +527,6 @@ def parse_listen(text: str) -> Addr:
         raise ValueError(f"--listen {text!r}: expected HOST:PORT") from None
 
 
-def say(line: str) -> None:
-    """A line on standard output; one that cannot be written (a full disk under the log) is dropped, not fatal."""
-    try:
-        print(line, flush=True)
-    except OSError:
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mrswarm discovery serve", description=__doc__.splitlines()[0])
     ap.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}",
@@ -552,15 +544,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log-level", default="INFO")
     ap.add_argument("--die-with-parent", action="store_true", help="exit when the launching process dies (runtimes)")
     args = ap.parse_args(argv)
-    if args.die_with_parent and sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-        except OSError:
-            pass
-    logging.basicConfig(level=getattr(logging, args.log_level.upper(), logging.INFO), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if args.die_with_parent:
+        die_with_parent()
+    setup_logging(args.log_level, unknown=logging.INFO)
     try:
         keys: dict[str, str] = load_keys(args.keys) if args.keys else {}
         for kv in args.key:
@@ -576,9 +562,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"mrswarm discovery serve: error: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event()
     bound = f"; beacons bound to identities for {', '.join(sorted(cfg.identities))}" if cfg.identities else ""
     say(f"discovery server on udp/{host}:{port} for swarms {', '.join(sorted(cfg.keys))} "
         f"(period {DEFAULT_PERIOD:g} s, ttl {cfg.ttl:g} s){bound}")

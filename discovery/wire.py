@@ -26,6 +26,8 @@ from __future__ import annotations
 import ipaddress
 from dataclasses import dataclass
 
+from groundfloor.errors import Rejected
+
 PROTOCOL_VERSION = 0x09
 SCOUT_ID = 0x01
 HELLO_ID = 0x02
@@ -40,12 +42,8 @@ MAX_LOCATORS = 16
 MAX_LOCATOR_LEN = 256
 
 
-class WireError(ValueError):
+class WireError(Rejected):
     """A datagram that is not a Scout/Hello we understand; ``reason`` is a counter name."""
-
-    def __init__(self, reason: str, detail: str = ""):
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-        self.reason = reason
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from groundfloor.histogram import LogHistogram
 from mrswarm.degraded import degraded_reasons, recording_report
 from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
 from mrswarm.incidents import find_incidents, safety_incident
@@ -48,7 +49,6 @@ from mrswarm.summary import (
     Takeoff,
 )
 from mrswarm.world_report import WorldData, world_report
-from swarmnet.stats import LogHistogram
 from uav_stack.phases import WORKING
 from uav_stack.recorder import links_file_name
 

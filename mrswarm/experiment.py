@@ -41,6 +41,9 @@ import zenoh
 from rich.console import Console
 from rich.markup import escape
 
+from groundfloor.errors import MrswarmError
+from groundfloor.files import write_atomic
+from groundfloor.schema import to_builtins
 from mrswarm.command_round import CommandRound, command_deadline, command_round
 from mrswarm.display import Display
 from mrswarm.faults import Chaos, Swarm, plan
@@ -51,7 +54,7 @@ from mrswarm.runtime import make_runtime
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
 from mrswarm.stalls import StallWatch
-from mrswarm.summary import ProcessEvent, RunInfo, RunSummary, write_atomic
+from mrswarm.summary import ProcessEvent, RunInfo, RunSummary
 from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
 from mrswarm.wording import plural
 from mrswarm.world_setup import (
@@ -63,7 +66,6 @@ from mrswarm.world_setup import (
     write_world_config,
 )
 from swarmnet.observer import SwarmObserver
-from swarmnet.schema import to_builtins
 from uav_stack.config import AgentConfig, NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
 
@@ -83,7 +85,7 @@ LAND_RESEND_S = 2.0  # an external UAV that does not show its landing is sent 'l
 ON_GROUND = frozenset({AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED})
 
 
-class RunAborted(RuntimeError):
+class RunAborted(RuntimeError, MrswarmError):
     """The runner gives up: a UAV refused or ignored a command, missed a phase in time, or its process died."""
 
 
@@ -243,7 +245,7 @@ class Experiment:
     # ---- the run's files: atomic, and a failure is reported, not fatal ---------------------------------------
     def _save(self, name: str, data: bytes) -> bool:
         try:
-            write_atomic(self.run_dir / name, data)
+            write_atomic(self.run_dir / name, data, fsync=True)
             return True
         except OSError as exc:
             msg = f"{name}: {exc.strerror or exc}"
@@ -293,8 +295,7 @@ class Experiment:
         if net.discovery is not None and net.discovery.key:
             # `mrswarm gcs nodes` completes its list from the registry (version, locators)
             key_file = self.run_dir / "discovery.keys"
-            key_file.write_text(f"{scn.swarm} {net.discovery.key}\n")
-            key_file.chmod(0o600)
+            write_atomic(key_file, f"{scn.swarm} {net.discovery.key}\n", private=True)
             network_info["discovery"] = {"server": net.discovery.server, "key_file": key_file.name}
         self._save("network.json", json.dumps(network_info).encode())
         if self.record:  # before the first UAV, so its first pose is recorded
@@ -508,8 +509,7 @@ class Experiment:
         holds the discovery key)."""
         path = self.run_dir / "config" / f"uav{cfg.uav}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, cfg.to_json().encode())
-        path.chmod(0o600)
+        write_atomic(path, cfg.to_json(), fsync=True, private=True)
         return path
 
     def _companion_command(self, uav: int) -> str:

@@ -33,8 +33,8 @@ from typing import Annotated, Any, Literal
 
 from msgspec import Meta
 
+from groundfloor.schema import Config, ConfigError, to_builtins
 from mrswarm.summary import FaultRecord
-from swarmnet.schema import Config, ConfigError, to_builtins
 from uav_stack.config import UavId
 from uav_stack.phases import WORKING
 

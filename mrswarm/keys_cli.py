@@ -137,7 +137,7 @@ def _list(a: argparse.Namespace) -> int:
 def _mavlink_key_file(a: argparse.Namespace) -> Path:
     """The passphrase file ``mavlink`` prints: a run's (``--run``), or the key directory's."""
     if a.run:
-        from swarmnet.schema import ConfigError, decode_json
+        from groundfloor.schema import ConfigError, decode_json
 
         try:
             info = decode_json((Path(a.run) / "network.json").read_bytes(), dict)

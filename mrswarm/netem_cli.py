@@ -102,7 +102,7 @@ def build_config(a: argparse.Namespace) -> dict[str, Any]:
         if a.file.endswith((".yaml", ".yml")):
             import yaml
 
-            from swarmnet import strict_yaml
+            from groundfloor import strict_yaml
 
             try:
                 cfg = strict_yaml.load(text) or {}

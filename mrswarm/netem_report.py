@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from groundfloor.histogram import LogHistogram
 from mrswarm.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
-from swarmnet.stats import LogHistogram
 
 _COUNTERS = ("sent", "delivered", "duplicated", "reordered", "jumps")
 

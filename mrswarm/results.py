@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from groundfloor.errors import MrswarmError
 from mrswarm.analysis import analyse_run
 from mrswarm.plots import plot_pose_age, plot_run
 from mrswarm.scenario import Scenario, ScenarioError, load_scenario
@@ -20,7 +21,7 @@ from mrswarm.summary import LinkAge, RunInfo, RunSummary
 from mrswarm.wording import metres, plural
 
 
-class ResultsError(Exception):
+class ResultsError(MrswarmError):
     """A folder that cannot be analysed (not a run folder, or its records are unreadable)."""
 
 

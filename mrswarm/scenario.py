@@ -5,7 +5,7 @@ how long to fly. ``load_scenario`` applies ``--set a.b=value`` overrides before 
 so an override that breaks a rule is reported like a bad file:
 ``scenarios/x.yaml: flight.sped: unknown field (expected one of: ...)``.
 
-The types are msgspec Structs (``swarmnet.schema``). Where a section has the shape of a lower
+The types are msgspec Structs (``groundfloor.schema``). Where a section has the shape of a lower
 layer's settings it is that type: ``network.netem`` is :class:`~swarmnet.netem.config.NetemSpec`,
 ``network.discovery`` is :class:`~discovery.options.DiscoveryService`, ``docker`` is
 :class:`~deploy.settings.ContainerSettings`.
@@ -27,13 +27,14 @@ from msgspec.structs import force_setattr, replace
 from deploy.plan import NetworkPlan, SwarmPlan
 from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
+from groundfloor import strict_yaml
+from groundfloor.errors import MrswarmError
+from groundfloor.schema import Config, ConfigError, convert, to_builtins
 from mrswarm.faults import FaultSpec, check_against, fit_to_duration
-from swarmnet import strict_yaml
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
-from swarmnet.schema import Config, ConfigError, convert, to_builtins
 from uav_stack.config import (
     AgentConfig,
     AvoidanceConfig,
@@ -68,7 +69,7 @@ Coord = Annotated[float, Meta(ge=-MAX_OFFSET_M, le=MAX_OFFSET_M, description="m 
 Heading = Annotated[float, Meta(ge=-360.0, le=360.0, description="degrees from north")]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ValueError, MrswarmError):
     """A scenario that cannot be used; the message names the file and the field."""
 
 

@@ -21,6 +21,8 @@ import signal
 from types import FrameType
 from typing import Any
 
+from groundfloor.process import on_stop_signals
+
 HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 GRACE_S = 5.0  # SIGTERM -> SIGKILL for the children on a normal stop, plus GRACE_S_PER_PROCESS each
 # 100 UAV processes stopping at once on 2 cores (closing sessions, final records) did not all exit
@@ -41,8 +43,7 @@ class StopSignals:
         self._old: dict[int, Any] = {}
 
     def install(self) -> StopSignals:
-        for sig in HANDLED:
-            self._old[sig] = signal.signal(sig, self._on_signal)
+        self._old.update(on_stop_signals(self._on_signal, HANDLED))
         return self
 
     def restore(self) -> None:

@@ -14,7 +14,6 @@ file, even if the runner is killed while writing.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +21,7 @@ import msgspec
 import numpy as np
 from msgspec import UNSET, Struct, UnsetType
 
+from groundfloor.files import write_atomic
 from mrswarm.world_summary import WorldSummary
 
 # ---- run.json ---------------------------------------------------------------------------------
@@ -500,26 +500,5 @@ def _numpy_scalar(o: Any) -> Any:
 
 def write_json_atomic(path: Path, record: Struct) -> None:
     """Write ``record`` as indented JSON to ``path``: temporary file, fsync, rename, fsync the folder."""
-    write_atomic(path, msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n")
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Replace ``path`` with ``data``: temporary file, fsync, rename, fsync the folder. Raises OSError;
-    never leaves the temporary file behind."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        try:
-            tmp.unlink(missing_ok=True)
-        except OSError:  # a read-only disk refuses it too (and took no temporary file)
-            pass
-    fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    data = msgspec.json.format(msgspec.json.encode(record, enc_hook=_numpy_scalar), indent=2) + b"\n"
+    write_atomic(path, data, fsync=True)

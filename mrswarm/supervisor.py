@@ -43,7 +43,7 @@ BACKOFF_MAX_S = 10.0
 STABLE_AFTER_S = 30.0  # up this long: the next failure starts the backoff from the beginning again
 MAX_UAV_RESTARTS = 3
 LOG_TAIL_BYTES = 16384  # how much of a failed process's log is read for its last error
-_LOGGED_ERROR = re.compile(r" (?:ERROR|CRITICAL) [\w.]+: (.+)$")  # runtime.setup_logging's format
+_LOGGED_ERROR = re.compile(r" (?:ERROR|CRITICAL) [\w.]+: (.+)$")  # groundfloor.process.LOG_FORMAT
 _RAISED = re.compile(r"^(?:[\w.]+\.)?\w*(?:Error|Exception|Exit)\b.*$")  # a traceback's last line
 
 

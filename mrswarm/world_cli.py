@@ -16,11 +16,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from groundfloor.process import die_with_parent, setup_logging
+from groundfloor.schema import ConfigError
 from mrswarm.scenario import ScenarioError, load_scenario
 from mrswarm.world_setup import observer_network
-from swarmnet.schema import ConfigError
 from uav_stack.config import NetworkConfig
-from uav_stack.runtime import StopFlag, die_with_parent, setup_logging
+from uav_stack.runtime import StopFlag
 from world.config import ServedSwarm, WorldServiceConfig
 from world.service import serve
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from groundfloor.histogram import LogHistogram
 from mrswarm.scenario import Scenario
 from mrswarm.world_summary import (
     AirspaceReport,
@@ -28,7 +29,6 @@ from mrswarm.world_summary import (
     WorldSummary,
     ZoneReport,
 )
-from swarmnet.stats import LogHistogram
 
 AIRBORNE_Z = 1.0  # m, as in mrswarm/analysis.py
 

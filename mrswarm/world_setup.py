@@ -16,6 +16,7 @@ from typing import Any
 
 from msgspec.structs import replace
 
+from groundfloor.files import write_atomic
 from mrswarm.scenario import Scenario
 from swarmnet.connectivity import Connectivity, open_retrying
 from swarmnet.messages import Command, Pose
@@ -84,8 +85,7 @@ def world_service_config(scn: Scenario, nets: dict[str, NetworkConfig], keys: di
 def write_world_config(cfg: WorldServiceConfig, run_dir: Path) -> Path:
     path = run_dir / "config" / "world.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(cfg.to_json())
-    path.chmod(0o600)  # it holds the swarms' discovery keys
+    write_atomic(path, cfg.to_json(), private=True)  # it holds the swarms' discovery keys
     return path
 
 

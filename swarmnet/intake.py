@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
 from swarmnet.messages import BATCH_VERSION, Kind, Pose, Realm, batched_pose_count, tag
 from swarmnet.neighbours import Neighbour, NeighbourTable
 

@@ -30,7 +30,7 @@ from typing import Annotated
 import numpy as np
 from msgspec import Meta
 
-from swarmnet.schema import Config, ConfigError
+from groundfloor.schema import Config, ConfigError
 
 FORGET_S = 2.0  # a UAV whose pose the edge has not heard this long is no recipient (it is not flying here)
 

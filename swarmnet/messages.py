@@ -30,16 +30,8 @@ from typing import Annotated, Any
 import msgpack
 import msgspec
 
+from groundfloor.errors import Rejected  # a sample a receiver does not take, counted in NodeStats.rejected
 from swarmnet.keyspace import message_route, uav_from_key
-
-
-class Rejected(ValueError):
-    """A sample a receiver does not accept; ``reason`` is the counter name in ``NodeStats.rejected``."""
-
-    def __init__(self, reason: str, detail: str = ""):
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-        self.reason = reason
-        self.detail = detail
 
 
 class DecodeError(Rejected):

@@ -16,6 +16,8 @@ import stat
 import struct
 from collections.abc import Callable
 
+from groundfloor.net import Addr
+
 SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
 SK_MEMINFO_DROPS = 8  # index of the drop counter in SO_MEMINFO's array of u32 (Linux >= 4.6)
 
@@ -53,12 +55,12 @@ def find_sockets(match: Callable[[socket.socket], bool]) -> list[socket.socket]:
     return found
 
 
-def udp_sockets(addresses: set[tuple[str, int]]) -> dict[tuple[str, int], socket.socket]:
+def udp_sockets(addresses: set[Addr]) -> dict[Addr, socket.socket]:
     """This process's IPv4 UDP sockets bound to ``addresses``, by address."""
     def bound(s: socket.socket) -> bool:
         return s.family == socket.AF_INET and s.type == socket.SOCK_DGRAM and s.getsockname()[:2] in addresses
 
-    out: dict[tuple[str, int], socket.socket] = {}
+    out: dict[Addr, socket.socket] = {}
     for s in find_sockets(bound):
         addr = s.getsockname()[:2]
         if addr in out:

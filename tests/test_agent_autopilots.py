@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from swarmnet.schema import convert
+from groundfloor.schema import convert
 from tests import captures
 from tests.conftest import free_port, wait_for
 from uav_stack.config import AgentConfig

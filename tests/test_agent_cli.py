@@ -12,11 +12,12 @@ from pathlib import Path
 
 import pytest
 
+from groundfloor.process import setup_logging
 from mrswarm.gcs.cli import build_parser
 from mrswarm.scenario import load_scenario
 from uav_stack.cli_args import ArgumentParser, join_dash_values
 from uav_stack.config import NetworkConfig, fcu_url_problem
-from uav_stack.runtime import parse_agent, setup_logging
+from uav_stack.runtime import parse_agent
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ["--fcu", "udpin:127.0.0.1:14540", "--swarm", "alpha", "--uav", "3", "--connect", "tcp/127.0.0.1:7447", "--insecure"]

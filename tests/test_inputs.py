@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from groundfloor import strict_yaml
 from mrswarm.resources import check_resources, estimate
 from mrswarm.scenario import load_scenario
-from swarmnet import strict_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 MINI = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"

@@ -14,12 +14,12 @@ import pytest
 import yaml
 import zenoh
 
+from groundfloor.schema import ConfigError, convert
 from mrswarm.scenario import ScenarioError, load_scenario
 from swarmnet.connectivity import Rendezvous, to_zenoh
 from swarmnet.interest import Interest, NearFilter
 from swarmnet.keyspace import SwarmKeys
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.schema import ConfigError, convert
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
 from swarmnet.security.pki import KeyDir

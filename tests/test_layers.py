@@ -1,6 +1,6 @@
 """The packages form layers, and imports never point up (docs/architecture.md).
 
-swarmnet (bottom) -> discovery -> uav_stack -> world -> deploy -> mrswarm -> benchmarks: a module may
+groundfloor (bottom) -> swarmnet -> discovery -> uav_stack -> world -> deploy -> mrswarm -> benchmarks: a module may
 import from its own package or a lower one. Every import counts, also one inside a function
 or under ``TYPE_CHECKING``: either would break when the layers are split or reused. The test
 reads the source with ``ast``, so it needs no package importable.
@@ -12,7 +12,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("swarmnet", "discovery", "uav_stack", "world", "deploy", "mrswarm", "benchmarks")
+LAYERS = ("groundfloor", "swarmnet", "discovery", "uav_stack", "world", "deploy", "mrswarm", "benchmarks")
 RANK = {name: i for i, name in enumerate(LAYERS)}
 
 

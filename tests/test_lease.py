@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from groundfloor.schema import ConfigError, convert
 from mrswarm.scenario import ScenarioError, load_scenario
 from swarmnet.connectivity import Rendezvous, to_zenoh
-from swarmnet.schema import ConfigError, convert
 from tests.conftest import wait_for
 from uav_stack.config import NetworkConfig
 

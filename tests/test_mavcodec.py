@@ -231,7 +231,7 @@ def test_a_pymavlink_that_frames_or_builds_differently_switches_the_pass_off_for
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The import-time check (``mavcodec._agrees``) refuses a message the pass would get wrong:
     a layout or CRC extra unlike pymavlink's, or a decode that sets an attribute per message."""
-    from swarmnet.compiled import compiled_module
+    from groundfloor.compiled import compiled_module
 
     compiled = compiled_module("uav_stack._mavcodec")
     assert compiled is not None

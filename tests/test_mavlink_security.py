@@ -28,7 +28,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from swarmnet.schema import ConfigError, convert
+from groundfloor.schema import ConfigError, convert
 from tests.conftest import free_port, wait_for
 from tests.fcu_helpers import FcuThread, MavClient
 from tests.spoof_flood import udp_packet

@@ -14,6 +14,7 @@ import pytest
 import zenoh
 
 from discovery.rendezvous import serve
+from groundfloor.histogram import LogHistogram
 from swarmnet.connectivity import Rendezvous, to_zenoh
 from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys
@@ -22,7 +23,7 @@ from swarmnet.neighbours import NeighbourTable
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
 from swarmnet.receive import How, Inlet, Waker, subscribe
-from swarmnet.stats import LogHistogram, PoseAges
+from swarmnet.stats import PoseAges
 from tests.conftest import free_port, wait_for
 from tests.gcs_helpers import start_virtual_uav, stop_process
 from tests.pose_rounds import hear_a_round, publish_pose

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from groundfloor.histogram import LogHistogram
 from mrswarm.results import ResultsError, rebuild_results, summarise_run
 from mrswarm.scenario import Scenario, load_scenario
 from mrswarm.summary import RunInfo, RunSummary
-from swarmnet.stats import LogHistogram
 from uav_stack.phases import AgentPhase
 from uav_stack.recorder import TrajectoryRecorder, links_file_name
 

@@ -21,6 +21,7 @@ import msgspec
 import pytest
 import zenoh
 
+from groundfloor.schema import ConfigError
 from mrswarm.gcs.session import GcsError, resolve_target
 from mrswarm.scenario import ScenarioError, load_scenario
 from swarmnet.connectivity import Rendezvous, to_zenoh
@@ -28,7 +29,6 @@ from swarmnet.keyspace import SwarmKeys
 from swarmnet.messages import Command, Pose, Realm, encode_command, encode_pose
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
-from swarmnet.schema import ConfigError
 from swarmnet.security.acl import access_control
 from swarmnet.security.credentials import Credentials, secure_endpoint
 from swarmnet.security.identity import NodeName

@@ -16,9 +16,9 @@ import msgspec
 from msgspec import Meta, field
 
 from discovery.options import ProxyOptions
+from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
-from swarmnet.schema import Config, ConfigError, decode_json
 from swarmnet.security.credentials import Credentials
 from uav_stack.failsafe import FailsafeConfig
 from uav_stack.geo import GeoPoint
@@ -226,7 +226,7 @@ class MavlinkSigning(Config, frozen=True):
     key_file: Annotated[str, Meta(min_length=1, description="path of the passphrase file")] | None = None
 
     def read_key(self) -> bytes:
-        """The 32-byte secret; :class:`~swarmnet.schema.ConfigError` on ``key_file`` if the file is unusable."""
+        """The 32-byte secret; :class:`~groundfloor.schema.ConfigError` on ``key_file`` if the file is unusable."""
         from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
         if self.key_file is None:
@@ -335,7 +335,7 @@ class AgentConfig(Config, frozen=True):
 
     @classmethod
     def load(cls, path: str | Path) -> AgentConfig:
-        """Read a JSON file; :class:`~swarmnet.schema.ConfigError` names the bad field."""
+        """Read a JSON file; :class:`~groundfloor.schema.ConfigError` names the bad field."""
         return decode_json(Path(path).read_bytes(), cls)
 
 
@@ -356,5 +356,5 @@ class VirtualUavConfig(Config, frozen=True):
 
     @classmethod
     def load(cls, path: str | Path) -> VirtualUavConfig:
-        """Read a JSON file (what a runtime wrote); :class:`~swarmnet.schema.ConfigError` names the bad field."""
+        """Read a JSON file (what a runtime wrote); :class:`~groundfloor.schema.ConfigError` names the bad field."""
         return decode_json(Path(path).read_bytes(), cls)

@@ -38,6 +38,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundfloor.errors import MrswarmError
+from groundfloor.net import Addr
 from uav_stack.autopilot import (
     PX4_ARMING_SUMMARY,
     PX4_HEALTH_SUMMARY,
@@ -53,7 +55,6 @@ from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
 from uav_stack.mav import mavlink, mavutil
 from uav_stack.mavcodec import MAVLink
 from uav_stack.rtf import RtfMeter
-from uav_stack.udp import Addr
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +92,7 @@ VELOCITY_ONLY_MASK = (
 )
 
 
-class LinkOpenError(OSError):
+class LinkOpenError(OSError, MrswarmError):
     """One of the agent's MAVLink links cannot be opened: the FCU link (a udpin port another
     process holds, a serial device that is not there) or a ground-station endpoint of its router.
     The message names the setting (``fcu``, ``gcs.mavlink_endpoints``) and the link, so that the
@@ -109,7 +110,7 @@ class LinkOpenError(OSError):
         return cls.of(setting, link, f"{'listen on' if mode == 'udpin' else 'send to'} {host}:{port}", exc)
 
 
-def parse_fcu_url(url: str) -> tuple[str, int]:
+def parse_fcu_url(url: str) -> Addr:
     """pymavlink connection strings, plus ``serial:<device>[:<baud>]`` (also ``serial://``, as
     MAVSDK writes it), which pymavlink would read as a UDP host:port. Returns (device, baud)."""
     if not url:

@@ -20,7 +20,8 @@ from __future__ import annotations
 import logging
 import socket
 
-from uav_stack.udp import Addr, drain, source_address_for
+from groundfloor.net import Addr
+from uav_stack.udp import drain, source_address_for
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
 from uav_stack.mav import mavlink
 
 log = logging.getLogger(__name__)

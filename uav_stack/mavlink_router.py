@@ -55,6 +55,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundfloor.net import Addr
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.mav import mavlink
 from uav_stack.mavlink_signing import REFUSED_REASONS, Signer, VerifyingParser, is_signed
@@ -189,9 +190,9 @@ class UdpEndpoint(Channel):
         self.clock = clock
         self.bind = bind
         self.sock: socket.socket | None = None
-        self.dest: tuple[str, int] | None = None
-        self.peers: dict[tuple[str, int], float] = {}  # udpin: ground stations whose frames were accepted
-        self.listeners: dict[tuple[str, int], float] = {}  # udpin: senders of well-formed refused frames (telemetry only)
+        self.dest: Addr | None = None
+        self.peers: dict[Addr, float] = {}  # udpin: ground stations whose frames were accepted
+        self.listeners: dict[Addr, float] = {}  # udpin: senders of well-formed refused frames (telemetry only)
         self.verifying = signing != UNSIGNED
         self.parser: Any = VerifyingParser(signing.key, signing.allow_unsigned) if self.verifying else mavlink.MAVLink(None)
         self.parser.robust_parsing = True
@@ -225,7 +226,7 @@ class UdpEndpoint(Channel):
         self.sock = s
 
     @property
-    def address(self) -> tuple[str, int]:
+    def address(self) -> Addr:
         assert self.sock is not None
         return self.sock.getsockname()[:2]
 
@@ -234,7 +235,7 @@ class UdpEndpoint(Channel):
             self.sock.close()
             self.sock = None
 
-    def recv(self, stats: RouterStats, max_datagrams: int = 64) -> list[tuple[bytes, tuple[str, int]]]:
+    def recv(self, stats: RouterStats, max_datagrams: int = 64) -> list[tuple[bytes, Addr]]:
         """Pending datagrams; a udpout endpoint keeps only those from its ground station (and
         learns whether its port refused what was sent: :meth:`refused`)."""
         out = []
@@ -260,7 +261,7 @@ class UdpEndpoint(Channel):
         if self.sock is not None:
             clear_errors(self.sock)
 
-    def note_peer(self, a: tuple[str, int], stats: RouterStats) -> None:
+    def note_peer(self, a: Addr, stats: RouterStats) -> None:
         """udpin: answer ``a`` from now on (it sent a frame we accepted); the least recently heard goes."""
         if self.mode != "udpin":
             return
@@ -270,7 +271,7 @@ class UdpEndpoint(Channel):
             stats.peers_evicted += 1
         self.peers[a] = self.clock()
 
-    def note_listener(self, a: tuple[str, int], stats: RouterStats) -> None:
+    def note_listener(self, a: Addr, stats: RouterStats) -> None:
         """udpin: send telemetry to ``a`` (it sent a well-formed frame we refused: a ground station
         without the key). Listeners make room only for each other, never for a peer."""
         if self.mode != "udpin":
@@ -282,7 +283,7 @@ class UdpEndpoint(Channel):
             stats.listeners_evicted += 1
         self.listeners[a] = self.clock()
 
-    def targets(self) -> list[tuple[str, int]]:
+    def targets(self) -> list[Addr]:
         if self.mode == "udpout":
             return [self.dest] if self.dest else []
         now = self.clock()
@@ -372,7 +373,7 @@ class MavlinkRouter:
         for ep in self.endpoints:
             ep.close()
 
-    def addresses(self) -> dict[str, tuple[str, int]]:
+    def addresses(self) -> dict[str, Addr]:
         return {ep.spec: ep.address for ep in self.endpoints if ep.sock is not None}
 
     # ---- FCU -> ground stations (FcuLink's on_message hook) ---------------------------------
@@ -418,7 +419,7 @@ class MavlinkRouter:
         for name in _VERIFIER_COUNTERS:
             setattr(st, name, sum(getattr(ep.parser, name) for ep in self.endpoints))
 
-    def _route_datagram(self, ep: UdpEndpoint, data: bytes, addr: tuple[str, int]) -> int:
+    def _route_datagram(self, ep: UdpEndpoint, data: bytes, addr: Addr) -> int:
         p = ep.parser
         if ep.verifying:
             p.heard_refused = False

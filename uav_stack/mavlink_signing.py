@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from groundfloor.errors import MrswarmError
 from uav_stack.mav import mavlink
 
 try:  # the interpreter's own SHA-256: hashlib would load OpenSSL (~4 MB RSS per UAV process)
@@ -50,7 +51,7 @@ _SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
 _SIG_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN  # 13: link id, timestamp, signature
 
 
-class SigningKeyError(ValueError):
+class SigningKeyError(ValueError, MrswarmError):
     """A key file that cannot be used; the message names the file."""
 
 

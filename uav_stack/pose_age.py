@@ -24,30 +24,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 from swarmnet.node import SwarmNode
-from swarmnet.stats import LogHistogram, PoseAges
+from swarmnet.stats import PoseAges
 from uav_stack.recorder import AppendLog, RecordHealth
 
 COLUMNS = ("t_wall", "poses", "transport_p50_ms", "transport_p99_ms", "transport_mean_ms", "used", "use_p50_ms", "use_p99_ms",
            "aoi_mean_ms", "aoi_max_ms", "neighbours")
-
-
-def _bin_centre(i: int) -> float:
-    if i == 0:
-        return 0.0
-    return LogHistogram.LO * 10 ** ((i - 0.5) / LogHistogram.PER_DECADE)
-
-
-def _centre_percentile(h: LogHistogram, q: float) -> float:
-    """The centre of the bin holding the q-th percentile; NaN if empty."""
-    if h.n <= 0:
-        return math.nan
-    rank = max(1, math.ceil(h.n * q / 100.0))
-    acc = 0
-    for i in sorted(h.bins):
-        acc += h.bins[i]
-        if acc >= rank:
-            return _bin_centre(i)
-    return math.nan
 
 
 class AgeFigures(NamedTuple):
@@ -75,8 +56,8 @@ class AgeWindow:
         a = self.ages
         t, u = a.transport.since(self._transport), a.use.since(self._use)
         self._transport, self._use = a.transport.copy(), a.use.copy()
-        self.last = AgeFigures(t.n, _centre_percentile(t, 50), _centre_percentile(t, 99), t.mean,
-                               u.n, _centre_percentile(u, 50), _centre_percentile(u, 99))
+        self.last = AgeFigures(t.n, t.centre_percentile(50), t.centre_percentile(99), t.mean,
+                               u.n, u.centre_percentile(50), u.centre_percentile(99))
         return self.last
 
 

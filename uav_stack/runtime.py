@@ -9,22 +9,21 @@ handled as soon as it arrives. No asyncio: it would cost ~10 MB per process.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import logging
 import math
 import os
 import re
 import signal
-import sys
 import time
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from groundfloor.process import die_with_parent, on_stop_signals, setup_logging
+from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import Connectivity, Rendezvous, StaticPeers, TransportTuning, lean_zenoh_runtime, open_retrying
 from swarmnet.messages import Realm
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.schema import ConfigError, convert
 from swarmnet.security.identity import NodeName
 from uav_stack import tick_meter
 from uav_stack.agent import Agent
@@ -40,7 +39,6 @@ if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
 log = logging.getLogger(__name__)
 
 OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
-_PR_SET_PDEATHSIG = 1
 SHUTDOWN_WATCHDOG_S = 10  # s from a stop signal to the process ending, whatever hangs
 
 
@@ -54,8 +52,7 @@ class StopFlag:
         self.stopped = True
 
     def install(self) -> StopFlag:
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, self._on_signal)
+        on_stop_signals(self._on_signal)
         # no part of a UAV process uses signal-driven I/O, and SIGIO's default ends the process: the
         # lease the counters file takes (uav_stack.recorder.SwappedJsonFile) can raise one
         signal.signal(signal.SIGIO, signal.SIG_IGN)
@@ -66,17 +63,6 @@ class StopFlag:
         # the records are written first thing on the way out; should closing the sessions then
         # hang, SIGALRM's default action ends the process (no orphan when the runner is gone)
         signal.alarm(SHUTDOWN_WATCHDOG_S)
-
-
-def die_with_parent() -> None:
-    """Ask Linux to SIGTERM us when the launching process dies (no orphans, even on SIGKILL)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
 
 
 def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Connectivity:
@@ -445,22 +431,6 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
         if router is not None:
             router.close()
     return 0
-
-
-def setup_logging(level: str = "WARNING", log_file: str | None = None) -> None:
-    """Log records to stderr, or to ``log_file`` (its folder made if missing; stderr if it cannot be opened)."""
-    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
-    problem = ""
-    if log_file:
-        try:
-            Path(log_file).parent.mkdir(parents=True, exist_ok=True)
-            handlers = [logging.FileHandler(log_file)]
-        except OSError as exc:
-            problem = f"cannot write the log file {log_file} ({exc.strerror or exc}): logging to stderr"
-    logging.basicConfig(level=getattr(logging, level.upper(), logging.WARNING), handlers=handlers,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if problem:
-        log.warning("%s", problem)
 
 
 def virtual_uav_main(argv: list[str] | None = None) -> int:

@@ -21,10 +21,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from groundfloor.histogram import LogHistogram
 from swarmnet.messages import Reading, Traffic
 from swarmnet.node import SwarmNode
 from swarmnet.sensing import UavSensing
-from swarmnet.stats import LogHistogram
 from uav_stack.behaviours.base import NeighbourView
 from uav_stack.config import ActuatorSpec, AgentConfig, SensorSpec
 from uav_stack.geo import LocalFrame

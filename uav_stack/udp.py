@@ -6,9 +6,9 @@ import socket
 import sys
 from collections.abc import Callable
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
+from groundfloor.net import Addr
 
-Addr = tuple[str, int]
 _IP_RECVERR = 11  # <linux/in.h>; Python's socket module does not export it
 
 # Four sockets are read each tick in every virtual UAV, most often to find one datagram or none:

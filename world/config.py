@@ -14,8 +14,8 @@ from typing import Annotated, Literal
 import msgspec
 from msgspec import Meta, field
 
+from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.keyspace import SWARM_RE
-from swarmnet.schema import Config, ConfigError, decode_json
 from uav_stack.config import ActuatorSpec, NetworkConfig, Point, SensorSpec, Zone
 from uav_stack.geo import GeoPoint
 

@@ -19,12 +19,9 @@ in ``world.json`` once the disk takes it again) and logged once a minute.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import json
 import logging
 import math
-import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -32,6 +29,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from groundfloor.files import replacing, write_json_atomic
 from world.model import World
 
 SAMPLE_S = 1.0
@@ -106,30 +104,16 @@ class WorldRecorder:
             self.write_grid()
 
     def write_stats(self, stats: dict[str, Any]) -> None:
-        path = self.dir / "world.json"
-        tmp = path.with_name(f".{path.name}.tmp")
-        try:
-            tmp.write_text(json.dumps({**stats, "unwritten": self.unwritten} if self.unwritten else stats, indent=1))
-            os.replace(tmp, path)
-        except OSError:
-            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
-                tmp.unlink(missing_ok=True)
-            raise
+        write_json_atomic(self.dir / "world.json", {**stats, "unwritten": self.unwritten} if self.unwritten else stats,
+                          indent=1)
 
     def write_grid(self) -> None:
         fire = self.world.fire
         if fire is None:
             return
-        path = self.dir / "world_fire.npz"
-        tmp = path.with_name(".world_fire.tmp.npz")
-        try:
-            np.savez_compressed(tmp, xs=fire.xs, ys=fire.ys, fuel=fire.fuel, state=fire.state, t_ignited=fire.t_ignited,
+        with replacing(self.dir / "world_fire.npz") as f:
+            np.savez_compressed(f, xs=fire.xs, ys=fire.ys, fuel=fire.fuel, state=fire.state, t_ignited=fire.t_ignited,
                                 t_over=fire.t_over, t=np.array(fire.t), cell_m=np.array(fire.cfg.cell_m))
-            os.replace(tmp, path)
-        except OSError:
-            with contextlib.suppress(OSError):  # a read-only disk refuses the unlink too
-                tmp.unlink(missing_ok=True)
-            raise
 
     def close(self, stats: dict[str, Any]) -> None:
         self._guard(lambda: self.write_stats(stats))

@@ -27,13 +27,14 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from groundfloor.process import die_with_parent, setup_logging
+from groundfloor.schema import ConfigError
 from swarmnet.node import NodeIdentity, SwarmNode
-from swarmnet.schema import ConfigError
 from swarmnet.security.identity import NodeName
 from swarmnet.sensing import WorldSensing
 from uav_stack.behaviours.plume import ESTIMATE_TOPIC
 from uav_stack.phases import AgentPhase
-from uav_stack.runtime import StopFlag, die_with_parent, make_connectivity, setup_logging
+from uav_stack.runtime import StopFlag, make_connectivity
 from world.airspace import TrafficFeed
 from world.config import WorldServiceConfig
 from world.model import UavKey, World

@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from groundfloor.errors import MrswarmError
 from swarmnet.connectivity import Rendezvous
 from swarmnet.keyspace import check_swarm
 from swarmnet.observer import SwarmObserver
@@ -17,7 +18,7 @@ from swarmnet.security.identity import NodeName
 DISCOVERY_WAIT = 2.0  # s: how long liveliness may take to list every UAV
 
 
-class GcsError(Exception):
+class GcsError(MrswarmError):
     """A usage problem the CLI reports in one line, with exit code 2."""
 
 

@@ -22,13 +22,14 @@ from typing import Any, TextIO
 import msgspec
 import yaml
 
+from groundfloor.errors import MrswarmError
 from mrswarm.recorder.reader import Recording, RecordingError, read_recording
 from uav_stack.recorder import TRAJECTORY_COLUMNS
 
 RUN_FILES = ("scenario.yaml", "network.json", "run.json")
 
 
-class ExportError(Exception):
+class ExportError(MrswarmError):
     """A recording that cannot be exported (unreadable, or not of a run where a run folder is asked for)."""
 
 

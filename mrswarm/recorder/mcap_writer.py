@@ -25,6 +25,7 @@ from mcap.opcode import Opcode
 from mcap.records import DataEnd, Footer
 from mcap.writer import CompressionType, Writer
 
+from groundfloor.errors import MrswarmError
 from mrswarm.recorder.records import Record
 from mrswarm.recorder.schemas import JSON, JSONSCHEMA, schema_bytes
 from swarmnet.version import __version__
@@ -35,7 +36,7 @@ MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, content length
 
 
-class DiskError(OSError):
+class DiskError(OSError, MrswarmError):
     """The disk refused the file's next records; the file is cut back to its last whole record."""
 
 

@@ -18,8 +18,10 @@ from mcap.exceptions import McapError
 from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
+from groundfloor.errors import MrswarmError
 
-class RecordingError(Exception):
+
+class RecordingError(MrswarmError):
     """Not an MCAP file, or not one this recorder wrote."""
 
 

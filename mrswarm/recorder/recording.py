@@ -18,13 +18,13 @@ file is sealed at its last flush and the recording goes on counting what it cann
 from __future__ import annotations
 
 import math
-import signal
 import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from types import FrameType
 
+from groundfloor.process import on_stop_signals
 from mrswarm.recorder import schemas as sc
 from mrswarm.recorder.capture import SwarmCapture
 from mrswarm.recorder.mcap_writer import DiskError, McapWriter
@@ -147,8 +147,7 @@ class Stop:
         self.signum = signum
 
     def install(self) -> None:
-        signal.signal(signal.SIGTERM, self)
-        signal.signal(signal.SIGINT, self)
+        on_stop_signals(self)
 
 
 def record_swarm(observer: SwarmObserver, path: str | Path, *, duration: float | None = None, run_dir: Path | None = None,

@@ -24,6 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from groundfloor.errors import MrswarmError
 from mrswarm.recorder.reader import RecordedMessage, Recording, RecordingError, read_recording
 from swarmnet.connectivity import Rendezvous
 from swarmnet.keyspace import SwarmKeys, check_swarm
@@ -47,7 +48,7 @@ _OFFSET_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(h|m|s|ms)?\s*$")
 _UNIT = {"h": 3600.0, "m": 60.0, "s": 1.0, "ms": 0.001, None: 1.0}
 
 
-class ReplayError(Exception):
+class ReplayError(MrswarmError):
     """A usage problem (bad offset, swarm name, unreadable file): one line, exit code 2."""
 
 

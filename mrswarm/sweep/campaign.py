@@ -37,8 +37,9 @@ import msgspec
 import yaml
 from msgspec import Meta
 
+from groundfloor.errors import MrswarmError
+from groundfloor.schema import Config, ConfigError, convert, to_builtins
 from mrswarm.scenario import Scenario, ScenarioError, load_scenario, read_scenario_text
-from swarmnet.schema import Config, ConfigError, convert, to_builtins
 
 MAX_SEEDS = 1000
 MAX_SLOTS = 10_000
@@ -47,7 +48,7 @@ NAME_RE = r"^[A-Za-z0-9_\-]{1,64}$"
 
 
 
-class CampaignError(ValueError):
+class CampaignError(ValueError, MrswarmError):
     """A campaign that cannot be flown; the message names the file and the field."""
 
 

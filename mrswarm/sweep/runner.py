@@ -31,6 +31,7 @@ from typing import IO
 
 from rich.console import Console
 
+from groundfloor.errors import MrswarmError
 from mrswarm.resources import check_resources
 from mrswarm.signals import StopSignals
 from mrswarm.summary import write_atomic
@@ -49,7 +50,7 @@ EXIT_FAILED = 1  # every run flown, some failed (their runner gave up, or they r
 EXIT_USAGE = 2  # bad campaign, grid or scenario; a campaign folder of another campaign; locked
 
 
-class SweepError(Exception):
+class SweepError(MrswarmError):
     """The campaign cannot be flown into this folder (exit 2)."""
 
 

@@ -47,9 +47,9 @@ import msgspec
 from msgspec import UNSET, Meta, UnsetType
 from msgspec.structs import force_setattr
 
+from groundfloor.schema import Config, ConfigError, join, to_builtins
+from groundfloor.schema import convert as _convert
 from swarmnet.netem.presets import PRESETS
-from swarmnet.schema import Config, ConfigError, join, to_builtins
-from swarmnet.schema import convert as _convert
 
 CLASSES = ("v2v", "v2p", "ground")
 PROFILE_KEYS = ("delay", "loss", "duplicate", "reorder", "rate", "limit", "outage", "distance")
@@ -72,7 +72,7 @@ class NetemConfigError(ConfigError):
 
 
 def convert(data: Any, type_: Any, at: str = "") -> Any:
-    """:func:`swarmnet.schema.convert` raising :class:`NetemConfigError`, the path prefixed with ``at``."""
+    """:func:`groundfloor.schema.convert` raising :class:`NetemConfigError`, the path prefixed with ``at``."""
     try:
         return _convert(data, type_, error=NetemConfigError)
     except NetemConfigError as exc:

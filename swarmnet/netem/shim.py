@@ -35,10 +35,10 @@ import random
 from collections import Counter
 from typing import Any
 
+from groundfloor.histogram import LogHistogram
 from swarmnet.messages import Realm
 from swarmnet.netem.config import LinkProfile, NetemConfig, OutageSpec
 from swarmnet.netem.models import DelayGen, LossGen, OutageSchedule
-from swarmnet.stats import LogHistogram
 
 
 class Link:

@@ -25,7 +25,7 @@ from typing import Annotated, Any
 import msgspec
 from msgspec import Meta
 
-from swarmnet.schema import Config, ConfigError
+from groundfloor.schema import Config, ConfigError
 from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import CA_CERT_FILE, Roster
 

@@ -34,7 +34,6 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import ipaddress
-import os
 import shutil
 import time
 from collections.abc import Iterable
@@ -45,6 +44,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from groundfloor.errors import MrswarmError
+from groundfloor.files import write_atomic
 from swarmnet.security.beacon import BEACON_KEY_FILE, derive_token, new_beacon_key, token_path
 from swarmnet.security.identity import NodeName
 from swarmnet.security.roster import CA_CERT_FILE, CA_KEY_FILE, MAVLINK_KEY_FILE, Issued, Revoked, Roster
@@ -54,20 +55,8 @@ NODE_DAYS = 90  # short-lived: expiry is the revocation Zenoh does enforce (clos
 CLOCK_SKEW = dt.timedelta(minutes=5)  # not_before this far back: a node whose clock is a little behind accepts it
 
 
-class KeysError(ValueError):
+class KeysError(ValueError, MrswarmError):
     """A key directory that cannot do what was asked; the message says why and what to do."""
-
-
-def write_private(path: Path, data: bytes) -> None:
-    """Write ``data`` to a file only its owner can read (0600 from the first byte, no window)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        os.fchmod(fd, 0o600)  # O_CREAT's mode is filtered by the umask; this is not
-        os.write(fd, data)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
 
 
 def write_passphrase(path: Path) -> Path:
@@ -79,7 +68,7 @@ def write_passphrase(path: Path) -> Path:
     passphrase = secrets.token_urlsafe(32)
     while passphrase.startswith("-"):
         passphrase = secrets.token_urlsafe(32)
-    write_private(path, (passphrase + "\n").encode("ascii"))
+    write_atomic(path, (passphrase + "\n").encode("ascii"), private=True)
     return path
 
 
@@ -132,7 +121,7 @@ class KeyDir:
 
     @property
     def roster(self) -> Roster:
-        from swarmnet.schema import ConfigError
+        from groundfloor.schema import ConfigError
 
         try:
             return Roster.load(self.path)
@@ -174,7 +163,7 @@ class KeyDir:
         except FileNotFoundError:
             if not (self.path / CA_KEY_FILE).exists():
                 raise KeysError(f"{self.path}: no {BEACON_KEY_FILE} here, and no CA to make one (a node's bundle?)") from None
-        write_private(path, new_beacon_key())
+        write_atomic(path, new_beacon_key(), private=True)
         return path.read_bytes().strip()
 
     def ensure_tokens(self, names: Iterable[NodeName]) -> list[NodeName]:
@@ -190,7 +179,7 @@ class KeyDir:
     def write_token(self, name: NodeName, serial: str, dest: Path | None = None) -> Path:
         """``<cn>.beacon``: the beacon token of ``name``'s certificate ``serial`` (in ``dest``, default here)."""
         path = token_path(dest or self.path, name.cn)
-        write_private(path, derive_token(self.beacon_key(), name.cn, serial).hex().encode() + b"\n")
+        write_atomic(path, derive_token(self.beacon_key(), name.cn, serial).hex().encode() + b"\n", private=True)
         return path
 
     def _write_ca(self, swarm: str, days: int) -> str:
@@ -212,7 +201,7 @@ class KeyDir:
             .add_extension(ski, critical=False)
             .sign(key, hashes.SHA256())
         )
-        write_private(self.path / CA_KEY_FILE, _key_pem(key))
+        write_atomic(self.path / CA_KEY_FILE, _key_pem(key), private=True)
         (self.path / CA_CERT_FILE).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         return format(cert.serial_number, "x")
 
@@ -275,7 +264,7 @@ class KeyDir:
             .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
             .sign(ca_key, hashes.SHA256())
         )
-        write_private(self.key_path(name), _key_pem(key))
+        write_atomic(self.key_path(name), _key_pem(key), private=True)
         self.cert_path(name).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         entry = Issued(serial=format(cert.serial_number, "x"), not_after=not_after.timestamp(), issued=time.time())
         self.write_token(name, entry.serial)
@@ -315,14 +304,14 @@ class KeyDir:
         shutil.copyfile(self.path / CA_CERT_FILE, dest / CA_CERT_FILE)
         roster.save(dest)
         shutil.copyfile(self.cert_path(name), dest / self.cert_path(name).name)
-        write_private(dest / self.key_path(name).name, self.key_path(name).read_bytes())
+        write_atomic(dest / self.key_path(name).name, self.key_path(name).read_bytes(), private=True)
         if name.role in ("uav", "gcs") and self.mavlink_key_path.is_file():
-            write_private(dest / MAVLINK_KEY_FILE, self.mavlink_key_path.read_bytes())
+            write_atomic(dest / MAVLINK_KEY_FILE, self.mavlink_key_path.read_bytes(), private=True)
         token = token_path(self.path, name.cn)
         if token.exists():
-            write_private(token_path(dest, name.cn), token.read_bytes())
+            write_atomic(token_path(dest, name.cn), token.read_bytes(), private=True)
         else:  # a directory from before beacon tokens: made from its beacon key
             self.write_token(name, roster.nodes[name.cn].serial, dest)
         if name.role == "edge":
-            write_private(dest / BEACON_KEY_FILE, self.beacon_key() + b"\n")
+            write_atomic(dest / BEACON_KEY_FILE, self.beacon_key() + b"\n", private=True)
         return dest

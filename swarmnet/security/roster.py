@@ -8,14 +8,14 @@ cryptography, so a UAV process never imports the ``cryptography`` package.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated
 
 import msgspec
 from msgspec import Meta, field
 
-from swarmnet.schema import Config, ConfigError, decode_json
+from groundfloor.files import write_atomic
+from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.security.identity import NodeName
 
 ROSTER_FILE = "roster.json"
@@ -68,7 +68,7 @@ class Roster(Config, frozen=True):
 
     @classmethod
     def load(cls, keys: str | Path) -> Roster:
-        """The roster in key directory ``keys``; :class:`~swarmnet.schema.ConfigError` names what is wrong."""
+        """The roster in key directory ``keys``; :class:`~groundfloor.schema.ConfigError` names what is wrong."""
         path = Path(keys) / ROSTER_FILE
         try:
             data = path.read_bytes()
@@ -82,7 +82,4 @@ class Roster(Config, frozen=True):
 
     def save(self, keys: str | Path) -> None:
         """Write atomically (a node reading it meanwhile sees the old or the new roster, never half)."""
-        path = Path(keys) / ROSTER_FILE
-        tmp = path.with_name(f".{path.name}.{os.getpid()}")
-        tmp.write_bytes(self.to_json())
-        os.replace(tmp, path)
+        write_atomic(Path(keys) / ROSTER_FILE, self.to_json())

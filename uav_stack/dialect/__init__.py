@@ -24,6 +24,8 @@ import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
+from groundfloor.files import write_atomic
+
 NAME = "mrswarm"
 """The dialect's name, as ``MAVLINK_DIALECT`` takes it: ``pymavlink.dialects.v20.mrswarm``."""
 
@@ -92,9 +94,7 @@ def _generate(target: Path) -> None:
             ok = mavgen.mavgen(opts, [str(Path(work) / XML.name)])
         if not ok:
             raise RuntimeError(f"mavgen could not generate the MAVLink dialect from {XML}")
-        partial = target.with_suffix(f".{os.getpid()}.tmp")
-        shutil.copy(out, partial)
-        os.replace(partial, target)
+        write_atomic(target, out.read_bytes())
     # the byte code too, whatever PYTHONDONTWRITEBYTECODE says: compiling 2.6 MB of source costs
     # each process about 100 MB of memory for a moment
     py_compile.compile(str(target), cfile=importlib.util.cache_from_source(str(target)), doraise=True)

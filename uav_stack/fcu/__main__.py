@@ -22,11 +22,10 @@ the owner; ``--owner-only`` ignores everyone else (docs/security.md).
 from __future__ import annotations
 
 import argparse
-import logging
-import signal
 import sys
 import threading
 
+from groundfloor.process import setup_logging, stop_event
 from uav_stack.fcu.boot import BOOT_PROFILES
 from uav_stack.fcu.config import FcuConfig, VehicleConfig
 from uav_stack.fcu.fcu import VirtualFcu
@@ -115,8 +114,7 @@ def config_from_args(a: argparse.Namespace) -> FcuConfig:
 
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
-    logging.basicConfig(level=getattr(logging, str(a.log_level).upper(), logging.WARNING),
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")  # fmt: skip
+    setup_logging(str(a.log_level))
     try:
         cfg = config_from_args(a)
         fcu = VirtualFcu(cfg)
@@ -124,14 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-
-    def _stop(signum: int, frame: object) -> None:
-        stop.set()
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _stop)
-        signal.signal(signal.SIGINT, _stop)
+    stop = stop_event() if threading.current_thread() is threading.main_thread() else threading.Event()
     for v, (host, port) in zip(cfg.vehicles, addrs, strict=True):
         print(f"LISTEN {v.sysid} {host}:{port}", flush=True)
     try:

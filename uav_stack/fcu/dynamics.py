@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
 
 G = 9.80665
 

@@ -17,12 +17,12 @@ from __future__ import annotations
 import socket
 from dataclasses import dataclass, field
 
+from groundfloor.net import Addr
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.mav import mavlink
 from uav_stack.mavcodec import MAVLink
 from uav_stack.udp import drain
 
-Addr = tuple[str, int]
 MAX_DATAGRAM = 1400  # bytes: stays under a 1500-byte MTU with IP/UDP headers
 
 

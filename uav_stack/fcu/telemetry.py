@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from swarmnet.compiled import compiled_module
+from groundfloor.compiled import compiled_module
 from uav_stack import geo
 from uav_stack.fcu import ardupilot, px4
 from uav_stack.fcu.dynamics import BATTERY, LANDED, PITCH, PITCH_RATE, POS, ROLL, ROLL_RATE, VEL, YAW, YAW_RATE

@@ -1,4 +1,4 @@
-"""Turning msgspec's validation errors into ``(dotted path, message)`` (see :mod:`swarmnet.schema`).
+"""Turning msgspec's validation errors into ``(dotted path, message)`` (see :mod:`groundfloor.schema`).
 
 msgspec reports ``Expected `float` <= 1.0 - at `$.v2v.loss.p```; users should read
 ``v2v.loss.p: must be a probability in [0, 1], got 1.5``. Following the path through the
@@ -16,7 +16,7 @@ from typing import Annotated, Any
 
 import msgspec
 
-from swarmnet.schema import ConfigError, join
+from groundfloor.schema import ConfigError, join
 
 _AT = re.compile(r"^(?P<msg>.*?) - at `(?P<key>key` in `)?(?P<path>\$[^`]*)`$", re.S)
 _SEG = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
