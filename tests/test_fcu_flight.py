@@ -67,7 +67,7 @@ def wait_mode(c: MavClient, mode: str, timeout: float) -> bool:
 
 def takeoff(c: MavClient, alt: float = 1.5) -> None:
     assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
-    assert c.command_long(M.MAV_CMD_NAV_TAKEOFF) == ACC  # MAVSDK: all params NaN -> MIS_TAKEOFF_ALT
+    assert c.command_long(M.MAV_CMD_NAV_TAKEOFF, *[NAN] * 7) == ACC  # MAVSDK: all params NaN -> MIS_TAKEOFF_ALT
     assert wait_mode(c, "HOLD", 6.0), c.px4_mode()
     assert c.wait(lambda: abs(rel_alt(c) - alt) < 0.1, 3.0), rel_alt(c)
 
@@ -103,7 +103,7 @@ def test_arm_takeoff_reaches_mis_takeoff_alt_then_hold(px4) -> None:
     c.drain(1.0)
     assert max(m.relative_alt for m in c.received if m.get_type() == "GLOBAL_POSITION_INT") < 1600  # no overshoot
     assert c.latest["EXTENDED_SYS_STATE"].landed_state == M.MAV_LANDED_STATE_IN_AIR
-    assert c.command_long(M.MAV_CMD_NAV_TAKEOFF) == ACC  # idempotent: a retry keeps flying
+    assert c.command_long(M.MAV_CMD_NAV_TAKEOFF, *[NAN] * 7) == ACC  # idempotent: a retry keeps flying
     t = ft.fcu.truth()
     assert t.armed and not t.landed and abs(t.pos_ned[0]) < 0.01 and t.battery_remaining < 1.0
 
@@ -260,7 +260,7 @@ def test_datalink_loss_and_low_battery_failsafes() -> None:
         c.heartbeat()
         assert c.recv_match("HEARTBEAT", 3.0) is not None
         assert c.command_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
-        assert c.command_long(M.MAV_CMD_NAV_TAKEOFF) == ACC
+        assert c.command_long(M.MAV_CMD_NAV_TAKEOFF, *[NAN] * 7) == ACC
         last_hb = [0.0]
 
         def gcs_heartbeat() -> None:

@@ -127,3 +127,35 @@ def test_a_sweep_survives_sigint_and_a_rerun_and_writes_its_table_and_plots(tmp_
     assert (out / "runs.csv").read_text() == table
     assert all(p.exists() for p in pngs)
     assert not math.isnan(float(cells[("2", "rtf.mean")]["mean"]))
+
+
+def test_a_run_flies_without_what_the_stack_image_leaves_out(tmp_path: Path) -> None:
+    """A sweep's job on a swarm is ``mrswarm run --no-record`` inside the stack image, which has no matplotlib, mcap or
+    websockets (deploy/images.py): the same run here, with those modules made unimportable, completes with its summary."""
+    from deploy.images import IMAGE_EXCLUDES
+
+    blocker = (
+        "import importlib.abc, runpy, sys\n"
+        f"LEFT_OUT = {tuple(IMAGE_EXCLUDES)!r}\n"
+        "class LeftOut(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in LEFT_OUT:\n"
+        "            raise ModuleNotFoundError(f'No module named {name!r} (left out of the image)')\n"
+        "sys.meta_path.insert(0, LeftOut())\n"
+        "sys.argv = ['mrswarm', *sys.argv[1:]]\n"
+        "runpy.run_module('mrswarm', run_name='__main__')\n"
+    )
+    tag = f"noimg-{uuid.uuid4().hex[:6]}"
+    out = tmp_path / "out"
+    try:
+        res = subprocess.run([sys.executable, "-c", blocker, "run", str(MINI), "--set", "duration=4", "--set", "fleet.count=2",
+                              "--out", str(out), "--no-live", "--no-record"], cwd=ROOT, capture_output=True, text=True,
+                             env=dict(os.environ, **{TAG: tag}), timeout=180)  # fmt: skip
+        left = wait_no_survivors(tag, 5.0)
+    finally:
+        kill_survivors(tag)
+    assert res.returncode == 0, (res.stdout + res.stderr)[-4000:]
+    assert not left, "processes outlived the run"
+    (summary,) = out.glob("*/summary.json")
+    s = json.loads(summary.read_text())
+    assert s["uavs_recorded"] == 2 and s["aborted"] is None

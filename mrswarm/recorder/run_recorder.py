@@ -26,10 +26,17 @@ import time
 from pathlib import Path
 from typing import IO, Any
 
-from mrswarm.recorder.mcap_writer import seal
-from mrswarm.recorder.recording import next_segment
-
 MCAP_NAME = "run.mcap"
+
+
+def _seal(path: str) -> None:
+    """:func:`~mrswarm.recorder.mcap_writer.seal`, imported only here: a runner that records nothing (the image of a
+    sweep's job, which leaves mcap out) never needs it."""
+    from mrswarm.recorder.mcap_writer import seal
+
+    seal(path)
+
+
 START_TIMEOUT = 20.0  # s for the recorder to import, join the swarm and create its file
 STOP_TIMEOUT = 20.0  # s to write the last chunk, the attachments and the summary
 STATUS_PREFIX = "recorder-status "  # a line of `gcs record --status`: the recorder's state, as JSON
@@ -146,11 +153,13 @@ class RunRecorder:
         if self._reader is not None:
             self._reader.join(1.0)
         for f in self.files:
-            seal(f)  # a killed writer's file ends as a closed one (a closed one is left as it is)
+            _seal(f)  # a killed writer's file ends as a closed one (a closed one is left as it is)
         with self._lock:
             self._unwritten_done = self.unwritten
             self._unwritten_now = 0
             self.previous_flushed, self.flushed = self.flushed, None
+            from mrswarm.recorder.recording import next_segment  # imports mcap (see _seal)
+
             self.path = next_segment(self.first)
         self._resumed_reported = False
         self._spawn()
@@ -184,7 +193,7 @@ class RunRecorder:
             self._reader.join(2.0)
         if self.proc.returncode not in (0, 130):
             for f in self.files:
-                seal(f)
+                _seal(f)
         if self._log is not None:
             try:
                 self._log.close()
