@@ -252,6 +252,24 @@ def test_param_set_changes_takeoff_altitude_and_geofence_holds(px4) -> None:
     assert not c.latest["SYS_STATUS"].onboard_control_sensors_health & M.MAV_SYS_STATUS_GEOFENCE
 
 
+def test_an_injected_battery_failure_goes_below_the_simulated_floor(px4: tuple[FcuThread, MavClient]) -> None:
+    """SIM_BAT_MIN_PCT (50 % by default) keeps PX4's simulated drain from emptying the battery; a chaos run's
+    battery_drop is a failing battery instead: it goes below the floor, stays there, and PX4's failsafe lands."""
+    from swarmnet.messages import FaultInjection
+    from uav_stack.sim_faults import SimFaults
+
+    ft, c = px4
+    takeoff(c)
+    ok, msg = SimFaults(ft.fcu).apply(FaultInjection("chaos", 1, 1, "battery_drop", {"level": 0.06}), time.time())
+    assert ok and msg.endswith("-> 6 %"), msg
+    assert stream(c, 3.0, c.heartbeat, hz=2.0, until=lambda: field(c, "SYS_STATUS", "battery_remaining") == 6)
+    c.drain(1.5)
+    assert field(c, "SYS_STATUS", "battery_remaining") <= 6  # not back at the 50 % floor
+    # PX4 1.16 default COM_LOW_BAT_ACT 3: Return at critical (BAT_CRIT_THR 7 %), then down and disarmed
+    assert c.wait(lambda: c.px4_mode() in ("RTL", "LAND"), 3.0), c.px4_mode()
+    assert c.wait(lambda: not c.armed(), 10.0)
+
+
 def test_datalink_loss_and_low_battery_failsafes() -> None:
     # PX4's simulated battery drains over SIM_BAT_DRAIN while armed, never below SIM_BAT_MIN_PCT (50 % by default)
     ft, c = fly(NAV_DLL_ACT=3, COM_DL_LOSS_T=1, SIM_BAT_DRAIN=40.0, SIM_BAT_MIN_PCT=0, BAT_LOW_THR=0.92, BAT_CRIT_THR=0.05,

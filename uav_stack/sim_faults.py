@@ -98,6 +98,7 @@ class SimFaults:
         else:
             before = float(self.fcu.dyn.battery[v.i])
             self.fcu.dyn.battery[v.i] = min(before, a["level"])
+            v.battery_failed = True  # below PX4's simulated floor too (SIM_BAT_MIN_PCT limits the drain only)
             msg = f"battery {100 * before:.0f} % -> {100 * float(self.fcu.dyn.battery[v.i]):.0f} %"
         self.applied.append({"t": round(now, 3), "kind": f.kind, "args": dict(a), "id": f.fault_id})
         self._update(now)

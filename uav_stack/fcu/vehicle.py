@@ -146,6 +146,8 @@ class Vehicle:
         self.after_disarm_mode: ModeSpec = self.mode
         self.px4_failsafe = False  # PX4 flies a failsafe's mode (CRITICAL) until the user picks another
         self._health_state = ""  # the last health report PX4 sent
+        # a battery fault injected below SIM_BAT_MIN_PCT: the floor limits the simulated drain, not a failing battery
+        self.battery_failed = False
         self.home_override = False  # DO_SET_HOME (or arming) set home before the boot did
         self.pending_takeoff: tuple[float, float, float] | None = None  # ArduPilot: (start time, target z, yaw)
         self.arm_refused = False  # ArduPilot reports its pre-arm failures every 30 s once an arm was refused
@@ -690,6 +692,7 @@ class Vehicle:
             self.px4_failsafe = False
             self.log_closed = True
             self.ctx.dyn.battery[self.i] = 1.0  # PX4's simulated battery is full again when disarmed
+            self.battery_failed = False
             self.bat_level = 0
             if self.after_disarm_mode is not self.mode:
                 self.enter_mode(self.after_disarm_mode)
@@ -810,7 +813,7 @@ class Vehicle:
                     self.events.report(self, state)
         d, i = self.ctx.dyn, self.i
         floor = self.settings.bat_floor
-        if floor > 0 and d.get(BATTERY, i) < floor:
+        if floor > 0 and not self.battery_failed and d.get(BATTERY, i) < floor:
             d.battery[i] = floor
         self.mission.repeat_reached(now)
 
