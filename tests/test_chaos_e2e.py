@@ -71,7 +71,8 @@ def test_a_chaos_run_goes_on_recovers_and_reports_every_fault(tmp_path: Path) ->
 
     # failsafes: visible in the summary, with their actions
     fs = {(e["uav"], e["failsafe"], e["event"]) for e in s["failsafes"]}
-    assert {(2, "fcu_link", "triggered"), (2, "fcu_link", "resumed"), (1, "position", "triggered"), (3, "battery", "triggered")} <= fs
+    want = {(2, "fcu_link", "triggered"), (2, "fcu_link", "resumed"), (1, "position", "triggered"), (3, "battery", "triggered")}
+    assert want <= fs, fs
     # ... the battery one: PX4's own failsafe (COM_LOW_BAT_ACT 3: Return, then land) or the agent's brings it down
     with open(run_dir / "uav3.csv", newline="") as f:
         last = list(csv.DictReader(f))[-1]
