@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from msgspec import Meta
 
-from swarmnet.schema import Config, ConfigError
+from groundfloor.schema import Config, ConfigError
 from uav_stack.phases import CONTROLLED, AgentPhase
 
 if TYPE_CHECKING:
