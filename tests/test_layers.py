@@ -70,3 +70,57 @@ def test_the_checker_sees_an_upward_import(tmp_path: Path) -> None:
     bad = tmp_path / "m.py"
     bad.write_text("def f():\n    from mrswarm.scenario import Scenario\n    import uav_stack.config, json\n")
     assert imported_packages(bad) == [(2, "mrswarm"), (3, "uav_stack")]
+
+
+def module_name(path: Path, root: Path = ROOT) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def module_imports(root: Path, packages: tuple[str, ...]) -> dict[str, set[str]]:
+    """module -> the modules of ours it imports when it is imported: its top-level statements (one under an ``if``,
+    such as ``TYPE_CHECKING``, is left out, and one inside a function runs later and closes no circle).
+    ``from pkg import sub`` is an import of ``pkg.sub``."""
+    paths = {module_name(p, root): p for pkg in packages for p in sorted((root / pkg).rglob("*.py"))
+             if "results" not in p.relative_to(root).parts}  # fmt: skip
+    graph: dict[str, set[str]] = {}
+    for mod, path in paths.items():
+        deps: set[str] = set()
+        for node in ast.parse(path.read_text(), str(path)).body:
+            if isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names if a.name in paths}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                subs = {f"{node.module}.{a.name}" for a in node.names}
+                deps |= subs & paths.keys()
+                if not subs <= paths.keys() and node.module in paths:
+                    deps.add(node.module)
+        graph[mod] = deps - {mod}
+    return graph
+
+
+def import_circle(graph: dict[str, set[str]]) -> list[str]:
+    """One circle of imports (its modules in order, the first repeated at the end), or [] when there is none."""
+    import graphlib
+
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as e:
+        return list(e.args[1])
+    return []
+
+
+def test_no_circle_of_imports_between_modules() -> None:
+    """Modules that import each other work only in one import order, and cannot be read or reused one at a time."""
+    circle = import_circle(module_imports(ROOT, LAYERS))
+    assert not circle, "a circle of module-level imports: " + " -> ".join(circle)
+
+
+def test_the_checker_sees_a_circle_of_imports(tmp_path: Path) -> None:
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "__init__.py").write_text("")
+    (tmp_path / "pkg" / "agent.py").write_text("from pkg import failsafe\n")
+    (tmp_path / "pkg" / "failsafe.py").write_text("import json\nfrom pkg.agent import Agent\n")
+    (tmp_path / "pkg" / "lazy.py").write_text("def f():\n    from pkg.agent import Agent\n")
+    graph = module_imports(tmp_path, ("pkg",))
+    assert graph["pkg.agent"] == {"pkg.failsafe"} and graph["pkg.lazy"] == set()
+    assert set(import_circle(graph)) == {"pkg.agent", "pkg.failsafe"}
