@@ -443,12 +443,7 @@ class FcuLink:
         if mtype == "EXTENDED_SYS_STATE":
             st.landed_state = msg.landed_state
         elif mtype == "SYS_STATUS":
-            if msg.battery_remaining >= 0:
-                st.battery = msg.battery_remaining / 100.0
-            if msg.voltage_battery != 65535:
-                st.voltage = msg.voltage_battery / 1000.0
-            st.sensors_present, st.sensors_health = msg.onboard_control_sensors_present, msg.onboard_control_sensors_health
-            st.sys_status_at = self.clock()
+            self._sys_status(msg)
         elif mtype == "GPS_RAW_INT":
             st.gps_fix, st.satellites = msg.fix_type, msg.satellites_visible
         elif mtype == "EKF_STATUS_REPORT" or mtype == "ESTIMATOR_STATUS":
@@ -462,17 +457,7 @@ class FcuLink:
             if msg.name.rstrip("\x00") == "RTF":
                 st.rtf_reported = msg.value
         elif mtype == "COMMAND_ACK":
-            # only ACKs addressed to us: a ground station's commands (through the router) are
-            # acknowledged on this link too, and must not resolve our own command of that number
-            if msg.target_system not in (0, self.source_system) or msg.target_component not in (0, self.source_component):
-                return
-            h = self.pending.get(msg.command)
-            if h is not None:
-                h.result = msg.result
-                if h.done:
-                    del self.pending[msg.command]
-            else:
-                self.contract.on_ack(msg.command, msg.result)
+            self._ack(msg)
         elif mtype == "STATUSTEXT":
             st.statustext.append(msg.text)
             if msg.severity <= REASON_SEVERITY:
@@ -480,14 +465,41 @@ class FcuLink:
         elif mtype == "EVENT":
             self._event(msg)
         elif mtype == "AUTOPILOT_VERSION":
-            st.capabilities = msg.capabilities
-            custom = bytes(msg.flight_custom_version)
-            if st.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-                custom = custom[::-1]  # PX4: the git hash's first bytes, least significant first
-                tag = custom.hex()[:8] if any(custom) else ""
-            else:  # ArduPilot: the git hash's first 8 characters
-                tag = custom.rstrip(b"\x00").decode("ascii", "replace")
-            st.version = firmware_version(msg.flight_sw_version) + (f" ({tag})" if tag else "")
+            self._version(msg)
+
+    def _sys_status(self, msg: Any) -> None:
+        st = self.state
+        if msg.battery_remaining >= 0:
+            st.battery = msg.battery_remaining / 100.0
+        if msg.voltage_battery != 65535:
+            st.voltage = msg.voltage_battery / 1000.0
+        st.sensors_present, st.sensors_health = msg.onboard_control_sensors_present, msg.onboard_control_sensors_health
+        st.sys_status_at = self.clock()
+
+    def _ack(self, msg: Any) -> None:
+        """A COMMAND_ACK addressed to us: a ground station's commands (through the router) are acknowledged on this
+        link too, and must not resolve our own command of that number."""
+        if msg.target_system not in (0, self.source_system) or msg.target_component not in (0, self.source_component):
+            return
+        h = self.pending.get(msg.command)
+        if h is not None:
+            h.result = msg.result
+            if h.done:
+                del self.pending[msg.command]
+        else:
+            self.contract.on_ack(msg.command, msg.result)
+
+    def _version(self, msg: Any) -> None:
+        """AUTOPILOT_VERSION: capabilities, and the firmware's version with its git hash."""
+        st = self.state
+        st.capabilities = msg.capabilities
+        custom = bytes(msg.flight_custom_version)
+        if st.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            custom = custom[::-1]  # PX4: the git hash's first bytes, least significant first
+            tag = custom.hex()[:8] if any(custom) else ""
+        else:  # ArduPilot: the git hash's first 8 characters
+            tag = custom.rstrip(b"\x00").decode("ascii", "replace")
+        st.version = firmware_version(msg.flight_sw_version) + (f" ({tag})" if tag else "")
 
 
     def _no_position(self, msg: Any) -> str:

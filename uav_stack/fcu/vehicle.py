@@ -703,39 +703,50 @@ class Vehicle:
     # ------------------------------------------------------------- supervisor
     def tick(self, now: float) -> None:
         """Runs at ~10 Hz sim: boot output, phase progress, auto-disarm, failsafes, paced replies."""
-        d, i, s = self.ctx.dyn, self.i, self.settings
         if not self.booted:
             self._boot_tick(now)
         if self.param_queue or self.param_echo_again:
             self._param_tick()
-        px = self.flavour.is_px4
-        if px:
+        if self.flavour.is_px4:
             self._px4_tick(now)
         elif not self.armed:
             self._ardupilot_disarmed_tick(now)
         landed = self.landed
-        if self.armed:
-            if not landed:
-                if not self.has_flown and px:
-                    self.event(px4.TAKEOFF_DETECTED)
-                self.has_flown = True
-                self.landed_since = None
-            else:
-                if self.landed_since is None:
-                    self.landed_since = now
-                    if self.has_flown and px:
-                        self.event(px4.LANDING_DETECTED)
-                limit = s.disarm_land_s if self.has_flown else s.disarm_prflt_s + self.disarm_prflt_grace
-                if (self.has_flown and s.disarm_land_s > 0 or not self.has_flown and s.disarm_prflt_s > 0) and \
-                        now - self.landed_since >= limit:  # fmt: skip
-                    self.disarm(why="landing" if self.has_flown else "preflight")
-                    return
-            if self.pending_takeoff is not None and now >= self.pending_takeoff[0]:
-                _, z, yaw = self.pending_takeoff
-                self.pending_takeoff = None
-                self._start_takeoff(z, yaw)
-        ph = self.phase
+        if self.armed and self._armed_tick(now, landed):
+            return
         mission = self.mode.guidance is Guidance.MISSION
+        self._phase_tick(now, landed, mission)
+        if mission:
+            self.mission.tick(now)
+        self._failsafes(now, landed)
+
+    def _armed_tick(self, now: float, landed: bool) -> bool:
+        """Takeoff and landing detection, the auto-disarm on the ground, a delayed takeoff; True once disarmed."""
+        s, px = self.settings, self.flavour.is_px4
+        if not landed:
+            if not self.has_flown and px:
+                self.event(px4.TAKEOFF_DETECTED)
+            self.has_flown = True
+            self.landed_since = None
+        else:
+            if self.landed_since is None:
+                self.landed_since = now
+                if self.has_flown and px:
+                    self.event(px4.LANDING_DETECTED)
+            limit = s.disarm_land_s if self.has_flown else s.disarm_prflt_s + self.disarm_prflt_grace
+            if (self.has_flown and s.disarm_land_s > 0 or not self.has_flown and s.disarm_prflt_s > 0) and \
+                    now - self.landed_since >= limit:  # fmt: skip
+                self.disarm(why="landing" if self.has_flown else "preflight")
+                return True
+        if self.pending_takeoff is not None and now >= self.pending_takeoff[0]:
+            _, z, yaw = self.pending_takeoff
+            self.pending_takeoff = None
+            self._start_takeoff(z, yaw)
+        return False
+
+    def _phase_tick(self, now: float, landed: bool, mission: bool) -> None:
+        """A flight phase's progress: takeoff done, landing speed, RTL's climb and return, a timed-out velocity."""
+        d, i, ph = self.ctx.dyn, self.i, self.phase
         if ph == P_TAKEOFF and not mission:  # a mission's takeoff is the mission's to finish
             if self.armed and not landed and abs(d.pos[i, 2] - self.takeoff_target[2]) < TAKEOFF_DONE_M:
                 if self.flavour.is_px4:
@@ -754,14 +765,12 @@ class Vehicle:
             dxy = math.hypot(d.pos[i, 0] - self.home_ned[0], d.pos[i, 1] - self.home_ned[1])
             if dxy < RTL_ARRIVED_M and math.hypot(d.vel[i, 0], d.vel[i, 1]) < 0.5:
                 self._start_land(self.home_ned[:2])
-        elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and self.setpoints.age(now) > s.guided_timeout:
+        elif ph == P_OFFBOARD and not self.flavour.is_px4 and self.guided_vel and \
+                self.setpoints.age(now) > self.settings.guided_timeout:  # fmt: skip
             self.guided_vel = False
             self._targets(d.stop_point(i))  # ArduPilot: velocity target timed out, stop
         elif ph == P_STICKS:
             self._stick_tick(landed)
-        if mission:
-            self.mission.tick(now)
-        self._failsafes(now, landed)
 
     # ------------------------------------------------------------------ boot
     def _boot_tick(self, now: float) -> None:
