@@ -9,6 +9,7 @@ reads the source with ``ast``, so it needs no package importable.
 from __future__ import annotations
 
 import ast
+import graphlib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,8 +101,6 @@ def module_imports(root: Path, packages: tuple[str, ...]) -> dict[str, set[str]]
 
 def import_circle(graph: dict[str, set[str]]) -> list[str]:
     """One circle of imports (its modules in order, the first repeated at the end), or [] when there is none."""
-    import graphlib
-
     try:
         graphlib.TopologicalSorter(graph).prepare()
     except graphlib.CycleError as e:

@@ -12,7 +12,7 @@ A full or failing disk never ends the recording process. What the disk refuses w
 (up to :data:`MAX_BACKLOG_BYTES`) and is written when the disk takes it again; beyond that the
 file is sealed at its last flush and the recording goes on counting what it cannot write
 (``unwritten``), trying every :data:`RETRY_S` s to continue in a new file beside it (``run-2.mcap``,
-:func:`next_segment`). ``status`` hears of every file begun and sealed, and of the totals.
+:func:`~mrswarm.recorder.run_recorder.next_segment`). ``status`` hears of every file begun and sealed, and of the totals.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from mrswarm.recorder import schemas as sc
 from mrswarm.recorder.capture import SwarmCapture
 from mrswarm.recorder.mcap_writer import DiskError, McapWriter
 from mrswarm.recorder.records import Record, Translator
+from mrswarm.recorder.run_recorder import next_segment
 from swarmnet.observer import SwarmObserver
 from swarmnet.version import __version__
 from uav_stack.recorder import LINKS_GLOB
@@ -40,14 +41,6 @@ END_GLOBS = ("run.json", "uav*.json", "age_uav*.csv", LINKS_GLOB)
 MEDIA_TYPES = {".json": "application/json", ".yaml": "application/yaml", ".csv": "text/csv"}
 MAX_BACKLOG_BYTES = 8 * 1024 * 1024  # records kept in memory while the disk refuses them
 RETRY_S = 2.0  # s between two tries to begin a new file after one was given up
-
-
-def next_segment(path: Path) -> Path:
-    """The next free file beside a recording: ``run.mcap`` -> ``run-2.mcap``, ``run-3.mcap``, ..."""
-    n = 2
-    while (p := path.with_name(f"{path.stem}-{n}{path.suffix}")).exists():
-        n += 1
-    return p
 
 
 class Segments:

@@ -37,6 +37,14 @@ def _seal(path: str) -> None:
     seal(path)
 
 
+def next_segment(path: Path) -> Path:
+    """The next free file beside a recording: ``run.mcap`` -> ``run-2.mcap``, ``run-3.mcap``, ..."""
+    n = 2
+    while (p := path.with_name(f"{path.stem}-{n}{path.suffix}")).exists():
+        n += 1
+    return p
+
+
 START_TIMEOUT = 20.0  # s for the recorder to import, join the swarm and create its file
 STOP_TIMEOUT = 20.0  # s to write the last chunk, the attachments and the summary
 STATUS_PREFIX = "recorder-status "  # a line of `gcs record --status`: the recorder's state, as JSON
@@ -158,8 +166,6 @@ class RunRecorder:
             self._unwritten_done = self.unwritten
             self._unwritten_now = 0
             self.previous_flushed, self.flushed = self.flushed, None
-            from mrswarm.recorder.recording import next_segment  # imports mcap (see _seal)
-
             self.path = next_segment(self.first)
         self._resumed_reported = False
         self._spawn()
