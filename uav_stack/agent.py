@@ -18,7 +18,6 @@ import math
 import os
 import random
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,11 +29,11 @@ from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirecti
 from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
-from uav_stack.fcu_link import CommandHandle, FcuLink
+from uav_stack.fcu_link import FcuLink
+from uav_stack.flight import Finish, Flight, Land, Own, Resume
 from uav_stack.geo import LocalFrame
-from uav_stack.mav import mavlink
-from uav_stack.overrides import ARRIVED_M, OVERRIDE_VERBS, OverridesMixin, _DeferredAck
-from uav_stack.phases import CONTROLLED, WORKING, AgentPhase
+from uav_stack.overrides import Overrides
+from uav_stack.phases import WORKING, AgentPhase
 from uav_stack.pose_age import AgeWindow, PoseAgeLog
 from uav_stack.recorder import RecordHealth, SwappedJsonFile, TrajectoryRecorder, links_file_name
 from uav_stack.sensors import Payload, make_payload, traffic_views
@@ -46,24 +45,9 @@ log = logging.getLogger(__name__)
 
 ALT_GAIN = 0.8  # 1/s, altitude hold in the mission (vertical velocity = gain * error)
 MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
-OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
-RETRY_AFTER = 1.5  # s: a refused or unanswered arm/mode/takeoff/land command is sent again after this
-PREARM_PROBE_S = 10.0  # while the autopilot reports failing pre-arm checks, an arm is tried this often (its answer says why)
-CONFIRM_S = 1.5  # s an accepted arm or mode change may take to show in the heartbeat (ArduPilot: its next 1 Hz beat)
+HOLD_GAIN = 0.8  # 1/s: velocity towards a hold/goto point = gain * distance (capped)
+ARRIVED_M = 1.0  # m from a goto point (horizontally and vertically) that counts as arrived
 LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms (their own file)
-
-
-@dataclass
-class Own:
-    """The UAV's own state in the swarm frame, derived from the FCU's telemetry."""
-
-    x: float = math.nan
-    y: float = math.nan
-    z: float = math.nan
-    vx: float = 0.0
-    vy: float = 0.0
-    vz: float = 0.0
-    yaw: float = 0.0  # ENU
 
 
 def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) -> Behaviour | None:
@@ -94,11 +78,13 @@ def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneFi
     raise ValueError(f"unknown mission type {m.type!r}")
 
 
-class Agent(OverridesMixin):
-    """One UAV's swarm agent: its phase machine, mission behaviour, avoidance and reports.
+class Agent:
+    """One UAV's swarm agent: its flight (:class:`~uav_stack.flight.Flight`), mission behaviour,
+    avoidance, the ground station's commands (:class:`~uav_stack.overrides.Overrides`), the
+    companion failsafes and the reports.
 
     The owner opens the FCU link and the swarm node, then calls :meth:`step` every tick and
-    :meth:`close` at the end; ground-station overrides come from :class:`OverridesMixin`.
+    :meth:`close` at the end.
     """
 
     def __init__(self, cfg: AgentConfig, node: SwarmNode, link: FcuLink, router: MavlinkRouter | None = None):
@@ -113,9 +99,9 @@ class Agent(OverridesMixin):
         self.realm = Realm.parse(cfg.realm)
         self.own = Own()
         self._own_at = -math.inf  # FcuState.position_at of the position in self.own
-        self.phase = AgentPhase.INIT
-        self.override = ""
-        self.detail = ""
+        self.flight = Flight(cfg.uav, link, self.own, self.clock, cruise_alt=cfg.altitude, home_alt=cfg.origin.alt,
+                             autostart=cfg.autostart, arm_timeout_s=cfg.failsafe.arm_timeout_s)
+        self.overrides = Overrides(cfg, self.flight, link, node, self.frame)
         self.payload = make_payload(cfg, node, self.frame)
         a = cfg.avoidance
         self.zones = zone_field(a.zones, a.zone_margin)
@@ -128,35 +114,14 @@ class Agent(OverridesMixin):
             if a.enabled
             else None
         )
-        self.started_at: float | None = None
-        self.go = cfg.autostart  # begin the mission as soon as airborne
-        self.mission_started_at: float | None = None
-        self._phase_since = self.clock()
-        self._handle: CommandHandle | None = None
         self._next_control = 0.0
         self._published_position_at = -math.inf
         self._next_telemetry = 0.0
         self._next_state = 0.0
         self._next_stats = 0.0
         self._next_link_stats = 0.0
-        self._offboard_stream_since: float | None = None
-        self._arming_since = -math.inf  # when the agent began to arm (the failsafe.arm_timeout_s bound)
-        self._sent_at = -math.inf  # when the arming phase's current command was first sent
-        self._arm_at = -math.inf  # when the last arm was sent
-        self._arm_tries = 0
-        self._refusal: CommandHandle | None = None  # the refused command already reported
-        self.counters: dict[str, int] = {"commands": 0, "rejected_commands": 0, "avoidance_active": 0, "control_ticks": 0,
-                                         "arm_refused": 0, "arm_gave_up": 0, "pose_unencodable": 0}
+        self.counters: dict[str, int] = {"avoidance_active": 0, "control_ticks": 0, "pose_unencodable": 0}
         self.closest_seen = math.inf
-        self.alt_target = cfg.altitude  # m above the swarm origin
-        self.hold_point: tuple[float, float] = (math.nan, math.nan)
-        self.goto_target: tuple[float, float] = (math.nan, math.nan)
-        g = cfg.gcs
-        self.fence = g.geofence if g.geofence is not None else (cfg.mission.area if cfg.mission.type == "coverage" else None)
-        self._deferred: list[_DeferredAck] = []
-        self._gcs_takeover: str | None = None  # a ground station's motion command seen by the router
-        self._yielded_from: AgentPhase | None = None  # the phase a takeover interrupted (ready: lands back in ready)
-        self._mode_at_phase = ""
         self.failsafes = Failsafes(cfg.failsafe)  # uav_stack/failsafe.py
         # set by a virtual UAV process: applies injected faults to its virtual FCU (uav_stack/sim_faults.py);
         # None on a real UAV, whose agent refuses them
@@ -176,22 +141,18 @@ class Agent(OverridesMixin):
             self.recorder = TrajectoryRecorder(Path(cfg.record_dir) / f"uav{cfg.uav}.csv", health=self.records)
             self.age_log = PoseAgeLog(Path(cfg.record_dir) / f"age_uav{cfg.uav}.csv", node, health=self.records)
 
-    # ---- helpers ------------------------------------------------------------------------
-    def _set_phase(self, phase: AgentPhase, detail: str = "") -> None:
-        if phase != self.phase:
-            log.info("UAV %d: %s -> %s %s", self.cfg.uav, self.phase, phase, detail)
-            self.phase = phase
-            self._phase_since = self.clock()
-            self._mode_at_phase = self.link.state.mode
-            self._next_state = 0.0  # publish the change now
-        self.detail = detail
+    # ---- what others read -------------------------------------------------------------------
+    @property
+    def uav(self) -> int:
+        return self.cfg.uav
 
-    def _say(self, detail: str) -> None:
-        """A new detail for the current phase (what it waits for): logged and published when it changes."""
-        if detail != self.detail:
-            log.info("UAV %d: %s: %s", self.cfg.uav, self.phase, detail)
-            self.detail = detail
-            self._next_state = 0.0
+    @property
+    def phase(self) -> AgentPhase:
+        return self.flight.phase
+
+    @property
+    def detail(self) -> str:
+        return self.flight.detail
 
     def _update_own(self) -> bool:
         st = self.link.state
@@ -209,10 +170,6 @@ class Agent(OverridesMixin):
         k = k if 0.0 < k < 1.0 else 1.0  # also NaN (not measured yet): take the FCU's word
         o.vx, o.vy, o.vz = st.ve * k, st.vn * k, -st.vd * k
         return True
-
-    @property
-    def target_alt_amsl(self) -> float:
-        return self.cfg.origin.alt + self.alt_target
 
     # ---- the loop body --------------------------------------------------------------------
     def step(self, now: float) -> None:
@@ -242,7 +199,7 @@ class Agent(OverridesMixin):
         if router is not None:
             router.poll()  # ground stations -> FCU (sent by router.flush(): in sense, or in _act)
             if router.takeover is not None:
-                self._gcs_takeover = router.takeover[1]
+                self.flight.gcs_takeover = router.takeover[1]
                 router.takeover = None
         have_pos = self._update_own()
         if self.payload is not None:
@@ -274,8 +231,8 @@ class Agent(OverridesMixin):
         """Swarm in, control and reports out."""
         link, node, router = self.link, self.node, self.router
         self.react(now)
-        if self._deferred:
-            self._settle_acks(now)
+        if self.overrides.deferred:
+            self.overrides.settle(now)
         if now >= self._next_control:
             self._next_control = max(self._next_control + 1.0 / self.cfg.control_rate_hz, now)
             self.failsafes.step(self, now)
@@ -292,9 +249,11 @@ class Agent(OverridesMixin):
                 lat=st.lat, lon=st.lon, alt=st.alt, rtf=0.0 if math.isnan(rtf) else rtf,  # 0.0: unknown on the wire
                 transport_ms=1000.0 * ages.transport_p50, use_ms=1000.0 * ages.use_p50,  # NaN: -1 on the wire
             )
-        if now >= self._next_state:
+        f = self.flight
+        if f.changed or now >= self._next_state:
+            f.changed = False
             self._next_state = now + 1.0
-            node.publish_state(self.phase, self.behaviour_name, self.failsafes.label or self.override, self.detail)
+            node.publish_state(f.phase, self.behaviour_name, self.failsafes.label or f.override, f.detail)
         if now >= self._next_stats:
             self._next_stats = now + 1.0
             self.write_stats(now)
@@ -347,221 +306,21 @@ class Agent(OverridesMixin):
         self.node.ack(fault.fault_id, ok, msg)
 
     def _on_command(self, cmd: Command, now: float) -> None:
-        self.counters["commands"] += 1
-        verb = cmd.verb
-        ok, msg = True, ""
-        if verb in OVERRIDE_VERBS:
-            try:
-                res = getattr(self, f"_cmd_{verb}")(cmd.args, now)
-            except Exception as exc:  # noqa: BLE001 - a bad command must never stop the agent
-                log.exception("UAV %d: command %s failed", self.cfg.uav, verb)
-                res = (False, f"{verb} failed in the agent: {type(exc).__name__}: {exc}")
-            if isinstance(res, _DeferredAck):
-                res.cmd_id = cmd.cmd_id
-                self._defer(res)
-                return
-            ok, msg = res
-            if not ok:
-                self.counters["rejected_commands"] += 1
-            self.node.ack(cmd.cmd_id, ok, msg)
-            return
-        if verb in ("takeoff", "start"):
-            # takeoff: climb and hover; start: also begin the mission (taking off first if needed)
-            if verb == "start":
-                self.go = True
-            if self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.ERROR):
-                self.started_at = now
-                if self.phase != AgentPhase.INIT:  # ready, or arming gave up (error): try (again)
-                    self._begin_flight()
-                msg = "taking off" if self.phase != AgentPhase.INIT else "will take off once the FCU is up"
-            elif self.phase == AgentPhase.HOVER and self.go:
-                msg = "mission starting"
-            else:
-                ok, msg = self._relaunch(verb)  # landed (or killed) on the ground: fly again
-        elif verb in ("land", "stop"):
-            if (self.phase in (AgentPhase.INIT, AgentPhase.READY, AgentPhase.LANDED, AgentPhase.KILLED)
-                    and not self.link.state.armed):
-                msg = f"on the ground ({self.phase})"
-            elif self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
-                msg = "already landing"
-            else:
-                self._land()
-                self.override = "land" if verb == "land" else self.override  # _land() has just set LANDING
-                if self._handle is not None:  # acknowledged with the FCU's answer to NAV_LAND
-                    self._defer(_DeferredAck(cmd.cmd_id, verb, self._handle, "landing", now))
-                    return
-                msg = "landing"
-        else:
-            ok, msg = False, f"unknown command {verb!r}"
-            self.counters["rejected_commands"] += 1
-        self.node.ack(cmd.cmd_id, ok, msg)
+        self.overrides.handle(cmd, now)
 
-    def _begin_flight(self, detail: str = "") -> None:
-        self._set_phase(AgentPhase.ARMING, detail)
-        self._handle = None
-        self._refusal = None
-        # the first arm goes at once if the pre-arm checks pass; while they fail, the first probe after PREARM_PROBE_S
-        self._arming_since = self._arm_at = self.clock()
-        self._arm_tries = 0
-
-    def _land(self) -> None:
-        if self.phase in (AgentPhase.LANDING, AgentPhase.LANDED):
-            return
-        self._handle = self.link.land()
-        self._set_phase(AgentPhase.LANDING)
-
-    # ---- the state machine ------------------------------------------------------------------
+    # ---- control: the flight, then the mission ------------------------------------------------
     def _control(self, now: float, have_pos: bool) -> None:
-        link = self.link
-        st = link.state
-        ph = self.phase
-        since = now - self._phase_since
-        if ph == AgentPhase.INIT:
-            if link.connected and have_pos:
-                self._set_phase(AgentPhase.READY)
-                if self.go or self.started_at is not None:
-                    self._begin_flight()
-            else:
-                self._say(self._init_waits_for())
-            return
-        if ph in (AgentPhase.READY, AgentPhase.LANDED) and (why := self._flown_by_someone_else()) is not None:
-            self._yield(why)  # a ground station flies a UAV the swarm is not flying: show it
-            return
-        if not link.connected and ph not in (AgentPhase.READY, AgentPhase.LANDED, AgentPhase.ERROR):
-            self.detail = "FCU link lost"
-        if ph in (AgentPhase.TAKEOFF, AgentPhase.OFFBOARD) and (why := self._taken_over_climbing()) is not None:
-            self._yield(why)
-            return
-        self._gcs_takeover = None if ph not in CONTROLLED else self._gcs_takeover
-        if ph == AgentPhase.ARMING:
-            self._arming(now)
-        elif ph == AgentPhase.TAKEOFF:
-            if self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
-                self._handle = link.takeoff(self.target_alt_amsl, self.cfg.altitude)
-                self._phase_since = now
-            if st.alt >= self.target_alt_amsl - 1.0:
-                self._offboard_stream_since = now
-                self._set_phase(AgentPhase.OFFBOARD)
-        elif ph == AgentPhase.OFFBOARD:
-            self._send_velocity(0.0, 0.0)
-            if link.in_offboard:
-                if self.override == "hold":  # held while taking off
-                    self._hold_here()
-                elif self.mission_started_at is not None and self.go:  # control taken back: resume the mission
-                    self._set_phase(AgentPhase.MISSION, "resumed")
-                else:
-                    self._set_phase(AgentPhase.HOVER)
-            elif now - (self._offboard_stream_since or now) >= OFFBOARD_PRESTREAM and (self._handle is None or self._handle.done):
-                self._handle = link.set_mode(st.profile.offboard_mode)
-        elif ph in CONTROLLED:
-            why = self._taken_over()
-            self._gcs_takeover = None
-            if why is not None:
-                # a human (or a failsafe) took over: stop fighting them, say so
-                self._yield(why)
-                return
-            if ph == AgentPhase.HOVER and self.go:
-                if self.mission_started_at is None:
-                    self.mission_started_at = now
-                self._set_phase(AgentPhase.MISSION)
+        """The flight advances; under swarm control the mission flies; while the FCU is being
+        taken into its offboard mode, zero-velocity setpoints stream (PX4 needs them first)."""
+        f = self.flight
+        entering_offboard = f.phase == AgentPhase.OFFBOARD
+        if f.progress(now, have_pos):
             self._fly(now)
-        elif ph in (AgentPhase.YIELDED, AgentPhase.RTL):
-            if not st.armed and st.relative_alt < 1.0:
-                self._landed_after_takeover()
-        elif ph == AgentPhase.LANDING:
-            if not st.armed and st.relative_alt < 1.0:
-                self._set_phase(AgentPhase.LANDED)
-            elif self._handle is not None and self._handle.done and not self._handle.accepted and since > RETRY_AFTER:
-                self._handle = link.land()
-                self._phase_since = now
-
-    def _init_waits_for(self) -> str:
-        """What the agent waits for before it can fly, in the autopilot's terms (the phase detail in ``init``)."""
-        link = self.link
-        if not link.connected:
-            if link.fcu_ids is None:
-                return f"no heartbeat from an autopilot on {link.url}" + (" (other messages only)" if link.counts["rx"] else "")
-            return "FCU link lost: no heartbeat for 3 s"
-        return link.contract.waiting_for() or f"no position from the autopilot: {link.state.no_position}"
-
-    def _arming(self, now: float) -> None:
-        """Arm, then take off. First out of any mode the autopilot cannot arm in (its profile's
-        ``arm_modes``: PX4 returns to OFFBOARD after a landing), then once its own pre-arm checks
-        pass (SYS_STATUS); a refusal is reported with the autopilot's reason and the arm tried
-        again, for ``failsafe.arm_timeout_s`` at most, then phase ``error`` (a takeoff or start tries again)."""
-        link = self.link
-        st = link.state
-        prof = st.profile
-        if st.armed:
-            need = prof.takeoff_mode if prof.takeoff_mode not in (None, st.mode) else None  # ArduPilot: GUIDED
-            if need is None:
-                self._handle = link.takeoff(self.target_alt_amsl, self.target_alt_amsl - (st.home[2] if st.home else st.alt))
-                self._set_phase(AgentPhase.TAKEOFF)
-                return
-        else:
-            need = None if st.mode in prof.arm_modes else prof.arming_mode
-        limit = self.cfg.failsafe.arm_timeout_s
-        if now - self._arming_since > limit:
-            self.counters["arm_gave_up"] += 1
-            why = self.detail or "no answer"
-            log.error("UAV %d: not armed after %.0f s: %s", self.cfg.uav, limit, why)
-            self._set_phase(AgentPhase.ERROR, f"not armed after {limit:.0f} s (takeoff or start tries again): {why}")
-            return
-        h = self._handle
-        if h is not None:
-            if not h.done:
-                return  # its answer is pending (FcuLink retries it)
-            if h.accepted and now - self._sent_at < CONFIRM_S:
-                return  # accepted: give the heartbeat time to show it
-            if not h.accepted:
-                if self._refusal is not h:
-                    self._refused(h, need, now)
-                if now - self._sent_at < RETRY_AFTER:
-                    return
-        if need is not None:
-            if h is None or h.command != mavlink.MAV_CMD_DO_SET_MODE or h.accepted:
-                self._say(f"switching from {st.mode} to {need} to arm ({prof.label} arms in {', '.join(sorted(prof.arm_modes))})")
-            self._send_arming(link.set_mode(need), now)
-            return
-        if not st.has_position:
-            self._say(f"waiting for a position: {st.no_position}")
-            return
-        if st.prearm_ok is None and link.contract.pending("SYS_STATUS"):
-            self._say("waiting for the autopilot's SYS_STATUS (its pre-arm checks)")
-            return
-        if st.prearm_ok is False and now - self._arm_at < PREARM_PROBE_S:
-            reasons = (st.reasons_since(now - 30.0) + [f"PX4 reports: {c}" for c in st.px4_checks])[-3:]
-            self._say("waiting for the autopilot's pre-arm checks (SYS_STATUS)" + (f": {'; '.join(reasons)}" if reasons else ""))
-            return
-        self._arm_at = now
-        self._arm_tries += 1
-        self._send_arming(link.arm(True), now)
-
-    def _send_arming(self, h: CommandHandle, now: float) -> None:
-        self._handle = h
-        self._sent_at = now
-        self._phase_since = now
-
-    def _refused(self, h: CommandHandle, need: str | None, now: float) -> None:
-        """Say why the autopilot refused the arming phase's command, in its own words."""
-        self._refusal = h
-        st = self.link.state
-        arming = h.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
-        reasons = st.reasons_since(self._sent_at - 0.05)
-        if st.px4_checks and any(r.startswith("commander_arm_denied") for r in reasons):
-            reasons.append(f"PX4 reports: {', '.join(st.px4_checks)}")
-        what = f"arm {h.status}" if arming else f"switch to {need} {h.status}"
-        if arming:
-            self.counters["arm_refused"] += 1
-            what += f" ({self._arm_tries} tr{'y' if self._arm_tries == 1 else 'ies'} in {now - self._arming_since:.0f} s)"
-        detail = f"{what}: {'; '.join(reasons) if reasons else 'the autopilot gave no reason'}"
-        new_reason = detail.split(": ", 1)[-1] != self.detail.split(": ", 1)[-1]
-        log.log(logging.WARNING if new_reason else logging.INFO, "UAV %d: %s", self.cfg.uav, detail)
-        self.detail = detail
-        self._next_state = 0.0
+        elif entering_offboard and f.phase != AgentPhase.YIELDED:
+            self._send_velocity(0.0, 0.0)
 
     def _send_velocity(self, vx: float, vy: float) -> None:
-        err = self.target_alt_amsl - self.link.state.alt
+        err = self.flight.target_alt_amsl - self.link.state.alt
         vz = max(-MAX_CLIMB, min(MAX_CLIMB, ALT_GAIN * err)) if err == err else 0.0
         self.link.send_velocity_ned(vy, vx, -vz)
 
@@ -569,52 +328,83 @@ class Agent(OverridesMixin):
         o = self.own
         me = SelfState(uav=self.cfg.uav, pos=(o.x, o.y), vel=(o.vx, o.vy), t=now)
         self.counters["control_ticks"] += 1
-        vx, vy = 0.0, 0.0
-        if self.phase == AgentPhase.HOLD:
-            vx, vy = self._towards(self.hold_point)
-        elif self.phase == AgentPhase.GOTO:
-            vx, vy = self._towards(self.goto_target)
-            if (math.hypot(self.goto_target[0] - o.x, self.goto_target[1] - o.y) < ARRIVED_M
-                    and abs(self.alt_target - o.z) < ARRIVED_M and not self.detail.startswith("arrived")):
-                self.detail = f"arrived at ({self.goto_target[0]:g}, {self.goto_target[1]:g}, {self.alt_target:g})"
-                self._next_state = 0.0  # tell the ground station now
-        elif self.mission is not None and self.phase in WORKING:
-            members = self.node.members()
-            vx, vy = self.mission.velocity(me, members)
-            if self.cooperative is not None:
-                self._share(self.cooperative)
-            if self.mission.done:
-                if self.cfg.mission.land_when_done:
-                    self._land()
-                    return
-                self._set_phase(AgentPhase.DONE, "mission complete")
-                vx, vy = 0.0, 0.0
-            elif self.phase == AgentPhase.DONE:  # a re-split (a member left) gave us more to do
-                self._set_phase(AgentPhase.MISSION, "more work after a re-split")
+        ph = self.flight.phase
+        if ph == AgentPhase.HOLD:
+            vx, vy = self._towards(self.flight.hold_point)
+        elif ph == AgentPhase.GOTO:
+            vx, vy = self._goto()
+        elif self.mission is not None and ph in WORKING:
+            vx, vy = self._mission_velocity(me)
+            if self.flight.phase == AgentPhase.LANDING:
+                return
+        else:
+            vx, vy = 0.0, 0.0
         if self.avoidance is not None:
-            # only neighbours that could matter (avoidance looks at most neighbour_range away);
-            # at N = 50 this skips building ~40 views per tick. The time of use is taken now,
-            # after the poll: each pose's age (sender's stamp to now) and age at use are exact.
-            # (a plain loop: at N = 50 it runs 49 times a tick, and costs half the comprehension
-            # it replaced, 11 against 22 µs warm)
-            reach = self.avoidance.neighbour_range + 2.0 * self.cfg.speed * self.avoidance.forget_after
-            r2 = reach * reach
-            t_use = self.clock()
-            ox, oy = o.x, o.y
-            neigh: list[NeighbourView] = []
-            for n in self.node.take_neighbours(t_use):
-                p = n.pose
-                dx, dy = p.x - ox, p.y - oy
-                if dx * dx + dy * dy <= r2:  # its age from the sender's stamp (avoidance takes < 0 as 0)
-                    neigh.append(NeighbourView(p.uav, (p.x, p.y), (p.vx, p.vy), t_use - p.t_wall))
-            if self.payload is not None and self.payload.traffic is not None:
-                neigh += traffic_views(self.payload, o.x, o.y, o.z, now, r2, self.cfg.avoidance.safety_distance)
-            res = self.avoidance.adjust(me, (vx, vy), neigh, altitude=o.z)
-            if res.active:
-                self.counters["avoidance_active"] += 1
-            self.closest_seen = min(self.closest_seen, res.closest)
-            vx, vy = res.velocity
+            vx, vy = self._avoid(me, vx, vy, now)
         self._send_velocity(vx, vy)
+
+    def _goto(self) -> tuple[float, float]:
+        f, o = self.flight, self.own
+        tx, ty = f.goto_target
+        if math.hypot(tx - o.x, ty - o.y) < ARRIVED_M and abs(f.alt_target - o.z) < ARRIVED_M \
+                and not f.detail.startswith("arrived"):
+            f.say(f"arrived at ({tx:g}, {ty:g}, {f.alt_target:g})")  # the ground station hears it now
+        return self._towards(f.goto_target)
+
+    def _mission_velocity(self, me: SelfState) -> tuple[float, float]:
+        """The mission's velocity; its end lands the UAV or leaves it hovering (``done``)."""
+        mission, f = self.mission, self.flight
+        assert mission is not None
+        vx, vy = mission.velocity(me, self.node.members())
+        if self.cooperative is not None:
+            self._share(self.cooperative)
+        if mission.done:
+            if self.cfg.mission.land_when_done:
+                f.apply(Land())
+            else:
+                f.apply(Finish("mission complete"))
+            return 0.0, 0.0
+        if f.phase == AgentPhase.DONE:  # a re-split (a member left) gave us more to do
+            f.apply(Resume("more work after a re-split", AgentPhase.MISSION))
+        return vx, vy
+
+    def _avoid(self, me: SelfState, vx: float, vy: float, now: float) -> tuple[float, float]:
+        """Collision avoidance on the preferred velocity, from the neighbours that could matter."""
+        avoidance = self.avoidance
+        assert avoidance is not None
+        # only neighbours within reach (avoidance looks at most neighbour_range away): at N = 50
+        # this skips building most views per tick. The time of use is taken now, after the poll,
+        # so each pose's age (sender's stamp to now) and age at use are exact. A plain loop: it
+        # runs once per neighbour per tick, and costs half what a comprehension does.
+        reach = avoidance.neighbour_range + 2.0 * self.cfg.speed * avoidance.forget_after
+        r2 = reach * reach
+        t_use = self.clock()
+        o = self.own
+        ox, oy = o.x, o.y
+        neigh: list[NeighbourView] = []
+        for n in self.node.take_neighbours(t_use):
+            p = n.pose
+            dx, dy = p.x - ox, p.y - oy
+            if dx * dx + dy * dy <= r2:  # its age from the sender's stamp (avoidance takes < 0 as 0)
+                neigh.append(NeighbourView(p.uav, (p.x, p.y), (p.vx, p.vy), t_use - p.t_wall))
+        if self.payload is not None and self.payload.traffic is not None:
+            neigh += traffic_views(self.payload, o.x, o.y, o.z, now, r2, self.cfg.avoidance.safety_distance)
+        res = avoidance.adjust(me, (vx, vy), neigh, altitude=o.z)
+        if res.active:
+            self.counters["avoidance_active"] += 1
+        self.closest_seen = min(self.closest_seen, res.closest)
+        return res.velocity
+
+    def _towards(self, target: tuple[float, float]) -> tuple[float, float]:
+        """Velocity towards a hold or goto point: proportional, capped by the speed and by braking
+        distance; zero when there (or when the point is NaN: brake)."""
+        o = self.own
+        ex, ey = target[0] - o.x, target[1] - o.y
+        d = math.hypot(ex, ey)
+        if not d > 0.2:  # also NaN
+            return 0.0, 0.0
+        v = min(self.cfg.speed, HOLD_GAIN * d, math.sqrt(2.0 * 1.5 * d))
+        return ex / d * v, ey / d * v
 
     def _share(self, mission: Cooperative) -> None:
         """Broadcast what a cooperative mission wants the swarm to know; refresh the state detail."""
@@ -623,9 +413,10 @@ class Agent(OverridesMixin):
                 self.node.send(topic, body)
             except ValueError as exc:  # an oversized or malformed message of the mission: say so, fly on
                 log.warning("UAV %d: cannot send %s: %s", self.cfg.uav, topic, exc)
-        if self.phase == AgentPhase.MISSION and self.detail != mission.status:
-            self.detail = mission.status
-            self._next_state = 0.0
+        f = self.flight
+        if f.phase == AgentPhase.MISSION and f.detail != mission.status:
+            f.detail = mission.status
+            f.changed = True
 
     def _record(self, now: float) -> None:
         if self.recorder is None:
@@ -644,12 +435,12 @@ class Agent(OverridesMixin):
             "realm": self.realm.label,
             "phase": self.phase,
             "detail": self.detail,
-            "started_at": self.started_at,
-            "mission_started_at": self.mission_started_at,
+            "started_at": self.flight.started_at,
+            "mission_started_at": self.flight.mission_started_at,
             "rtf": self.link.rtf.value,
             "rtf_total": self.link.rtf.total(),
             "rtf_reported": self.link.state.rtf_reported,
-            "agent": dict(self.counters),
+            "agent": {**self.counters, **self.overrides.counters, **self.flight.counters, **self.flight.arming.counters},
             "closest_predicted": self.closest_seen if self.closest_seen != math.inf else None,
             "fcu_link": dict(self.link.counts),
             "fcu": self.link.summary(),

@@ -33,15 +33,18 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Protocol
 
 from msgspec import Meta
 
 from groundfloor.schema import Config, ConfigError
+from uav_stack.flight import Hold, Land, Resume, ReturnToLaunch, TakeControl
 from uav_stack.phases import CONTROLLED, AgentPhase
 
 if TYPE_CHECKING:
-    from uav_stack.agent import Agent
+    from swarmnet.node import SwarmNode
+    from uav_stack.fcu_link import FcuLink
+    from uav_stack.flight import Flight, Own
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +58,21 @@ Action = Literal["land", "rtl"]
 # phases in which someone or something else already flies the UAV, or it is safer than a hold
 HANDS_OFF = frozenset({AgentPhase.YIELDED, AgentPhase.RTL, AgentPhase.LANDING, AgentPhase.LANDED, AgentPhase.KILLED,
                        AgentPhase.INIT, AgentPhase.READY, AgentPhase.ERROR})
+
+
+class AgentView(Protocol):
+    """What the failsafes read of the agent (and the flight they ask for intents)."""
+
+    @property
+    def uav(self) -> int: ...
+    @property
+    def link(self) -> FcuLink: ...
+    @property
+    def node(self) -> SwarmNode: ...
+    @property
+    def own(self) -> Own: ...
+    @property
+    def flight(self) -> Flight: ...
 
 
 class FailsafeConfig(Config, frozen=True):
@@ -121,7 +139,7 @@ class Failsafes:
         return {"active": sorted(self.active), "counts": dict(self.counts), "events": list(self.events)}
 
     # ---- the tick -----------------------------------------------------------------------------
-    def step(self, agent: Agent, now: float) -> None:
+    def step(self, agent: AgentView, now: float) -> None:
         gap = now - self._last_step
         self._last_step = now
         if STALL_S < gap < math.inf:
@@ -132,17 +150,17 @@ class Failsafes:
         self._position(agent, now)
         self._battery(agent, now)
         if self.label != before:
-            agent._next_state = 0.0  # tell the ground station now
+            agent.flight.changed = True  # tell the ground station now
 
-    def _event(self, agent: Agent, now: float, name: str, what: str, detail: str) -> None:
+    def _event(self, agent: AgentView, now: float, name: str, what: str, detail: str) -> None:
         if what == "triggered":
             self.counts[name] = self.counts.get(name, 0) + 1
         self.events.append({"t": round(now, 3), "failsafe": name, "event": what, "detail": detail})
         del self.events[:-MAX_EVENTS]
-        log.warning("UAV %d: failsafe %s %s: %s", agent.cfg.uav, name, what, detail)
+        log.warning("UAV %d: failsafe %s %s: %s", agent.uav, name, what, detail)
 
     # ---- FCU link -----------------------------------------------------------------------------
-    def _fcu_link(self, agent: Agent, now: float) -> None:
+    def _fcu_link(self, agent: AgentView, now: float) -> None:
         connected = agent.link.connected
         if connected:
             self._fcu_seen = True
@@ -150,25 +168,22 @@ class Failsafes:
             return
         if not connected and "fcu_link" not in self.active:
             self.active["fcu_link"] = now
-            self._fcu_saved_override = agent.override
+            self._fcu_saved_override = agent.flight.override
             self._event(agent, now, "fcu_link", "triggered", "no FCU heartbeat for 3 s: pose no longer published")
         elif connected and "fcu_link" in self.active:
             lost = now - self.active.pop("fcu_link")
             self._fcu_resume_until = now + FCU_RESUME_WINDOW_S
             self._event(agent, now, "fcu_link", "cleared", f"FCU link back, {lost:.1f} s after its loss was detected")
-        if now < self._fcu_resume_until and agent.phase == AgentPhase.YIELDED and agent.override.startswith("fcu:") \
-                and self.cfg.resume and agent._airborne():
+        f = agent.flight
+        if now < self._fcu_resume_until and f.phase == AgentPhase.YIELDED and f.override.startswith("fcu:") \
+                and self.cfg.resume and f.airborne:
             # the FCU fell back to Hold because our setpoints stopped reaching it: take control back
             self._fcu_resume_until = -math.inf
-            agent.override = "hold" if self._fcu_saved_override == "hold" else ""
-            agent.alt_target = agent.cfg.altitude if agent.override != "hold" else agent.alt_target
-            agent._offboard_stream_since = now
-            agent._handle = None
-            agent._set_phase(AgentPhase.OFFBOARD, "taking control back after the FCU link loss")
+            f.apply(TakeControl("taking control back after the FCU link loss", keep_hold=self._fcu_saved_override == "hold"))
             self._event(agent, now, "fcu_link", "resumed", "control taken back from the FCU's fallback")
 
     # ---- swarm link ---------------------------------------------------------------------------
-    def _swarm_link(self, agent: Agent, now: float) -> None:
+    def _swarm_link(self, agent: AgentView, now: float) -> None:
         cfg = self.cfg
         if now >= self._next_router_check:
             self._next_router_check = now + ROUTER_CHECK_S
@@ -185,11 +200,11 @@ class Failsafes:
                 self._acted.discard("swarm_link")
                 self._event(agent, now, "swarm_link", "cleared", "swarm link back")
                 self._release(agent, "swarm_link", "swarm link back")
-            elif lost_for >= cfg.swarm_link_action_s and "swarm_link" not in self._acted and agent.phase not in HANDS_OFF:
+            elif lost_for >= cfg.swarm_link_action_s and "swarm_link" not in self._acted and agent.flight.phase not in HANDS_OFF:
                 self._acted.add("swarm_link")
                 self._act(agent, now, "swarm_link", cfg.swarm_link_action, f"swarm link lost for {lost_for:.1f} s")
             return
-        if lost_for >= cfg.swarm_link_hold_s and agent._airborne() and agent.phase not in HANDS_OFF:
+        if lost_for >= cfg.swarm_link_hold_s and agent.flight.airborne and agent.flight.phase not in HANDS_OFF:
             self.active["swarm_link"] = now
             what = f"no fresh neighbour and no edge router for {lost_for:.1f} s: holding, " \
                    f"{cfg.swarm_link_action} at {cfg.swarm_link_action_s:g} s"
@@ -197,7 +212,7 @@ class Failsafes:
             self._hold(agent, "swarm_link", "swarm link lost: holding", brake=False)
 
     # ---- position (GPS) -------------------------------------------------------------------------
-    def _position(self, agent: Agent, now: float) -> None:
+    def _position(self, agent: AgentView, now: float) -> None:
         st, o = agent.link.state, agent.own
         if st.position_at > (self._pos[4] if self._pos else -math.inf):
             prev = self._pos
@@ -210,7 +225,7 @@ class Failsafes:
                     if "position" not in self.active:
                         self.active["position"] = now
                         self._event(agent, now, "position", "triggered", f"position jumped {err:.1f} m: braking")
-                        if agent._airborne() and agent.phase not in HANDS_OFF:
+                        if agent.flight.airborne and agent.flight.phase not in HANDS_OFF:
                             self._hold(agent, "position", f"position jumped {err:.1f} m: braking", brake=True)
         if "position" in self.active and now - self._suspect_at >= self.cfg.position_settle_s:
             del self.active["position"]
@@ -218,7 +233,7 @@ class Failsafes:
             self._release(agent, "position", "position trusted again")
 
     # ---- battery --------------------------------------------------------------------------------
-    def _battery(self, agent: Agent, now: float) -> None:
+    def _battery(self, agent: AgentView, now: float) -> None:
         b = agent.link.state.battery
         if not 0.0 <= b <= 1.0 or not agent.link.state.armed:
             return
@@ -227,27 +242,26 @@ class Failsafes:
             self.active["battery"] = now
             self._battery_warned = True
             self._event(agent, now, "battery", "triggered", f"battery {100 * b:.0f} %: {cfg.battery_action}")
-            if agent._airborne() and agent.phase not in HANDS_OFF:
+            if agent.flight.airborne and agent.flight.phase not in HANDS_OFF:
                 self._act(agent, now, "battery", cfg.battery_action, f"battery critical ({100 * b:.0f} %)")
         elif b <= cfg.battery_low and not self._battery_warned:
             self._battery_warned = True
             self._event(agent, now, "battery", "warning", f"battery low ({100 * b:.0f} %)")
 
     # ---- actions --------------------------------------------------------------------------------
-    def _hold(self, agent: Agent, name: str, detail: str, brake: bool) -> None:
+    def _hold(self, agent: AgentView, name: str, detail: str, brake: bool) -> None:
         """Hold (or brake to a hover) under the agent's control; remember what to go back to."""
-        if agent.phase not in CONTROLLED:  # still climbing or entering offboard: the action at T2 covers it
+        f = agent.flight
+        if f.phase not in CONTROLLED:  # still climbing or entering offboard: the action at T2 covers it
             return
         if not self._holding:
-            op = agent.override if agent.override in ("hold", "goto") else ""
-            phase = agent.phase if agent.phase != AgentPhase.GOTO else AgentPhase.HOLD  # a goto becomes a hold
+            op = f.override if f.override in ("hold", "goto") else ""
+            phase = f.phase if f.phase != AgentPhase.GOTO else AgentPhase.HOLD  # a goto becomes a hold
             self._restore = (phase, op if op != "goto" else "hold")
         self._holding.add(name)
-        o = agent.own
-        agent.hold_point = (math.nan, math.nan) if brake else (o.x, o.y)
-        agent._set_phase(AgentPhase.HOLD, detail)
+        f.apply(Hold(None if brake else f.hold_here(), detail))
 
-    def _release(self, agent: Agent, name: str, detail: str) -> None:
+    def _release(self, agent: AgentView, name: str, detail: str) -> None:
         if name not in self._holding:
             return
         self._holding.discard(name)
@@ -255,23 +269,19 @@ class Failsafes:
             return
         phase, op = self._restore
         self._restore = None
-        if agent.phase != AgentPhase.HOLD or not self.cfg.resume:
+        f = agent.flight
+        if f.phase != AgentPhase.HOLD or not self.cfg.resume:
             return  # someone changed it meanwhile (an operator, an action): leave it
         if op == "hold" or phase == AgentPhase.HOLD:
-            o = agent.own
-            agent.hold_point = (o.x, o.y)
-            agent.override = "hold"
-            agent._set_phase(AgentPhase.HOLD, f"{detail}; operator hold kept")
+            f.apply(Hold(f.hold_here(), f"{detail}; operator hold kept", operator=True))
             return
-        agent._set_phase(phase, f"{detail}: resumed")
+        f.apply(Resume(f"{detail}: resumed", to=phase))
 
-    def _act(self, agent: Agent, now: float, name: str, action: Action, why: str) -> None:
+    def _act(self, agent: AgentView, now: float, name: str, action: Action, why: str) -> None:
         self._holding.clear()
         self._restore = None
         if action == "rtl":
-            agent.link.return_to_launch()
-            agent._set_phase(AgentPhase.RTL, f"{why}: returning to launch")
+            agent.flight.apply(ReturnToLaunch(f"{why}: returning to launch"))
         else:
-            agent._land()
-            agent.detail = f"{why}: landing"
+            agent.flight.apply(Land(f"{why}: landing"))
         self._event(agent, now, name, action, why)
