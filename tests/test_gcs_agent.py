@@ -221,6 +221,9 @@ def test_override_verbs_takeover_and_resume(tmp_path: Path, router: str) -> None
         assert wait_for(lambda: _phase_is(obs, 2, "landed"), 60, 0.2), _state(obs, 2)
         ok, msg = _cmd(obs, 2, "resume")
         assert not ok and "cannot resume" in msg
+        for u in (1, 2):  # every command above went through the flight's transition table, none against it
+            assert wait_for(lambda u=u: json.loads((tmp_path / f"uav{u}.json").read_text())["agent"]["commands"] >= 2, 3, 0.2)
+            assert json.loads((tmp_path / f"uav{u}.json").read_text())["agent"]["illegal_transitions"] == 0
     finally:
         qgc.close()
         gcs2.close()

@@ -385,15 +385,8 @@ class FcuLink:
         unknown = ids == (0, 0) and msg.get_msgId() == mavlink.MAVLINK_MSG_ID_UNKNOWN
         if unknown:  # an id the dialect does not know: pymavlink leaves its sender unset, the frame has it
             ids = _frame_ids(msg)
-        if self.fcu_ids is None:
-            if not self._pins(msg):
-                self.counts["before_heartbeat"] += 1
-                return
-            self.fcu_ids = ids
-            if self.udp is not None and self.udp.fcu is None:  # udpin: the FCU is whoever sent its first heartbeat
-                self.udp.fcu = src
-            log.info("FCU link pinned to sysid %d compid %d%s", ids[0], ids[1], f" at {src[0]}:{src[1]}" if src else "")
-            self.contract.start(profile_for(msg.autopilot), self.clock())
+        if self.fcu_ids is None and not self._pin(msg, ids, src):
+            return
         if self.on_message is not None:  # e.g. the MAVLink router: every frame of the FCU's link
             self.on_message(msg)
         if ids != self.fcu_ids:  # another component on the link (a camera, a forwarded GCS), or a forgery
@@ -424,18 +417,35 @@ class FcuLink:
         elif mtype == "ATTITUDE":
             st.yaw = msg.yaw
         elif mtype == "HEARTBEAT":
-            st.sysid = ids[0]
-            if msg.autopilot != st.autopilot:
-                st.autopilot = msg.autopilot
-                st.profile = profile_for(msg.autopilot)
-            st.heartbeat_at = self.clock()
-            st.base_mode = msg.base_mode
-            st.custom_mode = msg.custom_mode
-            st.system_status = msg.system_status
-            st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            st.mode = mode_name(msg)
+            self._heartbeat(msg, ids[0])
         elif mtype in _OCCASIONAL:  # one set lookup: a message handled nowhere (LOCAL_POSITION_NED...) costs no chain
             self._occasional(mtype, msg)
+
+    def _pin(self, msg: Any, ids: tuple[int, int], src: Addr | None) -> bool:
+        """Before the link is pinned: True if ``msg`` pins it (the autopilot's first heartbeat),
+        False (counted) for anything that comes before."""
+        if not self._pins(msg):
+            self.counts["before_heartbeat"] += 1
+            return False
+        self.fcu_ids = ids
+        if self.udp is not None and self.udp.fcu is None:  # udpin: the FCU is whoever sent its first heartbeat
+            self.udp.fcu = src
+        log.info("FCU link pinned to sysid %d compid %d%s", ids[0], ids[1], f" at {src[0]}:{src[1]}" if src else "")
+        self.contract.start(profile_for(msg.autopilot), self.clock())
+        return True
+
+    def _heartbeat(self, msg: Any, sysid: int) -> None:
+        st = self.state
+        st.sysid = sysid
+        if msg.autopilot != st.autopilot:
+            st.autopilot = msg.autopilot
+            st.profile = profile_for(msg.autopilot)
+        st.heartbeat_at = self.clock()
+        st.base_mode = msg.base_mode
+        st.custom_mode = msg.custom_mode
+        st.system_status = msg.system_status
+        st.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        st.mode = mode_name(msg)
 
     def _occasional(self, mtype: str, msg: Any) -> None:
         """The FCU's messages that come at a few Hz or less (state, health, answers, texts)."""

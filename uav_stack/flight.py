@@ -156,7 +156,7 @@ Intent = Hold | GoTo | Resume | TakeControl | YieldTo | Land | ReturnToLaunch | 
 
 # Where each phase may go next. Landing, returning to launch and a kill are allowed from every
 # phase (a safety action is never refused by the table); staying in a phase is always allowed.
-_ANYTIME = frozenset({P.LANDING, P.RTL, P.KILLED})
+ANYTIME = frozenset({P.LANDING, P.RTL, P.KILLED})
 _FLYING = frozenset({P.HOVER, P.MISSION, P.DONE, P.HOLD, P.GOTO, P.YIELDED})
 TRANSITIONS: dict[AgentPhase, frozenset[AgentPhase]] = {
     P.INIT: frozenset({P.READY}),
@@ -232,7 +232,7 @@ class Flight:
 
     def allows(self, phase: AgentPhase) -> bool:
         """True if the table lets the current phase go to ``phase``."""
-        return phase == self.phase or phase in _ANYTIME or phase in TRANSITIONS[self.phase]
+        return phase == self.phase or phase in ANYTIME or phase in TRANSITIONS[self.phase]
 
     # ---- the one place intents are applied ----------------------------------------------------
     def apply(self, intent: Intent) -> bool:
