@@ -78,7 +78,6 @@ def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Calla
     from swarmnet.messages import Pose, Realm, encode_pose
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu
     from uav_stack.fcu.streams import ENCODERS
-    from uav_stack.fcu.telemetry import FRAMERS
     from uav_stack.recorder import write_json_atomic
 
     fcu = VirtualFcu(FcuConfig(vehicles=[VehicleConfig(sysid=1, listen=("127.0.0.1", 0))]))
@@ -98,14 +97,6 @@ def parts_under_test(work: Path) -> tuple[dict[str, Callable[[], object]], Calla
         return gpi(v)
 
     parts: dict[str, Callable[[], object]] = {"GLOBAL_POSITION_INT encoded": position}
-    framer = FRAMERS.get("GLOBAL_POSITION_INT")
-    if framer is not None:  # the compiled frame (uav_stack/fcu/_telemetry.c), its Python call included
-
-        def framed() -> object:
-            clock.steps += 1
-            return framer(v)
-
-        parts["GLOBAL_POSITION_INT framed (compiled)"] = framed
     parts.update({"ATTITUDE encoded": lambda: att(v), "pose encoded": lambda: encode_pose(pose),
                   "counters file replaced": lambda: write_json_atomic(path, counters)})
     return parts, fcu.close

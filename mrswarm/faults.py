@@ -181,6 +181,7 @@ class _Active:
     ack: Any = None  # a PendingCommand
     mark: float = 0.0  # wall: when the symptom check may start (e.g. after the service is back)
     next_query: float = 0.0
+    resend_at: float = 0.0  # wall: when an unanswered injected fault is sent again
 
 
 class Chaos:
@@ -246,6 +247,7 @@ class Chaos:
             return
         if k in INJECTED:
             a.ack = sw.observer.inject(f.uav, k, _fault_args(f))
+            a.resend_at = now + 1.0
             rec.detail = "sent, waiting for the UAV's acknowledgement"
             a.done_following = False
             return
@@ -294,6 +296,9 @@ class Chaos:
                 rec.ok, rec.detail = False, "no acknowledgement from the UAV"
                 a.done_following = True
                 self.changed = True
+            elif now >= a.resend_at:  # unanswered: once more each second (the UAV applies it once)
+                a.resend_at = now + 1.0
+                self.swarm.observer.send_again(a.ack)
         if a.follow_up is not None and now >= a.follow_up and not a.done_following:
             a.done_following = True
             if f.kind == "stop_uav":

@@ -53,12 +53,18 @@ class UavView:
     poses: int = 0
 
 
+# commands and faults are rare and must arrive: never dropped in a full queue (BLOCK), not batched (express)
+_MUST_ARRIVE: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.BLOCK, "priority": zenoh.Priority.INTERACTIVE_HIGH,
+                                "express": True}
+
+
 @dataclass
 class PendingCommand:
     cmd: Command
     targets: set[int]
     acks: dict[int, CommandAck] = field(default_factory=dict)
     acked_at: dict[int, float] = field(default_factory=dict)  # wall time each ack arrived
+    resend: tuple[str, bytes] | None = None  # (key, payload) to put again while unanswered (a fault)
 
     @property
     def complete(self) -> bool:
@@ -191,9 +197,7 @@ class SwarmObserver:
         assert s is not None
         cmd_id = next(self._ids) & 0xFFFFFFFF
         tset = set(targets) if targets is not None else self.alive_uavs()
-        # commands are rare and must arrive: never dropped in a full queue (BLOCK), not batched (express)
-        qos: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.BLOCK, "priority": zenoh.Priority.INTERACTIVE_HIGH,
-                               "express": True}
+        qos = _MUST_ARRIVE
         if targets is None:
             cmd = Command(self.name, cmd_id, 0, verb, args or {}, self.clock())
             s.put(self.keys.swarm_cmd, encode_command(cmd), **qos)
@@ -212,8 +216,18 @@ class SwarmObserver:
         assert s is not None
         fault_id = next(self._ids) & 0xFFFFFFFF
         f = FaultInjection(self.name, fault_id, uav, kind, dict(args or {}), self.clock())
-        s.put(self.keys.fault(uav), encode_fault(f))
+        key, payload = self.keys.fault(uav), encode_fault(f)
+        s.put(key, payload, **_MUST_ARRIVE)
         cmd = Command(self.name, fault_id, uav, "fault", {"kind": kind, **f.args}, f.t_wall)
-        p = self.pending[fault_id] = PendingCommand(cmd, {uav})
+        p = self.pending[fault_id] = PendingCommand(cmd, {uav}, resend=(key, payload))
         self.stats.sent["fault"] += 1
         return p
+
+    def send_again(self, p: PendingCommand) -> None:
+        """Put an unanswered fault once more (its UAV applies a fault id once, and acks every copy):
+        sent while the UAV's link was being re-established (a router restart), the first may be lost."""
+        s = self.node.session
+        if p.resend is None or p.complete or s is None:
+            return
+        s.put(*p.resend, **_MUST_ARRIVE)
+        self.stats.sent["fault"] += 1

@@ -86,6 +86,11 @@ def test_a_uav_flies_through_fcu_link_loss_then_swarm_link_loss(tmp_path: Path) 
         pending = obs.inject(1, "fcu_link_loss", {"duration_s": cut})
         assert wait_for(lambda: (obs.poll(), pending.complete)[1], 5.0, 0.05), "no acknowledgement of the fault"
         assert pending.acks[1].ok, pending.acks[1].message
+        # a copy (the chaos controller sends again until it hears the ack) is acked alike, never applied twice
+        first_ack = pending.acks.pop(1)
+        obs.send_again(pending)
+        assert wait_for(lambda: (obs.poll(), pending.complete)[1], 3.0, 0.05), "no acknowledgement of the copy"
+        assert (pending.acks[1].ok, pending.acks[1].message) == (first_ack.ok, first_ack.message)
         poses: list[float] = []  # arrival times of fresh poses
         seen_override_at = None
         watch_row = None
@@ -114,6 +119,8 @@ def test_a_uav_flies_through_fcu_link_loss_then_swarm_link_loss(tmp_path: Path) 
         t_trig, t_clear, t_resumed = (first(evs, "fcu_link", e) for e in ("triggered", "cleared", "resumed"))
         assert t_trig is not None and t_clear is not None and t_resumed is not None, evs
         assert 1.9 <= t_trig - t_cut <= 4.0 and cut - 0.5 <= t_clear - t_cut <= cut + 1.5 and t_resumed >= t_clear
+        assert [e["event"] for e in evs if e["failsafe"] == "fcu_link"].count("triggered") == 1  # one cut, not two
+        assert json.loads((tmp_path / "uav1.json").read_text())["agent"]["faults"] == 1
 
         # ---- swarm link loss: the edge router dies; in client mode it carried everything
         time.sleep(2.0)

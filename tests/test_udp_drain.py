@@ -1,14 +1,10 @@
-"""Reading every pending datagram of a UDP socket: the compiled call and its Python twin, on real sockets."""
+"""Reading every pending datagram of a UDP socket, on real sockets."""
 
 from __future__ import annotations
 
 import os
 import socket
-import subprocess
-import sys
 import time
-
-import pytest
 
 from uav_stack import udp
 
@@ -28,16 +24,7 @@ def _closed_port() -> int:
     return port
 
 
-@pytest.fixture(params=["compiled", "python"])
-def way(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    if request.param == "python":
-        monkeypatch.setattr(udp, "_UDP", None)
-    else:
-        assert udp._UDP is not None, "the compiled reader was not built (setup.py build_ext)"
-    return str(request.param)
-
-
-def test_every_datagram_with_its_sender_in_order_and_bounded(way: str) -> None:
+def test_every_datagram_with_its_sender_in_order_and_bounded() -> None:
     rx, a, b = _sock(), _sock(), _sock()
     try:
         sent = []
@@ -61,7 +48,7 @@ def test_every_datagram_with_its_sender_in_order_and_bounded(way: str) -> None:
             s.close()
 
 
-def test_a_refused_send_is_counted_for_the_caller_never_data(way: str) -> None:
+def test_a_refused_send_is_counted_for_the_caller_never_data() -> None:
     """With refusals reported (IP_RECVERR), a datagram to a port nobody listens on comes back as
     ECONNREFUSED at the next read: the reader says so and returns no data for it."""
     s = _sock()
@@ -76,9 +63,3 @@ def test_a_refused_send_is_counted_for_the_caller_never_data(way: str) -> None:
         assert udp.drain(s, 64, lambda: refusals.append(1)) == [] and refusals == [1]
     finally:
         s.close()
-
-
-def test_a_process_without_the_compiled_pieces_reads_with_python() -> None:
-    out = subprocess.run([sys.executable, "-c", "from uav_stack import udp; print(udp.UDP_DRAIN)"],
-                         env=dict(os.environ, MRSWARM_PURE_PYTHON="1"), capture_output=True, text=True, timeout=60)
-    assert out.stdout.strip() == "python", out.stderr

@@ -48,6 +48,7 @@ MAX_CLIMB = 2.0  # m/s, vertical speed limit of the altitude hold
 HOLD_GAIN = 0.8  # 1/s: velocity towards a hold/goto point = gain * distance (capped)
 ARRIVED_M = 1.0  # m from a goto point (horizontally and vertically) that counts as arrived
 LINK_STATS_EVERY = 10.0  # s between two writes of the per-link pose-age histograms (their own file)
+MAX_FAULTS_REMEMBERED = 64  # injected faults whose answer a copy gets (the oldest forgotten first)
 
 
 def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) -> Behaviour | None:
@@ -126,6 +127,7 @@ class Agent:
         # set by a virtual UAV process: applies injected faults to its virtual FCU (uav_stack/sim_faults.py);
         # None on a real UAV, whose agent refuses them
         self.fault_handler: Callable[[FaultInjection, float], tuple[bool, str]] | None = None
+        self._faults_seen: dict[tuple[str, int], tuple[bool, str]] = {}  # (sender, fault id) -> its answer
         # set by a virtual UAV process: its FCU's ground truth (x, y, z, vx, vy, vz in the swarm frame, armed),
         # recorded instead of the reported position, which an injected fault may falsify
         self.truth: Callable[[], tuple[float, float, float, float, float, float, bool]] | None = None
@@ -290,7 +292,13 @@ class Agent:
 
     # ---- commands -------------------------------------------------------------------------
     def _on_fault(self, fault: FaultInjection, now: float) -> None:
-        """An injected fault: applied by the virtual UAV process's handler, refused by a real UAV."""
+        """An injected fault: applied by the virtual UAV process's handler, refused by a real UAV.
+        A copy of one already handled (the controller sends again until it hears the ack) is
+        acknowledged with the first answer, never applied twice."""
+        seen = self._faults_seen.get((fault.sender, fault.fault_id))
+        if seen is not None:
+            self.node.ack(fault.fault_id, *seen)
+            return
         self.counters["faults"] = self.counters.get("faults", 0) + 1
         if self.fault_handler is None or self.realm is Realm.PHYSICAL:
             ok, msg = False, "fault injection refused: a physical UAV takes no injected faults"
@@ -303,6 +311,9 @@ class Agent:
         if not ok:
             self.counters["rejected_faults"] = self.counters.get("rejected_faults", 0) + 1
         log.warning("UAV %d: injected fault %s %s: %s", self.cfg.uav, fault.kind, "applied" if ok else "refused", msg)
+        self._faults_seen[(fault.sender, fault.fault_id)] = (ok, msg)
+        if len(self._faults_seen) > MAX_FAULTS_REMEMBERED:
+            del self._faults_seen[next(iter(self._faults_seen))]
         self.node.ack(fault.fault_id, ok, msg)
 
     def _on_command(self, cmd: Command, now: float) -> None:

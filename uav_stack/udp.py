@@ -6,17 +6,9 @@ import socket
 import sys
 from collections.abc import Callable
 
-from groundfloor.compiled import compiled_module
 from groundfloor.net import Addr
 
 _IP_RECVERR = 11  # <linux/in.h>; Python's socket module does not export it
-
-# Four sockets are read each tick in every virtual UAV, most often to find one datagram or none:
-# in Python each empty read raises (and builds) a BlockingIOError. The compiled twin does the same
-# reads without (``UDP_DRAIN`` says which this process runs; ``MRSWARM_PURE_PYTHON=1``: Python).
-_UDP = compiled_module("uav_stack._udp")
-UDP_DRAIN = "compiled" if _UDP is not None else "python"
-
 
 def drain(sock: socket.socket | None, max_datagrams: int,
           refused: Callable[[], None] | None = None) -> list[tuple[bytes, Addr]]:
@@ -27,12 +19,6 @@ def drain(sock: socket.socket | None, max_datagrams: int,
     """
     out: list[tuple[bytes, Addr]] = []
     if sock is None:
-        return out
-    if _UDP is not None:  # the same reads in one compiled call (uav_stack/_udp.c)
-        out, n_refused = _UDP.recv_all(sock.fileno(), max_datagrams)
-        if refused is not None:
-            for _ in range(n_refused):
-                refused()
         return out
     for _ in range(max_datagrams):
         try:

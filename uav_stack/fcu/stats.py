@@ -6,9 +6,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from uav_stack.fcu.dynamics import DYNAMICS
-from uav_stack.fcu.telemetry import TELEMETRY
 from uav_stack.mavcodec import MAVCODEC
-from uav_stack.udp import UDP_DRAIN
 
 
 @dataclass
@@ -56,6 +54,4 @@ class FcuStats:
             "failsafes": dict(self.failsafes),
             "dynamics": DYNAMICS,  # which scalar step this process runs: "compiled" or "python"
             "mavlink": MAVCODEC,  # who frames the FCU link's plain messages: "compiled" or "pymavlink"
-            "udp": UDP_DRAIN,  # who reads the UDP sockets of the FCU and the agent's links: "compiled" or "python"
-            "telemetry": TELEMETRY,  # who frames the GLOBAL_POSITION_INT stream: "compiled" or "python"
         }

@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from groundfloor.compiled import compiled_module
-from uav_stack import geo
 from uav_stack.fcu import ardupilot, px4
 from uav_stack.fcu.dynamics import BATTERY, LANDED, PITCH, PITCH_RATE, POS, ROLL, ROLL_RATE, VEL, YAW, YAW_RATE
 from uav_stack.mav import mavlink
@@ -368,41 +366,4 @@ def motor_pwm(v: Vehicle) -> int:
         return 1000
     return 1100 if v.landed else 1500
 
-
-def _framer() -> Any:
-    """The compiled GLOBAL_POSITION_INT framer (uav_stack/fcu/_telemetry.c), configured; None
-    without it, or with a pymavlink whose message it would not frame alike (another layout,
-    CRC extra or id, or MAVLink 1 on the wire)."""
-    compiled = compiled_module("uav_stack.fcu._telemetry")
-    cls = mavlink.MAVLink_global_position_int_message
-    if compiled is None or float(mavlink.WIRE_PROTOCOL_VERSION) != 2.0 or (cls.id, cls.crc_extra, cls.unpacker.format) != (
-            33, 104, "<IiiiihhhH"):
-        return None
-    compiled.configure(math.hypot, geo.WGS84_A, geo.WGS84_B, geo.WGS84_F, geo.WGS84_E2, geo._EP2, math.radians(80))
-    return compiled
-
-
-_FRAMER = _framer()
-TELEMETRY = "compiled" if _FRAMER is not None else "python"
-"""Who builds the FCU's GLOBAL_POSITION_INT stream: ``"compiled"`` or ``"python"`` (a UAV's status file)."""
-
-
-def global_position_int_frame(v: Vehicle) -> bytes | None:
-    """GLOBAL_POSITION_INT as the frame :func:`global_position_int` and ``mavcodec.pack`` make,
-    built in one compiled call (it is sent every tick, with the interpreter's caches cold: 131
-    against 4.8 µs warm, docs/benchmarks.md); None: nothing to send, or the Python path must
-    (no fix yet, a signing link, no compiled framer), so :func:`global_position_int` decides."""
-    mav = v.mav
-    if not v.booted or mav.signing.sign_outgoing:
-        return None
-    d = v.ctx.dyn
-    frame: bytes = _FRAMER.global_position_int(
-        d.pos, d.vel, d.yaw, v.i, v.frame.constants, v.position_error, v.home.alt, v.ctx.clock.sim_time,
-        mav.seq, mav.srcSystem, mav.srcComponent)
-    return frame
-
-
-# Streams some of whose messages a compiled call frames whole: name -> frame or None (then the encoder)
-FRAMERS: dict[str, Callable[[Vehicle], bytes | None]] = (
-    {"GLOBAL_POSITION_INT": global_position_int_frame} if _FRAMER is not None else {})
 

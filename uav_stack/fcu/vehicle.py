@@ -41,7 +41,7 @@ from uav_stack.fcu.offboard import Setpoint, SetpointStream
 from uav_stack.fcu.params import Action, ParamStore, Settings, derive_settings, param_defs
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.fcu.streams import ENCODERS_BY_FLAVOUR, StreamSet, ardupilot_group_hz, firmware_rates
-from uav_stack.fcu.telemetry import FRAMERS, heartbeat
+from uav_stack.fcu.telemetry import heartbeat
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink
 from uav_stack.mavcodec import pack
@@ -327,12 +327,6 @@ class Vehicle:
             return
         encoders = self.encoders
         for name in st.due(now):
-            framer = FRAMERS.get(name)
-            if framer is not None:
-                frame = framer(self)  # the whole frame in one compiled call, when it can
-                if frame is not None:
-                    self.send_frame(frame)
-                    continue
             msg = encoders[name](self)
             if msg is not None:  # None: nothing to say yet (no position before the estimate is valid)
                 self.send(msg)
