@@ -216,6 +216,10 @@ class DockerRuntime:
                   identity=NodeName("edge", 0, cfg.swarms[0].name))
 
     # ---- UAVs ------------------------------------------------------------------------------
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig]) -> None:
+        """Pools are the process runtime's: here every virtual UAV is a container of its own."""
+        raise RuntimeError("fleet.pool: pools of virtual UAVs run with the process runtime; a container per UAV here")
+
     def start_uav(self, cfg: VirtualUavConfig) -> None:
         rec = cfg.agent.record_dir
         if rec is not None:

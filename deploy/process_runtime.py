@@ -59,7 +59,7 @@ def _death_signal(name: str) -> int:
     """What a child gets when the runner dies: a UAV SIGTERM (it writes its last records, then exits,
     with a watchdog of its own), the edge services SIGKILL (nothing to save; a Zenoh router's
     shutdown can wait on its peers)."""
-    return signal.SIGTERM if name.startswith("uav") else signal.SIGKILL
+    return signal.SIGTERM if name.startswith(("uav", "pool")) else signal.SIGKILL
 
 
 def wait_file(path: Path, timeout: float, proc: subprocess.Popen[bytes] | None = None) -> None:
@@ -154,6 +154,14 @@ class ProcessRuntime:
             f"uav{cfg.agent.uav}",
             [*self._py, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
         )
+
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig]) -> None:
+        """Several virtual UAVs in one process (``python -m uav_stack.pool``): one virtual FCU, an agent each."""
+        from uav_stack.pool import PoolConfig
+
+        path = self.run_dir / "config" / f"{name}.json"
+        write_atomic(path, PoolConfig(uavs=tuple(cfgs)).to_json(), private=True)
+        self._spawn(name, [*self._py, "-m", "uav_stack.pool", "--config", str(path), "--log-level", self.log_level])
 
     def start_agent(self, cfg: AgentConfig) -> None:
         """The agent of a UAV whose flight controller is external: ``mrswarm agent --config`` against

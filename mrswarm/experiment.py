@@ -314,14 +314,22 @@ class Experiment:
         for a in agents:  # first: a real autopilot may take its time to be ready (GPS lock, EKF)
             self.signals.check()
             self._start_external(a)
-        for c in configs:
+        pools: dict[str, tuple[int, ...]] = {}  # pool process -> its UAVs (fleet.pool > 1)
+        for group in scn.pools(configs):
             self.signals.check()
-            self.runtime.start_uav(c)
+            if len(group) == 1 and (scn.fleet is None or scn.fleet.pool == 1):
+                self.runtime.start_uav(group[0])
+                continue
+            name = f"pool{len(pools) + 1}"
+            pools[name] = tuple(c.agent.uav for c in group)
+            self.runtime.start_pool(name, group)
+        self.run_info.pools = {name: list(uavs) for name, uavs in pools.items()}
         # the runtime's processes and the runner's flight recorder, each restarted as it should be
         children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})
         self.run_info.pids = children.pids()
         self.supervisor = Supervisor(children, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
-                                     last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log")
+                                     last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log",
+                                     pools=pools)
         self.supervisor.adopt()
         self._save_info()
         one = len(configs) == 1

@@ -38,6 +38,10 @@ class Runtime(Protocol):
         """Start one virtual UAV (FCU + agent) with this configuration."""
         ...
 
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig]) -> None:
+        """Start several virtual UAVs in one process named ``name`` (``fleet.pool``; the process runtime)."""
+        ...
+
     def start_agent(self, cfg: AgentConfig) -> None:
         """Start the agent of a UAV whose flight controller is external (``mrswarm agent`` against
         ``cfg.fcu``, named ``uav<id>`` like a virtual UAV), on this machine."""

@@ -30,7 +30,7 @@ from discovery.options import DiscoveryService, Key
 from groundfloor import strict_yaml
 from groundfloor.errors import MrswarmError
 from groundfloor.schema import Config, ConfigError, convert, to_builtins
-from mrswarm.faults import FaultSpec, check_against, fit_to_duration
+from mrswarm.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
@@ -286,6 +286,9 @@ class Fleet(Config, frozen=True):
     rtf: Rtf = 1.0
     flavour: Flavour = "px4"
     restart: Literal["no", "on-failure"] = "no"  # on-failure: a crashed UAV process is started again and rejoins
+    # virtual UAVs per process: 1, a process each (isolated); more, pools of that many sharing one
+    # process, one virtual FCU and one loop, each UAV still its own agent, id and keys (docs/scale.md)
+    pool: Annotated[int, Meta(ge=1, le=256, description="virtual UAVs per process")] = 1
 
 
 DEFAULT_WAIT_S = 120.0  # s an external UAV's agent has to report ready (docs/scenarios.md, "Physical and external UAVs")
@@ -456,6 +459,7 @@ class Scenario(Config, kw_only=True, frozen=True):
         if self.faults:
             check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.topology[0])
         self._check_external()
+        self._check_pools()
         g = self.gcs
         if g.mavlink:
             from uav_stack.sysid import allocate_sysid
@@ -480,6 +484,29 @@ class Scenario(Config, kw_only=True, frozen=True):
             m = o.mission or self.mission
             if m.type == "goto" and any(u.goal is None for u in o.uav_list()):
                 raise ConfigError(f"other_swarms.{i}", "a goto mission needs a goal for every UAV")
+
+    def _check_pools(self) -> None:
+        """Pools (``fleet.pool`` > 1): the process runtime hosts them; a process fault would hit a whole pool."""
+        if self.fleet is None or self.fleet.pool == 1:
+            return
+        if self.runtime != "process":
+            raise ConfigError("fleet.pool", "pools of virtual UAVs run with the process runtime (runtime: process); "
+                                            "the container runtime runs a container per UAV")
+        for i, f in enumerate(self.faults):
+            if f.kind in UAV_PROCESS:
+                raise ConfigError(f"faults.{i}", f"{f.kind} acts on a UAV's process, which a pool shares with "
+                                                 f"{self.fleet.pool - 1} other UAVs: use fleet.pool: 1 for process faults")
+
+    def pools(self, configs: list[VirtualUavConfig]) -> list[list[VirtualUavConfig]]:
+        """The virtual UAVs grouped into the processes that host them: one each, or pools of
+        ``fleet.pool`` that share a flavour and an RTF (one virtual FCU steps a pool)."""
+        size = self.fleet.pool if self.fleet is not None else 1
+        if size == 1:
+            return [[c] for c in configs]
+        groups: dict[tuple[str, float, float], list[VirtualUavConfig]] = {}
+        for c in configs:
+            groups.setdefault((c.flavour, c.target_rtf, c.physics_hz), []).append(c)
+        return [g[i:i + size] for g in groups.values() for i in range(0, len(g), size)]
 
     def _check_external(self) -> None:
         """External flight controllers: process runtime only, no faults injected into them."""

@@ -65,7 +65,8 @@ class RunInfo(Struct):
     started: float  # wall
     interrupted: bool = False  # Ctrl-C or SIGTERM
     aborted: str | None = None  # why the runner gave up (a UAV silent or refusing a command, a process died)
-    pids: dict[str, int] = {}  # process (or container's main process) per name: "uav3", "router", "discovery"
+    pids: dict[str, int] = {}  # process (or container's main process) per name: "uav3", "router", "discovery", "pool1"
+    pools: dict[str, list[int]] = {}  # pool process -> the virtual UAVs it hosts (fleet.pool > 1)
     mission_start: float | None = None  # wall time of the "start" command; None if the mission never started
     all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
     # the takeoff: command sent (wall), every UAV acknowledged (s after it), every UAV airborne (s after it), sends

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+import msgspec
+
 from mrswarm.summary import ProcessEvent
 
 log = logging.getLogger(__name__)
@@ -153,6 +155,7 @@ class Supervisor:
     """Turns process exits into events, and restarts what should come back."""
 
     def __init__(self, runtime: Processes, restart_uavs: bool = False, clock: Callable[[], float] = time.time,
+                 pools: dict[str, tuple[int, ...]] | None = None,
                  last_pose: Callable[[int], list[float] | None] = lambda uav: None,
                  log_of: Callable[[str], Path | None] = lambda name: None):
         """``last_pose``: a UAV's last pose the runner received; ``log_of``: a process's log file,
@@ -160,6 +163,9 @@ class Supervisor:
         self.runtime = runtime
         self.restart_uavs = restart_uavs
         self.clock = clock
+        # pool processes (pool1, ...) -> the UAVs each hosts: a pool's exit or restart is an event of each
+        self.pools = dict(pools or {})
+        self._pool_of = {u: name for name, uavs in self.pools.items() for u in uavs}
         self.last_pose = last_pose
         self.log_of = log_of
         self.events: list[ProcessEvent] = []
@@ -178,6 +184,7 @@ class Supervisor:
         """New events since the last call: exits seen now, restarts done now."""
         now = self.clock()
         new, self._new = self._new, []
+        n_before = len(self.events)
         exited = self.runtime.exited()
         if exited:
             pids = self.runtime.pids()
@@ -197,11 +204,27 @@ class Supervisor:
                 if restarted is not None:
                     new.append(restarted)
                     self.events.append(restarted)
+        if self.pools and new:  # a pool's event is one of each of its UAVs
+            new = [e for ev in new for e in self._per_uav(ev)]
+            self.events[n_before:] = [e for ev in self.events[n_before:] for e in self._per_uav(ev)]
         return new
+
+    def process_of(self, uav: int) -> str:
+        """The process a UAV runs in: ``uav<N>``, or the pool hosting it."""
+        return self._pool_of.get(uav, f"uav{uav}")
+
+    def _per_uav(self, ev: ProcessEvent) -> list[ProcessEvent]:
+        uavs = self.pools.get(ev.name)
+        if uavs is None:
+            return [ev]
+        where = f"in {ev.name}"
+        return [msgspec.structs.replace(ev, name=f"uav{u}", detail=f"{where}; {ev.detail}" if ev.detail else where,
+                                        last_pose=self.last_pose(u) if ev.event == "exited" else ev.last_pose)
+                for u in uavs]
 
     def _exited(self, name: str, code: int | None, now: float, w: _Watch) -> ProcessEvent:
         self.down[name] = now
-        uav = uav_of(name)
+        uav = uav_of(name) if name not in self.pools else None
         ev = ProcessEvent(t=now, name=name, event="exited", exit_code=code, signal=signal_name(code),
                           last_pose=self.last_pose(uav) if uav is not None else None)
         if now - w.started >= STABLE_AFTER_S:
@@ -209,7 +232,8 @@ class Supervisor:
         failed = code is None or code != 0
         if failed:
             ev.error = last_error(self.log_of(name))
-        if is_service(name) or (uav is not None and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
+        hosts_uavs = uav is not None or name in self.pools
+        if is_service(name) or (hosts_uavs and self.restart_uavs and failed and w.restarts < MAX_UAV_RESTARTS):
             w.due = now + w.backoff
             ev.detail = f"restart in {w.backoff:g} s"
             w.backoff = min(BACKOFF_MAX_S, 2 * w.backoff)
@@ -245,6 +269,8 @@ class Supervisor:
         return ev
 
     def restarting(self, name: str) -> bool:
-        """Down, with a restart scheduled."""
+        """Down, with a restart scheduled (``uav<N>``: its process, or its pool)."""
+        uav = uav_of(name)
+        name = self.process_of(uav) if uav is not None else name
         w = self._watch.get(name)
         return name in self.down and w is not None and w.due is not None

@@ -15,6 +15,7 @@ import os
 import re
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
@@ -331,63 +332,102 @@ def virtual_stream_rates(cfg: VirtualUavConfig) -> dict[str, float]:
     return turned_down(cfg.flavour, wanted)
 
 
-def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
+def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None) -> VirtualFcu:
+    """One virtual FCU for these virtual UAVs (one vehicle each, stepped together), opened: one
+    UDP socket per vehicle on the loopback. They share its physics rate and target RTF (the
+    first's); its streams are the first's flavour's, with a ground station's view if any has a
+    MAVLink endpoint."""
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
-    a = cfg.agent
+    first = cfgs[0]
+    rates = virtual_stream_rates(next((c for c in cfgs if c.agent.gcs.mavlink_endpoints), first))
     fcu = VirtualFcu(
         FcuConfig(
-            vehicles=[VehicleConfig(sysid=a.mavlink_sysid, home=cfg.home, flavour=cfg.flavour, yaw=cfg.heading)],
-            stream_rates=virtual_stream_rates(cfg),
-            physics_hz=cfg.physics_hz,
-            target_rtf=cfg.target_rtf,
+            vehicles=[VehicleConfig(sysid=c.agent.mavlink_sysid, home=c.home, flavour=c.flavour, yaw=c.heading) for c in cfgs],
+            stream_rates=rates,
+            physics_hz=first.physics_hz,
+            target_rtf=first.target_rtf,
             # the loop comes back once per tick: a tick's lateness beyond that drops sim time, not less
-            max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(a),
+            max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(first.agent),
         )
     )
+    fcu.open(start)
+    return fcu
+
+
+@dataclass
+class VirtualUav:
+    """One virtual UAV's parts in a process: its agent (with its node, its FCU link and its router)
+    and the faults of its vehicle of the virtual FCU."""
+
+    agent: Agent
+    faults: Any  # uav_stack.sim_faults.SimFaults
+
+    def close(self) -> None:
+        a = self.agent
+        a.close(time.time())
+        a.node.close()
+        a.link.close()
+        if a.router is not None:
+            a.router.close()
+
+
+def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: StopFlag,
+                     tap_zenoh_log: bool = False) -> VirtualUav:
+    """The agent of the FCU's vehicle ``index``: its FCU link (the vehicle's only client), its
+    swarm node, its faults. :class:`LinkOpenError` if the link cannot open."""
+    a = cfg.agent
+    host, port = fcu.vehicles[index].link.sock.getsockname()[:2]  # type: ignore[union-attr]
+    link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    # the agent is its FCU's only client (ground stations come through its router): nobody
+    # else's datagrams reach the FCU, nor churn the agent out of its peers
+    assert link.local_address is not None
+    fcu.vehicles[index].link.set_owner(link.local_address, owner_only=True)
+    try:
+        node = open_node(a, stop, tap_zenoh_log)
+    except BaseException:
+        link.close()
+        if router is not None:
+            router.close()
+        raise
+    agent = Agent(a, node, link, router=router)
+    agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
+    return VirtualUav(agent, attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav, index))
+
+
+def run_virtual_uav(cfg: VirtualUavConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
+    a = cfg.agent
     start = None
     if a.align_ticks:  # the FCU's 10 Hz position on the ticks' grid, a hair before each instant: the
         period = 1.0 / tick_hz_for(a)  # pose that leaves at an instant is the position of that instant
         start = time.monotonic() - (time.time() % period) - FCU_LEAD_S
-    (host, port), = fcu.open(start)
+    fcu = make_virtual_fcu([cfg], start)
     try:
-        link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+        uav = open_virtual_uav(cfg, fcu, 0, stop, tap_zenoh_log)
     except LinkOpenError as exc:
         log.error("%s", exc)
         fcu.close()
         return 2
-    # the agent is its FCU's only client (ground stations come through its router): nobody
-    # else's datagrams reach the FCU, nor churn the agent out of its peers
-    assert link.local_address is not None
-    fcu.vehicles[0].link.set_owner(link.local_address, owner_only=True)
-    node = open_node(a, stop, tap_zenoh_log)
-    agent = Agent(a, node, link, router=router)
-    agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
-    faults = attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav)
-    meter = tick_meter.attach(agent, fcu)  # None unless the environment asks for it
+    meter = tick_meter.attach(uav.agent, fcu)  # None unless the environment asks for it
     try:
-        run_loop(agent, stop, faults, cfg.duration)
+        run_loop(uav.agent, stop, uav.faults, cfg.duration)
     finally:
         if meter is not None:
             meter.write(f"tick_uav{a.uav}.json")
-        agent.close(time.time())
-        node.close()
-        link.close()
-        if router is not None:
-            router.close()
+        uav.close()
         fcu.close()
     return 0
 
 
-def attach_sim_faults(agent: Agent, fcu: Any, seed: int) -> Any:
+def attach_sim_faults(agent: Agent, fcu: Any, seed: int, index: int = 0) -> Any:
     """Let the experiment controller inject faults into this virtual UAV (uav_stack/sim_faults.py), and
-    record the FCU's ground truth, which a falsified position estimate does not change. Returns the FCU
-    wrapped for :func:`run_loop`."""
+    record the FCU's ground truth, which a falsified position estimate does not change. Returns the
+    faults of the FCU's vehicle ``index``, which wrap the FCU for :func:`run_loop`."""
     from uav_stack.sim_faults import SimFaults
 
-    faults = SimFaults(fcu, seed)
+    faults = SimFaults(fcu, seed, index)
     agent.fault_handler = faults.apply
-    v, dyn = fcu.vehicles[0], fcu.dyn
+    v, dyn = fcu.vehicles[index], fcu.dyn
     o = v.frame.origin  # the FCU's local NED origin (its first home)
     hx, hy, hz = agent.frame.to_enu(o.lat, o.lon, o.alt)
 

@@ -63,10 +63,12 @@ def check_fault(kind: str, args: dict[str, float]) -> str:
 
 
 class SimFaults:
-    """Faults of one virtual FCU (vehicle 0), wrapping it for the process loop."""
+    """Faults of one vehicle of a virtual FCU (``index``; a UAV process has one, a pool several),
+    wrapping the FCU for a one-UAV process loop (:meth:`poll_io`, :meth:`service`)."""
 
-    def __init__(self, fcu: VirtualFcu, seed: int = 0):
+    def __init__(self, fcu: VirtualFcu, seed: int = 0, index: int = 0):
         self.fcu = fcu
+        self.vehicle = fcu.vehicles[index]
         self.link_cut_until = -math.inf  # wall time (time.time())
         self.gps_offset = (0.0, 0.0)  # east, north, m
         self.gps_offset_until = -math.inf
@@ -83,7 +85,7 @@ class SimFaults:
         if why:
             return False, why
         a = f.args
-        v = self.fcu.vehicles[0]
+        v = self.vehicle
         if f.kind == "fcu_link_loss":
             self.link_cut_until = now + a["duration_s"]
             msg = f"FCU link cut for {a['duration_s']:g} s"
@@ -101,13 +103,18 @@ class SimFaults:
             v.battery_failed = True  # below PX4's simulated floor too (SIM_BAT_MIN_PCT limits the drain only)
             msg = f"battery {100 * before:.0f} % -> {100 * float(self.fcu.dyn.battery[v.i]):.0f} %"
         self.applied.append({"t": round(now, 3), "kind": f.kind, "args": dict(a), "id": f.fault_id})
-        self._update(now)
+        self.update(now)
         return True, msg
 
-    def _update(self, now: float) -> None:
+    @property
+    def cut(self) -> bool:
+        """The link between this vehicle and its agent is cut now."""
+        return self._cut
+
+    def update(self, now: float) -> None:
         """Start or end the link cut, and set the position error the FCU reports, for ``now``."""
         cut = now < self.link_cut_until
-        v = self.fcu.vehicles[0]
+        v = self.vehicle
         if cut and not self._cut:
             v.link.send = lambda buf: None  # type: ignore[method-assign]  # nothing leaves the FCU
         elif not cut and self._cut:
@@ -128,5 +135,5 @@ class SimFaults:
         self.fcu.poll_io()
 
     def service(self, now: float | None = None) -> float:
-        self._update(time.time())
+        self.update(time.time())
         return self.fcu.service(now)

@@ -1,0 +1,82 @@
+"""Pooled virtual UAVs (``fleet.pool``): several UAVs to a process, each still its own UAV."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrswarm.scenario import ScenarioError, load_scenario
+from tests.conftest import wait_for
+from tests.gcs_helpers import run_dir, start_run, stop_run
+
+ROOT = Path(__file__).resolve().parents[1]
+MINI = ROOT / "tests" / "scenarios" / "mini_coverage.yaml"
+
+
+def _run(out: Path, sets: list[str], timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    args = [sys.executable, "-m", "mrswarm", "run", str(MINI), "--out", str(out), "--no-live"]
+    for s in sets:
+        args += ["--set", s]
+    return subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.e2e
+def test_pooled_uavs_fly_the_mission_each_as_its_own_uav(tmp_path: Path) -> None:
+    res = _run(tmp_path, ["fleet.pool=2"])
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    rd = next(d for d in tmp_path.iterdir() if d.is_dir())
+    run = json.loads((rd / "run.json").read_text())
+    # two processes host the four UAVs; no process of their own
+    assert run["pools"] == {"pool1": [1, 2], "pool2": [3, 4]}
+    assert {n for n in run["pids"] if n.startswith(("uav", "pool"))} == {"pool1", "pool2"}
+    summary = json.loads((rd / "summary.json").read_text())
+    assert summary["uavs_recorded"] == 4
+    assert summary["coverage"]["final"] > 0.3 and summary["separation"]["collisions"] == 0
+    assert summary["separation"]["min_m"] > 1.0
+    # each UAV its own agent, its own FCU vehicle, its own swarm node under its own certificate
+    status = {u: json.loads((rd / f"uav{u}.json").read_text()) for u in (1, 2, 3, 4)}
+    assert all(st["uav"] == u and st["phase"] in ("mission", "done") for u, st in status.items()), \
+        {u: st["phase"] for u, st in status.items()}
+    assert all(st["net"]["sent"]["pose"] > 50 for st in status.values())
+    assert summary["security"]["mode"] == "mtls" and not summary["security"].get("refused")
+    # every UAV saw the three others, pool-mates as well as the other pool's
+    assert summary["network"]["transport_age_links"]["links"] == 12
+
+
+@pytest.mark.e2e
+def test_a_pool_that_dies_is_an_event_of_each_of_its_uavs_and_the_other_pool_flies_on(tmp_path: Path) -> None:
+    proc = start_run(MINI, tmp_path, ["fleet.pool=2", "duration=30"])
+    try:
+        rd = run_dir(tmp_path, 60)
+        assert wait_for(lambda: (rd / "run.json").exists() and "pool1" in json.loads((rd / "run.json").read_text())["pids"],
+                        60, 0.2)
+        assert wait_for(lambda: all((rd / f"uav{u}.json").exists() and json.loads((rd / f"uav{u}.json").read_text())["phase"]
+                                    == "mission" for u in (1, 2, 3, 4)), 90, 0.5)
+        pid = json.loads((rd / "run.json").read_text())["pids"]["pool1"]
+        os.killpg(pid, signal.SIGKILL)
+        proc.wait(180)
+    finally:
+        stop_run(proc)
+    run = json.loads((rd / "run.json").read_text())
+    exits = {e["name"]: e for e in run["events"] if e["event"] == "exited"}
+    assert {"uav1", "uav2"} <= set(exits), run["events"]
+    assert all(exits[n]["signal"] == "SIGKILL" and "in pool1" in exits[n]["detail"] for n in ("uav1", "uav2"))
+    assert not {"uav3", "uav4"} & set(exits)
+    # the other pool flew on to the end of the mission
+    assert all(json.loads((rd / f"uav{u}.json").read_text())["phase"] in ("mission", "done") for u in (3, 4))
+
+
+def test_a_pool_is_refused_where_it_cannot_run_with_the_field_named(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match="fleet.pool"):
+        load_scenario(MINI, ["fleet.pool=2", "runtime=docker"])
+    chaos = tmp_path / "chaos.yaml"
+    chaos.write_text(MINI.read_text() + "faults:\n  - {kind: kill_uav, uav: 2, at: 5}\n")
+    with pytest.raises(ScenarioError, match=r"faults\.0: kill_uav acts on a UAV's process"):
+        load_scenario(chaos, ["fleet.pool=2"])
+    assert load_scenario(MINI, ["fleet.pool=3"]).fleet.pool == 3  # type: ignore[union-attr]

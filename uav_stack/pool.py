@@ -1,0 +1,228 @@
+"""A pool of virtual UAVs in one process: ``python -m uav_stack.pool --config pool1.json``.
+
+Each pooled UAV is still its own UAV: its own agent (the same code as an isolated virtual UAV's
+or a real UAV's companion), its own id, its own credentials and swarm node (so its own keys in
+the key space, under access control), its own vehicle of the virtual FCU with its own MAVLink
+link and, when asked for, its own ground-station endpoint. What the pool shares is the process:
+one interpreter, one virtual FCU stepping every vehicle together (struct of arrays), one loop,
+and Zenoh's runtime threads. A process per UAV costs an interpreter and its imports each (about
+60 MB and a share of a core's wake-ups); a pool pays them once (docs/scale.md).
+
+The loop runs every UAV's tick at the same instants, in two halves as aligned ticks do
+(:func:`uav_stack.runtime.run_loop`): the FCU's step and every UAV's sense (FCU in, own pose
+out), then, once the poses of the instant have had :data:`ACT_AFTER` of a period to arrive,
+every UAV's act (control, setpoints, reports). A UAV of the pool whose agent raises is logged
+and counted; the others fly on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import selectors
+import sys
+import time
+from typing import TYPE_CHECKING, Annotated
+
+import msgspec
+from msgspec import Meta
+
+from groundfloor.process import die_with_parent, setup_logging
+from groundfloor.schema import Config, ConfigError, decode_json
+from swarmnet.connectivity import lean_zenoh_runtime
+from uav_stack.config import VirtualUavConfig
+from uav_stack.fcu_link import LinkOpenError
+from uav_stack.runtime import (
+    FCU_LEAD_S,
+    StopFlag,
+    VirtualUav,
+    check_signing_key,
+    make_virtual_fcu,
+    next_grid_instant,
+    open_virtual_uav,
+    tick_hz_for,
+)
+
+if TYPE_CHECKING:
+    from uav_stack.fcu import VirtualFcu
+    from uav_stack.sim_faults import SimFaults
+
+log = logging.getLogger(__name__)
+
+ACT_AFTER = 0.3  # of a period after the instant: when the pool acts (its UAVs' poses of the instant are in by then)
+MAX_POOL = 256  # UAVs in one pool process
+
+
+class PoolConfig(Config, frozen=True):
+    """The virtual UAVs of one pool process (what the runner writes, ``pool<N>.json``)."""
+
+    uavs: Annotated[tuple[VirtualUavConfig, ...], Meta(min_length=1, max_length=MAX_POOL)]
+    # stop the process after this long (None: until signalled)
+    duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
+
+    def __post_init__(self) -> None:
+        first = self.uavs[0]
+        ids = [u.agent.uav for u in self.uavs]
+        if len(set(ids)) != len(ids):
+            raise ConfigError("uavs", f"a UAV id twice in one pool: {sorted(ids)}")
+        for i, u in enumerate(self.uavs):
+            for name in ("target_rtf", "physics_hz", "flavour"):
+                if getattr(u, name) != getattr(first, name):
+                    raise ConfigError(f"uavs[{i}].{name}", f"{getattr(u, name)!r}, but {getattr(first, name)!r} for the "
+                                      "pool's first UAV: one virtual FCU steps a pool (one flavour, rate and RTF)")
+
+    def to_json(self) -> str:
+        return msgspec.json.encode(self).decode()
+
+    @classmethod
+    def load(cls, path: str) -> PoolConfig:
+        with open(path, "rb") as f:
+            return decode_json(f.read(), cls)
+
+
+class PooledFcu:
+    """The pool's virtual FCU as its loop drives it, with each vehicle's injected faults: a vehicle
+    whose link is cut loses what its agent sends; the others' datagrams are handled."""
+
+    def __init__(self, fcu: VirtualFcu, faults: list[SimFaults]):
+        self.fcu = fcu
+        self.faults = faults
+
+    def poll_io(self) -> None:
+        cut = [f for f in self.faults if f.cut]
+        if not cut:
+            self.fcu.poll_io()
+            return
+        for f in cut:  # datagrams from the agent are lost on the cut link
+            f.dropped_datagrams += len(f.vehicle.link.recv())
+        self.fcu.poll_io(f.vehicle.link.fileno() for f in self.faults if not f.cut)
+
+    def service(self) -> None:
+        now = time.time()
+        for f in self.faults:
+            f.update(now)
+        self.fcu.service()
+
+
+class Pool:
+    """The UAVs of one pool and the loop that drives them."""
+
+    def __init__(self, uavs: list[VirtualUav], fcu: VirtualFcu):
+        self.uavs = uavs
+        self.fcu = PooledFcu(fcu, [u.faults for u in uavs])
+        self.errors: dict[int, int] = {}  # UAV id -> exceptions its agent raised (logged, counted, never fatal)
+        self._sel = selectors.DefaultSelector()
+        for u in uavs:  # a command or an injected fault wakes the loop, for the UAV it is for
+            self._sel.register(u.agent.node.waker.fileno(), selectors.EVENT_READ, u)
+
+    def run(self, stop: StopFlag, period: float, duration: float | None = None) -> None:
+        """Tick every UAV on the wall clock's grid (``period`` s) until stopped or ``duration`` s pass."""
+        parent = os.getppid()
+        t0 = time.monotonic()
+        end = math.inf if duration is None else t0 + duration
+        next_sense = next_grid_instant(t0, period)
+        next_act = math.inf
+        while not stop.stopped:
+            now_m = time.monotonic()
+            if now_m >= end:
+                break
+            due = min(next_sense, next_act)
+            if due > now_m:
+                self._wait(min(due, end) - now_m)
+                continue
+            if next_act <= next_sense:  # the act of the last instant first, even when late
+                next_act = math.inf
+                self.fcu.poll_io()
+                self._each("act")
+                self.fcu.poll_io()  # the setpoints just sent: applied now
+                continue
+            instant = next_sense
+            next_sense = next_grid_instant(now_m, period)
+            next_act = max(instant, next_sense - period) + ACT_AFTER * period
+            self.fcu.poll_io()
+            self.fcu.service()
+            self._each("sense")
+            self.fcu.poll_io()
+            if os.getppid() != parent:  # re-parented: the launcher is gone
+                break
+
+    def _wait(self, timeout: float) -> None:
+        for key, _ in self._sel.select(timeout):
+            u: VirtualUav = key.data
+            self._guarded(u, "react")
+
+    def _each(self, half: str) -> None:
+        for u in self.uavs:
+            self._guarded(u, half)
+
+    def _guarded(self, u: VirtualUav, what: str) -> None:
+        try:
+            getattr(u.agent, what)(time.time())
+        except Exception:  # noqa: BLE001 - one UAV's failure never takes its pool-mates down
+            n = self.errors[u.agent.uav] = self.errors.get(u.agent.uav, 0) + 1
+            if n == 1 or n % 100 == 0:
+                log.exception("UAV %d: %s failed (%d so far); the pool flies on", u.agent.uav, what, n)
+
+    def close(self) -> None:
+        self._sel.close()
+        for u in self.uavs:
+            try:
+                u.close()
+            except Exception:  # noqa: BLE001 - close the others too
+                log.exception("UAV %d: close failed", u.agent.uav)
+
+
+def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
+    cfgs = list(cfg.uavs)
+    period = 1.0 / max(tick_hz_for(c.agent) for c in cfgs)
+    # the FCU's 10 Hz positions on the ticks' grid, a hair before each instant (as a UAV process's, aligned)
+    fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S)
+    uavs: list[VirtualUav] = []
+    try:
+        for i, c in enumerate(cfgs):
+            if stop.stopped:
+                return 0
+            try:
+                uavs.append(open_virtual_uav(c, fcu, i, stop, tap_zenoh_log=tap_zenoh_log and i == 0))
+            except LinkOpenError as exc:
+                log.error("UAV %d: %s", c.agent.uav, exc)
+                return 2
+        pool = Pool(uavs, fcu)
+        log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))
+        try:
+            pool.run(stop, period, cfg.duration)
+        finally:
+            pool.close()
+            uavs = []
+    finally:
+        for u in uavs:
+            u.close()
+        fcu.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m uav_stack.pool --config pool1.json``: what the process runtime launches for a pool."""
+    ap = argparse.ArgumentParser(prog="python -m uav_stack.pool",
+                                 description="a pool of virtual UAVs in one process: one virtual FCU, an agent each")
+    ap.add_argument("--config", required=True, help="JSON written by the runner (PoolConfig)")
+    ap.add_argument("--log-level", default="INFO")
+    ap.add_argument("--log-file", default=None)
+    args = ap.parse_args(argv)
+    die_with_parent()
+    lean_zenoh_runtime()
+    stop = StopFlag().install()
+    setup_logging(args.log_level, args.log_file)
+    try:
+        cfg = PoolConfig.load(args.config)
+    except (ConfigError, OSError) as exc:
+        ap.error(f"{args.config}: {exc}")
+    for c in cfg.uavs:
+        check_signing_key(c.agent, ap)
+    return run_pool(cfg, stop, tap_zenoh_log=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
