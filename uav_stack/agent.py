@@ -190,11 +190,13 @@ class Agent:
         """The second half of a tick whose halves run apart: the FCU's messages that came
         meanwhile, then what arrived from the swarm, control, setpoints and reports."""
         self.link.poll()
-        self._act(now, self._update_own())
+        have_pos = self._update_own()
+        self._publish_pose(now, have_pos)  # a position that came meanwhile leaves now, not at the next instant
+        self._act(now, have_pos)
 
     def _sense(self, now: float) -> bool:
         """FCU in, pose out; True if the own position is known."""
-        link, node = self.link, self.node
+        link = self.link
         link.poll()
         link.service()
         router = self.router
@@ -206,10 +208,14 @@ class Agent:
         have_pos = self._update_own()
         if self.payload is not None:
             self.payload.poll(now)  # sensor readings that arrived: the behaviour reads the latest
-        st = link.state
-        # Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
-        # anything else, so that its stamp (when the position was read) is its publication time.
-        # No pose while the FCU link is lost: neighbours must see it go stale, not trust an old one.
+        self._publish_pose(now, have_pos)
+        return have_pos
+
+    def _publish_pose(self, now: float, have_pos: bool) -> None:
+        """Publish a pose as soon as a new FCU position arrives (capped at the pose rate), before
+        anything else, so that its stamp (when the position was read) is its publication time.
+        No pose while the FCU link is lost: neighbours must see it go stale, not trust an old one."""
+        st, node = self.link.state, self.node
         if have_pos and st.position_at > self._published_position_at and node.pose_due(now + 0.3 * node.pose_period) \
                 and not self.failsafes.fcu_link_lost:
             self._published_position_at = st.position_at
@@ -221,7 +227,6 @@ class Agent:
                 )
             except ValueError as exc:  # a pose the wire cannot hold (far from the swarm's origin): skipped, never fatal
                 self._unencodable(exc)
-        return have_pos
 
     def _unencodable(self, exc: ValueError) -> None:
         n = self.counters["pose_unencodable"] = self.counters["pose_unencodable"] + 1
