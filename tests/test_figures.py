@@ -16,12 +16,12 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.colors import to_rgb  # noqa: E402
 
-from mrswarm.analysis import analyse_run  # noqa: E402
-from mrswarm.plots import PALETTE, plot_pose_age, pose_age_figure, run_figure  # noqa: E402
+from mrswarm.records.summary import RunInfo  # noqa: E402
+from mrswarm.results.analysis import analyse_run  # noqa: E402
+from mrswarm.results.plots import PALETTE, plot_pose_age, pose_age_figure, run_figure  # noqa: E402
+from mrswarm.results.world_plots import world_figure  # noqa: E402
+from mrswarm.results.world_report import WorldData  # noqa: E402
 from mrswarm.scenario import load_scenario  # noqa: E402
-from mrswarm.summary import RunInfo  # noqa: E402
-from mrswarm.world_plots import world_figure  # noqa: E402
-from mrswarm.world_report import WorldData  # noqa: E402
 from tests.test_results import ROOT, T0, record  # noqa: E402
 from uav_stack.phases import AgentPhase  # noqa: E402
 
@@ -111,7 +111,7 @@ def test_a_map_much_wider_than_tall_goes_above_its_plot(tmp_path: Path) -> None:
 
 
 def test_pose_age_ends_with_the_mission_not_with_the_shutdown(tmp_path: Path) -> None:
-    from mrswarm.netem_report import pose_age_report
+    from mrswarm.results.netem_report import pose_age_report
 
     run_dir = tmp_path / "run"
     run_dir.mkdir()

@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from mrswarm.live import LiveMetrics
+from mrswarm.run.live import LiveMetrics
 from mrswarm.scenario import load_scenario
 from swarmnet.messages import Pose, Realm
 from swarmnet.observer import UavView

@@ -1,4 +1,4 @@
-"""The numbers of a run: from the files in a run folder to a :class:`~mrswarm.summary.RunSummary`.
+"""The numbers of a run: from the files in a run folder to a :class:`~mrswarm.records.summary.RunSummary`.
 
 Inputs, written by the UAVs while flying (uav_stack/recorder.py): ``uav<N>.csv`` trajectories
 (wall and simulated time, FCU position in the swarm frame, agent phase, RTF) and ``uav<N>.json``
@@ -8,7 +8,7 @@ Every UAV recorded counts, whether the scenario lists it or not. Separation and 
 flight-controller positions, not from the poses they exchanged, so network impairments cannot
 hide a collision. Positions are resampled on a common 10 Hz grid of wall time.
 
-No plotting here (mrswarm/plots.py draws the figures from :class:`RunData`), so the numbers can
+No plotting here (mrswarm/results/plots.py draws the figures from :class:`RunData`), so the numbers can
 be computed where matplotlib is not installed or fails.
 """
 
@@ -24,13 +24,7 @@ from typing import Any
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.degraded import degraded_reasons, recording_report
-from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
-from mrswarm.incidents import find_incidents, safety_incident
-from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
-from mrswarm.scenario import Scenario
-from mrswarm.stalls import stalls
-from mrswarm.summary import (
+from mrswarm.records.summary import (
     CollisionPair,
     Coverage,
     Encounter,
@@ -48,7 +42,12 @@ from mrswarm.summary import (
     Separation,
     Takeoff,
 )
-from mrswarm.world_report import WorldData, world_report
+from mrswarm.results.degraded import degraded_reasons, recording_report
+from mrswarm.results.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages, stalls
+from mrswarm.results.incidents import find_incidents, safety_incident
+from mrswarm.results.netem_report import PoseAgeSeries, netem_report, pose_age_report
+from mrswarm.results.world_report import WorldData, world_report
+from mrswarm.scenario import Scenario
 from uav_stack.phases import WORKING
 from uav_stack.recorder import links_file_name
 
@@ -125,7 +124,7 @@ class RunData:
     coverage: CoverageMap | None
     pose_age: PoseAgeSeries | None
     links: list[LinkAge]  # transport age per link, for transport_links.csv
-    world: WorldData | None = None  # scenarios with a world section (mrswarm/world_report.py)
+    world: WorldData | None = None  # scenarios with a world section (mrswarm/results/world_report.py)
 
 
 def load_tracks(run_dir: Path) -> dict[int, Track]:

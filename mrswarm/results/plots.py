@@ -1,4 +1,4 @@
-"""The figures of a run folder, drawn from what mrswarm/analysis.py computed (matplotlib, Agg backend).
+"""The figures of a run folder, drawn from what mrswarm/results/analysis.py computed (matplotlib, Agg backend).
 
 - ``<scenario>.png``: the map (the mission area, the covered cells by the time of their first
   visit, every UAV's trajectory from its start, the goals) and, beside or below it, the minimum
@@ -7,7 +7,7 @@
 - ``pose_age.png``: transport age, age at use and age of information per second of the mission,
   per UAV and their median, with each netem change marked.
 
-Shared by both, and by mrswarm/world_plots.py: a palette that keeps 20 UAVs apart
+Shared by both, and by mrswarm/results/world_plots.py: a palette that keeps 20 UAVs apart
 (:func:`uav_colors`), legends outside the data (:func:`legend_below`), a layout fitted to the
 map's shape (:func:`map_and_time`), axes that end where the mission did.
 """
@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.analysis import RunData
-from mrswarm.netem_report import PoseAgeSeries
+from mrswarm.records.summary import NetemChange
+from mrswarm.results.analysis import RunData
+from mrswarm.results.netem_report import PoseAgeSeries
 from mrswarm.scenario import Scenario
-from mrswarm.summary import NetemChange
 
 DPI = 100  # a 13 x 6.5 in figure is 1300 x 650 px: sharp on a page, small on disk
 # Twenty colours that stay apart on white and on the light grey of the covered cells: matplotlib's tab10,

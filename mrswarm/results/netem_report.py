@@ -1,4 +1,4 @@
-"""The netem shim's statistics and the pose age over time, for summary.json (the plot: mrswarm/plots.py).
+"""The netem shim's statistics and the pose age over time, for summary.json (the plot: mrswarm/results/plots.py).
 
 Inputs are what every UAV writes while flying: the ``netem`` section of ``uav<N>.json``
 (per-link counters and delay histograms, the history of configuration changes) and
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
+from mrswarm.records.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
 
 _COUNTERS = ("sent", "delivered", "duplicated", "reordered", "jumps")
 

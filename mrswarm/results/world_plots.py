@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.analysis import RunData
-from mrswarm.plots import (
+from mrswarm.results.analysis import RunData
+from mrswarm.results.plots import (
     DPI,
     MAX_LEGEND,
     _pyplot,

@@ -1,9 +1,9 @@
-"""The numbers of a world scenario (docs/world.md): from the run folder to :class:`~mrswarm.world_summary.WorldSummary`.
+"""The numbers of a world scenario (docs/world.md): from the run folder to :class:`~mrswarm.records.world_summary.WorldSummary`.
 
 Inputs: what the world service recorded (world/record.py: ``world.json``, ``world_fire.csv``,
 ``world_fire.npz``, ``world_estimates.csv``, ``world_actuations.csv``), the UAVs' counters
 (``uav<N>.json``: their sensors, their neighbours, the airspace feed) and their trajectories as
-resampled by mrswarm/analysis.py. Zones and separation between swarms come from the UAVs' own
+resampled by mrswarm/results/analysis.py. Zones and separation between swarms come from the UAVs' own
 flight-controller positions, like every separation of the analysis.
 """
 
@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.scenario import Scenario
-from mrswarm.world_summary import (
+from mrswarm.records.world_summary import (
     AirspaceReport,
     FireReport,
     PlumeReport,
@@ -29,8 +28,9 @@ from mrswarm.world_summary import (
     WorldSummary,
     ZoneReport,
 )
+from mrswarm.scenario import Scenario
 
-AIRBORNE_Z = 1.0  # m, as in mrswarm/analysis.py
+AIRBORNE_Z = 1.0  # m, as in mrswarm/results/analysis.py
 
 
 @dataclass

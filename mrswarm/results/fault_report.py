@@ -1,8 +1,8 @@
-"""The resilience part of summary.json: lost UAVs, service outages, the per-fault table, failsafes, recording errors.
+"""The resilience part of summary.json: lost UAVs, service outages, the per-fault table, failsafes, recording errors, stalls.
 
 Inputs are the run folder's records only (so ``mrswarm results`` rebuilds them, even for a run
 whose runner was killed): ``run.json`` (process events and the fault schedule with the times
-the runner saw each symptom and recovery, mrswarm/faults.py), the UAVs' ``uav<N>.json``
+the runner saw each symptom and recovery, mrswarm/run/chaos.py), the UAVs' ``uav<N>.json``
 (failsafe events, recording errors), ``age_uav<N>.csv`` (age of information, for network
 faults) and the trajectories. How each column is measured is in docs/reliability.md.
 """
@@ -17,9 +17,19 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.faults import NETWORK, STALE_S
-from mrswarm.summary import FailsafeEvent, FaultRecord, FaultReport, LostUav, RecordErrors, RunInfo, ServiceOutage
-from mrswarm.supervisor import SERVICES, uav_of
+from mrswarm.records.summary import (
+    SERVICES,
+    FailsafeEvent,
+    FaultRecord,
+    FaultReport,
+    LostUav,
+    RecordErrors,
+    RunInfo,
+    ServiceOutage,
+    Stall,
+    uav_of,
+)
+from mrswarm.scenario.faults import NETWORK, STALE_S
 
 AFTER_FAULT_S = 30.0  # collisions are attributed to a fault until it recovered, or this long after it ended
 
@@ -173,3 +183,13 @@ def fault_table(info: RunInfo, t0: float, t_end: float, run_dir: Path, onsets: l
             recovery_s=round(recovered - rec.injected, 2) if recovered is not None else None,
             collisions=collisions, coverage_lost=lost, detail=rec.detail[:200]))
     return rows
+
+
+def stalls(info: RunInfo, t0: float) -> list[Stall]:
+    """The run's stalls, from run.json's events."""
+    out = []
+    for ev in info.events:
+        uav = uav_of(ev.name)
+        if ev.event == "stalled" and uav is not None and ev.duration_s is not None:
+            out.append(Stall(uav=uav, from_s=round(ev.t - t0, 2), duration_s=ev.duration_s))
+    return sorted(out, key=lambda s: (s.from_s, s.uav))

@@ -2,7 +2,7 @@
 
 The live coverage and separation are estimates from the poses the runner receives over the
 network (they can miss poses); the numbers of record come afterwards from the UAVs' own
-trajectories (mrswarm/analysis.py).
+trajectories (mrswarm/results/analysis.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from enum import Enum
 
 import numpy as np
 
-from mrswarm.analysis import CELL_CHUNK
+from mrswarm.results.analysis import CELL_CHUNK
 from mrswarm.scenario import Scenario
 from swarmnet.messages import Pose
 from swarmnet.observer import SwarmObserver
@@ -73,7 +73,7 @@ class LiveMetrics:
         m = self.scenario.mission
         if m.type == "coverage" and m.area is not None:
             x0, x1, y0, y1 = m.area.as_tuple()
-            c = max(m.sensor_radius / 2.0, 0.5)  # the analysis' cell size (mrswarm/analysis.py)
+            c = max(m.sensor_radius / 2.0, 0.5)  # the analysis' cell size (mrswarm/results/analysis.py)
             xs, ys = np.arange(x0 + c / 2, x1, c), np.arange(y0 + c / 2, y1, c)
             gx, gy = np.meshgrid(xs, ys)
             self.cells = np.stack([gx.ravel(), gy.ravel()], axis=1)
@@ -87,7 +87,7 @@ class LiveMetrics:
         pts = [(p.x, p.y) for p in fresh if (v := obs.uavs.get(p.uav)) and v.state and v.state.phase in WORKING]
         if pts:
             a = np.array(pts)
-            step = max(1, CELL_CHUNK // len(a))  # bounded memory, however many cells (mrswarm/analysis.py)
+            step = max(1, CELL_CHUNK // len(a))  # bounded memory, however many cells (mrswarm/results/analysis.py)
             for c0 in range(0, len(self.cells), step):
                 d2 = ((self.cells[c0:c0 + step, None, :] - a[None, :, :]) ** 2).sum(axis=2).min(axis=1)
                 self.covered[c0:c0 + step] |= d2 <= r2
