@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from mrswarm.records.summary import Incident
+from mrswarm.results.run_data import AIRBORNE_Z
 
-AIRBORNE_Z = 1.0  # m above the UAV's ground (find_incidents)
 GROUND_Z = 0.3  # m above the UAV's ground: on the ground
 DESCENT_MS = 4.0  # m/s
 IMPACT_MS = 2.0  # m/s

@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 
 from mrswarm.records.summary import NetemChange
-from mrswarm.results.analysis import RunData
-from mrswarm.results.netem_report import PoseAgeSeries
+from mrswarm.results.run_data import PoseAgeSeries, RunData
 from mrswarm.scenario import Scenario
 
 DPI = 100  # a 13 x 6.5 in figure is 1300 x 650 px: sharp on a page, small on disk
@@ -196,12 +195,11 @@ def run_figure(scenario: Scenario, data: RunData) -> Any:
     goals = [(u.id, u.goal) for u in scenario.all_uavs() if u.goal is not None]
     for k, (_, g) in enumerate(goals):
         ax.plot(*g, "x", color="k", ms=9, mew=2, zorder=7, label="goal" if k == 0 else None)
-    min_sep = data.min_separation
-    if len(ids) == 2 and np.isfinite(min_sep).any():  # closest approach of a head-on encounter
-        k = int(np.nanargmin(np.where(np.isfinite(min_sep), min_sep, np.nan)))
-        ax.plot(data.pos[:, k, 0], data.pos[:, k, 1], "k:", lw=1, zorder=7)
-        ax.plot(data.pos[:, k, 0].mean(), data.pos[:, k, 1].mean(), "*", color="tab:red", ms=13, zorder=8,
-                label=f"closest, {min_sep[k]:.1f} m")
+    c = data.closest
+    if len(ids) == 2 and c is not None:  # closest approach of a head-on encounter
+        ax.plot(data.pos[:, c, 0], data.pos[:, c, 1], "k:", lw=1, zorder=7)
+        ax.plot(data.pos[:, c, 0].mean(), data.pos[:, c, 1].mean(), "*", color="tab:red", ms=13, zorder=8,
+                label=f"closest, {data.min_separation[c]:.1f} m")
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect("equal")

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.results.analysis import RunData
 from mrswarm.results.plots import (
     DPI,
     MAX_LEGEND,
@@ -31,6 +30,7 @@ from mrswarm.results.plots import (
     separation_over_time,
     uav_colors,
 )
+from mrswarm.results.run_data import RunData
 from mrswarm.scenario import Scenario
 from world.config import ConePlume, GaussianPlume
 from world.fire import BURNING, BURNT, EXTINGUISHED

@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,21 +27,8 @@ from mrswarm.records.world_summary import (
     WorldSummary,
     ZoneReport,
 )
+from mrswarm.results.run_data import AIRBORNE_Z, WorldData
 from mrswarm.scenario import Scenario
-
-AIRBORNE_Z = 1.0  # m, as in mrswarm/results/analysis.py
-
-
-@dataclass
-class WorldData:
-    """What the world figure needs besides the trajectories."""
-
-    fire_grid: dict[str, np.ndarray] | None = None  # world_fire.npz
-    fire_curve: np.ndarray | None = None  # (n, 3): s, burnt area m^2, cells burning
-    estimates: dict[int, np.ndarray] = field(default_factory=dict)  # UAV -> (n, 3): s, x, y
-    error_curve: np.ndarray | None = None  # (n, 3): s, median m, best m
-    cross_separation: np.ndarray | None = None  # m per grid step, between swarms
-    sprays: np.ndarray | None = None  # (n, 2): x, y of every spray that released something
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
