@@ -25,18 +25,21 @@ def is_measured(path: Path) -> bool:
     return path.relative_to(ROOT).parts[:2] != ("benchmarks", "results")
 
 
-def imported_packages(path: Path) -> list[tuple[int, str]]:
-    """(line, top-level package) of every absolute import in a file that names one of our packages."""
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of every absolute import in a file: ``from mrswarm import cli`` names ``mrswarm.cli``."""
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
+            out += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module]
-        else:
-            continue
-        out += [(node.lineno, n.split(".")[0]) for n in names if n.split(".")[0] in RANK]
+            out += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
     return out
+
+
+def imported_packages(path: Path) -> list[tuple[int, str]]:
+    """(line, top-level package) of every absolute import in a file that names one of our packages."""
+    found = dict.fromkeys((line, name.split(".")[0]) for line, name in imported_modules(path))
+    return [(line, pkg) for line, pkg in found if pkg in RANK]
 
 
 def package_imports() -> dict[str, dict[str, list[str]]]:
@@ -80,17 +83,9 @@ def test_the_checker_sees_an_upward_import(tmp_path: Path) -> None:
 
 
 def room_imports(path: Path) -> list[tuple[int, str]]:
-    """(line, room) of every import of a file under mrswarm/ that names one of mrswarm's rooms."""
-    out = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module] if node.module != "mrswarm" else [f"mrswarm.{a.name}" for a in node.names]
-        else:
-            continue
-        out += [(node.lineno, n.split(".")[1]) for n in names if n.startswith("mrswarm.") and n.split(".")[1] in ROOM_RANK]
-    return out
+    """(line, room) of every import of a file that names one of mrswarm's rooms."""
+    found = dict.fromkeys((line, name.split(".")[1]) for line, name in imported_modules(path) if name.startswith("mrswarm."))
+    return [(line, room) for line, room in found if room in ROOM_RANK]
 
 
 def test_every_file_of_mrswarm_is_in_a_room() -> None:

@@ -41,6 +41,14 @@ def _pyplot() -> Any:
     return plt
 
 
+def save_figure(fig: Any, path: Path) -> None:
+    """Write a figure (PNG) and free it, also when the disk refuses it."""
+    try:
+        fig.savefig(path, dpi=DPI)
+    finally:
+        _pyplot().close(fig)
+
+
 def uav_colors(n: int) -> list[str]:
     """One colour per UAV: 20 distinct ones, then the same again."""
     return [PALETTE[k % len(PALETTE)] for k in range(n)]
@@ -161,10 +169,7 @@ def separation_over_time(ax: Any, scenario: Scenario, data: RunData, series: np.
 
 def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
     """The map and the separation/coverage over time -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = run_figure(scenario, data)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(run_figure(scenario, data), path)
 
 
 def run_figure(scenario: Scenario, data: RunData) -> Any:
@@ -225,10 +230,7 @@ def run_figure(scenario: Scenario, data: RunData) -> Any:
 
 def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> None:
     """Transport age and age at use (top) and age of information (bottom) per second of the mission -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = pose_age_figure(age, changes, t_end)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(pose_age_figure(age, changes, t_end), path)
 
 
 def pose_age_figure(age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> Any:

@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from mrswarm.results.plots import (
-    DPI,
     MAX_LEGEND,
     _pyplot,
     draw_area,
@@ -27,6 +26,7 @@ from mrswarm.results.plots import (
     legend_below,
     map_and_time,
     map_extent,
+    save_figure,
     separation_over_time,
     uav_colors,
 )
@@ -88,10 +88,7 @@ def _plume_layer(ax: Any, scn: Scenario, extent: tuple[float, float, float, floa
 
 def plot_world(path: Path, scn: Scenario, data: RunData) -> None:
     """The world map with the trajectories and the world's outcome over time -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = world_figure(scn, data)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(world_figure(scn, data), path)
 
 
 def world_figure(scn: Scenario, data: RunData) -> Any:
