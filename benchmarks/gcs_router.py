@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import Sampler, scenario_for  # noqa: E402
-from mrswarm.experiment import Experiment  # noqa: E402
+from mrswarm.run.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Gcs  # noqa: E402
 
 

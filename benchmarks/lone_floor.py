@@ -80,7 +80,7 @@ from benchmarks.output import write_results  # noqa: E402
 from deploy.process_runtime import wait_file  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
 from discovery.options import FeedOptions  # noqa: E402
-from mrswarm.run_keys import throwaway_keys  # noqa: E402
+from mrswarm.run.keys import throwaway_keys  # noqa: E402
 from swarmnet.feed import DEFAULT_WINDOW  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
 from swarmnet.messages import Pose, Realm, Rejected, accept_batched_pose, accept_pose_batch, encode_pose  # noqa: E402

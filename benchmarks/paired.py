@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.commits import checkout, remove  # noqa: E402
 from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import CONFIGS, Sampler, scenario_for  # noqa: E402
-from mrswarm.experiment import Experiment  # noqa: E402
+from mrswarm.run.experiment import Experiment  # noqa: E402
 from uav_stack.tick_meter import threads_cpu_ns  # noqa: E402
 
 

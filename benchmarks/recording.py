@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.output import write_results  # noqa: E402
 from benchmarks.scale import scenario_for  # noqa: E402
-from mrswarm.experiment import Experiment  # noqa: E402
 from mrswarm.recorder.reader import Recording, read_recording  # noqa: E402
+from mrswarm.run.experiment import Experiment  # noqa: E402
 
 
 class RecorderProbe:

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.output import write_results  # noqa: E402
-from mrswarm.experiment import Experiment  # noqa: E402
+from mrswarm.run.experiment import Experiment  # noqa: E402
 from mrswarm.scenario import Scenario, parse_scenario  # noqa: E402
 
 # name -> (network.connectivity, network.mode, network.pose_feed); None: the scenario leaves it unset
@@ -206,7 +206,7 @@ def pose_traffic(run: Path, n: int, radius: float) -> dict[str, Any]:
     sent) to what arrived, and the mean number of others within ``radius`` (sampled once a second)."""
     import numpy as np
 
-    from mrswarm.analysis import load_stats, load_tracks, resample
+    from mrswarm.results.analysis import load_stats, load_tracks, resample
 
     stats = load_stats(run)
     rates = [s["net"]["received"].get("pose", 0) / max(1e-3, s["written_at"] - s["started_at"])
@@ -243,7 +243,7 @@ def pose_instants(run: Path, n: int) -> dict[str, Any]:
     import numpy as np
     from mcap.reader import make_reader
 
-    from mrswarm.analysis import load_stats
+    from mrswarm.results.analysis import load_stats
     from uav_stack.config import AgentConfig
 
     period = 1.0 / next(f.default for f in msgspec.structs.fields(AgentConfig) if f.name == "pose_rate_hz")

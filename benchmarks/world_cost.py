@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from deploy.process_runtime import wait_file  # noqa: E402
 from discovery.netutil import free_port, wait_tcp  # noqa: E402
-from mrswarm.run_keys import throwaway_keys  # noqa: E402
+from mrswarm.run.keys import throwaway_keys  # noqa: E402
 from swarmnet.connectivity import Rendezvous, to_zenoh  # noqa: E402
 from swarmnet.keyspace import SwarmKeys  # noqa: E402
 from swarmnet.messages import Pose, Realm, decode_reading, encode_pose  # noqa: E402

@@ -76,7 +76,7 @@ class Fleet:
     """What a stack runs: the swarm's network plan placed in containers (``deploy/plan.py``) and one
     config per UAV replica.
 
-    Built from a scenario by ``mrswarm deploy swarm up`` (``mrswarm/deploy_cli.py``); the UAVs
+    Built from a scenario by ``mrswarm deploy swarm up`` (``mrswarm/cli/deploy.py``); the UAVs
     reach the services by their DNS names, so ``network.uav_network`` was called with those.
     """
 

@@ -134,7 +134,7 @@ def test_fcu_connection_strings() -> None:
 def test_the_folders_a_field_user_names_are_made(tmp_path: Path) -> None:
     """The key directory and a UAV's bundle (``mrswarm keys``), and the agent's log file, each in folders that do
     not exist yet."""
-    from mrswarm.keys_cli import main as keys_main
+    from mrswarm.cli.keys import main as keys_main
 
     kd = tmp_path / "lab" / "keys" / "alpha"
     assert keys_main(["init", "--swarm", "alpha", "--dir", str(kd)]) == 0

@@ -50,7 +50,7 @@ def test_a_node_runs_commands_in_its_namespaces_against_its_own_engine(monkeypat
 def test_an_edge_per_server_is_pinned_there_linked_to_the_managers_and_secured_like_it(tmp_path: Path) -> None:
     from deploy.plan import edge_service
     from deploy.swarm import StackOptions, stack_spec
-    from mrswarm.deploy_cli import swarm_fleet
+    from mrswarm.cli.deploy import swarm_fleet
     from mrswarm.scenario import load_scenario
 
     fleet = swarm_fleet(load_scenario(ROOT / "scenarios/coverage.yaml", []), 6)

@@ -14,7 +14,7 @@ from deploy.images import image_tag
 from deploy.plan import CONTAINERS, NetworkPlan, SwarmPlan
 from deploy.swarm import StackOptions, stack_spec, write_stack
 from deploy.swarm_uav import SlotError, endpoint_host, load_fleet, pick
-from mrswarm.deploy_cli import swarm_fleet
+from mrswarm.cli.deploy import swarm_fleet
 from mrswarm.scenario import ScenarioError, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

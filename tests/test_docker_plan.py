@@ -9,7 +9,7 @@ import pytest
 
 from deploy.docker_runtime import DockerRuntime
 from deploy.process_runtime import ProcessRuntime
-from mrswarm.run_keys import run_identities, throwaway_keys
+from mrswarm.run.keys import run_identities, throwaway_keys
 from mrswarm.scenario import load_scenario
 from tests.conftest import wait_for
 from tests.docker_support import docker_image, no_leftovers  # noqa: F401

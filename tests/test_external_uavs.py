@@ -32,9 +32,9 @@ from mrswarm.recorder.capture import Sample
 from mrswarm.recorder.export import export_jsonl
 from mrswarm.recorder.mcap_writer import McapWriter
 from mrswarm.recorder.records import Translator
-from mrswarm.results import rebuild_results
+from mrswarm.records.summary import RunInfo
+from mrswarm.results.summarise import rebuild_results
 from mrswarm.scenario import ScenarioError, load_scenario
-from mrswarm.summary import RunInfo
 from swarmnet.messages import AgentState, Pose, Realm, encode_pose, encode_state
 from tests.conftest import free_port, wait_for
 from tests.run_helpers import BackgroundRun

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from mrswarm.faults import INJECTED, NETWORK, SERVICE, UAV_PROCESS, plan
 from mrswarm.scenario import ScenarioError, load_scenario
+from mrswarm.scenario.faults import INJECTED, NETWORK, SERVICE, UAV_PROCESS, plan
 from uav_stack.config import NetworkConfig
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,12 +16,12 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.colors import to_rgb  # noqa: E402
 
-from mrswarm.analysis import analyse_run  # noqa: E402
-from mrswarm.plots import PALETTE, plot_pose_age, pose_age_figure, run_figure  # noqa: E402
+from mrswarm.records.summary import RunInfo  # noqa: E402
+from mrswarm.results.analysis import analyse_run  # noqa: E402
+from mrswarm.results.plots import PALETTE, plot_pose_age, pose_age_figure, run_figure  # noqa: E402
+from mrswarm.results.run_data import WorldData  # noqa: E402
+from mrswarm.results.world_plots import world_figure  # noqa: E402
 from mrswarm.scenario import load_scenario  # noqa: E402
-from mrswarm.summary import RunInfo  # noqa: E402
-from mrswarm.world_plots import world_figure  # noqa: E402
-from mrswarm.world_report import WorldData  # noqa: E402
 from tests.test_results import ROOT, T0, record  # noqa: E402
 from uav_stack.phases import AgentPhase  # noqa: E402
 
@@ -111,7 +111,8 @@ def test_a_map_much_wider_than_tall_goes_above_its_plot(tmp_path: Path) -> None:
 
 
 def test_pose_age_ends_with_the_mission_not_with_the_shutdown(tmp_path: Path) -> None:
-    from mrswarm.netem_report import pose_age_report
+    from mrswarm.results.analysis import load_ages
+    from mrswarm.results.netem_report import pose_age_report
 
     run_dir = tmp_path / "run"
     run_dir.mkdir()
@@ -121,7 +122,7 @@ def test_pose_age_ends_with_the_mission_not_with_the_shutdown(tmp_path: Path) ->
         aoi = 100.0 if s == 40 else 10.0
         rows.append(f"{T0 + s},{4.0},{4.5},{5.0},{aoi},{aoi * 1.5}")
     (run_dir / "age_uav1.csv").write_text("\n".join(rows) + "\n")
-    got = pose_age_report(run_dir, T0, T0 + 39.5)
+    got = pose_age_report(load_ages(run_dir), T0, T0 + 39.5)
     assert got is not None
     _, series = got
     plot_pose_age(tmp_path / "pose_age.png", series, [], 39.5)

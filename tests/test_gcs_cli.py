@@ -13,8 +13,9 @@ import pytest
 
 from mrswarm.gcs.commands import confirm_kill, goto_args
 from mrswarm.gcs.record import Recorder, plot_recording, read_recording
-from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+from mrswarm.gcs.session import GcsError, parse_ids, resolve_target
 from mrswarm.gcs.watch import Filter, Row, fit_columns, sort_rows, split_keys
+from mrswarm.results.wording import format_ids
 from mrswarm.scenario import ScenarioError, load_scenario
 from swarmnet.messages import AgentState, Pose, Realm, Telemetry
 
@@ -281,7 +282,7 @@ def test_watch_says_when_the_run_it_watches_has_ended(tmp_path: Path) -> None:
     from rich.console import Console
 
     from mrswarm.gcs.watch import WatchView
-    from mrswarm.summary import RunInfo
+    from mrswarm.records.summary import RunInfo
     from swarmnet.connectivity import Rendezvous
     from swarmnet.observer import SwarmObserver
 

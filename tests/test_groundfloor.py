@@ -30,7 +30,7 @@ from tests.test_layers import LAYERS, ROOT
 
 BUILTIN_ERRORS = {"Exception", "ValueError", "RuntimeError", "OSError", "TimeoutError", "KeyError", "TypeError",
                   "LookupError", "ConnectionError", "IOError"}
-NOT_ERRORS = {"Interrupted"}  # mrswarm.signals: a stop request, which an `except MrswarmError` must not swallow
+NOT_ERRORS = {"Interrupted"}  # mrswarm.run.signals: a stop request, which an `except MrswarmError` must not swallow
 
 
 def exception_classes(root: Path = ROOT, packages: tuple[str, ...] = LAYERS) -> dict[str, tuple[str, set[str]]]:

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mrswarm.incidents import find_incidents
-from mrswarm.results import rebuild_results
-from mrswarm.summary import FaultRecord, ProcessEvent, RunInfo
+from mrswarm.records.summary import FaultRecord, ProcessEvent, RunInfo
+from mrswarm.results.incidents import find_incidents
+from mrswarm.results.summarise import rebuild_results
 from uav_stack.recorder import TrajectoryRecorder
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from groundfloor import strict_yaml
-from mrswarm.resources import check_resources, estimate
+from mrswarm.run.resources import check_resources, estimate
 from mrswarm.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

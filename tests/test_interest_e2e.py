@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from mrswarm.analysis import load_stats, load_tracks, resample
-from mrswarm.experiment import Experiment
+from mrswarm.results.analysis import load_stats, load_tracks, resample
+from mrswarm.run.experiment import Experiment
 from mrswarm.scenario import parse_scenario
 
 N = 50

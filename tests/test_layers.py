@@ -15,29 +15,38 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("groundfloor", "swarmnet", "discovery", "uav_stack", "world", "deploy", "mrswarm", "benchmarks")
 RANK = {name: i for i, name in enumerate(LAYERS)}
+# mrswarm's own rooms, bottom to top (docs/architecture.md): a room imports from itself or a lower one.
+ROOMS = ("scenario", "records", "recorder", "results", "run", "gcs", "sweep", "cli")
+ROOM_RANK = {name: i for i, name in enumerate(ROOMS)}
+
+
+def is_measured(path: Path) -> bool:
+    """Our source, not a benchmark's committed results."""
+    return path.relative_to(ROOT).parts[:2] != ("benchmarks", "results")
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of every absolute import in a file: ``from mrswarm import cli`` names ``mrswarm.cli``."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+    return out
 
 
 def imported_packages(path: Path) -> list[tuple[int, str]]:
     """(line, top-level package) of every absolute import in a file that names one of our packages."""
-    out = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module]
-        else:
-            continue
-        out += [(node.lineno, n.split(".")[0]) for n in names if n.split(".")[0] in RANK]
-    return out
+    found = dict.fromkeys((line, name.split(".")[0]) for line, name in imported_modules(path))
+    return [(line, pkg) for line, pkg in found if pkg in RANK]
 
 
 def package_imports() -> dict[str, dict[str, list[str]]]:
     """importer package -> imported package -> where (``file:line``)."""
     graph: dict[str, dict[str, list[str]]] = {p: {} for p in LAYERS}
     for pkg in LAYERS:
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            if "results" in path.relative_to(ROOT).parts:
-                continue
+        for path in sorted(p for p in (ROOT / pkg).rglob("*.py") if is_measured(p)):
             for line, dep in imported_packages(path):
                 if dep != pkg:
                     graph[pkg].setdefault(dep, []).append(f"{path.relative_to(ROOT)}:{line}")
@@ -73,6 +82,36 @@ def test_the_checker_sees_an_upward_import(tmp_path: Path) -> None:
     assert imported_packages(bad) == [(2, "mrswarm"), (3, "uav_stack")]
 
 
+def room_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, room) of every import of a file that names one of mrswarm's rooms."""
+    found = dict.fromkeys((line, name.split(".")[1]) for line, name in imported_modules(path) if name.startswith("mrswarm."))
+    return [(line, room) for line, room in found if room in ROOM_RANK]
+
+
+def test_every_room_of_mrswarm_has_its_place_in_the_order() -> None:
+    """A new sub-package of mrswarm is placed in ROOMS (and docs/architecture.md), not left out of the check."""
+    rooms = sorted(p.name for p in (ROOT / "mrswarm").iterdir() if (p / "__init__.py").is_file())
+    assert rooms == sorted(ROOMS), f"rooms: {rooms}; in the order: {sorted(ROOMS)}"
+
+
+def test_no_import_points_up_a_room_of_mrswarm() -> None:
+    """results never imports run or cli, run never imports cli, the records and the scenario import no room above."""
+    upward = []
+    for path in sorted((ROOT / "mrswarm").rglob("*.py")):
+        parts = path.relative_to(ROOT / "mrswarm").parts
+        if len(parts) == 1:  # the package's face (__init__.py, __main__.py, a public entry point) may use every room
+            continue
+        upward += [f"{path.relative_to(ROOT)}:{line} imports mrswarm.{room} ({parts[0]} is below it)"
+                   for line, room in room_imports(path) if ROOM_RANK[room] > ROOM_RANK[parts[0]]]
+    assert not upward, "imports that point up a room:\n" + "\n".join(upward)
+
+
+def test_the_checker_sees_an_upward_room_import(tmp_path: Path) -> None:
+    bad = tmp_path / "m.py"
+    bad.write_text("def f():\n    from mrswarm.run.experiment import Experiment\n    from mrswarm import cli\n")
+    assert room_imports(bad) == [(2, "run"), (3, "cli")]
+
+
 def module_name(path: Path, root: Path = ROOT) -> str:
     parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
@@ -83,7 +122,7 @@ def module_imports(root: Path, packages: tuple[str, ...]) -> dict[str, set[str]]
     such as ``TYPE_CHECKING``, is left out, and one inside a function runs later and closes no circle).
     ``from pkg import sub`` is an import of ``pkg.sub``."""
     paths = {module_name(p, root): p for pkg in packages for p in sorted((root / pkg).rglob("*.py"))
-             if "results" not in p.relative_to(root).parts}  # fmt: skip
+             if p.relative_to(root).parts[:2] != ("benchmarks", "results")}  # fmt: skip
     graph: dict[str, set[str]] = {}
     for mod, path in paths.items():
         deps: set[str] = set()

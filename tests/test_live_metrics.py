@@ -1,4 +1,5 @@
-"""The runner's live separation: poses of different instants compared at one time."""
+"""The runner's live estimates: separation from poses of different instants compared at one time, and coverage by
+the analysis' own rule."""
 
 from __future__ import annotations
 
@@ -6,12 +7,15 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
-from mrswarm.live import LiveMetrics
+from mrswarm.results.coverage import coverage
+from mrswarm.run.live import LiveMetrics
 from mrswarm.scenario import load_scenario
 from swarmnet.messages import Pose, Realm
 from swarmnet.observer import UavView
+from uav_stack.phases import AgentPhase
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,3 +50,19 @@ def test_a_uav_gone_quiet_is_left_out_not_carried_on() -> None:
     dead = pose(3, 95.0, x=1.0, vx=4.0)  # 1 m from UAV 1 when last heard; carried on, 21 m
     metrics.update_separation(observer(a, b, dead))
     assert metrics.min_sep_now == pytest.approx(20.0)
+
+
+def test_the_live_coverage_is_what_the_analysis_finds_for_the_same_positions() -> None:
+    """Every pose of a working UAV received: the live estimate shows the coverage its summary will report
+    (the same cells, the same sensor radius), not a number of its own."""
+    scn = load_scenario(ROOT / "scenarios" / "coverage.yaml")
+    metrics = LiveMetrics(scn)
+    path = [(-95.0, -75.0), (-60.0, -40.0), (0.0, 0.0), (3.0, 2.0), (40.0, 30.0), (99.0, 79.0)]
+    working = SimpleNamespace(uavs={1: SimpleNamespace(state=SimpleNamespace(phase=AgentPhase.MISSION))})
+    for k, (x, y) in enumerate(path):
+        metrics.add_poses(working, [pose(1, float(k), x=x, vx=0.0, y=y)])
+    pos = np.array([[(x, y, 15.0) for x, y in path]])
+    frac, _, _ = coverage(np.arange(len(path), dtype=float), pos, np.ones((1, len(path)), dtype=bool),
+                          scn.mission.area.as_tuple(), scn.mission.sensor_radius, scn.mission.coverage_cell_m)
+    assert metrics.coverage is not None and 0.0 < metrics.coverage < 1.0
+    assert metrics.coverage == pytest.approx(float(frac[-1]), abs=1e-12)

@@ -14,8 +14,8 @@ from deploy.plan import CONTAINERS, KEYS_IN_CONTAINER, LocalSite, NetworkPlan, S
 from deploy.process_runtime import ProcessRuntime
 from deploy.swarm import StackOptions, stack_spec
 from discovery.options import DiscoveryServerOptions, FeedOptions, RouterOptions
-from mrswarm.deploy_cli import swarm_fleet
-from mrswarm.run_keys import run_identities, throwaway_keys
+from mrswarm.cli.deploy import swarm_fleet
+from mrswarm.run.keys import run_identities, throwaway_keys
 from mrswarm.scenario import load_scenario
 from swarmnet.interest import Interest
 from uav_stack.config import NetworkConfig

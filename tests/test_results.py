@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.results import ResultsError, rebuild_results, summarise_run
+from mrswarm.records.summary import RunInfo, RunSummary
+from mrswarm.results.summarise import ResultsError, rebuild_results, summarise_run
 from mrswarm.scenario import Scenario, load_scenario
-from mrswarm.summary import RunInfo, RunSummary
 from uav_stack.phases import AgentPhase
 from uav_stack.recorder import TrajectoryRecorder, links_file_name
 
@@ -133,7 +133,7 @@ def test_two_uavs_below_the_safety_distance_are_an_incident_with_the_pair_the_mi
     # printed in words: the pair, when, for how long, how close
     from rich.console import Console
 
-    from mrswarm.summary_table import print_summary
+    from mrswarm.results.summary_table import print_summary
 
     console = Console(width=300, record=True)
     print_summary(console, s)
@@ -215,7 +215,7 @@ def test_mrswarm_results_rebuilds_the_summary_from_the_cli(head_on_dir: Path, tm
 
 
 def test_the_analysis_does_not_load_matplotlib() -> None:
-    code = "import sys, mrswarm.analysis, mrswarm.results; sys.exit(int('matplotlib' in sys.modules))"
+    code = "import sys, mrswarm.results.analysis, mrswarm.results.summarise; sys.exit(int('matplotlib' in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code], cwd=ROOT, timeout=60).returncode == 0
 
 

@@ -1,4 +1,4 @@
-"""Process supervision with real processes and real signals (mrswarm/supervisor.py, deploy/process_runtime.py).
+"""Process supervision with real processes and real signals (mrswarm/run/supervisor.py, deploy/process_runtime.py).
 
 Children are small Python sleepers started the way the process runtime starts every child. The
 tests kill them with SIGKILL and check the events, the backoff, the restart policy, and that a
@@ -17,8 +17,8 @@ from pathlib import Path
 import psutil
 
 from deploy.process_runtime import ProcessRuntime
-from mrswarm.signals import StopSignals
-from mrswarm.supervisor import BACKOFF_FIRST_S, Supervisor, last_error
+from mrswarm.run.signals import StopSignals
+from mrswarm.run.supervisor import BACKOFF_FIRST_S, Supervisor, last_error
 from tests.conftest import wait_for
 
 SLEEPER = [sys.executable, "-c", "import time; time.sleep(120)"]
@@ -164,8 +164,9 @@ def test_stop_signals_count_and_never_raise_in_the_handler() -> None:
 
 
 def test_a_silent_uav_whose_process_lives_is_a_stall_with_its_duration() -> None:
-    from mrswarm.stalls import StallWatch, stalls
-    from mrswarm.summary import RunInfo
+    from mrswarm.records.summary import RunInfo
+    from mrswarm.results.fault_report import stalls
+    from mrswarm.run.stalls import StallWatch
 
     w = StallWatch()
     t0 = 1000.0
@@ -183,7 +184,7 @@ def test_a_silent_uav_whose_process_lives_is_a_stall_with_its_duration() -> None
 
 
 def test_silence_the_runner_cannot_tell_from_its_own_blindness_is_no_stall() -> None:
-    from mrswarm.stalls import StallWatch
+    from mrswarm.run.stalls import StallWatch
 
     w = StallWatch()
     t0 = 1000.0

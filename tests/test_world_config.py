@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from discovery.options import ProxyOptions
+from mrswarm.run.world_setup import uav_configs, world_service_config
 from mrswarm.scenario import ScenarioError, load_scenario
-from mrswarm.world_setup import uav_configs, world_service_config
 from swarmnet.keyspace import SwarmKeys, check_swarm, traffic_key
 from swarmnet.security.acl import uav_puts, uav_receives
 from swarmnet.security.credentials import Credentials

@@ -11,7 +11,8 @@ import sys
 import time
 from typing import Any
 
-from mrswarm.gcs.session import GcsError, format_ids, parse_ids, resolve_target
+from mrswarm.gcs.session import GcsError, parse_ids, resolve_target
+from mrswarm.results.wording import format_ids
 from uav_stack.cli_args import ArgumentParser
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130

@@ -13,7 +13,8 @@ from typing import Any, TextIO
 from rich.console import Console
 from rich.table import Table
 
-from mrswarm.gcs.session import GcsError, format_ids, wait_alive
+from mrswarm.gcs.session import GcsError, wait_alive
+from mrswarm.results.wording import format_ids
 from swarmnet.observer import SwarmObserver
 
 VERBS = ("takeoff", "start", "hold", "resume", "land", "rtl", "goto", "arm", "disarm", "kill")

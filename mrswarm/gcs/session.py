@@ -144,20 +144,6 @@ def parse_ids(text: str) -> list[int]:
     return sorted(out)
 
 
-def format_ids(ids: list[int] | set[int]) -> str:
-    """[1,2,3,7] -> '1-3,7'."""
-    s = sorted(ids)
-    parts: list[str] = []
-    i = 0
-    while i < len(s):
-        j = i
-        while j + 1 < len(s) and s[j + 1] == s[j] + 1:
-            j += 1
-        parts.append(str(s[i]) if i == j else f"{s[i]}-{s[j]}")
-        i = j + 1
-    return ",".join(parts) or "-"
-
-
 def wait_alive(obs: SwarmObserver, want: set[int] | None, timeout: float = DISCOVERY_WAIT) -> set[int]:
     """Poll until every wanted UAV is alive (or, with ``want=None``, until the set stops growing)."""
     deadline = time.monotonic() + timeout

@@ -26,7 +26,8 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from mrswarm.gcs.session import GcsError, format_ids, parse_ids
+from mrswarm.gcs.session import GcsError, parse_ids
+from mrswarm.results.wording import format_ids
 from swarmnet.observer import SwarmObserver
 from uav_stack.phases import AgentPhase
 

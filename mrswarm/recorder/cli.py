@@ -71,16 +71,3 @@ def replay_main(argv: list[str] | None = None) -> int:
         print(f"replayed {n} messages")
     return EXIT_OK
 
-
-def results_from_recording(path: Path, out: Path | None) -> Path:
-    """``mrswarm results run.mcap``: export the run folder, which the caller then summarises."""
-    from mrswarm.recorder.export import ExportError, default_out, export_csv
-    from mrswarm.results import ResultsError
-
-    try:
-        info = export_csv(path, out or default_out(path))
-    except ExportError as exc:
-        raise ResultsError(str(exc)) from None
-    if info["uavs"] == 0:
-        raise ResultsError(f"{path}: no pose was recorded")
-    return Path(info["out"])

@@ -112,7 +112,7 @@ def _is_uav_file(name: str) -> bool:
 
 
 def _rebuild_run_json(out: Path, rec: Recording, first_ns: int, last_ns: int, start_cmd: float | None) -> None:
-    from mrswarm.summary import RunInfo
+    from mrswarm.records.summary import RunInfo
 
     try:
         name = str(yaml.safe_load(rec.attachments["scenario.yaml"])["name"])

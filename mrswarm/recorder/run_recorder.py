@@ -6,7 +6,7 @@ it records what crossed the network with the arrival times at the edge. The runn
 the router is up and before the first UAV (so the first pose is recorded), and stops it after
 the UAVs and after ``run.json`` is written (so the file keeps the run's final counters).
 
-It is supervised like the edge services (mrswarm/supervisor.py): when it dies, its file is sealed
+It is supervised like the edge services (mrswarm/run/supervisor.py): when it dies, its file is sealed
 at its last whole record (:func:`~mrswarm.recorder.mcap_writer.seal`: readable, and closed as a
 finished file is) and a new recorder continues in the next file beside it (``run-2.mcap``, ...).
 Its output comes to the runner through a pipe, which the runner copies into ``logs/recorder.log``

@@ -5,8 +5,8 @@ must not take CPU the first one needs. ``--parallel N`` (or ``auto``: up to the 
 is a ceiling; below it a run starts only when all of these hold:
 
 * **the estimate**: the cores every running run needs plus this one's fit in
-  :data:`~mrswarm.resources.CPU_SHARE` of the machine's cores, and its memory fits in what is
-  available. A run's need is the fleet's estimate (:func:`mrswarm.resources.estimate`, per UAV
+  :data:`~mrswarm.run.resources.CPU_SHARE` of the machine's cores, and its memory fits in what is
+  available. A run's need is the fleet's estimate (:func:`mrswarm.run.resources.estimate`, per UAV
   process) plus :data:`RUN_BASE_CORES` for the runner, the edge services and the flight
   recorder; once a run of the same cell has flown, the CPU it actually used (its CPU time over
   its wall time) with a margin of :data:`MEASURED_MARGIN`, if that is more;
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import psutil
 
-from mrswarm.resources import CPU_SHARE, MEMORY_SHARE, estimate
+from mrswarm.run.resources import CPU_SHARE, MEMORY_SHARE, estimate
 from mrswarm.scenario import Scenario
 
 RUN_BASE_CORES = 0.25  # the runner, discovery server, edge router and recorder: 0.13 cores measured for a 2-UAV run, and

@@ -54,7 +54,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        from mrswarm.signals import StopSignals
+        from mrswarm.run.signals import StopSignals
 
         signals = StopSignals().install()
     except KeyboardInterrupt:

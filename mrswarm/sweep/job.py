@@ -27,7 +27,7 @@ from types import FrameType
 
 import msgspec
 
-from mrswarm.summary import write_atomic
+from mrswarm.records.summary import write_atomic
 
 POLL_S = 0.2  # the run's exit and the stop file, checked this often
 

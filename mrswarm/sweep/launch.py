@@ -1,6 +1,6 @@
 """One run of a sweep: ``mrswarm run SCENARIO --out <slot> --no-live --set ...`` in a child process.
 
-Why a child process rather than an :class:`~mrswarm.experiment.Experiment` in the sweep's own:
+Why a child process rather than an :class:`~mrswarm.run.experiment.Experiment` in the sweep's own:
 a run of a sweep is then exactly what ``mrswarm run`` does (its input checks, its exit codes,
 its stop on a signal, its summary), every run starts from a fresh interpreter (no Zenoh session,
 thread or module state carried from one run to the next, no memory growing over hundreds of

@@ -14,7 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from mrswarm.plots import PALETTE, _pyplot, legend_below
+from mrswarm.results.plots import PALETTE, _pyplot, legend_below
 from mrswarm.sweep.campaign import value_label
 from mrswarm.sweep.slots import SlotState
 from mrswarm.sweep.table import CellStats, Table, metric

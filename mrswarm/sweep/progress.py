@@ -27,7 +27,7 @@ from mrswarm.sweep.launch import Flight
 PLAIN_EVERY_S = 30.0
 PRIOR_BASE_S = 12.0  # s a run takes besides its mission and climb: processes, ready, the summary and its figures
 PRIOR_PER_UAV_S = 0.5
-CLIMB_RATE = 1.5  # m/s, as the runner plans its takeoff (mrswarm/experiment.py)
+CLIMB_RATE = 1.5  # m/s, as the runner plans its takeoff (mrswarm/run/experiment.py)
 
 
 def prior_wall_s(scn: Scenario) -> float:

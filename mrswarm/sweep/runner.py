@@ -32,9 +32,9 @@ from typing import IO
 from rich.console import Console
 
 from groundfloor.errors import MrswarmError
-from mrswarm.resources import check_resources
-from mrswarm.signals import StopSignals
-from mrswarm.summary import write_atomic
+from mrswarm.records.summary import write_atomic
+from mrswarm.run.resources import check_resources
+from mrswarm.run.signals import StopSignals
 from mrswarm.sweep.campaign import Plan, Slot, campaign_yaml
 from mrswarm.sweep.capacity import Capacity, ClusterCapacity, Need, exclusive_problem, machine_cores
 from mrswarm.sweep.launch import Flight, Launcher, LocalLauncher, RunOptions

@@ -21,7 +21,7 @@ from typing import Any
 
 import msgspec
 
-from mrswarm.summary import write_atomic
+from mrswarm.records.summary import write_atomic
 
 RUNS = "runs"
 SLOT_FILE = "slot.json"

@@ -21,7 +21,7 @@ from typing import Any
 import msgspec
 import yaml
 
-from mrswarm.summary import RunSummary, write_atomic
+from mrswarm.records.summary import RunSummary, write_atomic
 from mrswarm.sweep.campaign import value_label
 from mrswarm.sweep.slots import RUNS, SlotState, attempt_of, read_record, status
 from mrswarm.sweep.stats import DEFAULT_LEVEL, Summary, summarise

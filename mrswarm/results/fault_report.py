@@ -1,25 +1,33 @@
-"""The resilience part of summary.json: lost UAVs, service outages, the per-fault table, failsafes, recording errors.
+"""The resilience part of summary.json: lost UAVs, service outages, the per-fault table, failsafes, recording errors, stalls.
 
 Inputs are the run folder's records only (so ``mrswarm results`` rebuilds them, even for a run
 whose runner was killed): ``run.json`` (process events and the fault schedule with the times
-the runner saw each symptom and recovery, mrswarm/faults.py), the UAVs' ``uav<N>.json``
+the runner saw each symptom and recovery, mrswarm/run/chaos.py), the UAVs' ``uav<N>.json``
 (failsafe events, recording errors), ``age_uav<N>.csv`` (age of information, for network
 faults) and the trajectories. How each column is measured is in docs/reliability.md.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mrswarm.faults import NETWORK, STALE_S
-from mrswarm.summary import FailsafeEvent, FaultRecord, FaultReport, LostUav, RecordErrors, RunInfo, ServiceOutage
-from mrswarm.supervisor import SERVICES, uav_of
+from mrswarm.records.summary import (
+    SERVICES,
+    FailsafeEvent,
+    FaultRecord,
+    FaultReport,
+    LostUav,
+    RecordErrors,
+    RunInfo,
+    ServiceOutage,
+    Stall,
+    uav_of,
+)
+from mrswarm.scenario.faults import NETWORK, STALE_S
 
 AFTER_FAULT_S = 30.0  # collisions are attributed to a fault until it recovered, or this long after it ended
 
@@ -83,29 +91,9 @@ def record_errors(stats: dict[int, dict[str, Any]], info: RunInfo) -> RecordErro
     return RecordErrors(uavs=uavs, errors=errors, rows_dropped=rows, files_not_written=files, runner=list(info.write_errors))
 
 
-def read_aoi(run_dir: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per UAV: (wall times, max age of information over its neighbours, s) from ``age_uav<N>.csv``."""
-    out = {}
-    for path in sorted(run_dir.glob("age_uav*.csv")):
-        try:
-            uav = int(path.stem[7:])
-        except ValueError:
-            continue
-        ts, aoi = [], []
-        try:
-            with open(path, newline="") as f:
-                for r in csv.DictReader(f):
-                    try:
-                        t, a = float(r["t_wall"]), r["aoi_max_ms"]
-                    except (KeyError, ValueError, TypeError):
-                        continue
-                    ts.append(t)
-                    aoi.append(float(a) / 1000.0 if a else math.nan)
-        except OSError:
-            continue
-        if ts:
-            out[uav] = (np.array(ts), np.array(aoi))
-    return out
+def aoi_of(ages: dict[int, dict[str, np.ndarray]]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per UAV: (wall times, max age of information over its neighbours, s), from its ``age_uav<N>.csv`` columns."""
+    return {u: (s["t_wall"], s["aoi_max_ms"] / 1000.0) for u, s in ages.items() if "aoi_max_ms" in s}
 
 
 def _network_times(rec: FaultRecord, aoi: dict[int, tuple[np.ndarray, np.ndarray]],
@@ -133,15 +121,17 @@ def _network_times(rec: FaultRecord, aoi: dict[int, tuple[np.ndarray, np.ndarray
     return detected, recovered
 
 
-def fault_table(info: RunInfo, t0: float, t_end: float, run_dir: Path, onsets: list[tuple[float, int, int]],
+def fault_table(info: RunInfo, t0: float, t_end: float, ages: dict[int, dict[str, np.ndarray]],
+                onsets: list[tuple[float, int, int]],
                 working: dict[int, tuple[np.ndarray, np.ndarray]], ids: Sequence[int], sweep_m2_per_s: float,
                 area_m2: float | None) -> list[FaultReport]:
     """One row per fault of the schedule.
 
-    ``working`` holds per UAV (grid wall times, working flag) from the trajectories;
+    ``ages``: every UAV's ``age_uav<N>.csv`` columns (the age of information tells a network fault's detection and
+    recovery); ``working`` holds per UAV (grid wall times, working flag) from the trajectories;
     ``sweep_m2_per_s`` is the area one working UAV sweeps per second (cruise speed x sensor diameter).
     """
-    aoi = read_aoi(run_dir) if any(f.kind in NETWORK for f in info.faults) else {}
+    aoi = aoi_of(ages)
     rows: list[FaultReport] = []
     for rec in sorted(info.faults, key=lambda r: (r.injected or math.inf, r.index)):
         if rec.injected is None:
@@ -173,3 +163,13 @@ def fault_table(info: RunInfo, t0: float, t_end: float, run_dir: Path, onsets: l
             recovery_s=round(recovered - rec.injected, 2) if recovered is not None else None,
             collisions=collisions, coverage_lost=lost, detail=rec.detail[:200]))
     return rows
+
+
+def stalls(info: RunInfo, t0: float) -> list[Stall]:
+    """The run's stalls, from run.json's events."""
+    out = []
+    for ev in info.events:
+        uav = uav_of(ev.name)
+        if ev.event == "stalled" and uav is not None and ev.duration_s is not None:
+            out.append(Stall(uav=uav, from_s=round(ev.t - t0, 2), duration_s=ev.duration_s))
+    return sorted(out, key=lambda s: (s.from_s, s.uav))

@@ -2,7 +2,7 @@
 
 ``deploy/`` provides the runtimes (``ProcessRuntime``: one OS process per UAV;
 ``DockerRuntime``: one container per UAV), each placing the same network plan
-(``deploy/plan.py``, made by ``Scenario.network_plan``); the runner (``mrswarm.experiment``) depends only
+(``deploy/plan.py``, made by ``Scenario.network_plan``); the runner (``mrswarm.run.experiment``) depends only
 on this interface, and :func:`make_runtime` picks one from the scenario, handing each runtime
 its own typed settings.
 """

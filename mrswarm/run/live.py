@@ -2,7 +2,7 @@
 
 The live coverage and separation are estimates from the poses the runner receives over the
 network (they can miss poses); the numbers of record come afterwards from the UAVs' own
-trajectories (mrswarm/analysis.py).
+trajectories (mrswarm/results/analysis.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from enum import Enum
 
 import numpy as np
 
-from mrswarm.analysis import CELL_CHUNK
+from mrswarm.results.coverage import cell_centres, cell_grid, seen
+from mrswarm.results.run_data import AIRBORNE_Z
 from mrswarm.scenario import Scenario
 from swarmnet.messages import Pose
 from swarmnet.observer import SwarmObserver
@@ -72,28 +73,19 @@ class LiveMetrics:
     def __post_init__(self) -> None:
         m = self.scenario.mission
         if m.type == "coverage" and m.area is not None:
-            x0, x1, y0, y1 = m.area.as_tuple()
-            c = max(m.sensor_radius / 2.0, 0.5)  # the analysis' cell size (mrswarm/analysis.py)
-            xs, ys = np.arange(x0 + c / 2, x1, c), np.arange(y0 + c / 2, y1, c)
-            gx, gy = np.meshgrid(xs, ys)
-            self.cells = np.stack([gx.ravel(), gy.ravel()], axis=1)
+            self.cells = cell_grid(*cell_centres(m.area.as_tuple(), m.coverage_cell_m))  # the analysis' cells
             self.covered = np.zeros(len(self.cells), dtype=bool)
 
     def add_poses(self, obs: SwarmObserver, fresh: list[Pose]) -> None:
         """Mark the cells within the sensor radius of each fresh pose of a UAV working on its mission."""
         if self.cells is None or self.covered is None or not fresh:
             return
-        r2 = self.scenario.mission.sensor_radius ** 2
         pts = [(p.x, p.y) for p in fresh if (v := obs.uavs.get(p.uav)) and v.state and v.state.phase in WORKING]
         if pts:
-            a = np.array(pts)
-            step = max(1, CELL_CHUNK // len(a))  # bounded memory, however many cells (mrswarm/analysis.py)
-            for c0 in range(0, len(self.cells), step):
-                d2 = ((self.cells[c0:c0 + step, None, :] - a[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-                self.covered[c0:c0 + step] |= d2 <= r2
+            self.covered |= seen(self.cells, np.array(pts), self.scenario.mission.sensor_radius)
 
     def update_separation(self, obs: SwarmObserver) -> None:
-        """Minimum 3-D distance between UAVs higher than 1 m, each at the time of the newest pose.
+        """Minimum 3-D distance between airborne UAVs (higher than AIRBORNE_Z), each at the time of the newest pose.
 
         Why: the latest poses of two UAVs can be a period apart (one has sent this instant's
         pose, the other not yet), and compared as they are, two UAVs closing at 10 m/s look
@@ -102,7 +94,7 @@ class LiveMetrics:
         pose's stamp, as the summary compares positions of one instant. A pose more than
         :data:`SEPARATION_STALE_S` older than the newest (a UAV that stopped sending) is left out.
         """
-        views = [v.pose for v in obs.uavs.values() if v.pose is not None and v.pose.z > 1.0]
+        views = [v.pose for v in obs.uavs.values() if v.pose is not None and v.pose.z > AIRBORNE_Z]
         if len(views) < 2:
             return
         t = np.array([q.t_wall for q in views])

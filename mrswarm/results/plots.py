@@ -1,4 +1,4 @@
-"""The figures of a run folder, drawn from what mrswarm/analysis.py computed (matplotlib, Agg backend).
+"""The figures of a run folder, drawn from what mrswarm/results/analysis.py computed (matplotlib, Agg backend).
 
 - ``<scenario>.png``: the map (the mission area, the covered cells by the time of their first
   visit, every UAV's trajectory from its start, the goals) and, beside or below it, the minimum
@@ -7,7 +7,7 @@
 - ``pose_age.png``: transport age, age at use and age of information per second of the mission,
   per UAV and their median, with each netem change marked.
 
-Shared by both, and by mrswarm/world_plots.py: a palette that keeps 20 UAVs apart
+Shared by both, and by mrswarm/results/world_plots.py: a palette that keeps 20 UAVs apart
 (:func:`uav_colors`), legends outside the data (:func:`legend_below`), a layout fitted to the
 map's shape (:func:`map_and_time`), axes that end where the mission did.
 """
@@ -20,10 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.analysis import RunData
-from mrswarm.netem_report import PoseAgeSeries
+from mrswarm.records.summary import NetemChange
+from mrswarm.results.run_data import PoseAgeSeries, RunData
 from mrswarm.scenario import Scenario
-from mrswarm.summary import NetemChange
 
 DPI = 100  # a 13 x 6.5 in figure is 1300 x 650 px: sharp on a page, small on disk
 # Twenty colours that stay apart on white and on the light grey of the covered cells: matplotlib's tab10,
@@ -40,6 +39,14 @@ def _pyplot() -> Any:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(fig: Any, path: Path) -> None:
+    """Write a figure (PNG) and free it, also when the disk refuses it."""
+    try:
+        fig.savefig(path, dpi=DPI)
+    finally:
+        _pyplot().close(fig)
 
 
 def uav_colors(n: int) -> list[str]:
@@ -162,10 +169,7 @@ def separation_over_time(ax: Any, scenario: Scenario, data: RunData, series: np.
 
 def plot_run(path: Path, scenario: Scenario, data: RunData) -> None:
     """The map and the separation/coverage over time -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = run_figure(scenario, data)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(run_figure(scenario, data), path)
 
 
 def run_figure(scenario: Scenario, data: RunData) -> Any:
@@ -196,12 +200,11 @@ def run_figure(scenario: Scenario, data: RunData) -> Any:
     goals = [(u.id, u.goal) for u in scenario.all_uavs() if u.goal is not None]
     for k, (_, g) in enumerate(goals):
         ax.plot(*g, "x", color="k", ms=9, mew=2, zorder=7, label="goal" if k == 0 else None)
-    min_sep = data.min_separation
-    if len(ids) == 2 and np.isfinite(min_sep).any():  # closest approach of a head-on encounter
-        k = int(np.nanargmin(np.where(np.isfinite(min_sep), min_sep, np.nan)))
-        ax.plot(data.pos[:, k, 0], data.pos[:, k, 1], "k:", lw=1, zorder=7)
-        ax.plot(data.pos[:, k, 0].mean(), data.pos[:, k, 1].mean(), "*", color="tab:red", ms=13, zorder=8,
-                label=f"closest, {min_sep[k]:.1f} m")
+    c = data.closest
+    if len(ids) == 2 and c is not None:  # closest approach of a head-on encounter
+        ax.plot(data.pos[:, c, 0], data.pos[:, c, 1], "k:", lw=1, zorder=7)
+        ax.plot(data.pos[:, c, 0].mean(), data.pos[:, c, 1].mean(), "*", color="tab:red", ms=13, zorder=8,
+                label=f"closest, {data.min_separation[c]:.1f} m")
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect("equal")
@@ -227,10 +230,7 @@ def run_figure(scenario: Scenario, data: RunData) -> Any:
 
 def plot_pose_age(path: Path, age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> None:
     """Transport age and age at use (top) and age of information (bottom) per second of the mission -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = pose_age_figure(age, changes, t_end)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(pose_age_figure(age, changes, t_end), path)
 
 
 def pose_age_figure(age: PoseAgeSeries, changes: list[NetemChange], t_end: float | None = None) -> Any:

@@ -1,4 +1,4 @@
-"""The numbers of a run: from the files in a run folder to a :class:`~mrswarm.summary.RunSummary`.
+"""The numbers of a run: from the files in a run folder to a :class:`~mrswarm.records.summary.RunSummary`.
 
 Inputs, written by the UAVs while flying (uav_stack/recorder.py): ``uav<N>.csv`` trajectories
 (wall and simulated time, FCU position in the swarm frame, agent phase, RTF) and ``uav<N>.json``
@@ -8,7 +8,7 @@ Every UAV recorded counts, whether the scenario lists it or not. Separation and 
 flight-controller positions, not from the poses they exchanged, so network impairments cannot
 hide a collision. Positions are resampled on a common 10 Hz grid of wall time.
 
-No plotting here (mrswarm/plots.py draws the figures from :class:`RunData`), so the numbers can
+No plotting here (mrswarm/results/plots.py draws the figures from :class:`RunData`), so the numbers can
 be computed where matplotlib is not installed or fails.
 """
 
@@ -24,13 +24,7 @@ from typing import Any
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.degraded import degraded_reasons, recording_report
-from mrswarm.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages
-from mrswarm.incidents import find_incidents, safety_incident
-from mrswarm.netem_report import PoseAgeSeries, netem_report, pose_age_report
-from mrswarm.scenario import Scenario
-from mrswarm.stalls import stalls
-from mrswarm.summary import (
+from mrswarm.records.summary import (
     CollisionPair,
     Coverage,
     Encounter,
@@ -48,29 +42,19 @@ from mrswarm.summary import (
     Separation,
     Takeoff,
 )
-from mrswarm.world_report import WorldData, world_report
+from mrswarm.results.coverage import coverage, time_to
+from mrswarm.results.degraded import degraded_reasons, recording_report
+from mrswarm.results.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages, stalls
+from mrswarm.results.incidents import find_incidents, safety_incident
+from mrswarm.results.netem_report import netem_report, pose_age_report
+from mrswarm.results.run_data import AIRBORNE_Z, GRID_HZ, CoverageMap, RunData, Track
+from mrswarm.results.world_report import world_report
+from mrswarm.scenario import Scenario
 from uav_stack.phases import WORKING
 from uav_stack.recorder import links_file_name
 
-GRID_HZ = 10.0  # resampling rate of the trajectories
-AIRBORNE_Z = 1.0  # m above the origin: below this a UAV is on the ground (not a collision candidate)
 GOAL_RADIUS = 2.0  # m (horizontal): a goto UAV this close to its goal has reached it
 BREACH_GAP_S = 1.0  # s: a pair back above the safety distance for less than this is one incident, not two
-CELL_CHUNK = 2_000_000  # cells x points per coverage step held in memory at once (~32 MB of float64 pairs)
-
-
-@dataclass
-class Track:
-    """One UAV's recorded trajectory, sorted by wall time."""
-
-    uav: int
-    t: np.ndarray  # wall time, s
-    t_sim: np.ndarray  # simulated time, s
-    xyz: np.ndarray  # (n, 3) east, north, up, m
-    phase: list[str]  # the agent's phase (uav_stack.phases.AgentPhase values)
-    rtf: np.ndarray
-    vz: np.ndarray | None = None  # vertical speed, up, m/s
-    armed: np.ndarray | None = None  # 1 armed, 0 not
 
 
 @dataclass
@@ -81,6 +65,7 @@ class SeparationSteps:
     min: float | None  # m
     min_pair: list[int] | None
     min_at: float | None  # wall
+    closest: int | None  # grid step of min_at
     collisions: int
     collision_pairs: list[CollisionPair]
     onsets: list[tuple[float, int, int]]  # (wall time, uav, uav) of every collision onset
@@ -98,34 +83,6 @@ class Breach:
     steps: int
     min: float
     min_at: int
-
-
-@dataclass
-class CoverageMap:
-    """When each cell of the mission area was first seen, and the coverage over the mission."""
-
-    first_visit: np.ndarray  # (ny, nx) wall time of the first visit, NaN: never seen
-    xs: np.ndarray  # cell centres east, m
-    ys: np.ndarray  # cell centres north, m
-    t: np.ndarray  # s since mission start
-    fraction: np.ndarray  # covered fraction at each t
-
-
-@dataclass
-class RunData:
-    """What the figures need besides the summary: the resampled trajectories and their derived series."""
-
-    tracks: dict[int, Track]
-    grid: np.ndarray  # wall time, GRID_HZ
-    pos: np.ndarray  # (n_uav, n_grid, 3), NaN where a UAV has no data
-    ids: list[int]  # UAV id of each row of pos
-    min_separation: np.ndarray  # m per grid step
-    t0: float  # wall time of the mission start (else of the first record)
-    t_end: float  # wall time of the end of the analysed mission
-    coverage: CoverageMap | None
-    pose_age: PoseAgeSeries | None
-    links: list[LinkAge]  # transport age per link, for transport_links.csv
-    world: WorldData | None = None  # scenarios with a world section (mrswarm/world_report.py)
 
 
 def load_tracks(run_dir: Path) -> dict[int, Track]:
@@ -177,6 +134,37 @@ def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
     return out
 
 
+def load_ages(run_dir: Path) -> dict[int, dict[str, np.ndarray]]:
+    """Every UAV's ``age_uav<N>.csv`` (uav_stack/pose_age.py), a column a key (``t_wall``, ``aoi_max_ms``, ...): read
+    once, for the pose age over time (netem_report.py) and the detection of network faults (fault_report.py).
+    A row without its wall time, a line cut by a crash and an unreadable file are skipped."""
+    out: dict[int, dict[str, np.ndarray]] = {}
+    for path in sorted(run_dir.glob("age_uav*.csv")):
+        try:
+            uav = int(path.stem[len("age_uav"):])
+        except ValueError:
+            continue
+        cols: dict[str, list[float]] = {}
+        try:
+            with open(path, newline="") as f:
+                for r in csv.DictReader(f):
+                    try:
+                        vals = {k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
+                    except (TypeError, ValueError):
+                        continue  # a line cut by a crash
+                    if math.isfinite(vals.get("t_wall", math.nan)):
+                        for k, v in vals.items():
+                            cols.setdefault(k, []).append(v)
+        except OSError:
+            continue
+        if cols.get("t_wall"):
+            series = {k: np.array(v) for k, v in cols.items()}
+            if "transport_p50_ms" not in series and "age_p50_ms" in series:  # a run folder of an earlier version
+                series["transport_p50_ms"] = series["age_p50_ms"]
+            out[uav] = series
+    return out
+
+
 def resample(tracks: dict[int, Track], t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """Positions of every UAV on a common 10 Hz grid; NaN where a UAV has no data."""
     grid = np.arange(t0, t1 + 1e-9, 1.0 / GRID_HZ)
@@ -216,7 +204,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
     every stretch of a pair below it within ``window`` (a mask of the grid; default: all of it)."""
     n = len(ids)
     min_t = np.full(len(grid), np.inf)
-    best: tuple[float, int | None, int | None, float | None] = (math.inf, None, None, None)
+    best: tuple[float, int | None, int | None, int | None] = (math.inf, None, None, None)
     collisions = 0
     pairs_below: list[CollisionPair] = []
     onset_times: list[tuple[float, int, int]] = []
@@ -229,7 +217,7 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
             min_t = np.minimum(min_t, d)
             k = int(np.argmin(d))
             if d[k] < best[0]:
-                best = (float(d[k]), ids[i], ids[j], float(grid[k]))
+                best = (float(d[k]), ids[i], ids[j], k)
             below = d < collision_distance
             starts = np.nonzero(below & ~np.concatenate(([False], below[:-1])))[0]
             onsets = len(starts)
@@ -244,49 +232,13 @@ def separation(grid: np.ndarray, pos: np.ndarray, ids: list[int], collision_dist
         per_step=min_t,
         min=best[0] if best[0] != math.inf else None,
         min_pair=[best[1], best[2]] if best[1] is not None and best[2] is not None else None,
-        min_at=best[3],
+        min_at=float(grid[best[3]]) if best[3] is not None else None,
+        closest=best[3],
         collisions=collisions,
         collision_pairs=pairs_below,
         onsets=sorted(onset_times),
         breaches=sorted(breaches, key=lambda b: (b.start, b.pair)),
     )
-
-
-def coverage(grid: np.ndarray, pos: np.ndarray, active: np.ndarray, area: tuple[float, float, float, float],
-             radius: float) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """Fraction of the area's cells seen (within ``radius`` m of an active UAV) by each grid time.
-
-    Cells are squares of half the sensor radius (at least 0.5 m). Returns (coverage per grid
-    step, first-visit wall time per cell or NaN, (cell x centres, cell y centres)).
-    """
-    x0, x1, y0, y1 = area
-    cell = max(radius / 2.0, 0.5)
-    xs = np.arange(x0 + cell / 2, x1, cell)
-    ys = np.arange(y0 + cell / 2, y1, cell)
-    cx, cy = np.meshgrid(xs, ys)
-    cells = np.stack([cx.ravel(), cy.ravel()], axis=1)
-    first = np.full(len(cells), np.inf)
-    r2 = radius * radius
-    n_uav, n_t, _ = pos.shape
-    for k in range(n_t):
-        pts = pos[:, k, :2][active[:, k]]
-        if len(pts) == 0:
-            continue
-        step = max(1, CELL_CHUNK // len(pts))  # bounded memory, whatever the number of cells
-        for c0 in range(0, len(cells), step):
-            part = cells[c0:c0 + step]
-            d2 = ((part[:, None, :] - pts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-            sl = first[c0:c0 + step]
-            sl[(d2 <= r2) & (sl == np.inf)] = grid[k]
-    frac = np.searchsorted(np.sort(first), grid, side="right") / len(cells)
-    first_visit = np.where(np.isinf(first), np.nan, first).reshape(cy.shape)
-    return frac, first_visit, (xs, ys)
-
-
-def time_to(frac: np.ndarray, grid: np.ndarray, t0: float, level: float) -> float | None:
-    """Seconds from ``t0`` until ``frac`` first reaches ``level`` (None: never)."""
-    idx = np.nonzero(frac >= level)[0]
-    return float(grid[idx[0]] - t0) if len(idx) else None
 
 
 def working_mask(tracks: dict[int, Track], grid: np.ndarray, pos: np.ndarray, ids: list[int]) -> np.ndarray:
@@ -588,10 +540,11 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         collision_pairs=sep.collision_pairs,
     )
     m = scenario.mission
+    working = working_mask(tracks, grid, pos, ids)
     cov_map = None
     if m.type == "coverage" and m.area is not None:
-        frac, first_visit, (xs, ys) = coverage(grid, pos, working_mask(tracks, grid, pos, ids), m.area.as_tuple(),
-                                               m.sensor_radius)
+        frac, first_visit, (xs, ys) = coverage(grid, pos, working, m.area.as_tuple(), m.sensor_radius,
+                                               m.coverage_cell_m)
         cov_map = CoverageMap(first_visit=first_visit, xs=xs, ys=ys, t=grid[in_mission] - t0, fraction=frac[in_mission])
         summary.coverage = Coverage(
             final=float(cov_map.fraction[-1]) if in_mission.any() else 0.0,
@@ -612,11 +565,16 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     summary.incidents += [safety_incident(b.pair, float(grid[b.start] - t0), b.steps / GRID_HZ, b.min,
                                           float(grid[b.min_at] - t0), fl.safety_distance) for b in sep.breaches]
     summary.incidents.sort(key=lambda i: i.t_s)
+    ages: dict[int, dict[str, np.ndarray]] = {}
+    age_error = None
+    try:
+        ages = load_ages(run_dir)
+    except Exception as exc:  # a bug here must not lose the other numbers
+        age_error = repr(exc)
     if info.faults:
-        working = working_mask(tracks, grid, pos, ids)
         area = m.area.as_tuple() if m.area is not None else None
         summary.faults = fault_table(
-            info, t0, t_end, run_dir, sep.onsets, {u: (grid, working[k]) for k, u in enumerate(ids)},
+            info, t0, t_end, ages, sep.onsets, {u: (grid, working[k]) for k, u in enumerate(ids)},
             [u.id for u in scenario.uav_list()], fl.speed * 2.0 * m.sensor_radius,
             (area[1] - area[0]) * (area[3] - area[2]) if area is not None and m.type == "coverage" else None)
     summary.rtf = rtf_report(tracks, t0, t_end)
@@ -632,17 +590,19 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         network.netem = ne
     age_series = None
     try:
-        age = pose_age_report(run_dir, t0, t_end)
+        age = pose_age_report(ages, t0, t_end)
     except Exception as exc:  # a bug here must not lose the other numbers
-        network.pose_age_over_time_error = repr(exc)
+        age_error = repr(exc)
     else:
         if age is not None:
             network.pose_age_over_time, age_series = age
+    if age_error is not None:
+        network.pose_age_over_time_error = age_error
     summary.network = network
     summary.duration_s = float(t_end - t0)
     world_data = None
     if scenario.world is not None:
         summary.world, world_data = world_report(run_dir, scenario, pos, ids, t0, t_end, stats)
     data = RunData(tracks=tracks, grid=grid, pos=pos, ids=ids, min_separation=sep.per_step, t0=t0, t_end=t_end,
-                   coverage=cov_map, pose_age=age_series, links=links, world=world_data)
+                   coverage=cov_map, pose_age=age_series, links=links, world=world_data, closest=sep.closest)
     return summary, data

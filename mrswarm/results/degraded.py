@@ -9,7 +9,7 @@ and the runner know:
   stopped, with the disk still full), or whose counters file is older than its end;
 * the edge router's counters not written since well before the end;
 * the flight recorder's gaps (it died and was restarted) and the records a full disk took none of;
-* figures, ``transport_links.csv`` or ``summary.json`` not written (added by mrswarm/results.py).
+* figures, ``transport_links.csv`` or ``summary.json`` not written (added by mrswarm/results/summarise.py).
 
 A disk that was full for a while and took everything back (nothing lost within the backlogs) is not
 degraded: its errors are in ``records``.
@@ -20,8 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mrswarm.summary import Recording, RecordingGap, RunInfo, RunSummary
-from mrswarm.supervisor import RECORDER, uav_of
+from mrswarm.records.summary import RECORDER, Recording, RecordingGap, RunInfo, RunSummary, uav_of
 
 LATE_S = 3.0  # records or counters older than this before a process stopped are missing their end
 

@@ -8,23 +8,23 @@ edge router beside it: the way in for the runner and for ground stations (``mrsw
 starts one rendezvous router instead. Then: wait until every agent
 reports ``ready`` -> command ``takeoff`` -> wait until all ``hover`` -> command ``start`` (the
 mission clock starts here, for every UAV at once) -> fly for ``duration`` seconds or until all
-are ``done`` -> stop every process -> summarise the run folder (mrswarm/results.py).
+are ``done`` -> stop every process -> summarise the run folder (mrswarm/results/summarise.py).
 Ctrl-C, SIGTERM or SIGHUP at any point still stops every process and summarises what was
-recorded; a second one stops faster (mrswarm/signals.py).
+recorded; a second one stops faster (mrswarm/run/signals.py).
 
 A UAV whose flight controller is external (``uavs[].fcu``: a real autopilot, a SITL) gets only
 its agent, started first (``Runtime.start_agent``), or, with ``agent: companion``, the
 configuration its companion computer's agent reads, and the run waits for it; each has its own
 wait (``wait_s``). Before the processes stop, every external UAV off the ground is landed.
 
-A process that exits is an event, not the end of the run (mrswarm/supervisor.py): the edge
+A process that exits is an event, not the end of the run (mrswarm/run/supervisor.py): the edge
 services are restarted, a lost UAV is recorded and the swarm flies on (``fleet.restart:
 on-failure`` starts it again and it rejoins). The scenario's ``faults:`` are injected during the
-mission (mrswarm/faults.py). The runner's own files are written atomically; one that cannot be
+mission (mrswarm/run/chaos.py). The runner's own files are written atomically; one that cannot be
 written (a full disk) is reported, never the end of the run.
 
-Concerns elsewhere: the live estimates and the mission clock in mrswarm/live.py, the live panel
-in mrswarm/display.py, the printed summary in mrswarm/summary_table.py.
+Concerns elsewhere: the live estimates and the mission clock in mrswarm/run/live.py, the live panel
+in mrswarm/run/display.py, the printed summary in mrswarm/results/summary_table.py.
 """
 
 from __future__ import annotations
@@ -44,20 +44,19 @@ from rich.markup import escape
 from groundfloor.errors import MrswarmError
 from groundfloor.files import write_atomic
 from groundfloor.schema import to_builtins
-from mrswarm.command_round import CommandRound, command_deadline, command_round
-from mrswarm.display import Display
-from mrswarm.faults import Chaos, Swarm, plan
-from mrswarm.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
-from mrswarm.results import summarise_run
-from mrswarm.runtime import make_runtime
-from mrswarm.scenario import MESH_MAX_UAVS, Scenario
-from mrswarm.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
-from mrswarm.stalls import StallWatch
-from mrswarm.summary import ProcessEvent, RunInfo, RunSummary
-from mrswarm.supervisor import RECORDER, RunnerChildren, Supervisor, uav_of
-from mrswarm.wording import plural
-from mrswarm.world_setup import (
+from mrswarm.records.summary import RECORDER, ProcessEvent, RunInfo, RunSummary, uav_of
+from mrswarm.results.summarise import summarise_run
+from mrswarm.results.wording import plural
+from mrswarm.run.chaos import Chaos, Swarm
+from mrswarm.run.command_round import CommandRound, command_deadline, command_round
+from mrswarm.run.display import Display
+from mrswarm.run.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.run.runtime import make_runtime
+from mrswarm.run.signals import FAST_GRACE_S, GRACE_S, GRACE_S_PER_PROCESS, Interrupted, StopSignals
+from mrswarm.run.stalls import StallWatch
+from mrswarm.run.supervisor import RunnerChildren, Supervisor
+from mrswarm.run.world_setup import (
     external_agents,
     open_observer,
     other_swarm_credentials,
@@ -65,6 +64,8 @@ from mrswarm.world_setup import (
     world_service_config,
     write_world_config,
 )
+from mrswarm.scenario import MESH_MAX_UAVS, Scenario
+from mrswarm.scenario.faults import plan
 from swarmnet.observer import SwarmObserver
 from uav_stack.config import AgentConfig, NetworkConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
@@ -132,7 +133,7 @@ class Experiment:
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
-        from mrswarm.run_keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
+        from mrswarm.run.keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
         from swarmnet.security.pki import KeysError
 
         sec = self.scn.network.secured
@@ -435,7 +436,7 @@ class Experiment:
 
     def _command(self, verb: str, ids: list[int], took_effect: set[AgentPhase]) -> CommandRound:
         """Send ``verb`` to the flying ones of ``ids`` until each acknowledged it or reports one of
-        the ``took_effect`` phases (mrswarm/command_round.py), supervising and showing the progress."""
+        the ``took_effect`` phases (mrswarm/run/command_round.py), supervising and showing the progress."""
         assert self.observer is not None
         ids = [u for u in ids if u in self._active_ids()]
 
@@ -604,7 +605,7 @@ class Experiment:
         time.sleep(TICK)
 
     def _supervise(self) -> None:
-        """Process exits and restarts become events (mrswarm/supervisor.py); the run goes on."""
+        """Process exits and restarts become events (mrswarm/run/supervisor.py); the run goes on."""
         assert self.supervisor is not None
         events = self.supervisor.check()
         resumed = self.recorder.poll_resumed() if self.recorder is not None else None

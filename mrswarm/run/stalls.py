@@ -5,7 +5,7 @@ sees nothing; its neighbours only see its pose go stale (as they do when a UAV w
 because its FCU link is lost). :class:`StallWatch` looks at the runner's view of every flying UAV
 on each tick: no pose for more than :data:`STALL_AFTER_S` s while the process still runs opens a
 stall (from its last pose), the next pose closes it, and each stall is an event of the run
-(``stalled``, in run.json, with its duration) and a row of the summary (``stalls``). A UAV whose
+(``stalled``, in run.json, with its duration) and a row of the summary (``stalls``, mrswarm/results/fault_report.py). A UAV whose
 process exits is no stall: its exit is the event. Nor is silence the runner cannot tell from its
 own blindness: the runner, a client of the edge router, counts a UAV's silence only if its link to
 the router has been up since the UAV's last pose (an edge router that dies silences every UAV at
@@ -15,8 +15,7 @@ discovery peer) counts it only while it hears another UAV.
 
 from __future__ import annotations
 
-from mrswarm.summary import ProcessEvent, RunInfo, Stall
-from mrswarm.supervisor import uav_of
+from mrswarm.records.summary import ProcessEvent
 
 STALL_AFTER_S = 1.0  # s without a pose: what the neighbours' stale_after also waits (uav_stack AgentConfig)
 HEARD_S = 0.5  # another UAV heard this recently: the runner's view works
@@ -66,12 +65,3 @@ class StallWatch:
         return ProcessEvent(t=start, name=f"uav{uav}", event="stalled", duration_s=round(end - start, 2),
                             detail=f"no pose for {end - start:.1f} s while its process ran, until {until}")
 
-
-def stalls(info: RunInfo, t0: float) -> list[Stall]:
-    """The run's stalls, from run.json's events."""
-    out = []
-    for ev in info.events:
-        uav = uav_of(ev.name)
-        if ev.event == "stalled" and uav is not None and ev.duration_s is not None:
-            out.append(Stall(uav=uav, from_s=round(ev.t - t0, 2), duration_s=ev.duration_s))
-    return sorted(out, key=lambda s: (s.from_s, s.uav))

@@ -1,4 +1,4 @@
-"""Numbers in words a person reads: plural forms and values that are missing for a reason."""
+"""Numbers in words a person reads: plural forms, lists of UAV ids, values that are missing for a reason."""
 
 from __future__ import annotations
 
@@ -27,6 +27,20 @@ def id_list(ids: list[int] | tuple[int, ...]) -> str:
     if not ids:
         return "no UAV"
     return "UAVs " + ", ".join(str(u) for u in ids[:-1]) + f" and {ids[-1]}"
+
+
+def format_ids(ids: list[int] | set[int]) -> str:
+    """UAV ids in runs, as a command line takes them: [1,2,3,7] -> ``1-3,7`` (``-`` for none)."""
+    s = sorted(ids)
+    parts: list[str] = []
+    i = 0
+    while i < len(s):
+        j = i
+        while j + 1 < len(s) and s[j + 1] == s[j] + 1:
+            j += 1
+        parts.append(str(s[i]) if i == j else f"{s[i]}-{s[j]}")
+        i = j + 1
+    return ",".join(parts) or "-"
 
 
 def metres(v: float) -> str:

@@ -18,9 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from mrswarm.analysis import RunData
-from mrswarm.plots import (
-    DPI,
+from mrswarm.results.plots import (
     MAX_LEGEND,
     _pyplot,
     draw_area,
@@ -28,9 +26,11 @@ from mrswarm.plots import (
     legend_below,
     map_and_time,
     map_extent,
+    save_figure,
     separation_over_time,
     uav_colors,
 )
+from mrswarm.results.run_data import RunData
 from mrswarm.scenario import Scenario
 from world.config import ConePlume, GaussianPlume
 from world.fire import BURNING, BURNT, EXTINGUISHED
@@ -88,10 +88,7 @@ def _plume_layer(ax: Any, scn: Scenario, extent: tuple[float, float, float, floa
 
 def plot_world(path: Path, scn: Scenario, data: RunData) -> None:
     """The world map with the trajectories and the world's outcome over time -> ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = world_figure(scn, data)
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    save_figure(world_figure(scn, data), path)
 
 
 def world_figure(scn: Scenario, data: RunData) -> Any:

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from groundfloor.process import die_with_parent, setup_logging
 from groundfloor.schema import ConfigError
+from mrswarm.run.world_setup import observer_network
 from mrswarm.scenario import ScenarioError, load_scenario
-from mrswarm.world_setup import observer_network
 from uav_stack.config import NetworkConfig
 from uav_stack.runtime import StopFlag
 from world.config import ServedSwarm, WorldServiceConfig

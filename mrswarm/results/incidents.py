@@ -1,7 +1,7 @@
 """Incidents: a UAV that fell, dropped out of control or hit the ground, found in its recorded trajectory,
 and two UAVs closer than the safety distance.
 
-Counted beside collisions (mrswarm/analysis.py) and they make ``mrswarm run`` exit with 3
+Counted beside collisions (mrswarm/results/analysis.py) and they make ``mrswarm run`` exit with 3
 (docs/reliability.md). From each UAV's own records (a virtual UAV records its FCU's ground
 truth, so an injected GPS glitch cannot fake or hide one), with these thresholds:
 
@@ -13,7 +13,7 @@ truth, so an injected GPS glitch cannot fake or hide one), with these thresholds
 * ``ground_impact``: reaching the ground (lower than :data:`GROUND_Z`) while sinking faster than
   :data:`IMPACT_MS`; a landing touches down at 0.7 m/s;
 * ``below_safety_distance``: two airborne UAVs closer than ``flight.safety_distance`` during the
-  mission (the distance collision avoidance is there to keep; mrswarm/analysis.py finds the
+  mission (the distance collision avoidance is there to keep; mrswarm/results/analysis.py finds the
   stretches on its 10 Hz grid, gaps under a second joined): the pair, when, for how long, how close.
 """
 
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mrswarm.summary import Incident
+from mrswarm.records.summary import Incident
+from mrswarm.results.run_data import AIRBORNE_Z
 
-AIRBORNE_Z = 1.0  # m above the UAV's ground (find_incidents)
 GROUND_Z = 0.3  # m above the UAV's ground: on the ground
 DESCENT_MS = 4.0  # m/s
 IMPACT_MS = 2.0  # m/s

@@ -1,4 +1,4 @@
-"""The netem shim's statistics and the pose age over time, for summary.json (the plot: mrswarm/plots.py).
+"""The netem shim's statistics and the pose age over time, for summary.json (the plot: mrswarm/results/plots.py).
 
 Inputs are what every UAV writes while flying: the ``netem`` section of ``uav<N>.json``
 (per-link counters and delay histograms, the history of configuration changes) and
@@ -7,17 +7,15 @@ Inputs are what every UAV writes while flying: the ``netem`` section of ``uav<N>
 
 from __future__ import annotations
 
-import csv
 import math
 import warnings
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
+from mrswarm.records.summary import Delay, Netem, NetemChange, NetemClass, NetemConfigUse, NetemLink, NetemTotals, PoseAgeOverTime
+from mrswarm.results.run_data import PoseAgeSeries
 
 _COUNTERS = ("sent", "delivered", "duplicated", "reordered", "jumps")
 
@@ -99,45 +97,10 @@ def _loss(n: dict[str, int]) -> float:
     return round(n["dropped"] / (n["sent"] + n["duplicated"]), 5) if n["sent"] else 0.0
 
 
-def load_age_series(run_dir: Path) -> dict[int, dict[str, np.ndarray]]:
-    out: dict[int, dict[str, np.ndarray]] = {}
-    for path in sorted(run_dir.glob("age_uav*.csv")):
-        try:
-            uav = int(path.stem[len("age_uav"):])
-        except ValueError:
-            continue
-        cols: dict[str, list[float]] = {}
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                try:
-                    vals = {k: float(v) if v not in ("", None) else math.nan for k, v in r.items()}
-                except (TypeError, ValueError):
-                    continue  # a line cut by a crash
-                for k, v in vals.items():
-                    cols.setdefault(k, []).append(v)
-        if cols.get("t_wall"):
-            series = {k: np.array(v) for k, v in cols.items()}
-            if "transport_p50_ms" not in series and "age_p50_ms" in series:  # a run folder of an earlier version
-                series["transport_p50_ms"] = series["age_p50_ms"]
-            out[uav] = series
-    return out
-
-
-@dataclass
-class PoseAgeSeries:
-    """The per-second pose-age series behind :class:`PoseAgeOverTime`, kept for the plot."""
-
-    grid: np.ndarray  # s since mission start, one per second
-    series: dict[int, dict[str, np.ndarray]]  # per UAV: the columns of age_uav<N>.csv
-    t0: float  # wall time of the mission start
-    transport_med: np.ndarray  # ms, transport age p50, median over UAVs, per grid second (NaN: no UAV had a value)
-    use_med: np.ndarray  # ms, age at use p50, median over UAVs
-    aoi_med: np.ndarray  # ms
-
-
-def pose_age_report(run_dir: Path, t0: float, t_end: float) -> tuple[PoseAgeOverTime, PoseAgeSeries] | None:
-    """Swarm-wide pose age per second (medians over UAVs); None if no UAV wrote ``age_uav<N>.csv``."""
-    series = load_age_series(run_dir)
+def pose_age_report(series: dict[int, dict[str, np.ndarray]], t0: float,
+                    t_end: float) -> tuple[PoseAgeOverTime, PoseAgeSeries] | None:
+    """Swarm-wide pose age per second (medians over UAVs) from every UAV's ``age_uav<N>.csv`` columns
+    (:func:`~mrswarm.results.analysis.load_ages`); None if no UAV wrote one."""
     if not series:
         return None
     t_first = min(float(s["t_wall"][0]) for s in series.values())

@@ -22,13 +22,21 @@ import numpy as np
 from msgspec import UNSET, Struct, UnsetType
 
 from groundfloor.files import write_atomic
-from mrswarm.world_summary import WorldSummary
+from mrswarm.records.world_summary import WorldSummary
 
 # ---- run.json ---------------------------------------------------------------------------------
 
+SERVICES = ("discovery", "router", "recorder")  # the run's own services, by their process names
+RECORDER = "recorder"
+
+
+def uav_of(name: str) -> int | None:
+    """The UAV id of a process name (``uav7`` -> 7), None for a service."""
+    return int(name[3:]) if name.startswith("uav") and name[3:].isdigit() else None
+
 
 class ProcessEvent(Struct):
-    """Something that happened to one of the run's processes (mrswarm/supervisor.py)."""
+    """Something that happened to one of the run's processes (mrswarm/run/supervisor.py)."""
 
     t: float  # wall
     name: str  # uav3, router, discovery
@@ -37,7 +45,7 @@ class ProcessEvent(Struct):
     signal: str | None = None  # SIGKILL, SIGSEGV, ... when a signal ended it
     last_pose: list[float] | None = None  # x, y, z (m) of a UAV's last pose the runner received
     detail: str = ""
-    error: str = ""  # a failed process's last error, from its log (mrswarm.supervisor.last_error)
+    error: str = ""  # a failed process's last error, from its log (mrswarm.run.supervisor.last_error)
     recorded_until: float | None = None  # "resumed" (the flight recorder): its previous file holds the records up to then
     duration_s: float | None = None  # "stalled": how long no pose of the UAV came while its process ran (from ``t``)
 
@@ -320,7 +328,7 @@ class LostUav(Struct):
 
 
 class Stall(Struct):
-    """A UAV whose process ran but sent no pose for more than a second (stopped, starved: mrswarm/stalls.py)."""
+    """A UAV whose process ran but sent no pose for more than a second (stopped, starved: mrswarm/run/stalls.py)."""
 
     uav: int
     from_s: float  # its last pose before the stall, s after the mission start
@@ -361,7 +369,7 @@ class FailsafeEvent(Struct):
 
 
 class Incident(Struct):
-    """A UAV that fell or hit the ground, or two UAVs closer than the safety distance (mrswarm/incidents.py):
+    """A UAV that fell or hit the ground, or two UAVs closer than the safety distance (mrswarm/results/incidents.py):
     counted beside collisions."""
 
     uav: int  # below_safety_distance: the first of the pair
@@ -387,7 +395,7 @@ class RecordErrors(Struct):
 
 
 class RecordingGap(Struct):
-    """The flight recorder down, and recording again (mrswarm/supervisor.py restarts it)."""
+    """The flight recorder down, and recording again (mrswarm/run/supervisor.py restarts it)."""
 
     from_s: float  # s after the mission start: its file holds the records up to then (its last flush before it died)
     to_s: float | None  # recording again, into the next file (None: not before the end of the run)
@@ -450,7 +458,7 @@ class RunSummary(Struct):
     rtf: Rtf | UnsetType = UNSET
     takeoff: Takeoff | UnsetType = UNSET
     network: Network | UnsetType = UNSET
-    world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/world_summary.py)
+    world: WorldSummary | UnsetType = UNSET  # scenarios with a world section (mrswarm/records/world_summary.py)
     security: Security | UnsetType = UNSET  # left out for runs from before network.security existed
     mavlink: Mavlink | UnsetType = UNSET  # left out for runs from before the routers were locked
     processes: dict[str, int | None] = {}  # exit code per process

@@ -1,4 +1,4 @@
-"""A run folder's results: the numbers (mrswarm/analysis.py), the figures (mrswarm/plots.py), one summary.json.
+"""A run folder's results: the numbers (mrswarm/results/analysis.py), the figures (mrswarm/results/plots.py), one summary.json.
 
 Used by the runner when a run stops, and by ``mrswarm results <run dir>``, which rebuilds the
 same files later from what the run folder holds (the scenario the run flew is saved in it as
@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from groundfloor.errors import MrswarmError
-from mrswarm.analysis import analyse_run
-from mrswarm.plots import plot_pose_age, plot_run
+from mrswarm.records.summary import LinkAge, RunInfo, RunSummary
+from mrswarm.results.analysis import analyse_run
+from mrswarm.results.plots import plot_pose_age, plot_run
+from mrswarm.results.wording import metres, plural
 from mrswarm.scenario import Scenario, ScenarioError, load_scenario
-from mrswarm.summary import LinkAge, RunInfo, RunSummary
-from mrswarm.wording import metres, plural
 
 
 class ResultsError(MrswarmError):
@@ -57,7 +57,7 @@ def summarise_run(run_dir: Path, scenario: Scenario, stop: Callable[[], bool] = 
         path = run_dir / f"{scenario.name}.png"
         try:
             if scenario.world is not None:  # the world and the trajectories (docs/world.md)
-                from mrswarm.world_plots import plot_world
+                from mrswarm.results.world_plots import plot_world
 
                 plot_world(path, scenario, data)
             else:
@@ -137,6 +137,19 @@ def rebuild_results(run_dir: Path) -> RunSummary:
 
 
 RECENT = 15  # runs listed by `mrswarm results` without a folder
+
+
+def results_from_recording(path: Path, out: Path | None) -> Path:
+    """``mrswarm results run.mcap``: export the run folder, which the caller then summarises."""
+    from mrswarm.recorder.export import ExportError, default_out, export_csv
+
+    try:
+        info = export_csv(path, out or default_out(path))
+    except ExportError as exc:
+        raise ResultsError(str(exc)) from None
+    if info["uavs"] == 0:
+        raise ResultsError(f"{path}: no pose was recorded")
+    return Path(info["out"])
 
 
 def run_outcome(run_dir: Path) -> str:

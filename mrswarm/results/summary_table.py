@@ -8,10 +8,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from mrswarm.gcs.session import format_ids
-from mrswarm.summary import Incident, RunSummary
-from mrswarm.wording import id_list, metres, plural
-from mrswarm.world_summary import WorldSummary
+from mrswarm.records.summary import Incident, RunSummary
+from mrswarm.records.world_summary import WorldSummary
+from mrswarm.results.wording import format_ids, id_list, metres, plural
 
 
 def _reach(t: float | None, duration: float | None) -> str:

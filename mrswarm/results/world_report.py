@@ -1,9 +1,9 @@
-"""The numbers of a world scenario (docs/world.md): from the run folder to :class:`~mrswarm.world_summary.WorldSummary`.
+"""The numbers of a world scenario (docs/world.md): from the run folder to :class:`~mrswarm.records.world_summary.WorldSummary`.
 
 Inputs: what the world service recorded (world/record.py: ``world.json``, ``world_fire.csv``,
 ``world_fire.npz``, ``world_estimates.csv``, ``world_actuations.csv``), the UAVs' counters
 (``uav<N>.json``: their sensors, their neighbours, the airspace feed) and their trajectories as
-resampled by mrswarm/analysis.py. Zones and separation between swarms come from the UAVs' own
+resampled by mrswarm/results/analysis.py. Zones and separation between swarms come from the UAVs' own
 flight-controller positions, like every separation of the analysis.
 """
 
@@ -12,15 +12,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from groundfloor.histogram import LogHistogram
-from mrswarm.scenario import Scenario
-from mrswarm.world_summary import (
+from mrswarm.records.world_summary import (
     AirspaceReport,
     FireReport,
     PlumeReport,
@@ -29,20 +27,8 @@ from mrswarm.world_summary import (
     WorldSummary,
     ZoneReport,
 )
-
-AIRBORNE_Z = 1.0  # m, as in mrswarm/analysis.py
-
-
-@dataclass
-class WorldData:
-    """What the world figure needs besides the trajectories."""
-
-    fire_grid: dict[str, np.ndarray] | None = None  # world_fire.npz
-    fire_curve: np.ndarray | None = None  # (n, 3): s, burnt area m^2, cells burning
-    estimates: dict[int, np.ndarray] = field(default_factory=dict)  # UAV -> (n, 3): s, x, y
-    error_curve: np.ndarray | None = None  # (n, 3): s, median m, best m
-    cross_separation: np.ndarray | None = None  # m per grid step, between swarms
-    sprays: np.ndarray | None = None  # (n, 2): x, y of every spray that released something
+from mrswarm.results.run_data import AIRBORNE_Z, WorldData
+from mrswarm.scenario import Scenario
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:

@@ -30,7 +30,7 @@ from discovery.options import DiscoveryService, Key
 from groundfloor import strict_yaml
 from groundfloor.errors import MrswarmError
 from groundfloor.schema import Config, ConfigError, convert, to_builtins
-from mrswarm.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
+from mrswarm.scenario.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
 from swarmnet.keyspace import SWARM_RE
@@ -59,7 +59,8 @@ from world.config import WorldConfig
 
 MAX_OFFSET_M = 50_000.0  # every position of a scenario lies within this of the origin (east and north)
 MAX_SCENARIO_BYTES = 1024 * 1024  # a scenario file larger than this is refused unread
-MAX_COVERAGE_CELLS = 1_000_000  # analysis and live coverage grids (memory: mrswarm/analysis.py)
+MAX_COVERAGE_CELLS = 1_000_000  # analysis and live coverage grids (memory: mrswarm/results/coverage.py)
+MIN_COVERAGE_CELL_M = 0.5
 RESOLVE_TIMEOUT_S = 5.0
 
 Rtf = Annotated[float, Meta(gt=0.0, le=1.0, description="target real-time factor of the virtual FCU")]
@@ -116,7 +117,7 @@ class Mission(Config, frozen=True):
         if self.type == "wildfire" and self.wildfire is None:
             raise ConfigError("wildfire", "a wildfire mission needs its section (hub, fire_hint)")
         if self.area is not None:
-            a, cell = self.area, max(self.sensor_radius / 2.0, 0.5)  # the analysis' cell (mrswarm/analysis.py)
+            a, cell = self.area, self.coverage_cell_m
             cells = math.ceil((a.x_max - a.x_min) / cell) * math.ceil((a.y_max - a.y_min) / cell)
             if cells > MAX_COVERAGE_CELLS:
                 km2 = (a.x_max - a.x_min) * (a.y_max - a.y_min) / 1e6
@@ -134,6 +135,12 @@ class Mission(Config, frozen=True):
             return [(w.camera, "mission.wildfire.camera"), (w.tank, "mission.wildfire.tank"),
                     (w.alarm, "mission.wildfire.alarm")]
         return []
+
+    @property
+    def coverage_cell_m(self) -> float:
+        """The side of a coverage cell, m: half the sensor radius, at least :data:`MIN_COVERAGE_CELL_M` (the
+        analysis and the live estimate cut the area alike, mrswarm/results/coverage.py)."""
+        return max(self.sensor_radius / 2.0, MIN_COVERAGE_CELL_M)
 
     @property
     def lane_spacing(self) -> float:

@@ -55,7 +55,7 @@ def swarm_fleet(scn: Scenario, uavs: int, autostart: bool = False) -> Fleet:
 def stack_keys(fleet: Fleet, out: Path) -> None:
     """The credentials a secured stack needs: the scenario's key directory must hold them; the
     stack's own (``<out>/keys``, made on first use and kept) gets whatever identity is missing."""
-    from mrswarm.run_keys import check_keys, ensure_keys
+    from mrswarm.run.keys import check_keys, ensure_keys
     from swarmnet.security.identity import NodeName
     from swarmnet.security.pki import KeysError
 

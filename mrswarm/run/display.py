@@ -4,8 +4,8 @@ Without a terminal: a line when the stage changes, one per milestone (every UAV 
 ``takeoff``, all airborne), and a progress line every :data:`LINE_EVERY_S` (the mission clock,
 coverage, separation, RTF), each printed once.
 
-It only reads: the scenario, the runner's :class:`~mrswarm.live.RunProgress`, the
-:class:`~mrswarm.live.LiveMetrics` and the observer's view of every UAV.
+It only reads: the scenario, the runner's :class:`~mrswarm.run.live.RunProgress`, the
+:class:`~mrswarm.run.live.LiveMetrics` and the observer's view of every UAV.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
 
-from mrswarm.live import LiveMetrics, RunProgress, RunStage
+from mrswarm.run.live import LiveMetrics, RunProgress, RunStage
 from mrswarm.scenario import Scenario
 from swarmnet.observer import SwarmObserver
 

@@ -1,7 +1,7 @@
 """Watching the run's processes: a process that exits is an event of the experiment, not its end.
 
 Every tick the runner asks the :class:`Supervisor` what exited. Each exit becomes a
-:class:`~mrswarm.summary.ProcessEvent` (time, exit code or signal, a UAV's last pose), and:
+:class:`~mrswarm.records.summary.ProcessEvent` (time, exit code or signal, a UAV's last pose), and:
 
 * the **discovery server** and the **edge router** are started again with exponential backoff
   (0.5 s, doubling up to 10 s; the delay starts again from 0.5 s once a service has stayed up
@@ -33,12 +33,10 @@ from typing import Protocol
 
 import msgspec
 
-from mrswarm.summary import ProcessEvent
+from mrswarm.records.summary import RECORDER, SERVICES, ProcessEvent, uav_of
 
 log = logging.getLogger(__name__)
 
-SERVICES = ("discovery", "router", "recorder")
-RECORDER = "recorder"
 BACKOFF_FIRST_S = 0.5
 FIRST_BACKOFF_S = {RECORDER: 0.1}  # a recorder that is down loses data: back at once, then the usual backoff
 BACKOFF_MAX_S = 10.0
@@ -54,11 +52,6 @@ def is_service(name: str) -> bool:
     for the other swarms of an airspace, docs/world.md) and the flight recorder. Not the world service: a restarted world
     would start its experiment again (the fire lit anew), so its exit stays an event."""
     return name in SERVICES or name.startswith("router-")
-
-
-def uav_of(name: str) -> int | None:
-    """The UAV id of a process name (``uav7`` -> 7), None for a service."""
-    return int(name[3:]) if name.startswith("uav") and name[3:].isdigit() else None
 
 
 def signal_name(code: int | None) -> str | None:
@@ -97,7 +90,7 @@ def last_error(log_path: Path | None) -> str:
 
 
 class Processes(Protocol):
-    """What the supervisor watches: the runtime (mrswarm.runtime.Runtime), or :class:`RunnerChildren`."""
+    """What the supervisor watches: the runtime (mrswarm.run.runtime.Runtime), or :class:`RunnerChildren`."""
 
     def pids(self) -> dict[str, int]: ...
 

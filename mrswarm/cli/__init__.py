@@ -21,7 +21,7 @@ EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell o
 
 def _run(args: argparse.Namespace) -> int:
     try:
-        from mrswarm.signals import StopSignals
+        from mrswarm.run.signals import StopSignals
 
         signals = StopSignals().install()  # from the start: a Ctrl-C is never a traceback
     except KeyboardInterrupt:  # came before the handler
@@ -50,9 +50,9 @@ def _detach_from_terminal() -> None:
 
 
 def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
-    from mrswarm.resources import check_resources
+    from mrswarm.results.summary_table import print_summary
+    from mrswarm.run.resources import check_resources
     from mrswarm.scenario import ScenarioError, load_scenario
-    from mrswarm.summary_table import print_summary
 
     notes: list[str] = []
     try:
@@ -70,7 +70,7 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
         console.print(f"[yellow]warning:[/] {problem} (--force)", highlight=False, soft_wrap=True)
     if signals.requested:
         return signals.exit_code
-    from mrswarm.experiment import Experiment  # heavy (zenoh, numpy): only once the input is known to be good
+    from mrswarm.run.experiment import Experiment  # heavy (zenoh, numpy): only once the input is known to be good
 
     try:
         exp = Experiment(scn, Path(args.out), console=console, live=not args.no_live, log_level=args.log_level,
@@ -101,19 +101,17 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
 def _results(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from mrswarm.results import ResultsError, rebuild_results
-    from mrswarm.summary_table import print_summary
+    from mrswarm.results.summarise import ResultsError, rebuild_results, results_from_recording
+    from mrswarm.results.summary_table import print_summary
 
     console = Console()
     if args.run_dir is None:  # no folder named: the recent runs, to pick one
-        from mrswarm.results import list_runs
+        from mrswarm.results.summarise import list_runs
 
         return list_runs(console, Path("results"))
     path = Path(args.run_dir)
     try:
         if path.is_file():  # a recording (docs/recording.md): its run folder first
-            from mrswarm.recorder.cli import results_from_recording
-
             path = results_from_recording(path, Path(args.out) if args.out else None)
         elif args.out:
             raise ResultsError("--out is for a recording (run.mcap); a run folder's results go into the folder")
@@ -133,15 +131,15 @@ def _results(args: argparse.Namespace) -> int:
 DELEGATED: dict[str, tuple[str, str, str]] = {
     "agent": ("run the swarm agent against a flight controller (real UAV, SITL)", "uav_stack.runtime", "agent_main"),
     "fcu": ("a standalone virtual flight controller speaking MAVLink over UDP", "uav_stack.fcu.__main__", "main"),
-    "preflight": ("check a flight controller for what the agent needs (docs/fcu.md)", "mrswarm.preflight", "main"),
+    "preflight": ("check a flight controller for what the agent needs (docs/fcu.md)", "mrswarm.cli.preflight", "main"),
     "router": ("a Zenoh rendezvous/edge router", "discovery.rendezvous", "main"),
     "deploy": ("images, containers and Docker Swarm stacks (base-image, build, ps, logs, down, swarm)",
-               "mrswarm.deploy_cli", "main"),
-    "netem": ("network impairments: presets, change a running swarm, status (docs/netem.md)", "mrswarm.netem_cli", "main"),
+               "mrswarm.cli.deploy", "main"),
+    "netem": ("network impairments: presets, change a running swarm, status (docs/netem.md)", "mrswarm.cli.netem", "main"),
     "discovery": ("discovery server (serve), registry (nodes), probe node, keygen", "discovery.cli", "main"),
     "netlab": ("routed network-namespace lab without multicast (up/down/list; root)", "discovery.netlab", "main"),
     "world": ("the world service of a scenario, at the edge: virtual sensors, hazards, airspace (docs/world.md)",
-              "mrswarm.world_cli", "main"),
+              "mrswarm.cli.world", "main"),
     "gcs": ("ground station: watch, telemetry, overrides, record (docs/gcs.md)", "mrswarm.gcs.cli", "main"),
     "export": ("a recording (run.mcap) as a run folder of CSVs or as JSON Lines (docs/recording.md)",
                "mrswarm.recorder.cli", "export_main"),
@@ -150,7 +148,7 @@ DELEGATED: dict[str, tuple[str, str, str]] = {
     "sweep": ("a campaign: a scenario over a grid of overrides and seeds, one table with confidence intervals, plots "
               "(docs/campaigns.md)", "mrswarm.sweep.cli", "main"),
     "keys": ("the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
-             "mrswarm.keys_cli", "main"),
+             "mrswarm.cli.keys", "main"),
 }
 
 
