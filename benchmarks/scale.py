@@ -70,7 +70,7 @@ INTEREST = {"radius_m": 60.0, "margin_m": 5.0, "far_rate_hz": 0.5}  # 60 m: ~4.5
 
 
 def scenario_for(n: int, duration: float, config: str, interest: dict[str, float] | None = None,
-                 lease_s: float | None = None) -> Scenario:
+                 lease_s: float | None = None, pool: int = 1) -> Scenario:
     connectivity, mode, feed = CONFIGS[config]
     side = max(120.0, 50.0 * math.sqrt(n))  # constant density: ~2500 m^2 per UAV
     network: dict[str, Any] = {k: v for k, v in (("connectivity", connectivity), ("mode", mode), ("pose_feed", feed))
@@ -91,7 +91,7 @@ def scenario_for(n: int, duration: float, config: str, interest: dict[str, float
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "random",
                     "area": {"x_min": -side / 2, "x_max": side / 2, "y_min": -side / 2, "y_max": side / 2}, "sensor_radius": 10},
-        "fleet": {"count": n, "spawn": {"pattern": "grid", "spacing": 8, "center": [0, 0]}},
+        "fleet": {"count": n, "spawn": {"pattern": "grid", "spacing": 8, "center": [0, 0]}, "pool": pool},
     })
 
 
@@ -139,19 +139,31 @@ class Sampler:
                                          "threads": 0}
 
 
+def per_uav(result: dict[str, dict[str, float]], pools: dict[str, list[int]]) -> dict[str, dict[str, float]]:
+    """Each UAV's share of its process: a UAV process's own figures, a pool's divided among its UAVs."""
+    out = {k: v for k, v in result.items() if k.startswith("uav")}
+    for name, uavs in pools.items():
+        v = result.get(name)
+        if v is not None:
+            share = {k: x / len(uavs) if k != "threads" else x for k, x in v.items()}
+            out.update({f"uav{u}": share for u in uavs})
+    return out
+
+
 def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
-             adapt: Callable[[Scenario], Scenario] | None = None) -> dict[str, Any]:
-    """One run of N UAVs in ``config``; ``adapt`` changes the scenario first (benchmarks/security.py)."""
+             adapt: Callable[[Scenario], Scenario] | None = None, pool: int = 1) -> dict[str, Any]:
+    """One run of N UAVs in ``config`` (``pool`` UAVs to a process); ``adapt`` changes the scenario first
+    (benchmarks/security.py)."""
     sampler = Sampler(args.warmup, args.window)
     interest = {**INTEREST, "radius_m": getattr(args, "interest_radius_m", INTEREST["radius_m"]),
                 "far_rate_hz": getattr(args, "interest_far_hz", INTEREST["far_rate_hz"])}
-    scn = scenario_for(n, args.warmup + args.window + 2.0, config, interest, getattr(args, "lease_s", None))
+    scn = scenario_for(n, args.warmup + args.window + 2.0, config, interest, getattr(args, "lease_s", None), pool)
     if adapt is not None:
         scn = adapt(scn)
     exp = Experiment(scn, Path(args.out) / "runs", console=console, live=False, log_level="WARNING", probe=sampler)
     t0 = time.time()
     summary = exp.run().to_dict()
-    uavs = {k: v for k, v in sampler.result.items() if k.startswith("uav")}
+    uavs = per_uav(sampler.result, exp.run_info.pools)
     if not uavs:  # the run aborted before the window: a row that says why, and the other cells still count
         row = {"n": n, "config": config, "aborted": str(summary.get("aborted")), "takeoff": summary.get("takeoff"),
                "wall_s": round(time.time() - t0, 1), "run_dir": summary.get("run_dir")}
@@ -166,6 +178,7 @@ def run_size(n: int, config: str, args: argparse.Namespace, console: Console,
     row = {
         "n": n,
         "config": config,
+        "pool": pool,  # UAVs per process (fleet.pool); CPU and memory below are per UAV either way
         "connectivity": scn.network.connectivity,  # as resolved: the "default" config's choice for this N
         "mode": scn.network.mode,
         "feed": scn.network.pose_feed,
@@ -318,6 +331,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 25, 50])
+    ap.add_argument("--pools", type=int, nargs="+", default=[1],
+                    help="UAVs per process (fleet.pool), each measured in turn: 1 = a process per UAV")
     ap.add_argument("--warmup", type=float, default=8.0, help="seconds after the mission starts before measuring")
     ap.add_argument("--window", type=float, default=30.0, help="measurement window, s")
     ap.add_argument("--configs", nargs="+", choices=list(CONFIGS), default=["discovery-direct", "discovery-edge", "client-edge"],
@@ -338,7 +353,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out.mkdir(parents=True, exist_ok=True)
     console = Console()
-    rows = [run_size(n, cfg, args, console) for n in args.sizes for cfg in args.configs]
+    # side by side: for each size, each configuration with each pool size (1: a process per UAV)
+    rows = [run_size(n, cfg, args, console, pool=k) for n in args.sizes for cfg in args.configs for k in args.pools]
     tag = args.tag
     write_results(out, tag, {"args": vars(args), "cores": psutil.cpu_count(), "rows": rows}, rows)
     measured = [r for r in rows if "aborted" not in r]

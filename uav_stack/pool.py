@@ -151,6 +151,7 @@ class Pool:
     def _wait(self, timeout: float) -> None:
         for key, _ in self._sel.select(timeout):
             u: VirtualUav = key.data
+            u.agent.node.waker.clear()  # (as Waker.wait does: else the descriptor stays readable)
             self._guarded(u, "react")
 
     def _each(self, half: str) -> None:

@@ -335,8 +335,12 @@ class Experiment:
         self._save_info()
         one = len(configs) == 1
         kind = ("container" if one else "containers") if self.runtime.name == "docker" else ("process" if one else "processes")
-        fleet = f"{len(configs)} virtual UAV {kind}" + (f" and {len(agents)} UAV{'s' if len(agents) > 1 else ''} with an "
-                                                         "external flight controller" if agents else "")
+        if pools:
+            fleet = f"{len(configs)} virtual UAVs in {len(pools)} pool{'s' if len(pools) > 1 else ''} (fleet.pool)"
+        else:
+            fleet = f"{len(configs)} virtual UAV {kind}"
+        if agents:
+            fleet += f" and {len(agents)} UAV{'s' if len(agents) > 1 else ''} with an external flight controller"
         self._say(f"[bold]{scn.name}[/]: {fleet}, results in {self.run_dir}")
         self._say(f"ground station: mrswarm gcs watch --run {self.run_dir}")
         if scn.gcs.mavlink and scn.gcs.port is not None:
