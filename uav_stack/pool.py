@@ -36,6 +36,7 @@ from uav_stack.config import VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.runtime import (
     FCU_LEAD_S,
+    LoopStats,
     StopFlag,
     VirtualUav,
     check_signing_key,
@@ -120,6 +121,9 @@ class Pool:
     def run(self, stop: StopFlag, period: float, duration: float | None = None) -> None:
         """Tick every UAV on the wall clock's grid (``period`` s) until stopped or ``duration`` s pass."""
         parent = os.getppid()
+        loop = LoopStats(period)  # the pool's loop is each of its UAVs' loop
+        for u in self.uavs:
+            u.agent.stats_sources["loop"] = loop.as_dict
         t0 = time.monotonic()
         end = math.inf if duration is None else t0 + duration
         next_sense = next_grid_instant(t0, period)
@@ -139,6 +143,7 @@ class Pool:
                 self.fcu.poll_io()  # the setpoints just sent: applied now
                 continue
             instant = next_sense
+            loop.tick(now_m - instant)
             next_sense = next_grid_instant(now_m, period)
             next_act = max(instant, next_sense - period) + ACT_AFTER * period
             self.fcu.poll_io()

@@ -179,6 +179,29 @@ def tick_hz_for(cfg: AgentConfig) -> float:
     return max(cfg.control_rate_hz, cfg.pose_rate_hz)
 
 
+LATE_AFTER = 0.5  # of a period: a tick that begins this long after its time is late (the host did not keep up)
+
+
+@dataclass
+class LoopStats:
+    """How a UAV process's loop kept its ticks: the counters file's ``loop`` section. Late ticks
+    mean the machine could not keep up (the run's summary says so: ``saturated``)."""
+
+    period_s: float = 0.1
+    ticks: int = 0
+    late: int = 0  # ticks that began more than LATE_AFTER of a period after their time
+    worst_late_s: float = 0.0
+
+    def tick(self, late_s: float) -> None:
+        self.ticks += 1
+        if late_s > LATE_AFTER * self.period_s:
+            self.late += 1
+            self.worst_late_s = max(self.worst_late_s, late_s)
+
+    def as_dict(self) -> dict[str, float]:
+        return {"period_s": self.period_s, "ticks": self.ticks, "late": self.late, "worst_late_s": round(self.worst_late_s, 3)}
+
+
 def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
              tick_hz: float | None = None) -> None:
     """Drive the FCU (optional) and the agent on one fixed tick until stopped.
@@ -201,10 +224,12 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
     """
     parent = os.getppid()
     period = 1.0 / (tick_hz or tick_hz_for(agent.cfg))
+    loop = LoopStats(period)
+    agent.stats_sources["loop"] = loop.as_dict
     t0 = time.monotonic()
     end = math.inf if duration is None else t0 + duration
     if agent.cfg.align_ticks:
-        _run_aligned(agent, stop, fcu, period, end, parent)
+        _run_aligned(agent, stop, fcu, period, end, parent, loop)
         return
     next_tick = t0
     while not stop.stopped:
@@ -215,6 +240,7 @@ def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, durati
             if agent.node.waker.wait(min(next_tick, end) - now_m):
                 agent.react(time.time())
             continue
+        loop.tick(now_m - next_tick)
         next_tick = max(next_tick + period, now_m)  # late: skip, never burst
         if fcu is not None:
             fcu.poll_io()
@@ -243,7 +269,8 @@ def next_grid_instant(now_m: float, period: float) -> float:
     return now_m + (to_next if to_next > 0.1 * period else to_next + period)
 
 
-def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: float, end: float, parent: int) -> None:
+def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: float, end: float, parent: int,
+                 loop: LoopStats) -> None:
     """:func:`run_loop` on the wall clock's grid: each tick in two halves, sense then act.
 
     At each instant of the grid (whole multiples of ``period`` s since the Unix epoch, found
@@ -291,6 +318,7 @@ def _run_aligned(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None, period: f
                 fcu.poll_io()  # the setpoints just sent: applied now
             continue
         instant = next_sense
+        loop.tick(now_m - instant)
         next_sense = next_grid_instant(now_m, period)
         instant = max(instant, next_sense - period)  # its own instant, unless more than a period late
         # nobody to wait for (a lone UAV): the whole tick in this wake-up, as run_loop does it

@@ -16,6 +16,7 @@ EXIT_OK = 0  # the run completed: no collision, no incident
 EXIT_FAILED = 1  # the runner gave up (aborted), nothing was recorded, or the records are incomplete (degraded)
 EXIT_USAGE = 2  # bad input: the scenario, an override, --out, or a fleet too large for this machine
 EXIT_SAFETY = 3  # the run completed, with collisions or incidents (a UAV fell or hit the ground)
+EXIT_SATURATED = 4  # the run completed, but the machine could not keep up: its figures measure the host (summary.saturated)
 # 128 + N: stopped by signal N (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)
 
 
@@ -95,6 +96,8 @@ def _run_with(args: argparse.Namespace, console: Any, signals: Any) -> int:
         return EXIT_SAFETY
     if summary.degraded:  # a full or failing disk lost records: the summary's `degraded` says which
         return EXIT_FAILED
+    if summary.saturated:
+        return EXIT_SATURATED
     return EXIT_OK
 
 

@@ -479,6 +479,9 @@ class RunSummary(Struct):
     # why the run's records are incomplete (records lost to a full or failing disk, a recorder gap, a file not
     # written); empty when they are whole. Not empty: ``mrswarm run`` exits 1 (3 with collisions or incidents)
     degraded: list[str] = []
+    # why the host could not keep up (UAV loops late, poses lost on unimpaired links): its figures measure the
+    # machine, not the swarm (mrswarm/results/saturation.py). Not empty: ``mrswarm run`` exits 4
+    saturated: list[str] = []
     write_error: str | UnsetType = UNSET  # summary.json itself could not be written (only in the printed summary)
 
     @property

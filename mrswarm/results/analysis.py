@@ -48,6 +48,7 @@ from mrswarm.results.fault_report import failsafe_events, fault_table, lost_uavs
 from mrswarm.results.incidents import find_incidents, safety_incident
 from mrswarm.results.netem_report import netem_report, pose_age_report
 from mrswarm.results.run_data import AIRBORNE_Z, GRID_HZ, CoverageMap, RunData, Track
+from mrswarm.results.saturation import saturation_reasons
 from mrswarm.results.world_report import world_report
 from mrswarm.scenario import Scenario
 from uav_stack.phases import WORKING
@@ -599,6 +600,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if age_error is not None:
         network.pose_age_over_time_error = age_error
     summary.network = network
+    summary.saturated = saturation_reasons(network.pose_loss, stats)
     summary.duration_s = float(t_end - t0)
     world_data = None
     if scenario.world is not None:

@@ -110,6 +110,8 @@ def summary_table(s: RunSummary) -> Table:
                              + ", ".join(f"{k} {plural(v, 'time')}" for k, v in rec.errors.items()) + "), "
                              f"{plural(rec.rows_dropped, 'row')} lost"
                              + (f"; runner: {', '.join(rec.runner)}" if rec.runner else ""))
+    if s.saturated:
+        t.add_row("host", "[yellow]saturated: " + escape("; ".join(s.saturated)) + "[/]")
     if s.degraded:
         t.add_row("degraded", "[yellow]" + escape("; ".join(s.degraded[:4]))
                   + (f" (+{len(s.degraded) - 4} more)" if len(s.degraded) > 4 else "") + "[/]")
