@@ -20,7 +20,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
@@ -41,6 +41,7 @@ from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
     from uav_stack.mavlink_router import MavlinkRouter
+    from uav_stack.sdk.adapter import BehaviourMission
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,10 @@ def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneFi
     the ``zones`` (their targets there are skipped).
     """
     m = cfg.mission
+    if m.type == "behaviour":  # a behaviour of the SDK (uav_stack/sdk, docs/sdk.md), guarded by its adapter
+        from uav_stack.sdk.adapter import make_behaviour_mission
+
+        return make_behaviour_mission(cfg)
     if m.type in ("plume", "wildfire"):
         from uav_stack.behaviours.sensing_missions import make_sensing_mission
 
@@ -128,6 +133,10 @@ class Agent(OverridesMixin):
             if a.enabled
             else None
         )
+        # an SDK behaviour (uav_stack/sdk): bound to this agent; asks for an altitude or a landing (read in _fly)
+        self.sdk = cast("BehaviourMission", self.mission) if cfg.mission.type == "behaviour" else None
+        if self.sdk is not None:
+            self.sdk.attach(self)
         self.started_at: float | None = None
         self.go = cfg.autostart  # begin the mission as soon as airborne
         self.mission_started_at: float | None = None
@@ -581,6 +590,13 @@ class Agent(OverridesMixin):
         elif self.mission is not None and self.phase in WORKING:
             members = self.node.members()
             vx, vy = self.mission.velocity(me, members)
+            sdk = self.sdk
+            if sdk is not None:  # an SDK behaviour's altitude target and landing (uav_stack/sdk/adapter.py)
+                if sdk.altitude is not None:
+                    self.alt_target = sdk.altitude
+                if sdk.request == "land":
+                    self._land()
+                    return
             if self.cooperative is not None:
                 self._share(self.cooperative)
             if self.mission.done:
