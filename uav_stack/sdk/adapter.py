@@ -42,7 +42,6 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from swarmnet.messages import encode_swarm_message
 from uav_stack.behaviours.base import SelfState, Vec2
 from uav_stack.recorder import AppendLog
 from uav_stack.sdk import loader

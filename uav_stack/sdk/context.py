@@ -80,7 +80,8 @@ class Context:
     """
 
     def __init__(self, uav: int, swarm: str, realm: str, speed: float, altitude: float,
-                 area: tuple[float, float, float, float] | None, goal: tuple[float, float] | None, outbox: Outbox, logger: logging.Logger,
+                 area: tuple[float, float, float, float] | None, goal: tuple[float, float] | None, outbox: Outbox,
+                 logger: logging.Logger,
                  neighbours: Callable[[float], list[Neighbour]], sensors: Callable[[], Mapping[str, SensorReading | None]],
                  record: Callable[[str, float], None]) -> None:
         self.uav = uav
