@@ -144,3 +144,40 @@ def test_a_class_that_is_not_usable_is_refused() -> None:
     for cls in (NoStep, BadTopic):
         with pytest.raises(ConfigError):
             loader.check_class(cls)
+
+
+AGENT = ["--fcu", "udpin:127.0.0.1:14540", "--swarm", "alpha", "--uav", "3", "--connect", "tcp/127.0.0.1:7447", "--insecure",
+         "--origin", "47,8,500"]
+
+
+def test_mrswarm_agent_flies_a_behaviour_named_on_its_command_line(tmp_path: Path) -> None:
+    from uav_stack.runtime import parse_agent
+
+    cfg, _ = parse_agent([*AGENT, "--behaviour", "examples.flocking:Flocking", "--params", '{"speed": 2.5}'])
+    assert cfg.mission.type == "behaviour" and cfg.mission.behaviour == "examples.flocking:Flocking"
+    assert cfg.mission.params == {"speed": 2.5}
+    (tmp_path / "p.yaml").write_text("radius: 30\n")
+    cfg, _ = parse_agent([*AGENT, "--behaviour", "examples.flocking:Flocking", "--params", f"@{tmp_path / 'p.yaml'}"])
+    assert cfg.mission.params == {"radius": 30}
+    path = tmp_path / "uav3.json"  # beside --config too: a companion's own behaviour
+    path.write_text(cfg.to_json())
+    got, _ = parse_agent(["--config", str(path), "--insecure", "--params", '{"speed": 1.0}'])
+    assert got.mission.behaviour == "examples.flocking:Flocking" and got.mission.params == {"speed": 1.0}
+
+
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--behaviour", "examples.nowhere:X"], "--behaviour: cannot import 'examples.nowhere'"),
+    (["--behaviour", "examples.flocking:Flocking", "--params", '{"speed": "x"}'], "--params: speed: must be a number"),
+    (["--behaviour", "examples.flocking:Flocking", "--params", "[1]"], "--params: expected a mapping"),
+    (["--behaviour", "examples.flocking:Flocking", "--params", "@/nonexistent.yaml"], "--params: /nonexistent.yaml: cannot read"),
+    (["--params", "{}"], "--params: for a behaviour: give --behaviour SPEC too"),
+])
+def test_a_bad_behaviour_flag_is_one_usage_line_naming_it(flags: list[str], message: str,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    from uav_stack.runtime import parse_agent
+
+    with pytest.raises(SystemExit) as ex:
+        parse_agent([*AGENT, *flags])
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and message in err, err
