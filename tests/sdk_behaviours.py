@@ -13,7 +13,7 @@ class FaultyParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     raise_on: list[int] = []  # UAVs whose step raises after `after_s`
     slow_on: list[int] = []  # UAVs whose step overruns its budget after `after_s`
     after_s: float = 3.0  # s of mission
-    slow_s: float = 0.06  # s a slow step takes
+    slow_s: float = 0.06  # s of CPU a slow step takes
 
 
 class Faulty(Behaviour[FaultyParams]):
@@ -26,8 +26,10 @@ class Faulty(Behaviour[FaultyParams]):
         if ctx.mission_t >= p.after_s:
             if ctx.uav in p.raise_on:
                 raise RuntimeError(f"UAV {ctx.uav} fails on purpose")
-            if ctx.uav in p.slow_on:
-                time.sleep(p.slow_s)
+            if ctx.uav in p.slow_on:  # a slow computation: CPU time over the budget
+                end = time.thread_time() + p.slow_s
+                while time.thread_time() < end:
+                    pass
         return Hold() if ctx.mission_t < 1.0 else None
 
 

@@ -9,13 +9,14 @@ built-in mission. After each tick the agent reads two attributes: :attr:`Behavio
 :attr:`BehaviourMission.request` (``"land"``: land now).
 
 It guards the UAV against the user's code: an exception in ``setup``/``step``, a step over its
-time budget (``mission.budget_ms``) or an intent that is not one is a *fault*, counted and
-logged. ``mission.max_faults`` faults in a row, or twice that within :data:`FAULT_WINDOW_S`,
-and the behaviour is stopped: the UAV holds where it is for ``mission.hold_s``, then lands,
-and an incident goes into the stats file (``behaviour.incidents``), whence into the run's
-summary. A step that never returns is interrupted after :data:`HARD_LIMIT_FACTOR` times its
-budget (at least 1 s) by a timer signal, where the agent runs in the main thread (it does in
-every UAV process).
+time budget (``mission.budget_ms`` of CPU time, so that a step the machine's load descheduled is
+not blamed; a step that waits, on a sleep or I/O, once it takes :data:`WAIT_FACTOR` budgets of
+wall time) or an intent that is not one is a *fault*, counted and logged. ``mission.max_faults``
+faults in a row, or twice that within :data:`FAULT_WINDOW_S`, and the behaviour is stopped: the
+UAV holds where it is for ``mission.hold_s``, then lands, and an incident goes into the stats
+file (``behaviour.incidents``), whence into the run's summary. A step that never returns is
+interrupted after :data:`HARD_LIMIT_FACTOR` times its budget (at least 1 s) by a timer signal,
+where the agent runs in the main thread (it does in every UAV process).
 
 Messages: a behaviour's topics are the keys of its ``messages``; what it sends goes out at once
 on the swarm node (broadcast ``mrs/<swarm>/<src>/msg/<topic>``, unicast
@@ -57,6 +58,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FAULT_WINDOW_S = 30.0  # s: 2 * max_faults faults within this stop the behaviour too
+WAIT_FACTOR = 10.0  # a step that waits (sleep, I/O) overruns once it takes this many budgets of wall time
 HARD_LIMIT_FACTOR = 50.0  # a step running this many budgets (at least HARD_LIMIT_MIN_S) is interrupted
 HARD_LIMIT_MIN_S = 1.0
 APPROACH_GAIN = 0.8  # 1/s: GoTo's speed = gain * distance, capped by the cruise speed
@@ -251,7 +253,7 @@ class BehaviourMission:
 
     def _run_step(self, me: SelfState, members: Sequence[int], now: float) -> None:
         self._refresh_context(me, members, now)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         try:
             with _HardLimit(max(HARD_LIMIT_MIN_S, HARD_LIMIT_FACTOR * self.budget_s)):
                 if not self._set_up:
@@ -266,6 +268,7 @@ class BehaviourMission:
             return
         finally:
             took = time.perf_counter() - t0
+            cpu = time.thread_time() - c0
             self.steps += 1
             self.step_s_sum += took
             self.step_s_max = max(self.step_s_max, took)
@@ -276,9 +279,10 @@ class BehaviourMission:
                 self._fault("bad_intent", problem, now)
                 return
             self._take_intent(intent, me)
-        if took > self.budget_s:
+        if cpu > self.budget_s or took > WAIT_FACTOR * self.budget_s:
             self.overruns += 1
-            self._fault("overrun", f"step took {1000.0 * took:.1f} ms, over its {1000.0 * self.budget_s:g} ms budget", now)
+            self._fault("overrun", f"step took {1000.0 * cpu:.1f} ms of CPU ({1000.0 * took:.1f} ms wall), over its "
+                                   f"{1000.0 * self.budget_s:g} ms budget", now)
         elif intent is None or not problem:
             self.in_a_row = 0
 

@@ -7,7 +7,7 @@ once the mission starts, then :meth:`Behaviour.step` at :attr:`Behaviour.rate_hz
 (:mod:`uav_stack.sdk.intents`) or None to keep flying the last one.
 
 The step runs in the UAV process's control loop: it must return within its time budget
-(``mission.budget_ms``, 20 ms by default). An exception or an overrun is counted; several in a
+(``mission.budget_ms`` of CPU time, 20 ms by default). An exception or an overrun is counted; several in a
 row and the UAV holds its position, then lands, and the run's summary lists an incident
 (:mod:`uav_stack.sdk.adapter`).
 """
