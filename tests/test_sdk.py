@@ -181,3 +181,27 @@ def test_a_bad_behaviour_flag_is_one_usage_line_naming_it(flags: list[str], mess
     assert ex.value.code == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and message in err, err
+
+
+class Forever(Behaviour):  # type: ignore[type-arg]
+    def step(self, ctx: Context) -> None:
+        while True:
+            pass
+
+
+def test_a_step_that_never_returns_is_interrupted_and_stops_the_behaviour() -> None:
+    m = make_behaviour_mission(agent_config("tests.test_sdk:Forever", budget_ms=1.0, max_faults=1))
+    assert m.velocity(me(0.0), (2,)) == (0.0, 0.0)
+    assert m.exceptions == 1 and m.state == "holding"
+    assert "StepTimeout: step still running after 1 s" in m.last_error
+
+
+def test_the_api_reference_covers_every_public_name() -> None:
+    import mrswarm.api
+
+    text = (ROOT / "docs" / "sdk.md").read_text()
+    missing = [name for name in mrswarm.api.__all__ if name not in ("ENTRY_POINT_GROUP", "Intent", "NoParams")
+               and f"`{name}" not in text]
+    assert missing == []
+    for member in ("neighbours_within", "send_to", "record", "mission_t", "sim_t", "battery", "inbox"):
+        assert f"`{member}" in text, member
