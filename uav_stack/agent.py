@@ -26,7 +26,6 @@ from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
 from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
-from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
 from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
@@ -83,17 +82,15 @@ def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneFi
 
         return make_sensing_mission(cfg, payload or Payload(), zones, random.Random(cfg.seed * 1_000_003 + cfg.uav))
     if m.type == "coverage":
-        area = Rect(*m.area)
-        if m.strategy == "random":
-            # stdlib Random, not numpy's Generator: numpy.random pulls in OpenSSL (~4 MB per process)
-            return RandomDirectionCoverage(area, cfg.speed, random.Random(cfg.seed * 1_000_003 + cfg.uav))
-        if m.strategy == "lawnmower":
-            return LawnmowerCoverage(area, cfg.speed, m.lane_spacing)
-        raise ValueError(f"unknown coverage strategy {m.strategy!r}")
-    if m.type == "goto":
-        if m.goal is None:
-            raise ValueError("a goto mission needs a goal")
-        return GoTo(m.goal, cfg.speed, m.goal_tolerance)
+        if m.strategy not in ("random", "lawnmower"):
+            raise ValueError(f"unknown coverage strategy {m.strategy!r}")
+        Rect(*m.area)  # a valid area, or ValueError now
+    if m.type == "goto" and m.goal is None:
+        raise ValueError("a goto mission needs a goal")
+    if m.type in ("coverage", "goto"):  # the built-in behaviours of the SDK (uav_stack/sdk/builtins.py)
+        from uav_stack.sdk.builtins import builtin_mission
+
+        return builtin_mission(cfg)
     if m.type == "idle":
         return None
     raise ValueError(f"unknown mission type {m.type!r}")
@@ -134,7 +131,7 @@ class Agent(OverridesMixin):
             else None
         )
         # an SDK behaviour (uav_stack/sdk): bound to this agent; asks for an altitude or a landing (read in _fly)
-        self.sdk = cast("BehaviourMission", self.mission) if cfg.mission.type == "behaviour" else None
+        self.sdk = cast("BehaviourMission", self.mission) if getattr(self.mission, "sdk", False) else None
         if self.sdk is not None:
             self.sdk.attach(self)
         self.started_at: float | None = None

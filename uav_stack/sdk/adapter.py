@@ -103,11 +103,13 @@ class BehaviourMission:
     """The agent's mission (``velocity``/``done``) and cooperative mission (``topics``/``receive``/
     ``outbox``/``status``) around one user behaviour, guarded. See the module's docstring."""
 
-    def __init__(self, cfg: AgentConfig, behaviour: Behaviour[Any]) -> None:
+    sdk = True  # what the agent asks to tell it from its other missions
+
+    def __init__(self, cfg: AgentConfig, behaviour: Behaviour[Any], spec: str | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
         self.behaviour = behaviour
-        self.spec = m.behaviour or ""
+        self.spec = spec or m.behaviour or ""
         cls = type(behaviour)
         self.types: dict[str, type[msgspec.Struct]] = dict(cls.messages)
         self.topics: tuple[str, ...] = tuple(self.types)
@@ -457,6 +459,8 @@ class _HardLimit:
         if threading.current_thread() is threading.main_thread():
             self.prev_handler = signal.signal(signal.SIGALRM, self._expired)
             self.prev_timer = signal.setitimer(signal.ITIMER_REAL, self.limit_s)
+            if 0.0 < self.prev_timer[0] < self.limit_s:  # a timer due sooner (the shutdown watchdog): not postponed
+                signal.setitimer(signal.ITIMER_REAL, self.prev_timer[0])
             self.armed = True
             self.t0 = time.monotonic()
         return self

@@ -9,7 +9,7 @@ they double as examples of a behaviour that keeps state between steps and finish
 from __future__ import annotations
 
 import random
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 from msgspec import Meta
@@ -20,6 +20,10 @@ from uav_stack.behaviours.coverage import LawnmowerCoverage, RandomDirectionCove
 from uav_stack.sdk.behaviour import Behaviour
 from uav_stack.sdk.context import Context
 from uav_stack.sdk.intents import Velocity
+
+if TYPE_CHECKING:
+    from uav_stack.config import AgentConfig
+    from uav_stack.sdk.adapter import BehaviourMission
 
 Metres = Annotated[float, Meta(gt=0.0, le=10000.0, description="m")]
 Area = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (m, ENU)
@@ -58,6 +62,10 @@ class GoToGoal(Behaviour[GoToParams]):
     @property
     def done(self) -> bool:
         return hasattr(self, "algorithm") and self.algorithm.done
+
+    @property
+    def status(self) -> str:
+        return "goto"
 
 
 class LawnmowerParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -105,3 +113,18 @@ class RandomDirection(Behaviour[RandomParams]):
     @property
     def status(self) -> str:
         return "coverage/random"
+
+
+def builtin_mission(cfg: AgentConfig) -> BehaviourMission:
+    """``mission.type`` goto or coverage (lawnmower, random) flown as the built-in behaviour of the SDK,
+    with the mission's settings as its parameters (``uav_stack.agent.make_mission``)."""
+    from uav_stack.sdk.adapter import BehaviourMission
+
+    m = cfg.mission
+    if m.type == "goto":
+        return BehaviourMission(cfg, GoToGoal(GoToParams(goal=m.goal, tolerance=m.goal_tolerance)), "goto")
+    if m.type == "coverage" and m.strategy == "lawnmower":
+        return BehaviourMission(cfg, Lawnmower(LawnmowerParams(area=m.area, lane_spacing=m.lane_spacing)), "lawnmower")
+    if m.type == "coverage" and m.strategy == "random":
+        return BehaviourMission(cfg, RandomDirection(RandomParams(area=m.area, seed=cfg.seed)), "random")
+    raise ValueError(f"no built-in behaviour for mission type {m.type!r} ({m.strategy})")

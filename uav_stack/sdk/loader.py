@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import importlib
 import re
-from importlib import metadata
 from typing import Any
 
 import msgspec
@@ -35,6 +34,8 @@ SWARM_MAX_MESSAGE_BYTES = 64 * 1024  # swarmnet's limit for a swarm message
 
 def registered() -> dict[str, str]:
     """Every behaviour name known here: the built-ins, then the entry points of installed packages."""
+    from importlib import metadata  # only to find a behaviour by name
+
     out = dict(BUILTINS)
     for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         out[ep.name] = ep.value
