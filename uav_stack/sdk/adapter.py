@@ -151,6 +151,7 @@ class BehaviourMission:
         self._stopped_at = math.nan
         self._hold_point: Vec2 = (math.nan, math.nan)
         self.values: dict[str, float] = {}
+        self._limit = _HardLimit(max(HARD_LIMIT_MIN_S, HARD_LIMIT_FACTOR * self.budget_s))
         self.records: AppendLog | None = None
         if cfg.record_dir:
             self.records = AppendLog(Path(cfg.record_dir) / f"behaviour_uav{cfg.uav}.csv", "t_wall,name,value\n")
@@ -257,7 +258,7 @@ class BehaviourMission:
         self._refresh_context(me, members, now)
         t0, c0 = time.perf_counter(), time.thread_time()
         try:
-            with _HardLimit(max(HARD_LIMIT_MIN_S, HARD_LIMIT_FACTOR * self.budget_s)):
+            with self._limit:
                 if not self._set_up:
                     self._set_up = True
                     self.behaviour.setup(self.ctx)
@@ -446,36 +447,58 @@ class BehaviourMission:
 
 
 class _HardLimit:
-    """A timer signal that raises :class:`StepTimeout` into a step still running after ``limit_s``
-    (only in the main thread, where signals are delivered; the previous timer and handler come back)."""
+    """A timer signal that raises :class:`StepTimeout` into a step still running after ``limit_s``.
+
+    Only in the main thread, where Python runs signal handlers. The handler stays installed
+    between steps (two system calls a step instead of five); a SIGALRM outside a step goes to
+    the handler that was there before, or does what SIGALRM does by default (the UAV process's
+    shutdown watchdog ends the process with it). A timer that was running, due sooner than the
+    limit, is never postponed, and comes back after the step."""
 
     def __init__(self, limit_s: float) -> None:
         self.limit_s = limit_s
-        self.armed = False
+        self.installed = False
+        self.in_step = False
         self.prev_handler: Any = None
         self.prev_timer = (0.0, 0.0)
+        self.t0 = 0.0
+
+    def _installed(self) -> bool:
+        if not self.installed:
+            if threading.current_thread() is not threading.main_thread():
+                return False
+            self.prev_handler = signal.signal(signal.SIGALRM, self._on_alarm)
+            self.installed = True
+        return True
+
+    def _on_alarm(self, signum: int, frame: FrameType | None) -> None:
+        if self.in_step:
+            raise StepTimeout(f"step still running after {self.limit_s:g} s: interrupted")
+        prev = self.prev_handler
+        if callable(prev):
+            prev(signum, frame)
+        elif prev != signal.SIG_IGN:  # the default action: end the process
+            signal.signal(signal.SIGALRM, signal.SIG_DFL)
+            signal.raise_signal(signal.SIGALRM)
 
     def __enter__(self) -> _HardLimit:
-        if threading.current_thread() is threading.main_thread():
-            self.prev_handler = signal.signal(signal.SIGALRM, self._expired)
+        if self._installed():
             self.prev_timer = signal.setitimer(signal.ITIMER_REAL, self.limit_s)
             if 0.0 < self.prev_timer[0] < self.limit_s:  # a timer due sooner (the shutdown watchdog): not postponed
                 signal.setitimer(signal.ITIMER_REAL, self.prev_timer[0])
-            self.armed = True
             self.t0 = time.monotonic()
+            self.in_step = True
         return self
 
-    def _expired(self, signum: int, frame: FrameType | None) -> None:
-        raise StepTimeout(f"step still running after {self.limit_s:g} s: interrupted")
-
     def __exit__(self, *exc: object) -> None:
-        if not self.armed:
+        if not self.in_step:
             return
-        signal.setitimer(signal.ITIMER_REAL, 0.0)
-        signal.signal(signal.SIGALRM, self.prev_handler if self.prev_handler is not None else signal.SIG_DFL)
+        self.in_step = False
         left = self.prev_timer[0]
-        if left > 0.0:  # a timer was running (the shutdown watchdog): it goes on, less the time the step took
+        if left > 0.0:  # a timer was running: it goes on, less the time the step took
             signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - self.t0)), self.prev_timer[1])
+        else:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
 
 
 def make_behaviour_mission(cfg: AgentConfig) -> BehaviourMission:
