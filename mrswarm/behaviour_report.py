@@ -63,3 +63,16 @@ def behaviour_summary(stats: dict[int, dict[str, Any]]) -> BehaviourSummary | No
         t["age_mean_ms"] = round(age_sum / t["received"], 2) if t["received"] else None
     return BehaviourSummary(behaviours=sorted(names), uavs=len(sections), steps=steps, step_max_ms=round(step_max, 3),
                             faults=faults, stopped=stopped, topics=topics)
+
+
+def behaviour_line(b: BehaviourSummary) -> str:
+    """The printed summary's line: the behaviours, their faults, the UAVs stopped, the messages per topic."""
+    faults = sum(b.faults.values())
+    parts = [f"{', '.join(b.behaviours)} on {b.uavs} UAVs, {b.steps} steps (longest {b.step_max_ms:.1f} ms)",
+             "no fault" if not faults else ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in sorted(b.faults.items()) if n)]
+    if b.stopped:
+        parts.append(f"stopped on UAV{'s' if len(b.stopped) > 1 else ''} {', '.join(map(str, b.stopped))} (held, then landed)")
+    for topic, c in sorted(b.topics.items())[:4]:
+        age = f", age mean {c['age_mean_ms']:.0f} ms" if c.get("age_mean_ms") is not None else ""
+        parts.append(f"{topic}: sent {c['sent']}, received {c['received']}, rejected {c['rejected']}{age}")
+    return "; ".join(parts)
