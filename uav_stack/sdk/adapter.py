@@ -286,8 +286,8 @@ class BehaviourMission:
             self.overruns += 1
             self._fault("overrun", f"step took {1000.0 * cpu:.1f} ms of CPU ({1000.0 * took:.1f} ms wall), over its "
                                    f"{1000.0 * self.budget_s:g} ms budget", now)
-        elif intent is None or not problem:
-            self.in_a_row = 0
+        else:
+            self.in_a_row = 0  # a good step ends a run of faults
 
     def _take_intent(self, intent: Intent, me: SelfState) -> None:
         self._intent = intent
