@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.docker_support import no_leftovers  # noqa: F401 (a fixture)
+
 ROOT = Path(__file__).resolve().parents[1]
 NAME = "sdk_e2e_ring"
 
@@ -54,5 +56,48 @@ def test_a_package_written_by_mrswarm_new_and_pip_installed_flies_on_20_uavs(tmp
         for uav in range(1, 21):
             st = json.loads((run_dir / f"uav{uav}.json").read_text())
             assert st["phase"] == "mission" and st["behaviour"]["values"]["heard"] == 19.0, (uav, st["behaviour"])
+    finally:
+        pip("uninstall", "-y", "-q", NAME.replace("_", "-"))
+
+
+@pytest.fixture(scope="module")
+def sdk_image() -> str:
+    """The stack image of this checkout under a tag of its own (the SDK's tests never retag mrswarm:<version>)."""
+    from deploy.images import ImageError, default_base, ensure_image
+
+    try:
+        from tests.docker_support import docker_client
+
+        return ensure_image(tag="mrswarm-sdk-test:dev", base=default_base(docker_client()), log=lambda m: None).tag
+    except ImageError as exc:
+        pytest.fail(f"cannot build the stack image: {exc}", pytrace=False)
+
+
+@pytest.mark.docker
+def test_the_docker_runtime_carries_the_package_into_the_uav_containers(tmp_path: Path, sdk_image: str,
+                                                                       no_leftovers: None) -> None:
+    res = subprocess.run([sys.executable, "-m", "mrswarm", "new", "behaviour", NAME, "--dir", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    res = pip("install", "--no-deps", "-q", str(tmp_path / NAME))
+    assert res.returncode == 0, res.stdout + res.stderr
+    try:
+        elsewhere = tmp_path / "elsewhere"
+        elsewhere.mkdir()
+        out = tmp_path / "runs"
+        res = subprocess.run([sys.executable, "-m", "mrswarm", "run", str(tmp_path / NAME / "scenario.yaml"),
+                              "--runtime", "docker", "--set", f"docker.image={sdk_image}", "--set", "mission.behaviour=" + NAME,
+                              "--set", "fleet.count=4", "--set", "duration=20", "--out", str(out), "--no-live", "--no-record",
+                              "--log-level", "WARNING"],
+                             capture_output=True, text=True, timeout=600, cwd=elsewhere)
+        assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+        run_dir = next(out.iterdir())
+        summary = json.loads((run_dir / "summary.json").read_text())
+        assert summary["uavs_recorded"] == 4 and summary["separation"]["collisions"] == 0
+        b = summary["behaviour"]
+        assert b["behaviours"] == [NAME] and b["uavs"] == 4 and b["stopped"] == []
+        for uav in range(1, 5):
+            st = json.loads((run_dir / f"uav{uav}.json").read_text())
+            assert st["phase"] == "mission" and st["behaviour"]["values"]["heard"] == 3.0, (uav, st["behaviour"])
     finally:
         pip("uninstall", "-y", "-q", NAME.replace("_", "-"))
