@@ -6,7 +6,7 @@ import time
 
 import msgspec
 
-from mrswarm.api import Behaviour, Context, Hold, Intent, Velocity
+from mrswarm.api import Behaviour, Context, GoTo, Hold, Intent, Velocity
 
 
 class FaultyParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -51,3 +51,18 @@ class Chatty(Behaviour):  # type: ignore[type-arg]
         ctx.send("test/ping", Ping(self.n))
         ctx.record("heard", float(len(ctx.inbox("test/ping"))))
         return Velocity(0.0, 0.0)
+
+
+class StraightParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    altitude: float | None = None  # m above the origin; None: the flight's
+
+
+class Straight(Behaviour[StraightParams]):
+    """Straight to the UAV's goal at its own altitude, without collision avoidance (it opts out)."""
+
+    Params = StraightParams
+    avoidance = False
+
+    def step(self, ctx: Context) -> Intent:
+        assert ctx.goal is not None
+        return GoTo(ctx.goal[0], ctx.goal[1], self.params.altitude)

@@ -104,3 +104,24 @@ def test_a_behaviour_that_raises_or_overruns_holds_then_lands_and_the_others_fly
         flight.summary["processes"]
     # no unsafe descent: a hold, then the autopilot's landing
     assert not [i for i in flight.incidents if i["kind"] != "behaviour_stopped"]
+
+
+def test_a_behaviour_that_opts_out_of_avoidance_flies_its_intent_and_per_uav_params_apply(tmp_path: Path) -> None:
+    """Two UAVs swap places head-on, each at its own altitude (UAV 2's from mission.per_uav): with avoidance off they
+    fly straight through the crossing, and each climbs to the altitude its intent asks for."""
+    scenario = {
+        "name": "straight", "swarm": "sdkstraight", "seed": 1, "duration": 25,
+        "origin": {"lat": 46.6167, "lon": 14.2650, "alt": 446.0},
+        "flight": {"altitude": 8, "speed": 4.0, "safety_distance": 5.0, "collision_distance": 1.0},
+        "mission": {"behaviour": "tests.sdk_behaviours:Straight", "params": {"altitude": 8.0},
+                    "per_uav": {2: {"params": {"altitude": 14.0}}}},
+        "uavs": [{"id": 1, "start": [-30, 0], "goal": [30, 0]}, {"id": 2, "start": [30, 0], "goal": [-30, 0]}],
+    }
+    flight = fly(scenario=scenario, out=tmp_path)
+    in_mission_to_the_end(flight)
+    one, two = flight.trajectories[1], flight.trajectories[2]
+    assert math.dist(one.last[:2], (30, 0)) < 2.0 and math.dist(two.last[:2], (-30, 0)) < 2.0
+    assert abs(one.last[2] - 8.0) < 1.0 and abs(two.last[2] - 14.0) < 1.0
+    for uav in (1, 2):  # avoidance never acted: straight through the crossing
+        assert flight.stats[uav]["agent"]["avoidance_active"] == 0
+        assert max(abs(y) for y in flight.trajectories[uav].y) < 1.0
