@@ -205,3 +205,24 @@ def test_the_api_reference_covers_every_public_name() -> None:
     assert missing == []
     for member in ("neighbours_within", "send_to", "record", "mission_t", "sim_t", "battery", "inbox"):
         assert f"`{member}" in text, member
+
+
+class ArmsATimer(Behaviour):  # type: ignore[type-arg]
+    """As a stop signal's handler does during a step: arms the shutdown watchdog (signal.alarm)."""
+
+    def step(self, ctx: Context) -> None:
+        import signal
+
+        signal.alarm(30)
+
+
+def test_a_timer_armed_during_a_step_is_left_running() -> None:
+    import signal
+
+    m = make_behaviour_mission(agent_config("tests.test_sdk:ArmsATimer"))
+    try:
+        m.velocity(me(0.0), (2,))
+        assert 25.0 < signal.getitimer(signal.ITIMER_REAL)[0] <= 30.0
+    finally:
+        signal.alarm(0)
+    assert m.exceptions == 0

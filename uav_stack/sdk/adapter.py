@@ -494,9 +494,13 @@ class _HardLimit:
         if not self.in_step:
             return
         self.in_step = False
+        took = time.monotonic() - self.t0
+        ours = min(self.limit_s, self.prev_timer[0]) if self.prev_timer[0] > 0.0 else self.limit_s
+        if signal.getitimer(signal.ITIMER_REAL)[0] > ours - took + 0.05:
+            return  # armed again during the step (a stop signal's shutdown watchdog): that one stands
         left = self.prev_timer[0]
         if left > 0.0:  # a timer was running: it goes on, less the time the step took
-            signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - self.t0)), self.prev_timer[1])
+            signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - took), self.prev_timer[1])
         else:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
 
