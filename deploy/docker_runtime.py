@@ -226,10 +226,16 @@ class DockerRuntime:
             cfg = replace(cfg, agent=replace(cfg.agent, record_dir=str(Path(rec).resolve())))
         path = self.run_dir / "config" / f"uav{cfg.agent.uav}.json"
         path.write_text(cfg.to_json())
+        from deploy.behaviour_mounts import behaviour_mounts
+
+        try:  # a behaviour of one's own (docs/sdk.md): its package mounted read-only, on the container's PYTHONPATH
+            extra = behaviour_mounts(cfg.agent.mission.behaviour)
+        except ValueError as exc:
+            raise DeployError(str(exc)) from None
         self._run(f"uav{cfg.agent.uav}", "uav",
                   ["python3", "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
                   uav=cfg.agent.uav, cpus=self.settings.cpus, memory_mb=self.settings.memory_mb, mounts=True,
-                  identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm))
+                  identity=NodeName.uav(cfg.agent.uav, cfg.agent.swarm), extra_mounts=extra)
 
     def start_agent(self, cfg: AgentConfig) -> None:
         """Not here: the containers' network has no way out to a flight controller on the host (a scenario with
@@ -247,7 +253,7 @@ class DockerRuntime:
         return KeyDir(self.keys).bundle(identity, secrets_dir / identity.cn)
 
     def _run(self, short: str, role: str, argv: list[str], uav: int | None, cpus: float, memory_mb: int,
-             mounts: bool, identity: NodeName | None = None) -> Box:
+             mounts: bool, identity: NodeName | None = None, extra_mounts: dict[str, str] | None = None) -> Box:
         from docker.types import LogConfig
 
         kwargs: dict[str, Any] = {}
@@ -260,6 +266,12 @@ class DockerRuntime:
                     tmpfs[str(private.resolve())] = "size=64k,mode=0700"
         if self.keys is not None and identity is not None:
             volumes[str(self._bundle(identity))] = {"bind": KEYS_IN_CONTAINER, "mode": "ro"}
+        environment = {"PYTHONUNBUFFERED": "1"}
+        if extra_mounts:  # read-only, and on the import path (deploy/behaviour_mounts.py)
+            from deploy.behaviour_mounts import BEHAVIOURS_IN_CONTAINER
+
+            volumes.update({host: {"bind": inside, "mode": "ro"} for host, inside in extra_mounts.items()})
+            environment["PYTHONPATH"] = BEHAVIOURS_IN_CONTAINER
         if volumes:
             kwargs["volumes"] = volumes
         name = self._name(short)
@@ -269,7 +281,7 @@ class DockerRuntime:
             nano_cpus=int(cpus * 1e9), mem_limit=f"{memory_mb}m", memswap_limit=f"{memory_mb}m",
             pids_limit=PIDS_LIMIT, cap_drop=["ALL"], security_opt=["no-new-privileges"],
             read_only=True, tmpfs=tmpfs, sysctls=dict(multicast.IPV6_OFF),
-            environment={"PYTHONUNBUFFERED": "1"},
+            environment=environment,
             log_config=LogConfig(type="json-file", config={"max-size": "20m", "max-file": "1"}),
             **kwargs,
         )

@@ -3,7 +3,7 @@
 Every error class of the project derives from :class:`MrswarmError`, besides the built-in
 exception it already was (``ValueError``, ``OSError``...), so ``except ValueError`` still
 catches what it caught, and ``except MrswarmError`` catches whatever mrswarm raised on purpose
-(not a bug's ``TypeError``). A stop request (``mrswarm.signals.Interrupted``) is not an error
+(not a bug's ``TypeError``). A stop request (``mrswarm.run.signals.Interrupted``) is not an error
 and stays outside.
 """
 

@@ -19,18 +19,17 @@ import os
 import random
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
 from swarmnet.node import SwarmNode
 from uav_stack.behaviours.avoidance import CollisionAvoidance
 from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
-from uav_stack.behaviours.coverage import GoTo, LawnmowerCoverage, RandomDirectionCoverage
 from uav_stack.behaviours.zones import ZoneField, zone_field
 from uav_stack.config import AgentConfig
 from uav_stack.failsafe import Failsafes
 from uav_stack.fcu_link import FcuLink
-from uav_stack.flight import Finish, Flight, Land, Own, Resume
+from uav_stack.flight import Altitude, Finish, Flight, Land, Own, Resume
 from uav_stack.geo import LocalFrame
 from uav_stack.overrides import Overrides
 from uav_stack.phases import WORKING, AgentPhase
@@ -40,6 +39,7 @@ from uav_stack.sensors import Payload, make_payload, traffic_views
 
 if TYPE_CHECKING:  # imported by the runtime only when a ground-station endpoint is configured
     from uav_stack.mavlink_router import MavlinkRouter
+    from uav_stack.sdk.adapter import BehaviourMission
 
 log = logging.getLogger(__name__)
 
@@ -58,22 +58,24 @@ def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneFi
     the ``zones`` (their targets there are skipped).
     """
     m = cfg.mission
+    if m.type == "behaviour":  # a behaviour of the SDK (uav_stack/sdk, docs/sdk.md), guarded by its adapter
+        from uav_stack.sdk.adapter import make_behaviour_mission
+
+        return make_behaviour_mission(cfg)
     if m.type in ("plume", "wildfire"):
         from uav_stack.behaviours.sensing_missions import make_sensing_mission
 
         return make_sensing_mission(cfg, payload or Payload(), zones, random.Random(cfg.seed * 1_000_003 + cfg.uav))
     if m.type == "coverage":
-        area = Rect(*m.area)
-        if m.strategy == "random":
-            # stdlib Random, not numpy's Generator: numpy.random pulls in OpenSSL (~4 MB per process)
-            return RandomDirectionCoverage(area, cfg.speed, random.Random(cfg.seed * 1_000_003 + cfg.uav))
-        if m.strategy == "lawnmower":
-            return LawnmowerCoverage(area, cfg.speed, m.lane_spacing)
-        raise ValueError(f"unknown coverage strategy {m.strategy!r}")
-    if m.type == "goto":
-        if m.goal is None:
-            raise ValueError("a goto mission needs a goal")
-        return GoTo(m.goal, cfg.speed, m.goal_tolerance)
+        if m.strategy not in ("random", "lawnmower"):
+            raise ValueError(f"unknown coverage strategy {m.strategy!r}")
+        Rect(*m.area)  # a valid area, or ValueError now
+    if m.type == "goto" and m.goal is None:
+        raise ValueError("a goto mission needs a goal")
+    if m.type in ("coverage", "goto"):  # the built-in behaviours of the SDK (uav_stack/sdk/builtins.py)
+        from uav_stack.sdk.builtins import builtin_mission
+
+        return builtin_mission(cfg)
     if m.type == "idle":
         return None
     raise ValueError(f"unknown mission type {m.type!r}")
@@ -115,6 +117,10 @@ class Agent:
             if a.enabled
             else None
         )
+        # an SDK behaviour (uav_stack/sdk): bound to this agent; asks for an altitude or a landing (read in _fly)
+        self.sdk = cast("BehaviourMission", self.mission) if getattr(self.mission, "sdk", False) else None
+        if self.sdk is not None:
+            self.sdk.attach(self)
         self._next_control = 0.0
         self._published_position_at = -math.inf
         self._next_telemetry = 0.0
@@ -372,6 +378,13 @@ class Agent:
         mission, f = self.mission, self.flight
         assert mission is not None
         vx, vy = mission.velocity(me, self.node.members())
+        sdk = self.sdk
+        if sdk is not None:  # an SDK behaviour's altitude target and landing (uav_stack/sdk/adapter.py)
+            if sdk.altitude is not None and sdk.altitude != f.alt_target:
+                f.apply(Altitude(sdk.altitude))
+            if sdk.request == "land":
+                f.apply(Land("the behaviour asked to land"))
+                return 0.0, 0.0
         if self.cooperative is not None:
             self._share(self.cooperative)
         if mission.done:

@@ -26,7 +26,7 @@ from uav_stack.geo import GeoPoint
 Connectivity = Literal["rendezvous", "static", "discovery"]
 ZenohMode = Literal["peer", "client"]
 PoseFeed = Literal["direct", "edge"]  # direct: a message per neighbour pose; edge: batches from the edge router
-MissionType = Literal["coverage", "goto", "idle", "plume", "wildfire"]
+MissionType = Literal["coverage", "goto", "idle", "plume", "wildfire", "behaviour"]  # behaviour: the SDK's (docs/sdk.md)
 CoverageStrategy = Literal["lawnmower", "random"]
 Flavour = Literal["px4", "ardupilot"]  # the autopilot a virtual FCU emulates
 UavId = Annotated[int, Meta(ge=1, le=65535, description="UAV id")]
@@ -207,6 +207,19 @@ class MissionConfig(Config, frozen=True):
     land_when_done: bool = False
     plume: PlumeSeeking | None = None  # plume missions (area: where to search)
     wildfire: Firefighting | None = None  # wildfire missions
+    # type behaviour (docs/sdk.md): an import path (package.module:Class) or a registered name, its
+    # parameters (this UAV's, validated by the behaviour's Params in the UAV process), and its guard
+    behaviour: Annotated[str, Meta(min_length=1, max_length=200)] | None = None
+    params: dict[str, Any] = field(default_factory=dict)
+    budget_ms: Annotated[float, Meta(gt=0.0, le=10000.0, description="time budget of one step, ms")] = 20.0
+    max_faults: Annotated[int, Meta(ge=1, le=1000, description="faults in a row that stop the behaviour")] = 3
+    hold_s: Annotated[float, Meta(ge=0.0, le=600.0, description="s a stopped behaviour's UAV holds before landing")] = 5.0
+
+    def __post_init__(self) -> None:
+        if self.type == "behaviour" and self.behaviour is None:
+            raise ConfigError("behaviour", "a behaviour mission needs its behaviour (package.module:Class or a registered name)")
+        if self.behaviour is not None and self.type != "behaviour":
+            raise ConfigError("type", f"a mission with a behaviour is of type behaviour, not {self.type!r}")
 
 
 class AvoidanceConfig(Config, frozen=True):

@@ -523,7 +523,7 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
 
 # `mrswarm agent`'s flags beside --config: the ones a companion computer's own setup gives (where
 # its flight controller, its credentials and its records are), replacing the file's
-WITH_CONFIG = ("fcu", "keys", "identity", "record_dir", "insecure", "duration", "log_level")
+WITH_CONFIG = ("fcu", "keys", "identity", "record_dir", "insecure", "duration", "log_level", "behaviour", "params")
 # where a field of the agent's configuration comes from on the command line, to name it in an error
 FLAG_OF = {"fcu_bind": "--fcu-bind", "fcu": "--fcu", "swarm": "--swarm", "uav": "--uav", "origin": "--origin",
            "realm": "--realm", "record_dir": "--record-dir", "avoidance.zones": "--zones",
@@ -590,9 +590,40 @@ def agent_parser() -> argparse.ArgumentParser:
     ap.add_argument("--zones", default=None, metavar="FILE",
                     help="no-fly zones and obstacles to keep out of: a scenario (its world.zones) or a list of zones, "
                          "YAML or JSON (docs/world.md)")
+    ap.add_argument("--behaviour", default=None, metavar="SPEC",
+                    help="fly a behaviour of the SDK: package.module:Class or a registered name (docs/sdk.md); "
+                         "its package installed on this computer")
+    ap.add_argument("--params", default=None, metavar="JSON|@FILE",
+                    help="the behaviour's parameters: a JSON object, or @FILE of YAML or JSON (default: its defaults)")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until signalled)")
     ap.add_argument("--log-level", default="INFO")
     return ap
+
+
+def with_behaviour(cfg: AgentConfig, args: argparse.Namespace, ap: argparse.ArgumentParser) -> AgentConfig:
+    """``--behaviour`` and ``--params`` into the mission, checked now (the class imported, the parameters
+    validated): an error names the flag and the field."""
+    if args.behaviour is None and args.params is None:
+        return cfg
+    from msgspec.structs import replace
+
+    from uav_stack.sdk.sdk_flags import read_params
+
+    spec = args.behaviour or cfg.mission.behaviour
+    if spec is None:
+        ap.error("--params: for a behaviour: give --behaviour SPEC too")
+    try:
+        params = read_params(args.params) if args.params is not None else (cfg.mission.params if args.behaviour is None else {})
+    except ValueError as exc:
+        ap.error(f"--params: {exc}")
+    from uav_stack.sdk import loader
+
+    try:
+        loader.load(spec, params)
+    except ConfigError as exc:
+        flag = "--behaviour" if exc.path == "behaviour" else "--params"
+        ap.error(f"{flag}: {exc.path.removeprefix('params.') + ': ' if exc.path.startswith('params.') else ''}{exc.msg}")
+    return replace(cfg, mission=replace(cfg.mission, type="behaviour", behaviour=spec, params=params))
 
 
 def parse_agent(argv: list[str] | None = None) -> tuple[AgentConfig, argparse.Namespace]:
@@ -629,6 +660,7 @@ def parse_agent(argv: list[str] | None = None) -> tuple[AgentConfig, argparse.Na
             cfg = convert(agent_settings(args, ap), AgentConfig)
         except ConfigError as exc:
             ap.error(flag_error(exc))
+    cfg = with_behaviour(cfg, args, ap)
     if cfg.network.discovery is not None:
         try:
             cfg.network.discovery.read_key()  # a key file that cannot be read: say so now, not from the node

@@ -1,4 +1,4 @@
-"""What the world service writes into a run folder (read back by ``mrswarm.world_report``).
+"""What the world service writes into a run folder (read back by ``mrswarm.results.world_report``).
 
 Flushed every second, so an interrupted run keeps what happened:
 

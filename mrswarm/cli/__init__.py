@@ -150,6 +150,7 @@ DELEGATED: dict[str, tuple[str, str, str]] = {
                "mrswarm.recorder.cli", "replay_main"),
     "sweep": ("a campaign: a scenario over a grid of overrides and seeds, one table with confidence intervals, plots "
               "(docs/campaigns.md)", "mrswarm.sweep.cli", "main"),
+    "new": ("write a new package from a template: new behaviour NAME (docs/sdk.md)", "mrswarm.cli.scaffold", "main"),
     "keys": ("the swarm's certificates: init, issue, bundle, revoke, rotate, list (docs/security.md)",
              "mrswarm.cli.keys", "main"),
 }

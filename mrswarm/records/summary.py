@@ -384,6 +384,18 @@ class Incident(Struct):
     duration_s: float | UnsetType = UNSET  # ... time below the safety distance, s
 
 
+class BehaviourSummary(Struct):
+    """The SDK behaviours the UAVs flew (docs/sdk.md; mrswarm/results/behaviour_report.py): summed over the UAVs."""
+
+    behaviours: list[str]  # as the scenario names them
+    uavs: int
+    steps: int
+    step_max_ms: float  # the longest step of any UAV
+    faults: dict[str, int]  # exceptions, overruns, bad_intents
+    stopped: list[int]  # UAVs whose behaviour its guard stopped (they held, then landed; an incident each)
+    topics: dict[str, dict[str, Any]]  # topic -> sent, send_errors, received, rejected, dropped, age_mean_ms, age_max_ms
+
+
 class RecordErrors(Struct):
     """Recording errors the UAVs counted (a full or read-only disk): the flight went on, these records did not."""
 
@@ -473,6 +485,7 @@ class RunSummary(Struct):
     services: list[ServiceOutage] = []
     faults: list[FaultReport] = []
     failsafes: list[FailsafeEvent] = []
+    behaviour: BehaviourSummary | UnsetType = UNSET  # runs of SDK behaviours (docs/sdk.md)
     records: RecordErrors | UnsetType = UNSET  # only when some recording failed
     external_uavs: list[ExternalUav] | UnsetType = UNSET  # only with UAVs whose flight controller is external
     recording: Recording | UnsetType = UNSET  # the flight recording (runs with one)

@@ -60,6 +60,10 @@ def summary_table(s: RunSummary) -> Table:
         t.add_row("goals reached", ", ".join(f"UAV {u}: {'yes' if g.reached else 'no'}" for u, g in s.goals.items()))
     for row in _separation_rows(s):
         t.add_row(*row)
+    if s.behaviour:  # SDK behaviours (docs/sdk.md)
+        from mrswarm.results.behaviour_report import behaviour_line
+
+        t.add_row("behaviour", behaviour_line(s.behaviour))
     if (rtf := s.rtf) and rtf.mean is not None and rtf.min is not None:
         t.add_row("RTF", f"mean {rtf.mean:.3f}, min {rtf.min:.3f}")
     if to := s.takeoff:

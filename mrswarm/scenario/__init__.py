@@ -30,6 +30,7 @@ from discovery.options import DiscoveryService, Key
 from groundfloor import strict_yaml
 from groundfloor.errors import MrswarmError
 from groundfloor.schema import Config, ConfigError, convert, to_builtins
+from mrswarm.scenario.behaviour_check import check_mission, check_per_uav, uav_behaviour
 from mrswarm.scenario.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
 from swarmnet.feed import DEFAULT_WINDOW
 from swarmnet.interest import Interest
@@ -101,6 +102,13 @@ class Area(Config, frozen=True):
         return (self.x_min, self.x_max, self.y_min, self.y_max)
 
 
+class UavMission(Config, frozen=True):
+    """One UAV's own behaviour mission (``mission.per_uav.<id>``): another behaviour, and/or parameters over the mission's."""
+
+    behaviour: Annotated[str, Meta(min_length=1, max_length=200)] | None = None
+    params: dict[str, Any] = field(default_factory=dict)
+
+
 class Mission(Config, frozen=True):
     type: MissionType = "coverage"
     strategy: CoverageStrategy = "lawnmower"
@@ -110,8 +118,16 @@ class Mission(Config, frozen=True):
     land_when_done: bool = False
     plume: PlumeSeeking | None = None  # plume missions (docs/world.md)
     wildfire: Firefighting | None = None  # wildfire missions (docs/world.md)
+    # a behaviour of one's own (docs/sdk.md): package.module:Class or a registered name; it implies type behaviour
+    behaviour: Annotated[str, Meta(min_length=1, max_length=200)] | None = None
+    params: dict[str, Any] = field(default_factory=dict)  # validated by the behaviour's Params
+    per_uav: dict[UavId, UavMission] = field(default_factory=dict)  # UAV id -> its own behaviour and/or params
+    budget_ms: Annotated[float, Meta(gt=0.0, le=10000.0, description="time budget of one step, ms")] = 20.0
+    max_faults: Annotated[int, Meta(ge=1, le=1000, description="faults in a row that stop the behaviour")] = 3
+    hold_s: Annotated[float, Meta(ge=0.0, le=600.0, description="s a stopped behaviour's UAV holds, then lands")] = 5.0
 
     def __post_init__(self) -> None:
+        check_mission(self)
         if self.type in ("coverage", "plume") and self.area is None:
             raise ConfigError("area", f"a {self.type} mission needs an area")
         if self.type == "wildfire" and self.wildfire is None:
@@ -447,6 +463,7 @@ class Scenario(Config, kw_only=True, frozen=True):
         if (self.fleet is None) == (self.uavs is None):
             raise ConfigError("", "give either 'fleet' (count + spawn pattern) or an explicit 'uavs' list, not both")
         uavs = self.uav_list()
+        check_per_uav(self.mission, {u.id for u in uavs})
         if self.mission.type == "goto":
             missing = [u.id for u in uavs if u.goal is None]
             if missing:
@@ -664,6 +681,7 @@ class Scenario(Config, kw_only=True, frozen=True):
             network = replace(network, netem=netem)
         out = []
         for u in uavs:
+            behaviour, params = uav_behaviour(m, u.id)
             mission = MissionConfig(
                 type=m.type,
                 strategy=m.strategy,
@@ -673,6 +691,9 @@ class Scenario(Config, kw_only=True, frozen=True):
                 land_when_done=m.land_when_done,
                 plume=m.plume,
                 wildfire=m.wildfire,
+                behaviour=behaviour,
+                params=params,
+                budget_ms=m.budget_ms, max_faults=m.max_faults, hold_s=m.hold_s,
             )
             agent = AgentConfig(
                 swarm=swarm, uav=u.id, origin=origin, fcu=u.fcu or "", realm=u.realm_name, altitude=fl.altitude,
