@@ -290,6 +290,9 @@ class Agent:
     @property
     def behaviour_name(self) -> str:
         m = self.cfg.mission
+        if m.type == "behaviour":  # an SDK behaviour: its name (mypkg.flock:Flocking -> Flocking), as the wire holds it
+            spec = self.sdk.spec if self.sdk is not None else (m.behaviour or m.type)
+            return spec.rsplit(":", 1)[-1].rsplit(".", 1)[-1][:32] or m.type
         return f"{m.type}/{m.strategy}" if m.type == "coverage" else m.type
 
     def _hand_over(self, mission: Cooperative, messages: list[SwarmMessage], now: float) -> None:
