@@ -39,6 +39,7 @@ def test_pooled_uavs_fly_the_mission_each_as_its_own_uav(tmp_path: Path) -> None
     assert summary["uavs_recorded"] == 4
     assert summary["coverage"]["final"] > 0.3 and summary["separation"]["collisions"] == 0
     assert summary["separation"]["min_m"] > 1.0
+    assert summary["degraded"] == []  # each pooled UAV's records checked by its own name, and whole
     # each UAV its own agent, its own FCU vehicle, its own swarm node under its own certificate
     status = {u: json.loads((rd / f"uav{u}.json").read_text()) for u in (1, 2, 3, 4)}
     assert all(st["uav"] == u and st["phase"] in ("mission", "done") for u, st in status.items()), \

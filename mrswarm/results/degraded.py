@@ -63,7 +63,9 @@ def degraded_reasons(summary: RunSummary, info: RunInfo, run_dir: Path, last_rec
     if info.write_errors:
         out.append(f"runner files not written: {', '.join(info.write_errors)}")
     if info.stopped is not None:  # what each process should have written by the time it stopped
-        for name in sorted(info.pids):
+        # each UAV by its own name, a pooled one too (a pool's events are its UAVs', mrswarm/run/supervisor.py)
+        names = [n for n in info.pids if n not in info.pools] + [f"uav{u}" for us in info.pools.values() for u in us]
+        for name in sorted(names):
             uav = uav_of(name)
             end = _ended(info, name)
             if uav is None or end is None:
