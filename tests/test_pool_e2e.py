@@ -1,4 +1,5 @@
-"""Pooled virtual UAVs (``fleet.pool``): several UAVs to a process, each still its own UAV."""
+"""Many UAVs on one machine: pooled virtual UAVs (``fleet.pool``), several to a process and each
+still its own UAV; and a large run that goes on without a few late UAVs."""
 
 from __future__ import annotations
 
@@ -81,3 +82,27 @@ def test_a_pool_is_refused_where_it_cannot_run_with_the_field_named(tmp_path: Pa
     with pytest.raises(ScenarioError, match=r"faults\.0: kill_uav acts on a UAV's process"):
         load_scenario(chaos, ["fleet.pool=2"])
     assert load_scenario(MINI, ["fleet.pool=3"]).fleet.pool == 3  # type: ignore[union-attr]
+
+
+@pytest.mark.e2e
+def test_the_run_goes_on_without_a_late_uav_and_it_joins_when_ready(tmp_path: Path) -> None:
+    """A few slow UAVs (here one of ten, stopped before it is ready) do not abort a large run:
+    the others take off and fly, the late one is recorded, and it joins once it is ready."""
+    proc = start_run(MINI, tmp_path, ["fleet.count=10", "duration=25"])
+    try:
+        rd = run_dir(tmp_path, 60)
+        assert wait_for(lambda: (rd / "run.json").exists() and "uav10" in json.loads((rd / "run.json").read_text())["pids"],
+                        60, 0.05)
+        pid = json.loads((rd / "run.json").read_text())["pids"]["uav10"]
+        os.killpg(pid, signal.SIGSTOP)
+        assert wait_for(lambda: bool(json.loads((rd / "run.json").read_text()).get("late")), 120, 0.5)
+        os.killpg(pid, signal.SIGCONT)
+        proc.wait(240)
+    finally:
+        stop_run(proc)
+    assert proc.returncode == 0, (tmp_path / "run.stdout").read_text()[-3000:]
+    summary = json.loads((rd / "summary.json").read_text())
+    assert summary["takeoff"]["late"] == {"10": "ready"}
+    assert summary["uavs_recorded"] == 10
+    # it flew with the others once it was ready
+    assert json.loads((rd / "uav10.json").read_text())["mission_started_at"] is not None

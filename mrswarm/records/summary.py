@@ -83,6 +83,7 @@ class RunInfo(Struct):
     all_airborne_s: float | None = None
     takeoff_sends: int = 0
     takeoff_by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
+    late: list[LateUav] = []  # UAVs the run went on without at a stage, and sent the command again (mrswarm/run/experiment.py)
     exit_codes: dict[str, int | None] = {}
     stopping: float | None = None  # wall: the runner began stopping every process
     stopped: float | None = None  # wall: ... and every process had stopped
@@ -296,6 +297,16 @@ class Takeoff(Struct):
     all_airborne_s: float | None  # every UAV hovered at its altitude (None: not all did)
     sends: int  # times it was sent (re-sent to the UAVs that had not acknowledged)
     by_state: int = 0  # UAVs whose state showed the takeoff before their acknowledgement arrived
+    late: dict[str, str] = {}  # UAV id -> where it was late: the run went on without it, and it joined when ready
+
+
+class LateUav(Struct):
+    """A virtual UAV that was not ready, airborne or acknowledging when the others were: the run went
+    on without it (at most LATE_MAX_FRACTION of the fleet), and the runner sent it the command again."""
+
+    uav: int
+    stage: str  # ready, takeoff, hover, start: what it was late for
+    t: float  # wall time the run went on without it
 
 
 class Network(Struct):

@@ -590,6 +590,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
         network.transport_age_links = link_summary(links)
     if info.takeoff_sent is not None:
         summary.takeoff = Takeoff(acked_s=info.takeoff_acked_s, all_airborne_s=info.all_airborne_s, sends=info.takeoff_sends,
+                                  late={str(lt.uav): lt.stage for lt in info.late},
                                   by_state=info.takeoff_by_state)
     ne = netem_report(stats)
     if ne is not None:

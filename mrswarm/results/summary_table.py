@@ -70,7 +70,9 @@ def summary_table(s: RunSummary) -> Table:
         acked = (f"acknowledged after {to.acked_s:.1f} s" if to.acked_s is not None else "not acknowledged by every UAV")
         up = (f"all airborne after {to.all_airborne_s:.1f} s" if to.all_airborne_s is not None
               else "not every UAV reached its altitude")
-        t.add_row("takeoff", f"{acked} ({plural(to.sends, 'send')}), {up}")
+        late = (f"; late, the run went on without them: {', '.join(f'UAV {u} ({st})' for u, st in to.late.items())}"
+                if to.late else "")
+        t.add_row("takeoff", f"{acked} ({plural(to.sends, 'send')}), {up}{late}")
     if net := s.network:
         age, use = net.transport_age_ms, net.use_age_ms
         worst = f"; worst link p99 {_ms(lk.p99_max_ms)}" if (lk := net.transport_age_links) and lk.p99_max_ms is not None else ""

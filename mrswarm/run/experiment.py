@@ -45,9 +45,9 @@ from groundfloor.errors import MrswarmError
 from groundfloor.files import write_atomic
 from groundfloor.schema import to_builtins
 from mrswarm.recorder.run_recorder import STOP_TIMEOUT, RunRecorder
-from mrswarm.records.summary import RECORDER, ProcessEvent, RunInfo, RunSummary, uav_of
+from mrswarm.records.summary import RECORDER, LateUav, ProcessEvent, RunInfo, RunSummary, uav_of
 from mrswarm.results.summarise import summarise_run
-from mrswarm.results.wording import plural
+from mrswarm.results.wording import format_ids, plural
 from mrswarm.run.chaos import Chaos, Swarm
 from mrswarm.run.command_round import CommandRound, command_deadline, command_round
 from mrswarm.run.display import Display
@@ -80,6 +80,10 @@ TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slo
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
+# at most this fraction of the virtual UAVs may be late at a stage (not ready, not airborne, not acknowledging in
+# time): the run goes on without them, records them as late, and sends them the command until they fly with the
+# others; more than that, and the run gives up (RunAborted). Small fleets: none may be late
+LATE_MAX_FRACTION = 0.1
 LAND_SPEED = 0.5  # m/s: the slowest final descent of an autopilot's landing (ArduCopter's LAND_SPEED), for its wait
 LAND_MARGIN_S = 30.0  # s on top of that to land the external UAVs at the end of a run
 LAND_RESEND_S = 2.0  # an external UAV that does not show its landing is sent 'land' again this often
@@ -442,7 +446,7 @@ class Experiment:
         """Send ``verb`` to the flying ones of ``ids`` until each acknowledged it or reports one of
         the ``took_effect`` phases (mrswarm/run/command_round.py), supervising and showing the progress."""
         assert self.observer is not None
-        ids = [u for u in ids if u in self._active_ids()]
+        ids = [u for u in ids if u in self._active_ids() and u not in self.rejoin]
 
         def show(r: CommandRound) -> None:
             done = len(r.targets) - len(r.missing) - len(r.gone)
@@ -457,11 +461,12 @@ class Experiment:
                           took_effect=lambda u: self._phase_of(u) in took_effect, tick=tick, active=self._active_ids)
         if r.refused:
             raise RunAborted(f"'{verb}' refused by {r.refused}")
-        if r.missing:
+        if r.missing and not self._go_on_without(r.missing, verb, len(ids)):
             raise RunAborted(f"no acknowledgement of '{verb}' from UAVs {r.missing} within {command_deadline(len(ids)):.0f} s "
                              f"({r.sends} sends)")
-        self.progress.reached(f"{verb} acknowledged by all {len(ids) - len(r.gone)} in {1000 * (r.duration or 0.0):.0f} ms "
-                              f"({plural(r.sends, 'send')})")
+        n_acked = len(ids) - len(r.gone) - len(r.missing)
+        who = f"all {n_acked}" if not r.missing else f"{n_acked} of {n_acked + len(r.missing)}"
+        self.progress.reached(f"{verb} acknowledged by {who} in {1000 * (r.duration or 0.0):.0f} ms ({plural(r.sends, 'send')})")
         return r
 
     def _wait_phase(self, ids: list[int], phases: set[AgentPhase], timeout: float, stall: float | None = None,
@@ -473,6 +478,7 @@ class Experiment:
         large swarm gets ready slowly but surely, a stuck one is still given up on. ``own``: UAVs
         with a wait of their own (s from now; the external ones), which the others' deadline does not end."""
         own = own or {}
+        ids = [u for u in ids if u not in self.rejoin]  # late ones join when they are ready (_rejoin_tick)
         t0 = time.time()
         deadline = t0 + timeout
         hard = t0 + max(timeout, cap if cap is not None else timeout)
@@ -496,6 +502,9 @@ class Experiment:
                 self.progress.detail = f"{there}/{len(active)} {'/'.join(sorted(phases))}; UAV {u} ({self._external_what(u)}): " \
                                        f"{max(0.0, t0 + own[u] - now):.0f} s left"
             self._tick()
+        if self._go_on_without([u for u in active if self._phase_of(u) not in phases], "/".join(sorted(phases)), len(active),
+                               external=set(own)):
+            return
         behind = [u for u in ids if self._phase_of(u) not in phases]
         said = {u: str(self._phase_of(u) or "?") for u in behind}
         why = "".join(f"; UAV {u} ({self._external_what(u)}): {self._external_hint(u)}" for u in behind if u in own)
@@ -669,6 +678,22 @@ class Experiment:
                 self.rejoin[uav] = (ev.t, 0.0)
         else:
             self._say(f"[yellow]{ev.name}: {ev.event}[/] {ev.detail}")
+
+    def _go_on_without(self, late: list[int], stage: str, of: int, external: set[int] | None = None) -> bool:
+        """Go on without a few virtual UAVs that are late at ``stage`` (at most LATE_MAX_FRACTION of
+        the ``of`` UAVs; none of them external): recorded as late, sent the command again until
+        they fly with the others. False: too many, or an external one (the run gives up)."""
+        if not late or len(late) > int(LATE_MAX_FRACTION * of) or set(late) & (external or set()) \
+                or set(late) & {u.id for u in self.scn.external_uavs()}:
+            return False
+        now = time.time()
+        for u in late:
+            self.run_info.late.append(LateUav(uav=u, stage=stage, t=now))
+            self.rejoin[u] = (0.0, now)  # any state it reports from now on
+        self._say(f"[yellow]going on without {plural(len(late), 'late UAV')} ({format_ids(late)}, not {stage} in time)[/]: "
+                  "each is sent the command again until it flies with the others")
+        self._save_info()
+        return True
 
     def _rejoin_tick(self) -> None:
         """A restarted UAV reports ready: send it start (takeoff before the mission), until it flies."""
