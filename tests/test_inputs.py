@@ -109,9 +109,11 @@ def test_a_fleet_too_large_for_the_machine_is_refused_with_the_estimate(tmp_path
     assert_usage_error(res, str(MINI), "fleet.count: 500 virtual UAVs need about", "cores", "--force")
     big = load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6"])
     est = estimate(big)
-    # 500 UAVs get client mode and the edge feed (scenario.MESH_MAX_UAVS): the batched cost per UAV
-    assert est.cores_needed == pytest.approx(500 * 0.025) and est.memory_mb_needed == pytest.approx(300 + 500 * 60)
+    # 500 UAVs get client mode and the edge feed (scenario.MESH_MAX_UAVS) and pools (fleet.pool auto): a pooled UAV's cost
+    assert est.cores_needed == pytest.approx(500 * 0.015) and est.memory_mb_needed == pytest.approx(300 + 500 * 8)
+    one_each = estimate(load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6", "fleet.pool=1"]))
+    assert one_each.cores_needed == pytest.approx(500 * 0.025) and one_each.memory_mb_needed == pytest.approx(300 + 500 * 60)
     mesh = estimate(load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6", "network.pose_feed=direct",
-                                         "network.mode=peer"]))
+                                         "network.mode=peer", "fleet.pool=1"]))
     assert mesh.cores_needed == pytest.approx(500 * 0.04)
     assert check_resources(load_scenario(MINI)) == ""  # four UAVs fit any machine that runs the tests

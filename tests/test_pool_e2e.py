@@ -106,3 +106,13 @@ def test_the_run_goes_on_without_a_late_uav_and_it_joins_when_ready(tmp_path: Pa
     assert summary["uavs_recorded"] == 10
     # it flew with the others once it was ready
     assert json.loads((rd / "uav10.json").read_text())["mission_started_at"] is not None
+
+
+def test_auto_pools_a_large_fleet_one_pool_per_core_and_keeps_small_ones_a_process_each() -> None:
+    cores = len(os.sched_getaffinity(0))
+    assert load_scenario(MINI, ["fleet.count=10"]).pool_size == 1
+    big = load_scenario(MINI, ["fleet.count=60", "fleet.spawn.spacing=6"])
+    assert big.pool_size == -(-60 // cores)
+    assert len(big.pools(big.virtual_uav_configs(big.network, None))) == cores
+    assert load_scenario(MINI, ["fleet.count=60", "fleet.spawn.spacing=6", "runtime=docker"]).pool_size == 1
+    assert load_scenario(MINI, ["fleet.count=60", "fleet.spawn.spacing=6", "fleet.pool=1"]).pool_size == 1

@@ -1,5 +1,6 @@
 """End to end: a behaviour package of one's own, outside the repository, written by `mrswarm new behaviour`,
-installed with pip, flies on 20 virtual UAVs from a scenario naming it by its import path (process runtime)."""
+installed with pip, flies on 20 virtual UAVs from a scenario naming it by its import path, with the process
+and the Docker runtime."""
 
 from __future__ import annotations
 
@@ -87,17 +88,17 @@ def test_the_docker_runtime_carries_the_package_into_the_uav_containers(tmp_path
         out = tmp_path / "runs"
         res = subprocess.run([sys.executable, "-m", "mrswarm", "run", str(tmp_path / NAME / "scenario.yaml"),
                               "--runtime", "docker", "--set", f"docker.image={sdk_image}", "--set", "mission.behaviour=" + NAME,
-                              "--set", "fleet.count=4", "--set", "duration=20", "--out", str(out), "--no-live", "--no-record",
+                              "--set", "fleet.count=20", "--set", "duration=20", "--out", str(out), "--no-live", "--no-record",
                               "--log-level", "WARNING"],
                              capture_output=True, text=True, timeout=600, cwd=elsewhere)
         assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
         run_dir = next(out.iterdir())
         summary = json.loads((run_dir / "summary.json").read_text())
-        assert summary["uavs_recorded"] == 4 and summary["separation"]["collisions"] == 0
+        assert summary["uavs_recorded"] == 20 and summary["separation"]["collisions"] == 0
         b = summary["behaviour"]
-        assert b["behaviours"] == [NAME] and b["uavs"] == 4 and b["stopped"] == []
-        for uav in range(1, 5):
+        assert b["behaviours"] == [NAME] and b["uavs"] == 20 and b["stopped"] == []
+        for uav in range(1, 21):
             st = json.loads((run_dir / f"uav{uav}.json").read_text())
-            assert st["phase"] == "mission" and st["behaviour"]["values"]["heard"] == 3.0, (uav, st["behaviour"])
+            assert st["phase"] == "mission" and st["behaviour"]["values"]["heard"] == 19.0, (uav, st["behaviour"])
     finally:
         pip("uninstall", "-y", "-q", NAME.replace("_", "-"))

@@ -352,6 +352,9 @@ class AgentConfig(Config, frozen=True):
         return decode_json(Path(path).read_bytes(), cls)
 
 
+MAX_POOL = 256  # virtual UAVs in one pool process (uav_stack/pool.py, fleet.pool)
+
+
 class VirtualUavConfig(Config, frozen=True):
     """One virtual UAV process: its FCU and its agent."""
 

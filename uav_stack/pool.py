@@ -32,7 +32,7 @@ from msgspec import Meta
 from groundfloor.process import die_with_parent, setup_logging
 from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.connectivity import lean_zenoh_runtime
-from uav_stack.config import VirtualUavConfig
+from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.runtime import (
     FCU_LEAD_S,
@@ -53,7 +53,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 ACT_AFTER = 0.3  # of a period after the instant: when the pool acts (its UAVs' poses of the instant are in by then)
-MAX_POOL = 256  # UAVs in one pool process
 
 
 class PoolConfig(Config, frozen=True):
