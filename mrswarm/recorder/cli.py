@@ -28,7 +28,8 @@ def export_main(argv: list[str] | None = None) -> int:
     try:
         if args.csv:
             info = export_csv(path, Path(args.out) if args.out else default_out(path))
-            print(f"{info['out']}: {info['uavs']} UAVs, {info['rows']} rows; {', '.join(info['files'])}")
+            values = f", {info['values']} recorded values" if info["values"] else ""
+            print(f"{info['out']}: {info['uavs']} UAVs, {info['rows']} rows{values}; {', '.join(info['files'])}")
         else:
             info = export_jsonl(path, Path(args.out) if args.out else path.with_suffix(".jsonl"))
             print(f"{info['out']}: {info['messages']} messages")
