@@ -55,7 +55,7 @@ from uav_stack.sdk import loader
 from uav_stack.sdk.behaviour import Behaviour
 from uav_stack.sdk.context import Context, Message, Neighbour, Outbox
 from uav_stack.sdk.intents import Altitude, GoTo, Hold, Intent, Land, Velocity, intent_problem
-from uav_stack.sdk.reports import VALUES_HEADER, BehaviourReporter
+from uav_stack.sdk.reports import FINAL_LINGER_S, VALUES_HEADER, BehaviourReporter
 from uav_stack.sensors import SensorReading
 
 if TYPE_CHECKING:
@@ -463,8 +463,9 @@ class BehaviourMission:
     def final_report(self, now: float) -> None:
         """The last report, when the agent closes (its node still open): what was recorded since the previous one."""
         a = self.agent
-        if a is not None and self.reporter.active:
-            self.reporter.send(a.node, {t: c.counts() for t, c in self.counters.items()}, now)
+        if a is not None and self.reporter.active and \
+                self.reporter.send(a.node, {t: c.counts() for t, c in self.counters.items()}, now):
+            time.sleep(FINAL_LINGER_S)  # the node closes next: its session drops what has not left yet
 
     # ---- reports --------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:

@@ -10,7 +10,8 @@ sooner when :data:`MAX_REPORT_SAMPLES` samples wait, but never twice within
 next may not go yet) is dropped and counted, so the UAV's traffic stays bounded: at most
 1 / :data:`MIN_REPORT_PERIOD_S` reports a second of at most 32 KiB each. The recorder writes the
 samples and the counters on the recording's ``/uav/<N>/behaviour/values`` and
-``/uav/<N>/behaviour/topics`` channels (docs/recording.md). A report that cannot be sent (the
+``/uav/<N>/behaviour/topics`` channels (docs/recording.md). A last report goes out when the
+agent closes, with what was recorded since the one before. A report that cannot be sent (the
 session closing) is counted, never raised.
 """
 
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 VALUES_HEADER = "t_wall,name,value\n"  # behaviour_uav<N>.csv: one row per recorded value
 REPORT_PERIOD_S = 1.0  # s between two reports
 MIN_REPORT_PERIOD_S = 0.25  # s: a full report goes out early, but never more often than this
+FINAL_LINGER_S = 0.05  # s the agent's close waits after the last report: a Zenoh session closed at once drops it
 
 
 class BehaviourReporter:
@@ -72,7 +74,7 @@ class BehaviourReporter:
             if self._pub is None or self._node is not node:
                 if node.session is None:
                     raise RuntimeError("the swarm node is closed")
-                self._pub = node.session.declare_publisher(node.keys.behaviour(self.uav))
+                self._pub = node.session.declare_publisher(node.keys.behaviour(self.uav), express=True)  # 1 Hz: no batching
                 self._node = node
             self._pub.put(data)
         except Exception as exc:  # noqa: BLE001 - a report never stops the agent (a closing session raises ZError)
