@@ -21,6 +21,7 @@ import pytest
 from mcap.reader import make_reader
 
 from mrswarm.recorder.capture import Sample
+from mrswarm.recorder.cli import export_main
 from mrswarm.recorder.export import export_csv
 from mrswarm.recorder.reader import RecordedMessage
 from mrswarm.recorder.records import Translator
@@ -174,7 +175,8 @@ def _csv_values(path: Path) -> list[tuple[float, str, float | None]]:
 
 
 @pytest.mark.e2e
-def test_a_flown_behaviour_s_values_and_counters_are_channels_of_run_mcap(tmp_path: Path) -> None:
+def test_a_flown_behaviour_s_values_and_counters_are_channels_of_run_mcap(tmp_path: Path,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
     flight = fly("tests.sdk_behaviours:Recording", out=tmp_path, uavs=2, duration=8, record=True)
     assert flight.summary.get("aborted") is None
     run = next(p.parent for p in tmp_path.glob("*/run.mcap"))
@@ -205,6 +207,12 @@ def test_a_flown_behaviour_s_values_and_counters_are_channels_of_run_mcap(tmp_pa
         steps = b["steps"]
         assert counters[-1]["values_refused"] == 2 * steps and b["records_refused"] == {"bad_name": steps, "bad_value": steps}
         assert b["faults"] == {"exceptions": 0, "overruns": 0, "bad_intents": 0} and b["state"] == "running"
+    # `mrswarm export --topics` lists the channels
+    assert export_main(["--topics", str(run / "run.mcap")]) == 0
+    listed = {line.split()[0]: line.split()[1:] for line in capsys.readouterr().out.splitlines() if line.startswith("/")}
+    for u in (1, 2):
+        assert listed[f"/uav/{u}/behaviour/values"][0] == "mrswarm.BehaviourValues"
+        assert int(listed[f"/uav/{u}/behaviour/topics"][1]) == sum(t == f"/uav/{u}/behaviour/topics" for t, _ in msgs)
     # export --csv writes the values as the UAVs do, from the recording alone
     info = export_csv(run / "run.mcap", tmp_path / "export")
     assert {"behaviour_uav1.csv", "behaviour_uav2.csv"} <= set(info["files"])

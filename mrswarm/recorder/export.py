@@ -11,6 +11,9 @@ become ``nan``). A
 recording cut short (its writer killed) has no ``run.json``: one is rebuilt from the recording
 itself (the mission starts at the runner's ``start`` command).
 
+``--topics`` lists the recording's channels: topic, schema and how many messages each holds
+(``/uav/<N>/behaviour/values`` and ``/topics`` among them for a run of SDK behaviours).
+
 ``--jsonl`` writes the ground station's JSON Lines format (mrswarm/gcs/record.py), so
 ``mrswarm gcs plot`` draws a recording too.
 """
@@ -162,3 +165,17 @@ def export_jsonl(path: Path, out: Path) -> dict[str, Any]:
     except RecordingError as exc:
         raise ExportError(str(exc)) from None
     return {"out": str(out), "messages": n, "complete": rec.complete, "error": rec.error}
+
+
+def list_topics(path: Path) -> dict[str, Any]:
+    """Every channel of recording ``path`` in the order they first appear: ``{"topics": [(topic, schema, messages)]}``."""
+    counts: dict[tuple[str, str], int] = {}
+    rec = Recording(path)
+    try:
+        for m in read_recording(path, rec):
+            k = (m.topic, m.schema)
+            counts[k] = counts.get(k, 0) + 1
+    except RecordingError as exc:
+        raise ExportError(str(exc)) from None
+    return {"topics": [(t, s, n) for (t, s), n in counts.items()], "messages": rec.messages, "complete": rec.complete,
+            "error": rec.error}
