@@ -213,31 +213,33 @@ class ProcessRuntime:
         return {n: c.proc.pid for n, c in self.children.items()}
 
     def stop(self, grace: float = 5.0) -> dict[str, int]:
-        """SIGTERM every UAV, then the world service, the routers and the discovery server; SIGKILL whatever is
-        left after ``grace``."""
+        """SIGTERM every UAV and wait for them, then the world service, the routers and the discovery server (as the
+        container runtime does: a UAV's last words, its final behaviour report, still reach the edge); SIGKILL
+        whatever is left ``grace`` s after its own SIGTERM."""
         helpers = [n for n in self.children if n == "world" or n.startswith("router")] + \
             [n for n in ("discovery",) if n in self.children]
-        order = [n for n in self.children if n not in helpers] + helpers
-        for n in order:
-            c = self.children[n]
-            if c.proc.poll() is None:
+        uavs = [n for n in self.children if n not in helpers]
+        for group in (uavs, helpers):
+            for n in group:
+                c = self.children[n]
+                if c.proc.poll() is None:
+                    try:
+                        os.killpg(c.proc.pid, signal.SIGTERM)
+                    except ProcessLookupError:
+                        pass
+            deadline = time.monotonic() + grace
+            for n in group:
+                c = self.children[n]
+                if c.proc.poll() is None:
+                    try:
+                        os.killpg(c.proc.pid, signal.SIGCONT)  # a stopped child cannot act on SIGTERM
+                    except ProcessLookupError:
+                        pass
                 try:
-                    os.killpg(c.proc.pid, signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + grace
-        for n in order:
-            c = self.children[n]
-            if c.proc.poll() is None:
-                try:
-                    os.killpg(c.proc.pid, signal.SIGCONT)  # a stopped child cannot act on SIGTERM
-                except ProcessLookupError:
-                    pass
-            try:
-                c.proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.warning("%s did not exit on SIGTERM; killing it", n)
-                self._kill(c)
+                    c.proc.wait(max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    log.warning("%s did not exit on SIGTERM; killing it", n)
+                    self._kill(c)
         return {n: c.proc.returncode for n, c in self.children.items()}
 
     def _terminate(self, c: Child, grace: float) -> None:

@@ -75,6 +75,10 @@ class SwarmKeys:
     def act(self, uav: int | str, actuator: str) -> str:
         """Requests of one UAV's virtual actuator (spray), to the world service."""
         return f"{self.prefix}/{uav}/act/{actuator}"
+    def behaviour(self, uav: int | str) -> str:
+        """What the UAV's SDK behaviour recorded (``ctx.record``) and its message counters, once a second (docs/sdk.md)."""
+        return f"{self.prefix}/{uav}/behaviour"
+
     def fault(self, uav: int | str) -> str:
         """Fault injection into a virtual UAV (the experiment controller only; docs/reliability.md)."""
         return f"{self.prefix}/{uav}/fault"

@@ -50,6 +50,7 @@ class Kind(IntEnum):
     READING = 9
     ACTUATION = 10
     TRAFFIC = 11
+    BEHAVIOUR_REPORT = 12
 
 
 class Realm(IntEnum):
@@ -107,6 +108,10 @@ MAX_TOPIC_LEN = 64
 MAX_TEXT_LEN = 200
 MAX_FAULT_BYTES = 256
 MAX_FAULT_ARGS = 8
+VALUE_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")  # a name a behaviour records a value under (ctx.record)
+MAX_REPORT_SAMPLES = 256  # recorded values in one behaviour report
+MAX_REPORT_TOPICS = 64  # message topics in one behaviour report
+MAX_REPORT_BYTES = 32 * 1024  # every report within the bounds above fits (about 30 KiB at most)
 
 
 def check_uav_id(uav: Any, field_name: str = "uav") -> int:
@@ -297,8 +302,40 @@ class Traffic:
     reports: tuple[TrafficReport, ...]
 
 
+@dataclass(frozen=True, slots=True)
+class TopicCounts:
+    """A behaviour's counters of one message topic since its start (uav_stack/sdk/adapter.py)."""
+
+    sent: int
+    send_errors: int
+    received: int
+    rejected: int
+    dropped: int  # received, but over the inbox's bound between two steps
+    age_mean_ms: float | None  # of what arrived; None: nothing yet
+    age_max_ms: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class BehaviourReport:
+    """What a UAV's behaviour recorded since the previous report, and its message counters (docs/sdk.md).
+
+    ``samples`` are ``(t_wall, name, value)`` in the order recorded (``ctx.record``), at most
+    :data:`MAX_REPORT_SAMPLES`; a value may be any float (NaN and infinities too). ``dropped``
+    counts the samples no report carried (over that bound) and ``refused`` the ``ctx.record``
+    calls refused (a bad name or value, too many names), both since the start.
+    """
+
+    uav: int
+    seq: int
+    t_wall: float
+    samples: tuple[tuple[float, str, float], ...] = ()
+    topics: dict[str, TopicCounts] = field(default_factory=dict)
+    dropped: int = 0
+    refused: int = 0
+
+
 Message = (Pose | Telemetry | AgentState | SwarmMessage | Command | CommandAck | PoseBatch | FaultInjection | Reading | Actuation
-           | Traffic)
+           | Traffic | BehaviourReport)
 
 
 # --- helpers -------------------------------------------------------------------------------
@@ -828,6 +865,71 @@ def decode_traffic(data: bytes) -> Traffic:
     return Traffic(seq=_int(o[1], 0, _UINT32, "seq"), t_wall=_int(o[2], 0, _UINT64, "t_wall") / 1e6, reports=tuple(reports))
 
 
+# --- behaviour reports (uav_stack/sdk) -------------------------------------------------------
+_BEHAVIOUR_REPORT_TAG = tag(Kind.BEHAVIOUR_REPORT)
+
+
+AGE_LIMIT_MS = 1e12  # a topic's message age in a behaviour report, ms (beyond: unknown)
+
+
+def _age_ms(v: float | None) -> float | None:
+    return float(v) if v is not None and 0.0 <= v <= AGE_LIMIT_MS else None  # NaN fails the comparison too
+
+
+def encode_behaviour_report(r: BehaviourReport) -> bytes:
+    """``[tag, uav, seq, t_wall_us, samples, topics, dropped, refused]``: samples ``[t_wall_us, name, value]``,
+    topics ``{topic: [sent, send_errors, received, rejected, dropped, age_mean_ms, age_max_ms]}``."""
+    if len(r.samples) > MAX_REPORT_SAMPLES:
+        raise ValueError(f"{len(r.samples)} samples in one behaviour report, over {MAX_REPORT_SAMPLES}")
+    if len(r.topics) > MAX_REPORT_TOPICS:
+        raise ValueError(f"{len(r.topics)} topics in one behaviour report, over {MAX_REPORT_TOPICS}")
+    samples = []
+    for t, name, value in r.samples:
+        if not VALUE_NAME_RE.match(name):
+            raise ValueError(f"invalid value name {name!r}: 1-64 characters of [A-Za-z0-9_.-]")
+        samples.append([_us(t), name, float(value)])
+    topics = {}
+    for topic, c in r.topics.items():
+        if len(topic) > MAX_TOPIC_LEN or not TOPIC_RE.match(topic):
+            raise ValueError(f"invalid topic {topic!r}")
+        topics[topic] = [c.sent, c.send_errors, c.received, c.rejected, c.dropped, _age_ms(c.age_mean_ms), _age_ms(c.age_max_ms)]
+    return msgpack.packb([_BEHAVIOUR_REPORT_TAG, r.uav, r.seq & 0xFFFFFFFF, _us(r.t_wall), samples, topics,
+                          min(r.dropped, _UINT32), min(r.refused, _UINT32)])
+
+
+def _ms_or_none(v: Any, name: str) -> float | None:
+    if v is None:
+        return None
+    return _num(v, 0.0, AGE_LIMIT_MS, name)
+
+
+def decode_behaviour_report(data: bytes) -> BehaviourReport:
+    o = _unpack(data, MAX_REPORT_BYTES)
+    _expect(o, Kind.BEHAVIOUR_REPORT, 8)
+    raw, rawt = o[4], o[5]
+    if type(raw) is not list or len(raw) > MAX_REPORT_SAMPLES:
+        raise DecodeError("bad_field", f"samples must be a list of at most {MAX_REPORT_SAMPLES}")
+    samples = []
+    for s in raw:
+        if type(s) is not list or len(s) != 3 or type(s[2]) not in (int, float):
+            raise DecodeError("bad_field", "a sample is [t_wall_us, name, value]")
+        samples.append((_int(s[0], 0, _UINT64, "sample t_wall") / 1e6, _str(s[1], 64, "value name", VALUE_NAME_RE), float(s[2])))
+    if type(rawt) is not dict or len(rawt) > MAX_REPORT_TOPICS:
+        raise DecodeError("bad_field", f"topics must be a map of at most {MAX_REPORT_TOPICS}")
+    topics = {}
+    for topic, c in rawt.items():
+        _str(topic, MAX_TOPIC_LEN, "topic", TOPIC_RE)
+        if type(c) is not list or len(c) != 7:
+            raise DecodeError("bad_field", f"the counters of topic {topic} are 7 numbers")
+        sent, send_errors, received, rejected, dropped = (_int(v, 0, _UINT64, f"{topic} counter") for v in c[:5])
+        topics[topic] = TopicCounts(sent, send_errors, received, rejected, dropped, _ms_or_none(c[5], f"{topic} age_mean_ms"),
+                                    _ms_or_none(c[6], f"{topic} age_max_ms"))
+    return BehaviourReport(uav=check_uav_id(o[1]), seq=_int(o[2], 0, _UINT32, "seq"),
+                           t_wall=_int(o[3], 0, _UINT64, "t_wall") / 1e6, samples=tuple(samples), topics=topics,
+                           dropped=_int(o[6], 0, _UINT32, "dropped"),
+                           refused=_int(o[7], 0, _UINT32, "refused"))
+
+
 # --- acceptance rules -------------------------------------------------------------------------
 # A rule raises Rejected(reason) for a sample that decodes but is out of place. An accept_*
 # function is decode + the rules of one stream; bound to its node's id, each has the shape
@@ -980,3 +1082,10 @@ def accept_actuation(key: str, data: bytes) -> Actuation:
 def accept_traffic(key: str, data: bytes) -> Traffic:
     """The airspace feed on ``mrs/airspace/<swarm>/traffic``: it decodes (every report in range)."""
     return decode_traffic(data)
+
+
+def accept_behaviour_report(key: str, data: bytes) -> BehaviourReport:
+    """A behaviour report on ``mrs/<swarm>/<uav>/behaviour``: it decodes and names the key's UAV."""
+    r = decode_behaviour_report(data)
+    check_key_names_uav(key, r.uav)
+    return r

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import msgspec
@@ -66,3 +67,27 @@ class Straight(Behaviour[StraightParams]):
     def step(self, ctx: Context) -> Intent:
         assert ctx.goal is not None
         return GoTo(ctx.goal[0], ctx.goal[1], self.params.altitude)
+
+
+class Note(msgspec.Struct, frozen=True):
+    n: int
+
+
+class Recording(Behaviour):  # type: ignore[type-arg]
+    """Hovers, broadcasts a counter and records values every step: good ones, a NaN, and two it may not record."""
+
+    messages = {"test/note": Note}
+    rate_hz = 5.0
+
+    def setup(self, ctx: Context) -> None:
+        self.n = 0
+
+    def step(self, ctx: Context) -> Velocity:
+        self.n += 1
+        ctx.send("test/note", Note(self.n))
+        ctx.record("step", self.n)
+        ctx.record("heard", len(ctx.inbox("test/note")))
+        ctx.record("nothing.yet", math.nan)
+        ctx.record("bad name!", 1.0)  # refused: not a name
+        ctx.record("text", "1.5")  # type: ignore[arg-type] # refused: not a number
+        return Velocity(0.0, 0.0)

@@ -267,6 +267,8 @@ class Agent:
             f.changed = False
             self._next_state = now + 1.0
             node.publish_state(f.phase, self.behaviour_name, self.failsafes.label or f.override, f.detail)
+        if self.sdk is not None:  # what an SDK behaviour recorded and its message counters, once a second
+            self.sdk.report(now)
         if now >= self._next_stats:
             self._next_stats = now + 1.0
             self.write_stats(now)
@@ -513,6 +515,8 @@ class Agent:
             self.age_log.write(now, ages)
 
     def close(self, now: float) -> None:
+        if self.sdk is not None:
+            self.sdk.final_report(now)
         self.write_stats(now, final=True)
         for f in (self.counters_file, self.links_file):
             if f is not None:

@@ -15,20 +15,29 @@ def _err(msg: str) -> int:
 
 
 def export_main(argv: list[str] | None = None) -> int:
-    from mrswarm.recorder.export import ExportError, default_out, export_csv, export_jsonl
+    from mrswarm.recorder.export import ExportError, default_out, export_csv, export_jsonl, list_topics
 
-    ap = argparse.ArgumentParser(prog="mrswarm export", description="Export a recording (MCAP): a run folder, or JSON Lines.")
+    ap = argparse.ArgumentParser(prog="mrswarm export",
+                                 description="Export a recording (MCAP): a run folder, JSON Lines, or the list of its topics.")
     ap.add_argument("file", help="a recording, e.g. results/coverage-20260101-120000/run.mcap")
     what = ap.add_mutually_exclusive_group(required=True)
     what.add_argument("--csv", action="store_true", help="uav<N>.csv trajectories and the run's files (for `mrswarm results`)")
     what.add_argument("--jsonl", action="store_true", help="the ground station's JSON Lines (`mrswarm gcs plot` draws it)")
+    what.add_argument("--topics", action="store_true", help="list the recording's channels: topic, schema, messages")
     ap.add_argument("--out", default=None, help="a folder (--csv; default <stem>-export) or a file (--jsonl; default .jsonl)")
     args = ap.parse_args(argv)
     path = Path(args.file)
     try:
-        if args.csv:
+        if args.topics:
+            info = list_topics(path)
+            width = max((len(t) for t, _, _ in info["topics"]), default=5)
+            for topic, schema, n in sorted(info["topics"]):
+                print(f"{topic:<{width}}  {schema:<26} {n:>8}")
+            print(f"{len(info['topics'])} topics, {info['messages']} messages")
+        elif args.csv:
             info = export_csv(path, Path(args.out) if args.out else default_out(path))
-            print(f"{info['out']}: {info['uavs']} UAVs, {info['rows']} rows; {', '.join(info['files'])}")
+            values = f", {info['values']} recorded values" if info["values"] else ""
+            print(f"{info['out']}: {info['uavs']} UAVs, {info['rows']} rows{values}; {', '.join(info['files'])}")
         else:
             info = export_jsonl(path, Path(args.out) if args.out else path.with_suffix(".jsonl"))
             print(f"{info['out']}: {info['messages']} messages")

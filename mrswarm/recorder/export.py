@@ -4,9 +4,15 @@
 UAVs write themselves (uav_stack/recorder.py), one row per recorded pose (the position each UAV
 published, 1 cm resolution, at its pose rate), with the phase and the FCU mode of the last state and
 telemetry received before it; plus the files the runner's recorder kept inside the recording
-(``scenario.yaml``, ``run.json``, ``network.json``, ``uav<N>.json``, ``age_uav<N>.csv``). A
+(``scenario.yaml``, ``run.json``, ``network.json``, ``uav<N>.json``, ``age_uav<N>.csv``), and
+``behaviour_uav<N>.csv`` (``t_wall,name,value``, as the UAVs write it) from the values its SDK
+behaviour recorded (``/uav/<N>/behaviour/values``; NaN and infinities, null in the recording,
+become ``nan``). A
 recording cut short (its writer killed) has no ``run.json``: one is rebuilt from the recording
 itself (the mission starts at the runner's ``start`` command).
+
+``--topics`` lists the recording's channels: topic, schema and how many messages each holds
+(``/uav/<N>/behaviour/values`` and ``/topics`` among them for a run of SDK behaviours).
 
 ``--jsonl`` writes the ground station's JSON Lines format (mrswarm/gcs/record.py), so
 ``mrswarm gcs plot`` draws a recording too.
@@ -25,6 +31,7 @@ import yaml
 from groundfloor.errors import MrswarmError
 from mrswarm.recorder.reader import Recording, RecordingError, read_recording
 from uav_stack.recorder import TRAJECTORY_COLUMNS
+from uav_stack.sdk.reports import VALUES_HEADER
 
 RUN_FILES = ("scenario.yaml", "network.json", "run.json")
 
@@ -51,6 +58,8 @@ def export_csv(path: Path, out: Path) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     rec = Recording(path)
     files: dict[int, TextIO] = {}
+    values: dict[int, TextIO] = {}  # behaviour_uav<N>.csv
+    value_rows: dict[int, int] = {}
     rows: dict[int, int] = {}
     phase: dict[int, str] = {}
     tel: dict[int, tuple[str, bool, float | None]] = {}
@@ -81,6 +90,17 @@ def export_csv(path: Path, out: Path) -> dict[str, Any]:
             elif m.schema == "mrswarm.AgentState":
                 d = m.json()
                 phase[int(d["uav"])] = str(d["phase"])
+            elif m.schema == "mrswarm.BehaviourValues":
+                d = m.json()
+                u = int(d["uav"])
+                f = values.get(u)
+                if f is None:
+                    f = values[u] = open(out / f"behaviour_uav{u}.csv", "w", encoding="utf-8")  # noqa: SIM115 (closed below)
+                    f.write(VALUES_HEADER)
+                t = float(d["t_wall"])
+                for name, v in d["values"].items():
+                    f.write(f"{t:.3f},{name},{'nan' if v is None else repr(float(v))}\n")
+                    value_rows[u] = value_rows.get(u, 0) + 1
             elif m.schema == "mrswarm.Telemetry":
                 d = m.json()
                 tel[int(d["uav"])] = (str(d["mode"]), bool(d["armed"]), d["rtf"])
@@ -91,9 +111,9 @@ def export_csv(path: Path, out: Path) -> dict[str, Any]:
     except RecordingError as exc:
         raise ExportError(str(exc)) from None
     finally:
-        for f in files.values():
+        for f in (*files.values(), *values.values()):
             f.close()
-    written = [f"uav{u}.csv" for u in sorted(rows)]
+    written = [f"uav{u}.csv" for u in sorted(rows)] + [f"behaviour_uav{u}.csv" for u in sorted(values)]
     for name, data in rec.attachments.items():
         if name in RUN_FILES or _is_uav_file(name):
             (out / name).write_bytes(data)
@@ -101,8 +121,8 @@ def export_csv(path: Path, out: Path) -> dict[str, Any]:
     if "run.json" not in rec.attachments and "scenario.yaml" in rec.attachments and first is not None:
         _rebuild_run_json(out, rec, first, last or first, start_cmd)
         written.append("run.json (rebuilt from the recording)")
-    return {"out": str(out), "uavs": len(rows), "rows": sum(rows.values()), "files": written, "complete": rec.complete,
-            "error": rec.error}
+    return {"out": str(out), "uavs": len(rows), "rows": sum(rows.values()), "values": sum(value_rows.values()),
+            "files": written, "complete": rec.complete, "error": rec.error}
 
 
 def _is_uav_file(name: str) -> bool:
@@ -145,3 +165,17 @@ def export_jsonl(path: Path, out: Path) -> dict[str, Any]:
     except RecordingError as exc:
         raise ExportError(str(exc)) from None
     return {"out": str(out), "messages": n, "complete": rec.complete, "error": rec.error}
+
+
+def list_topics(path: Path) -> dict[str, Any]:
+    """Every channel of recording ``path`` in the order they first appear: ``{"topics": [(topic, schema, messages)]}``."""
+    counts: dict[tuple[str, str], int] = {}
+    rec = Recording(path)
+    try:
+        for m in read_recording(path, rec):
+            k = (m.topic, m.schema)
+            counts[k] = counts.get(k, 0) + 1
+    except RecordingError as exc:
+        raise ExportError(str(exc)) from None
+    return {"topics": [(t, s, n) for (t, s), n in counts.items()], "messages": rec.messages, "complete": rec.complete,
+            "error": rec.error}

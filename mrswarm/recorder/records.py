@@ -22,9 +22,11 @@ from mrswarm.recorder.capture import Sample
 from swarmnet.keyspace import uav_from_key
 from swarmnet.messages import (
     AgentState,
+    BehaviourReport,
     Pose,
     Rejected,
     accept_ack,
+    accept_behaviour_report,
     accept_pose,
     accept_state,
     accept_telemetry,
@@ -108,6 +110,8 @@ class Translator:
                          sc.dumps(sc.ack_json(a, latency)))
             level = sc.LOG_INFO if a.ok else sc.LOG_ERROR
             yield self._log(t, level, f"uav {a.uav} {'ok' if a.ok else 'FAILED'} cmd {a.cmd_id}: {a.message}")
+        elif stream == "behaviour":
+            yield from self._behaviour(accept_behaviour_report(s.key, s.payload), t)
         elif stream == "cmd" or rest == "cmd":
             c = decode_command(s.payload)
             self.received["cmd"] += 1
@@ -150,6 +154,15 @@ class Translator:
             detail = f": {st.detail}" if st.detail else ""
             failsafe = st.override.startswith("fcu:") or st.phase in ("error", "killed", "yielded")
             yield self._log(t, sc.LOG_WARNING if failsafe else sc.LOG_INFO, f"uav {st.uav}: {was}{st.phase}{why}{detail}")
+
+    def _behaviour(self, r: BehaviourReport, t: float) -> Iterator[Record]:
+        """A behaviour report: a values message per step that recorded, then the counters (the report's seq in both)."""
+        self.received["behaviour"] += 1
+        values = sc.behaviour_topic(r.uav, "values")
+        for at, d in sc.behaviour_values(r):
+            yield Record(values, "mrswarm.BehaviourValues", _ns(t), _ns(at), r.seq, sc.dumps(d))
+        yield Record(sc.behaviour_topic(r.uav, "topics"), "mrswarm.BehaviourTopics", _ns(t), _ns(r.t_wall), r.seq,
+                     sc.dumps(sc.behaviour_topics(r)))
 
     def _liveliness(self, s: Sample) -> Iterator[Record]:
         tail = s.key[len(self.prefix) + len("alive/"):] if s.key.startswith(self.prefix + "alive/") else s.key

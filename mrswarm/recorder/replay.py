@@ -1,6 +1,7 @@
 """``mrswarm replay run.mcap``: the recording published again, under its own swarm name, as if it flew now.
 
-Each recorded pose, telemetry, agent state, acknowledgement and swarm message is encoded again
+Each recorded pose, telemetry, agent state, acknowledgement, swarm message and behaviour report
+(its values and counters, ``/uav/<N>/behaviour/...``, put together again) is encoded again
 with the swarm's own codec and put on its key in the replay's swarm (``mrs/<replay>/...``) at its
 recorded arrival time, mapped onto the wall clock: ``now = start + (arrival - from) / speed``.
 Time stamps inside the messages are mapped the same way, so a pose's age at a ground station is
@@ -17,6 +18,7 @@ station: the one given with ``--connect``, or its own, started on ``--listen`` (
 from __future__ import annotations
 
 import json
+import math
 import re
 import threading
 import time
@@ -29,13 +31,17 @@ from mrswarm.recorder.reader import RecordedMessage, Recording, RecordingError, 
 from swarmnet.connectivity import Rendezvous
 from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
+    MAX_REPORT_SAMPLES,
     AgentState,
+    BehaviourReport,
     CommandAck,
     Pose,
     Realm,
     SwarmMessage,
     Telemetry,
+    TopicCounts,
     encode_ack,
+    encode_behaviour_report,
     encode_pose,
     encode_state,
     encode_swarm_message,
@@ -43,7 +49,8 @@ from swarmnet.messages import (
 )
 from swarmnet.observer import SwarmObserver
 
-REPLAYED = ("mrswarm.Pose", "mrswarm.Telemetry", "mrswarm.AgentState", "mrswarm.CommandAck", "mrswarm.SwarmMessage")
+REPLAYED = ("mrswarm.Pose", "mrswarm.Telemetry", "mrswarm.AgentState", "mrswarm.CommandAck", "mrswarm.SwarmMessage",
+            "mrswarm.BehaviourTopics")  # with the mrswarm.BehaviourValues of the same report (see BehaviourReports)
 _OFFSET_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(h|m|s|ms)?\s*$")
 _UNIT = {"h": 3600.0, "m": 60.0, "s": 1.0, "ms": 0.001, None: 1.0}
 
@@ -83,6 +90,41 @@ def encode(schema: str, d: dict[str, Any], shift: Callable[[float], float]) -> t
         key = f"msg/{m.topic}" if m.dst == 0 else f"{m.dst}/msg/{m.topic}"
         return key, encode_swarm_message(m)
     return None
+
+
+class BehaviourReports:
+    """A behaviour report put together again: the recorder writes a report's values messages, then its counters
+    (``/uav/<N>/behaviour/topics``), all with the report's seq as their sequence; the values wait here for them."""
+
+    def __init__(self) -> None:
+        self.values: dict[int, list[RecordedMessage]] = {}  # uav -> the values messages since its last counters
+
+    def add_values(self, m: RecordedMessage) -> None:
+        try:
+            uav = int(m.json()["uav"])
+        except (KeyError, TypeError, ValueError):
+            return  # a message this version cannot read
+        waiting = self.values.setdefault(uav, [])
+        if len(waiting) < MAX_REPORT_SAMPLES:
+            waiting.append(m)
+
+    def encode(self, m: RecordedMessage, shift: Callable[[float], float]) -> tuple[str, bytes]:
+        """(key suffix, payload) of the report whose counters ``m`` holds, with its values."""
+        d = m.json()
+        uav = int(d["uav"])
+        samples: list[tuple[float, str, float]] = []
+        for v in self.values.pop(uav, []):
+            if v.sequence != m.sequence:
+                continue  # of a report whose counters are not in the file (before --from, or a cut recording)
+            vd = v.json()
+            t = shift(float(vd["t_wall"]))
+            samples.extend((t, str(name), math.nan if x is None else float(x)) for name, x in vd["values"].items())
+        topics = {str(name): TopicCounts(c["sent"], c["send_errors"], c["received"], c["rejected"], c["dropped"],
+                                         c["age_mean_ms"], c["age_max_ms"]) for name, c in d["topics"].items()}
+        r = BehaviourReport(uav=uav, seq=int(d["seq"]), t_wall=shift(float(d["t_wall"])),
+                            samples=tuple(samples[:MAX_REPORT_SAMPLES]), topics=topics, dropped=int(d["values_dropped"]),
+                            refused=int(d["values_refused"]))
+        return f"{uav}/behaviour", encode_behaviour_report(r)
 
 
 def _num(v: Any, default: float) -> float:
@@ -160,9 +202,11 @@ def replay(path: Path, *, speed: float = 1.0, start: float = 0.0, end: float | N
         elif d["event"] == "left" and key in tokens:
             tokens.pop(key).undeclare()
 
+    reports = BehaviourReports()
+
     def publish(m: RecordedMessage) -> bool:
         try:
-            out = encode(m.schema, m.json(), shift)
+            out = reports.encode(m, shift) if m.schema == "mrswarm.BehaviourTopics" else encode(m.schema, m.json(), shift)
         except (KeyError, TypeError, ValueError):
             return False  # a message this version cannot encode again
         if out is None:
@@ -180,6 +224,10 @@ def replay(path: Path, *, speed: float = 1.0, start: float = 0.0, end: float | N
                 break
             if m.schema == "mrswarm.Liveliness":
                 alive(m.json())
+                continue
+            if m.schema == "mrswarm.BehaviourValues":
+                if t >= t_from:
+                    reports.add_values(m)
                 continue
             if m.schema not in REPLAYED:
                 continue

@@ -22,7 +22,7 @@ from typing import Any
 
 import msgspec
 
-from swarmnet.messages import AgentState, Command, CommandAck, Pose, SwarmMessage, Telemetry
+from swarmnet.messages import AgentState, BehaviourReport, Command, CommandAck, Pose, SwarmMessage, Telemetry
 
 JSON = "json"
 JSONSCHEMA = "jsonschema"
@@ -41,6 +41,11 @@ def dumps(obj: Any) -> bytes:
 def uav_topic(uav: int, stream: str) -> str:
     """``/uav/3/pose``: one channel per UAV and stream, so Foxglove plots ``/uav/3/pose.z`` directly."""
     return f"/uav/{uav}/{stream}"
+
+
+def behaviour_topic(uav: int, what: str) -> str:
+    """``/uav/3/behaviour/values`` and ``/uav/3/behaviour/topics``: what UAV 3's SDK behaviour recorded, its message counters."""
+    return f"/uav/{uav}/behaviour/{what}"
 
 
 SCENE = "/swarm/scene"
@@ -106,6 +111,23 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     }),
     "mrswarm.Liveliness": _obj("mrswarm.Liveliness", "A node's liveliness token appeared (joined) or disappeared (left)", {
         "key": _STR, "role": _STR, "id": _STR, "event": {"type": "string", "enum": ["joined", "left"]},
+    }),
+    "mrswarm.BehaviourValues": _obj("mrswarm.BehaviourValues", "What a UAV's behaviour recorded at one step (ctx.record)", {
+        "uav": _INT, "t_wall": {**_NUM, "description": "the step's time, s since the Unix epoch (the UAV's clock)"},
+        "timestamp": {**_TIME, "description": "t_wall as a Foxglove time: plot by it (the log time is the report's arrival)"},
+        "values": {"type": "object", "additionalProperties": {"type": ["number", "null"]},
+                   "description": "name -> value (null: NaN or an infinity)"},
+    }),
+    "mrswarm.BehaviourTopics": _obj("mrswarm.BehaviourTopics", "A UAV's behaviour's counters since its start, every second", {
+        "uav": _INT, "seq": _INT, "t_wall": _T_WALL,
+        "topics": {"type": "object", "description": "message topic -> its counters", "additionalProperties": {
+            "type": "object", "properties": {
+                "sent": _INT, "send_errors": _INT, "received": _INT, "rejected": {**_INT, "description": "did not fit its type"},
+                "dropped": {**_INT, "description": "over the inbox's bound between two steps"},
+                "age_mean_ms": {"type": ["number", "null"], "description": "of what arrived, sending to arrival"},
+                "age_max_ms": {"type": ["number", "null"]}}}},
+        "values_dropped": {**_INT, "description": "recorded values no report carried (over 256 waiting)"},
+        "values_refused": {**_INT, "description": "ctx.record calls refused: a bad name or value, too many names"},
     }),
     "mrswarm.Counters": _obj("mrswarm.Counters", "A UAV's counters file (uav<N>.json): messages, neighbours, netem links", {}),
     "mrswarm.RecorderStats": _obj("mrswarm.RecorderStats", "What the recorder received and could not decode, every second", {
@@ -185,6 +207,29 @@ def ack_json(a: CommandAck, latency_ms: float | None) -> dict[str, Any]:
 
 def swarm_message_json(m: SwarmMessage) -> dict[str, Any]:
     return {"src": m.src, "dst": m.dst, "topic": m.topic, "seq": m.seq, "t_wall": m.t_wall, "body": jsonable(m.body)}
+
+
+def behaviour_values(r: BehaviourReport) -> list[tuple[float, dict[str, Any]]]:
+    """The samples of a report as (t_wall, message): one message per step that recorded (a name recorded twice in
+    one step begins the next message, so no value is lost)."""
+    out: list[tuple[float, dict[str, Any]]] = []
+    values: dict[str, float | None] = {}
+    t_group = math.nan
+    for t, name, v in r.samples:
+        if t != t_group or name in values:
+            values = {}
+            t_group = t
+            out.append((t, {"uav": r.uav, "t_wall": t, "timestamp": stamp(t), "values": values}))
+        values[name] = v if math.isfinite(v) else None
+    return out
+
+
+def behaviour_topics(r: BehaviourReport) -> dict[str, Any]:
+    topics = {name: {"sent": c.sent, "send_errors": c.send_errors, "received": c.received, "rejected": c.rejected,
+                     "dropped": c.dropped, "age_mean_ms": c.age_mean_ms, "age_max_ms": c.age_max_ms}
+              for name, c in r.topics.items()}
+    return {"uav": r.uav, "seq": r.seq, "t_wall": r.t_wall, "topics": topics, "values_dropped": r.dropped,
+            "values_refused": r.refused}
 
 
 def location_fix(t: Telemetry) -> dict[str, Any]:

@@ -13,8 +13,8 @@ list (revoked, or never issued) gets nothing through.
 =========  ======================================================  ===========================================
  uav-N      its pose, telemetry, state, acks, its swarm messages,   every pose, the pose feed and its near feed
             its liveliness token ``alive/uav/N``, its actuator      ``feed/near/N``, its own and the swarm's
-            requests ``N/act/*``                                    commands, netem, its faults, the swarm's
-                                                                    broadcasts and its unicasts, its sensor
+            requests ``N/act/*``, its behaviour reports             commands, netem, its faults, the swarm's
+            ``N/behaviour``                                         broadcasts and its unicasts, its sensor
                                                                     readings ``N/sense/*``, the airspace feed
                                                                     ``mrs/airspace/<swarm>/traffic``
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
@@ -55,7 +55,7 @@ def _rule(rule_id: str, messages: tuple[str, ...], flows: tuple[str, ...], key_e
 def uav_puts(keys: SwarmKeys, uav: int) -> list[str]:
     """What UAV ``uav`` may publish: only under its own id."""
     return [keys.pose(uav), keys.telemetry(uav), keys.state(uav), keys.ack(uav), keys.broadcast(uav, "**"),
-            keys.unicast(uav, "*", "**"), keys.alive("uav", uav), keys.act(uav, "*")]
+            keys.unicast(uav, "*", "**"), keys.alive("uav", uav), keys.act(uav, "*"), keys.behaviour(uav)]
 
 
 def uav_receives(keys: SwarmKeys, uav: int) -> list[str]:

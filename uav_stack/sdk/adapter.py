@@ -25,13 +25,18 @@ apply), its body the message Struct as plain values. What arrives is decoded int
 type; a message that does not fit is rejected and counted. Per topic: sent, received, rejected,
 send errors and the age of what arrived (mean and max, ms), in the stats file's ``behaviour``
 section.
+
+Records: what the behaviour records (``ctx.record``) goes into ``behaviour_uav<N>.csv``, and
+with the message counters onto the UAV's own key ``mrs/<swarm>/<uav>/behaviour`` once a second
+(:mod:`uav_stack.sdk.reports`), whence the run's recorder writes them into the flight recording.
+A value that cannot be recorded (a bad name or value, too many names) is refused and counted,
+never raised into the step.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import re
 import signal
 import threading
 import time
@@ -43,12 +48,14 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from swarmnet.messages import VALUE_NAME_RE, TopicCounts
 from uav_stack.behaviours.base import SelfState, Vec2
 from uav_stack.recorder import AppendLog
 from uav_stack.sdk import loader
 from uav_stack.sdk.behaviour import Behaviour
 from uav_stack.sdk.context import Context, Message, Neighbour, Outbox
 from uav_stack.sdk.intents import Altitude, GoTo, Hold, Intent, Land, Velocity, intent_problem
+from uav_stack.sdk.reports import FINAL_LINGER_S, VALUES_HEADER, BehaviourReporter
 from uav_stack.sensors import SensorReading
 
 if TYPE_CHECKING:
@@ -65,7 +72,7 @@ APPROACH_GAIN = 0.8  # 1/s: GoTo's speed = gain * distance, capped by the cruise
 MAX_DECEL = 1.5  # m/s^2 assumed to stop at a GoTo point (speed <= sqrt(2 * a * d))
 MAX_INBOX = 256  # messages per topic kept between two steps (the oldest dropped beyond)
 MAX_VALUES = 64  # distinct names of record()
-_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+_NAME = VALUE_NAME_RE
 _ZERO: Vec2 = (0.0, 0.0)
 
 
@@ -88,6 +95,12 @@ class TopicCounters:
                 "dropped": self.dropped,
                 "age_mean_ms": round(1000.0 * self.age_sum / self.received, 2) if self.received else None,
                 "age_max_ms": round(1000.0 * self.age_max, 2) if self.received else None}
+
+    def counts(self) -> TopicCounts:
+        """As a behaviour report carries them (swarmnet.messages)."""
+        d = self.as_dict()
+        return TopicCounts(self.sent, self.send_errors, self.received, self.rejected, self.dropped, d["age_mean_ms"],
+                           d["age_max_ms"])
 
 
 def _towards(x: float, y: float, gx: float, gy: float, speed: float) -> Vec2:
@@ -151,10 +164,13 @@ class BehaviourMission:
         self._stopped_at = math.nan
         self._hold_point: Vec2 = (math.nan, math.nan)
         self.values: dict[str, float] = {}
+        self.reporter = BehaviourReporter(cfg.uav, self.log)  # the values and counters onto the network, 1 Hz
+        self.reporter.active = bool(self.topics)
+        self._refusals: dict[str, int] = {}  # why ctx.record calls were refused
         self._limit = _HardLimit(max(HARD_LIMIT_MIN_S, HARD_LIMIT_FACTOR * self.budget_s))
         self.records: AppendLog | None = None
         if cfg.record_dir:
-            self.records = AppendLog(Path(cfg.record_dir) / f"behaviour_uav{cfg.uav}.csv", "t_wall,name,value\n")
+            self.records = AppendLog(Path(cfg.record_dir) / f"behaviour_uav{cfg.uav}.csv", VALUES_HEADER)
 
     # ---- the agent's side -----------------------------------------------------------------
     def attach(self, agent: Agent) -> None:
@@ -411,15 +427,45 @@ class BehaviourMission:
             return {}
         return {name: s.latest() for name, s in a.payload.sensors.items()}
 
-    def _record_value(self, name: str, value: float) -> None:
+    def _record_value(self, name: str, value: float) -> bool:
         if not isinstance(name, str) or not _NAME.match(name):
-            raise ValueError(f"record: name {name!r}: up to 64 characters of [A-Za-z0-9_.-]")
-        v = float(value)
+            what = repr(name)[:80] if isinstance(name, str) else f"of type {type(name).__name__}"
+            return self._refuse("bad_name", f"name {what}: up to 64 characters of [A-Za-z0-9_.-]")
+        try:  # a number: int, float, bool, numpy's; a text is not one, even "1.5"
+            v = None if isinstance(value, (str, bytes, bytearray)) else float(value)
+        except Exception:  # noqa: BLE001 - anything the user passes (an int beyond a float, a __float__ that raises)
+            v = None
+        if v is None:
+            return self._refuse("bad_value", f"{name}: a {type(value).__name__} is not a number")
         if name not in self.values and len(self.values) >= MAX_VALUES:
-            raise ValueError(f"record: at most {MAX_VALUES} names")
+            return self._refuse("too_many_names", f"{name}: at most {MAX_VALUES} names")
         self.values[name] = v
+        self.reporter.add(self.ctx.t, name, v)
         if self.records is not None:
             self.records.add(f"{self.ctx.t:.3f},{name},{v!r}\n")
+        return True
+
+    def _refuse(self, why: str, detail: str) -> bool:
+        self._refusals[why] = self._refusals.get(why, 0) + 1
+        r = self.reporter
+        r.refused += 1
+        r.active = True
+        if r.refused <= 3 or r.refused % 100 == 0:
+            self.log.warning("UAV %d: record refused (%d so far): %s", self.cfg.uav, r.refused, detail)
+        return False
+
+    def report(self, now: float) -> None:
+        """Called by the agent at every tick: the values recorded and the counters onto the network when due."""
+        a = self.agent
+        if a is not None and self.reporter.due(now):
+            self.reporter.send(a.node, {t: c.counts() for t, c in self.counters.items()}, now)
+
+    def final_report(self, now: float) -> None:
+        """The last report, when the agent closes (its node still open): what was recorded since the previous one."""
+        a = self.agent
+        if a is not None and self.reporter.active and \
+                self.reporter.send(a.node, {t: c.counts() for t, c in self.counters.items()}, now):
+            time.sleep(FINAL_LINGER_S)  # the node closes next: its session drops what has not left yet
 
     # ---- reports --------------------------------------------------------------------------
     def stats(self) -> dict[str, Any]:
@@ -439,6 +485,8 @@ class BehaviourMission:
             "incidents": list(self.incidents),
             "topics": {t: c.as_dict() for t, c in self.counters.items()},
             "values": dict(self.values),
+            "records_refused": dict(self._refusals),
+            "reports": self.reporter.as_dict(),
         }
 
     def close(self) -> None:

@@ -83,7 +83,7 @@ class Context:
                  area: tuple[float, float, float, float] | None, goal: tuple[float, float] | None, outbox: Outbox,
                  logger: logging.Logger,
                  neighbours: Callable[[float], list[Neighbour]], sensors: Callable[[], Mapping[str, SensorReading | None]],
-                 record: Callable[[str, float], None]) -> None:
+                 record: Callable[[str, float], bool]) -> None:
         self.uav = uav
         self.swarm = swarm
         self.realm = realm
@@ -172,7 +172,9 @@ class Context:
         return self._outbox.send(topic, msg, uav)
 
     # ---- records --------------------------------------------------------------------------
-    def record(self, name: str, value: float) -> None:
-        """A named value into the flight's records (``behaviour_uav<N>.csv`` of the run folder: time, name,
-        value) and the UAV's stats (its last value); ``name``: up to 64 characters of ``[A-Za-z0-9_.-]``."""
-        self._record(name, value)
+    def record(self, name: str, value: float) -> bool:
+        """A named value into the flight's records: ``behaviour_uav<N>.csv`` of the run folder (time, name,
+        value), the flight recording (``/uav/<N>/behaviour/values`` of run.mcap) and the UAV's stats (its last
+        value). ``name``: up to 64 characters of ``[A-Za-z0-9_.-]``, at most 64 names per UAV; ``value``: a number
+        (NaN and infinities too). False (counted and logged, never raised) if it is refused."""
+        return self._record(name, value)
