@@ -3,19 +3,21 @@
 point-mass swarm of tests/sim_pointmass.py.
 
 Each UAV gets the behaviour, zones and avoidance its agent builds from the scenario (the
-scenario's own configuration, through :meth:`Scenario.virtual_uav_configs`); the world computes
-every reading from the UAVs' positions at its rate and releases it after its latency, as the
-world service does; what a UAV's camera sees is shared with the others a control tick later.
+scenario's own configuration, through :meth:`Scenario.virtual_uav_configs`): the wildfire
+behaviour of the SDK in its guarded adapter, reading this payload; the world computes every
+reading from the UAVs' positions at its rate and releases it after its latency, as the world
+service does; what a UAV's camera sees (the adapter's outbox, with no agent to send it) is
+shared with the others a control tick later.
 Fast enough for a behaviour test: a 120 s mission of eight UAVs in seconds.
 """
 
 from __future__ import annotations
 
-import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from mrswarm.scenario import Scenario, load_scenario
@@ -23,9 +25,9 @@ from swarmnet.messages import Pose, Realm
 from tests.sim_pointmass import PointMassSim, SimAgent, SimConfig
 from uav_stack.agent import make_mission
 from uav_stack.behaviours.avoidance import CollisionAvoidance
-from uav_stack.behaviours.firefighting import FireFighter
 from uav_stack.behaviours.zones import zone_field
 from uav_stack.config import NetworkConfig
+from uav_stack.sdk.adapter import BehaviourMission
 from uav_stack.sensors import Payload, VirtualSensor
 from world.model import World
 from world.sensing import SensorServer, Track
@@ -67,14 +69,14 @@ class WildfireSim:
         agents = []
         self.payloads: list[dict[str, VirtualSensor]] = []
         for k, c in enumerate(cfgs):
+            c = msgspec.structs.replace(c, seed=seed)  # the search draws of UAV u: random.Random(seed * 1_000_003 + u)
             sensors = {s.name: VirtualSensor(s) for s in c.sensors}
             payload = Payload(dict(sensors), {a.name: _Spray(a.name, self, k) for a in c.actuators})
             self.payloads.append(sensors)
             a = c.avoidance
             zones = zone_field(a.zones, a.zone_margin)
             mission = make_mission(c, payload, zones)
-            if isinstance(mission, FireFighter):
-                mission.rng = random.Random(seed * 1_000_003 + c.uav)
+            assert isinstance(mission, BehaviourMission)
             avoid = CollisionAvoidance(a.safety_distance, max_speed=c.speed * 1.2, time_horizon=a.time_horizon,
                                        stale_after=a.stale_after, zones=zones)
             start = next(u.start for u in scenario.uav_list() if u.id == c.uav)
@@ -107,9 +109,9 @@ class WildfireSim:
                 sensor.feed(r, now)
         for src, topic, body in self._mail:  # what the cameras saw a tick ago, to everyone else
             for a in sim.agents:
-                if a.uav != src and isinstance(a.mission, FireFighter):
+                if a.uav != src and isinstance(a.mission, BehaviourMission):
                     a.mission.receive(src, topic, body, sim.t)
-        self._mail = [(a.uav, topic, body) for a in sim.agents if isinstance(a.mission, FireFighter)
+        self._mail = [(a.uav, topic, body) for a in sim.agents if isinstance(a.mission, BehaviourMission)
                       for topic, body in a.mission.outbox()]
         d = np.linalg.norm(sim.pos[:, None, :] - sim.pos[None, :, :], axis=2)
         np.fill_diagonal(d, np.inf)

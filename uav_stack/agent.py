@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import random
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -54,28 +53,29 @@ MAX_FAULTS_REMEMBERED = 64  # injected faults whose answer a copy gets (the olde
 def make_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) -> Behaviour | None:
     """The mission behaviour the configuration asks for; None for an idle UAV (it hovers).
 
-    Plume and wildfire missions read the ``payload``'s sensors (docs/world.md) and stay out of
-    the ``zones`` (their targets there are skipped).
+    Every mission is a behaviour of the SDK (uav_stack/sdk, docs/sdk.md), flown through its guarded
+    adapter: the user's (``mission.type: behaviour``) or a built-in one. Behaviours read the
+    ``payload``'s sensors and drive its actuators through their Context (the plume and wildfire
+    missions, docs/world.md), and ask it whether a point lies in the ``zones`` (the wildfire's
+    targets there are skipped).
     """
     m = cfg.mission
     if m.type == "behaviour":  # a behaviour of the SDK (uav_stack/sdk, docs/sdk.md), guarded by its adapter
         from uav_stack.sdk.adapter import make_behaviour_mission
 
-        return make_behaviour_mission(cfg)
-    if m.type in ("plume", "wildfire"):
-        from uav_stack.behaviours.sensing_missions import make_sensing_mission
-
-        return make_sensing_mission(cfg, payload or Payload(), zones, random.Random(cfg.seed * 1_000_003 + cfg.uav))
+        return make_behaviour_mission(cfg, payload, zones)
+    if m.type == "wildfire" and m.wildfire is None:
+        raise ValueError("a wildfire mission needs its section (hub, fire_hint)")
     if m.type == "coverage":
         if m.strategy not in ("random", "lawnmower"):
             raise ValueError(f"unknown coverage strategy {m.strategy!r}")
         Rect(*m.area)  # a valid area, or ValueError now
     if m.type == "goto" and m.goal is None:
         raise ValueError("a goto mission needs a goal")
-    if m.type in ("coverage", "goto"):  # the built-in behaviours of the SDK (uav_stack/sdk/builtins.py)
+    if m.type in ("coverage", "goto", "plume", "wildfire"):  # the built-in behaviours of the SDK (uav_stack/sdk)
         from uav_stack.sdk.builtins import builtin_mission
 
-        return builtin_mission(cfg)
+        return builtin_mission(cfg, payload, zones)
     if m.type == "idle":
         return None
     raise ValueError(f"unknown mission type {m.type!r}")

@@ -35,6 +35,7 @@ from swarmnet.sensing import WorldSensing
 from uav_stack.behaviours.plume import ESTIMATE_TOPIC
 from uav_stack.phases import AgentPhase
 from uav_stack.runtime import StopFlag, make_connectivity
+from uav_stack.sdk.sensing import estimate_in
 from world.airspace import TrafficFeed
 from world.config import WorldServiceConfig
 from world.model import UavKey, World
@@ -138,13 +139,12 @@ class WorldService:
             if self.recorder is not None:
                 self.recorder.actuation(now, swarm, a.uav, a.actuator, x, y, a.amount, litres, out)
         for m in inbox.messages:
-            if m.topic == ESTIMATE_TOPIC and isinstance(m.body, list) and len(m.body) >= 2:
-                try:
-                    x, y = float(m.body[0]), float(m.body[1])
-                except (TypeError, ValueError):
-                    continue
-                if math.isfinite(x) and math.isfinite(y) and self.recorder is not None:
-                    self.recorder.estimate(m.t_wall, swarm, m.src, x, y)
+            if m.topic == ESTIMATE_TOPIC:  # the plume behaviour's message (uav_stack/sdk/sensing.py), in its envelope
+                e = estimate_in(m.body)
+                if e is None:
+                    self.counts["estimates_rejected"] += 1
+                elif self.recorder is not None:
+                    self.recorder.estimate(m.t_wall, swarm, m.src, e.x, e.y)
                     self.counts["estimates"] += 1
 
     def stats(self, now: float) -> dict[str, Any]:

@@ -31,6 +31,12 @@ with the message counters onto the UAV's own key ``mrs/<swarm>/<uav>/behaviour``
 (:mod:`uav_stack.sdk.reports`), whence the run's recorder writes them into the flight recording.
 A value that cannot be recorded (a bad name or value, too many names) is refused and counted,
 never raised into the step.
+
+Sensors and actuators: the UAV's :class:`~uav_stack.sensors.Payload` (the one given, else its
+agent's), read and driven through the Context (``ctx.reading``, ``ctx.actuate``); no-fly zones
+likewise (``ctx.blocked``). A mission that no agent drives (a simulation calls ``velocity``
+itself) has no swarm node: what its behaviour broadcasts waits in :meth:`BehaviourMission.outbox`
+for the simulation to deliver, in the envelope an agent would send.
 """
 
 from __future__ import annotations
@@ -56,10 +62,11 @@ from uav_stack.sdk.behaviour import Behaviour
 from uav_stack.sdk.context import Context, Message, Neighbour, Outbox
 from uav_stack.sdk.intents import Altitude, GoTo, Hold, Intent, Land, Velocity, intent_problem
 from uav_stack.sdk.reports import FINAL_LINGER_S, VALUES_HEADER, BehaviourReporter
-from uav_stack.sensors import SensorReading
+from uav_stack.sensors import Payload, SensorReading
 
 if TYPE_CHECKING:
     from uav_stack.agent import Agent
+    from uav_stack.behaviours.zones import ZoneField
     from uav_stack.config import AgentConfig
 
 log = logging.getLogger(__name__)
@@ -118,8 +125,11 @@ class BehaviourMission:
 
     sdk = True  # what the agent asks to tell it from its other missions
 
-    def __init__(self, cfg: AgentConfig, behaviour: Behaviour[Any], spec: str | None = None) -> None:
+    def __init__(self, cfg: AgentConfig, behaviour: Behaviour[Any], spec: str | None = None,
+                 payload: Payload | None = None, zones: ZoneField | None = None) -> None:
         m = cfg.mission
+        self.payload = payload  # None: the agent's
+        self.zones = zones  # None: the agent's
         self.cfg = cfg
         self.behaviour = behaviour
         self.spec = spec or m.behaviour or ""
@@ -138,10 +148,12 @@ class BehaviourMission:
         self.altitude: float | None = None  # m above the origin; None: the flight's altitude
         self.request: str | None = None  # "land": land now
         self.agent: Agent | None = None
+        self._unsent: list[tuple[str, Any]] = []  # broadcasts of a mission no agent drives (outbox)
+        self._actuate_errors = 0
         self.log = logging.getLogger(f"behaviour.uav{cfg.uav}")
         self.ctx = Context(cfg.uav, cfg.swarm, cfg.realm, cfg.speed, cfg.altitude,
                            m.area if m.area != (-1.0, 1.0, -1.0, 1.0) else None, m.goal, Outbox(self._send), self.log,
-                           self._neighbours, self._sensors, self._record_value)
+                           self._neighbours, self._sensors, self._record_value, self._actuate, self._blocked)
         self.counters: dict[str, TopicCounters] = {t: TopicCounters() for t in self.topics}
         self._inbox: dict[str, list[Message[Any]]] = {t: [] for t in self.topics}
         self._intent: Intent = Velocity(0.0, 0.0)
@@ -203,7 +215,10 @@ class BehaviourMission:
             return type(self.behaviour).__name__
 
     def outbox(self) -> list[tuple[str, Any]]:
-        return []  # sent at once by Context.send (unicast needs the node's own send)
+        """Empty under an agent (Context.send sends at once: unicast needs the node's own send); without
+        one, the broadcasts since the last call, ``(topic, [sent_at, 0, fields])``, for a simulation to deliver."""
+        out, self._unsent = self._unsent, []
+        return out
 
     def receive(self, src: int, topic: str, body: Any, now: float) -> None:
         """A swarm message on one of the topics (``body`` untrusted: ``[sent_at, dst, payload]``)."""
@@ -375,7 +390,7 @@ class BehaviourMission:
         if not isinstance(msg, self.types[topic]):
             self._send_error(c, f"{topic}: expected a {self.types[topic].__name__}, got {type(msg).__name__}")
             return False
-        now = time.time() if self.agent is None else self.agent.clock()
+        now = self.ctx.t if self.agent is None else self.agent.clock()
         try:
             body = [now, to or 0, msgspec.to_builtins(msg)]
             if to is not None and to == self.cfg.uav:  # to itself: no network to cross
@@ -383,6 +398,13 @@ class BehaviourMission:
                 c.sent += 1
                 return True
             node = self.agent.node if self.agent is not None else None
+            if node is None and to is None:  # no agent (a simulation drives the mission): it delivers the outbox
+                if len(msgspec.msgpack.encode(body)) > self.max_bytes:
+                    raise ValueError(f"over the behaviour's {self.max_bytes}-byte limit (max_message_bytes)")
+                self._unsent.append((topic, body))
+                del self._unsent[:-MAX_INBOX]
+                c.sent += 1
+                return True
             if node is None:
                 raise ValueError("not attached to a swarm node")
             if to is not None and not 1 <= to <= 65535:
@@ -421,11 +443,32 @@ class BehaviourMission:
             out.append(Neighbour(p.uav, p.x, p.y, p.z, p.vx, p.vy, p.vz, age if age > 0.0 else 0.0, p.realm.label))
         return out
 
+    def _payload(self) -> Payload | None:
+        if self.payload is not None:
+            return self.payload
+        return self.agent.payload if self.agent is not None else None
+
     def _sensors(self) -> Mapping[str, SensorReading | None]:
-        a = self.agent
-        if a is None or a.payload is None:
+        p = self._payload()
+        if p is None:
             return {}
-        return {name: s.latest() for name, s in a.payload.sensors.items()}
+        return {name: s.latest() for name, s in p.sensors.items()}
+
+    def _actuate(self, name: str, amount: float) -> bool:
+        p = self._payload()
+        act = p.actuators.get(name) if p is not None else None
+        if act is None:
+            self._actuate_errors += 1
+            if self._actuate_errors <= 3 or self._actuate_errors % 100 == 0:
+                self.log.warning("UAV %d: no actuator %r (it has: %s)", self.cfg.uav, name,
+                                 ", ".join(sorted(p.actuators)) if p is not None and p.actuators else "none")
+            return False
+        act.actuate(amount)
+        return True
+
+    def _blocked(self, x: float, y: float) -> bool:
+        zones = self.zones if self.zones is not None else (self.agent.zones if self.agent is not None else None)
+        return zones is not None and zones.blocked((x, y), self.ctx.altitude)
 
     def _record_value(self, name: str, value: float) -> bool:
         if not isinstance(name, str) or not _NAME.match(name):
@@ -482,6 +525,7 @@ class BehaviourMission:
             "step_ms": {"mean": round(1000.0 * self.step_s_sum / self.steps, 3) if self.steps else None,
                         "max": round(1000.0 * self.step_s_max, 3)},
             "last_error": self.last_error,
+            "actuate_errors": self._actuate_errors,
             "incidents": list(self.incidents),
             "topics": {t: c.as_dict() for t, c in self.counters.items()},
             "values": dict(self.values),
@@ -553,8 +597,10 @@ class _HardLimit:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
 
 
-def make_behaviour_mission(cfg: AgentConfig) -> BehaviourMission:
-    """The mission of ``cfg.mission.behaviour`` with its parameters (this UAV's ``per_uav`` ones over the mission's)."""
+def make_behaviour_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) \
+        -> BehaviourMission:
+    """The mission of ``cfg.mission.behaviour`` with its parameters (this UAV's ``per_uav`` ones over the mission's),
+    reading ``payload`` and ``zones`` (None: its agent's)."""
     m = cfg.mission
     assert m.behaviour is not None
     cls, params = loader.load(m.behaviour, m.params, "mission")
@@ -563,7 +609,7 @@ def make_behaviour_mission(cfg: AgentConfig) -> BehaviourMission:
     except Exception as exc:  # noqa: BLE001 - its constructor failed: every step fails, the guard holds then lands
         log.exception("UAV %d: behaviour %s could not be made", cfg.uav, m.behaviour)
         behaviour = _Unmade(cls, exc)
-    return BehaviourMission(cfg, behaviour)
+    return BehaviourMission(cfg, behaviour, payload=payload, zones=zones)
 
 
 class _Unmade(Behaviour[Any]):

@@ -4,6 +4,8 @@ Registered by name (``mission.behaviour: goto``, ``lawnmower``, ``random``; :dat
 they fly the same algorithms as ``mission.type: goto`` and ``coverage``
 (:mod:`uav_stack.behaviours.coverage`, pure algorithms without I/O), through the public API:
 they double as examples of a behaviour that keeps state between steps and finishes (``done``).
+The missions that read sensors (``plume``, ``wildfire``) are in :mod:`uav_stack.sdk.sensing`;
+:func:`builtin_mission` makes every built-in mission type.
 """
 
 from __future__ import annotations
@@ -22,8 +24,10 @@ from uav_stack.sdk.context import Context
 from uav_stack.sdk.intents import Velocity
 
 if TYPE_CHECKING:
+    from uav_stack.behaviours.zones import ZoneField
     from uav_stack.config import AgentConfig
     from uav_stack.sdk.adapter import BehaviourMission
+    from uav_stack.sensors import Payload
 
 Metres = Annotated[float, Meta(gt=0.0, le=10000.0, description="m")]
 Area = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (m, ENU)
@@ -115,9 +119,12 @@ class RandomDirection(Behaviour[RandomParams]):
         return "coverage/random"
 
 
-def builtin_mission(cfg: AgentConfig) -> BehaviourMission:
-    """``mission.type`` goto or coverage (lawnmower, random) flown as the built-in behaviour of the SDK,
-    with the mission's settings as its parameters (``uav_stack.agent.make_mission``)."""
+def builtin_mission(cfg: AgentConfig, payload: Payload | None = None, zones: ZoneField | None = None) -> BehaviourMission:
+    """``mission.type`` goto, coverage (lawnmower, random), plume or wildfire flown as the built-in behaviour
+    of the SDK, with the mission's settings as its parameters (``uav_stack.agent.make_mission``); the plume
+    and wildfire read the ``payload``'s sensors (the wildfire drives its spray) and the ``zones``
+    (None: the agent's)."""
+    from uav_stack.sdk import sensing
     from uav_stack.sdk.adapter import BehaviourMission
 
     m = cfg.mission
@@ -127,4 +134,16 @@ def builtin_mission(cfg: AgentConfig) -> BehaviourMission:
         return BehaviourMission(cfg, Lawnmower(LawnmowerParams(area=m.area, lane_spacing=m.lane_spacing)), "lawnmower")
     if m.type == "coverage" and m.strategy == "random":
         return BehaviourMission(cfg, RandomDirection(RandomParams(area=m.area, seed=cfg.seed)), "random")
+    if m.type == "plume":
+        plume = msgspec.structs.asdict(m.plume) if m.plume is not None else {}
+        params = sensing.PlumeParams(**plume, area=m.area, seed=cfg.seed)
+        return BehaviourMission(cfg, sensing.PlumeSource(params), "plume", payload, zones)
+    if m.type == "wildfire":
+        w = m.wildfire
+        if w is None:
+            raise ValueError("a wildfire mission needs its section (hub, fire_hint)")
+        spray = cfg.actuator(w.spray)
+        wparams = sensing.WildfireParams(**msgspec.structs.asdict(w), capacity_l=spray.capacity_l,
+                                         spray_radius_m=spray.radius_m, seed=cfg.seed)
+        return BehaviourMission(cfg, sensing.Wildfire(wparams), "wildfire", payload, zones)
     raise ValueError(f"no built-in behaviour for mission type {m.type!r} ({m.strategy})")

@@ -83,7 +83,8 @@ class Context:
                  area: tuple[float, float, float, float] | None, goal: tuple[float, float] | None, outbox: Outbox,
                  logger: logging.Logger,
                  neighbours: Callable[[float], list[Neighbour]], sensors: Callable[[], Mapping[str, SensorReading | None]],
-                 record: Callable[[str, float], bool]) -> None:
+                 record: Callable[[str, float], bool], actuate: Callable[[str, float], bool] | None = None,
+                 blocked: Callable[[float, float], bool] | None = None) -> None:
         self.uav = uav
         self.swarm = swarm
         self.realm = realm
@@ -108,6 +109,8 @@ class Context:
         self._neighbours: list[Neighbour] | None = None
         self._sensors = sensors
         self._record = record
+        self._actuate = actuate
+        self._blocked = blocked
         self._messages: dict[str, list[Message[Any]]] = {}
 
     # ---- the adapter's side ---------------------------------------------------------------
@@ -149,6 +152,21 @@ class Context:
     def reading(self, sensor: str) -> SensorReading | None:
         """The newest reading of ``sensor`` (None: none yet, or no such sensor)."""
         return self._sensors().get(sensor)
+
+    # ---- actuators and the airspace --------------------------------------------------------
+    def actuate(self, actuator: str, amount: float) -> bool:
+        """Ask the UAV's actuator ``actuator`` to release ``amount`` (its unit: litres for a spray) now,
+        where the UAV is; the world service (or the real device) applies it. False if the UAV has no such
+        actuator or ``amount`` is not a positive finite number (nothing is released)."""
+        if self._actuate is None or not isinstance(amount, (int, float)) or not (math.isfinite(amount) and amount > 0.0):
+            return False
+        return self._actuate(actuator, float(amount))
+
+    def blocked(self, x: float, y: float) -> bool:
+        """True if the point ``(x, y)`` (m, ENU) lies in one of the scenario's no-fly zones at the
+        altitude target, with their margin: a target there cannot be
+        reached, collision avoidance keeps the UAV out."""
+        return self._blocked is not None and self._blocked(x, y)
 
     # ---- messages -------------------------------------------------------------------------
     @property

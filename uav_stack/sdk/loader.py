@@ -25,6 +25,8 @@ BUILTINS: dict[str, str] = {
     "goto": "uav_stack.sdk.builtins:GoToGoal",
     "lawnmower": "uav_stack.sdk.builtins:Lawnmower",
     "random": "uav_stack.sdk.builtins:RandomDirection",
+    "plume": "uav_stack.sdk.sensing:PlumeSource",
+    "wildfire": "uav_stack.sdk.sensing:Wildfire",
 }
 _PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
 _TOPIC = re.compile(r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
