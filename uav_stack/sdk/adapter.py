@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from groundfloor.errors import MrswarmError
 from swarmnet.messages import VALUE_NAME_RE, TopicCounts
 from uav_stack.behaviours.base import SelfState, Vec2
 from uav_stack.recorder import AppendLog
@@ -83,7 +84,7 @@ _NAME = VALUE_NAME_RE
 _ZERO: Vec2 = (0.0, 0.0)
 
 
-class StepTimeout(Exception):  # noqa: N818 - raised into a user's step, read as "step timeout"
+class StepTimeout(MrswarmError):  # noqa: N818 - raised into a user's step, read as "step timeout"
     """Raised into a step that ran past its hard limit."""
 
 
