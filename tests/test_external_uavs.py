@@ -282,7 +282,7 @@ def test_fig8_with_an_external_fcu_counts_it_in_separation_encounter_trajectory_
         info = json.loads((run_dir / "run.json").read_text())
         assert "uav1" in info["pids"] and info["exit_codes"]["uav1"] == 0
         argv = (run_dir / "logs" / "uav1.log").read_text()
-        assert "uav_stack.agent" in argv and "UAV 1: landing -> landed" in argv
+        assert "uav_stack.flight: UAV 1: landing -> landed" in argv  # the agent's flight, in its own log
     finally:
         run.cleanup()
         stop(fcu)
