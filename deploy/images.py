@@ -155,6 +155,13 @@ def _pip(args: list[str], log: Callable[[str], None]) -> None:
         raise ImageError(f"{' '.join(cmd)} failed:\n{(res.stdout + res.stderr)[-3000:]}")
 
 
+# what the wheel's build copy of the checkout leaves out: never a name a package of the wheel has (a
+# "results" pattern once dropped mrswarm/results from the image); benchmarks/ goes whole, results and all;
+# compiled modules (*.so): the wheel builds its own
+WHEEL_SOURCE_IGNORE = (".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", "benchmarks",
+                       "tests", "*.so")
+
+
 def build_wheelhouse(out: Path, root: Path = ROOT, full: bool = False, log: Callable[[str], None] = _log) -> Path:
     """``out/deps`` (cached by the requirement set) and ``out/project`` (rebuilt every time)."""
     reqs = project_requirements(root, full)
@@ -175,9 +182,7 @@ def build_wheelhouse(out: Path, root: Path = ROOT, full: bool = False, log: Call
     with tempfile.TemporaryDirectory(prefix="mrswarm-wheel-") as tmp:
         # build from a copy so setuptools' build/ and egg-info never land in the work tree
         src = Path(tmp) / "src"
-        shutil.copytree(root, src, ignore=shutil.ignore_patterns(".git", "results", "build", "dist", "*.egg-info",
-                                                               "__pycache__", ".pytest_cache", "benchmarks", "tests",
-                                                               "*.so"))  # the wheel builds its own
+        shutil.copytree(root, src, ignore=shutil.ignore_patterns(*WHEEL_SOURCE_IGNORE))
         env = dict(os.environ, SOURCE_DATE_EPOCH="315532800")
         res = subprocess.run([sys.executable, "-m", "pip", "--disable-pip-version-check", "wheel", "--quiet", "--no-deps",
                               "--wheel-dir", str(project), str(src)],

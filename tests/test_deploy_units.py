@@ -96,3 +96,17 @@ def test_replica_picks_its_uav_by_slot_and_refuses_a_slot_without_one() -> None:
             pick(fleet, slot)
     assert endpoint_host("tcp/router:7447") == ("router", 7447)
     assert endpoint_host("tcp/[fd00::1]:7447#iface=eth0") == ("fd00::1", 7447)
+
+
+def test_the_wheel_for_the_images_leaves_no_package_of_the_project_out() -> None:
+    """Every package directory of the project survives the copy the stack image's wheel is built from."""
+    import fnmatch
+
+    from deploy.images import WHEEL_SOURCE_IGNORE
+
+    root = Path(__file__).resolve().parents[1]
+    packages = [p.parent.relative_to(root) for top in ("groundfloor", "swarmnet", "discovery", "uav_stack", "world",
+                                                       "deploy", "mrswarm") for p in (root / top).rglob("__init__.py")]
+    assert any(str(p) == "mrswarm/results" for p in packages)
+    dropped = [str(p) for p in packages if any(fnmatch.fnmatch(part, pat) for part in p.parts for pat in WHEEL_SOURCE_IGNORE)]
+    assert dropped == []
