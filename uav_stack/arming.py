@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-RETRY_AFTER = 1.5  # s: a refused or unanswered arm or mode command is sent again after this
+RETRY_AFTER = 1.5  # s: a refused or unanswered arm, mode, takeoff or land command is sent again after this
 PREARM_PROBE_S = 10.0  # s: while the autopilot reports failing pre-arm checks, an arm is tried this often (its answer says why)
 CONFIRM_S = 1.5  # s an accepted arm or mode change may take to show in the heartbeat (ArduPilot: its next 1 Hz beat)
 

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from uav_stack.arming import Arming
+from uav_stack.arming import RETRY_AFTER, Arming
 from uav_stack.phases import CONTROLLED, AgentPhase
 
 if TYPE_CHECKING:
@@ -37,7 +37,6 @@ log = logging.getLogger(__name__)
 P = AgentPhase
 Vec2 = tuple[float, float]
 
-RETRY_AFTER = 1.5  # s: a refused or unanswered takeoff or land command is sent again after this
 OFFBOARD_PRESTREAM = 1.3  # s of setpoints before asking for the offboard mode (PX4 OFFBOARD needs > 1 s)
 LANDED_BELOW_M = 1.0  # m above home under which a disarmed UAV counts as on the ground
 AT_ALTITUDE_M = 1.0  # m under the target altitude at which a takeoff counts as done

@@ -17,7 +17,6 @@ and counted; the others fly on.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import os
@@ -29,9 +28,7 @@ from typing import TYPE_CHECKING, Annotated
 import msgspec
 from msgspec import Meta
 
-from groundfloor.process import die_with_parent, setup_logging
 from groundfloor.schema import Config, ConfigError, decode_json
-from swarmnet.connectivity import lean_zenoh_runtime
 from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.runtime import (
@@ -44,6 +41,7 @@ from uav_stack.runtime import (
     next_grid_instant,
     open_virtual_uav,
     tick_hz_for,
+    virtual_process_start,
 )
 
 if TYPE_CHECKING:
@@ -171,12 +169,8 @@ class Pool:
                 log.exception("UAV %d: %s failed (%d so far); the pool flies on", u.agent.uav, what, n)
 
     def close(self) -> None:
+        """The loop's own resources; the UAVs are closed by their opener (:func:`run_pool`)."""
         self._sel.close()
-        for u in self.uavs:
-            try:
-                u.close()
-            except Exception:  # noqa: BLE001 - close the others too
-                log.exception("UAV %d: close failed", u.agent.uav)
 
 
 def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
@@ -200,30 +194,21 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
             pool.run(stop, period, cfg.duration)
         finally:
             pool.close()
-            uavs = []
     finally:
         for u in uavs:
-            u.close()
+            try:
+                u.close()
+            except Exception:  # noqa: BLE001 - close the others too
+                log.exception("UAV %d: close failed", u.agent.uav)
         fcu.close()
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m uav_stack.pool --config pool1.json``: what the process runtime launches for a pool."""
-    ap = argparse.ArgumentParser(prog="python -m uav_stack.pool",
-                                 description="a pool of virtual UAVs in one process: one virtual FCU, an agent each")
-    ap.add_argument("--config", required=True, help="JSON written by the runner (PoolConfig)")
-    ap.add_argument("--log-level", default="INFO")
-    ap.add_argument("--log-file", default=None)
-    args = ap.parse_args(argv)
-    die_with_parent()
-    lean_zenoh_runtime()
-    stop = StopFlag().install()
-    setup_logging(args.log_level, args.log_file)
-    try:
-        cfg = PoolConfig.load(args.config)
-    except (ConfigError, OSError) as exc:
-        ap.error(f"{args.config}: {exc}")
+    cfg, stop, ap = virtual_process_start("python -m uav_stack.pool",
+                                          "a pool of virtual UAVs in one process: one virtual FCU, an agent each",
+                                          PoolConfig.load, argv)
     for c in cfg.uavs:
         check_signing_key(c.agent, ap)
     return run_pool(cfg, stop, tap_zenoh_log=True)

@@ -15,10 +15,11 @@ import os
 import re
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from groundfloor.process import die_with_parent, on_stop_signals, setup_logging
 from groundfloor.schema import ConfigError, convert
@@ -37,6 +38,7 @@ from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
     from uav_stack.fcu import VirtualFcu
 
+C = TypeVar("C")  # a process's configuration type (virtual_process_start)
 log = logging.getLogger(__name__)
 
 OPEN_TIMEOUT_S = 120.0  # s to keep trying to open the swarm node (a loaded router accepts late: 100 UAVs, ~2 min)
@@ -501,11 +503,14 @@ def run_agent(cfg: AgentConfig, stop: StopFlag, duration: float | None = None, t
     return 0
 
 
-def virtual_uav_main(argv: list[str] | None = None) -> int:
-    """``python -m uav_stack.virtual_uav --config uav3.json``: what the process runtime launches."""
-    ap = argparse.ArgumentParser(prog="python -m uav_stack.virtual_uav",
-                                 description="one virtual UAV: virtual FCU + agent, in one process")
-    ap.add_argument("--config", required=True, help="JSON written by the runner (VirtualUavConfig)")
+def virtual_process_start(prog: str, description: str, load: Callable[[str], C],
+                          argv: list[str] | None = None) -> tuple[C, StopFlag, argparse.ArgumentParser]:
+    """The start of a process the runtime launches with ``--config FILE`` (one virtual UAV, or a
+    pool): its arguments, death with its parent, a lean Zenoh runtime, stop signals, logging, and
+    the configuration ``load`` reads (a bad file: a usage error naming it). Returns the parser too,
+    for the caller's own checks of the configuration."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("--config", required=True, help="JSON written by the runner")
     ap.add_argument("--log-level", default="INFO")
     ap.add_argument("--log-file", default=None)
     args = ap.parse_args(argv)
@@ -514,9 +519,16 @@ def virtual_uav_main(argv: list[str] | None = None) -> int:
     stop = StopFlag().install()
     setup_logging(args.log_level, args.log_file)
     try:
-        cfg = VirtualUavConfig.load(args.config)
+        cfg = load(args.config)
     except (ConfigError, OSError) as exc:
         ap.error(f"{args.config}: {exc}")
+    return cfg, stop, ap
+
+
+def virtual_uav_main(argv: list[str] | None = None) -> int:
+    """``python -m uav_stack.virtual_uav --config uav3.json``: what the process runtime launches."""
+    cfg, stop, ap = virtual_process_start("python -m uav_stack.virtual_uav",
+                                          "one virtual UAV: virtual FCU + agent, in one process", VirtualUavConfig.load, argv)
     check_signing_key(cfg.agent, ap)
     return run_virtual_uav(cfg, stop, tap_zenoh_log=True)
 

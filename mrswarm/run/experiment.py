@@ -322,7 +322,7 @@ class Experiment:
         pools: dict[str, tuple[int, ...]] = {}  # pool process -> its UAVs (fleet.pool > 1)
         for group in scn.pools(configs):
             self.signals.check()
-            if len(group) == 1 and scn.pool_size == 1:
+            if scn.pool_size == 1:
                 self.runtime.start_uav(group[0])
                 continue
             name = f"pool{len(pools) + 1}"

@@ -177,7 +177,7 @@ class Supervisor:
         """New events since the last call: exits seen now, restarts done now."""
         now = self.clock()
         new, self._new = self._new, []
-        n_before = len(self.events)
+        found: list[ProcessEvent] = []  # exits seen now, restarts done now
         exited = self.runtime.exited()
         if exited:
             pids = self.runtime.pids()
@@ -188,19 +188,16 @@ class Supervisor:
                     # not ours, an exit already handled, or running again (a new pid). An exited
                     # container's pid is 0: without that test, no container's exit was ever an event
                     continue
-                new.append(ev := self._exited(name, code, now, w))
-                self.events.append(ev)
+                found.append(self._exited(name, code, now, w))
         for name, w in self._watch.items():
             if w.due is not None and now >= w.due:
                 w.due = None
                 restarted = self._restart(name, now, w)
                 if restarted is not None:
-                    new.append(restarted)
-                    self.events.append(restarted)
-        if self.pools and new:  # a pool's event is one of each of its UAVs
-            new = [e for ev in new for e in self._per_uav(ev)]
-            self.events[n_before:] = [e for ev in self.events[n_before:] for e in self._per_uav(ev)]
-        return new
+                    found.append(restarted)
+        found = [e for ev in found for e in self._per_uav(ev)]  # a pool's event is one of each of its UAVs
+        self.events += found
+        return new + found
 
     def process_of(self, uav: int) -> str:
         """The process a UAV runs in: ``uav<N>``, or the pool hosting it."""
