@@ -66,6 +66,7 @@ from swarmnet.messages import (
 )
 from swarmnet.neighbours import Neighbour, NeighbourTable
 from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, receive, subscribe
+from swarmnet.shared_session import NeighbourView
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
@@ -73,6 +74,7 @@ if TYPE_CHECKING:
     from swarmnet.netem.control import NetemSet
     from swarmnet.netem.shim import Link
     from swarmnet.security.links import LinkWatch
+    from swarmnet.shared_session import SharedSession
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -82,6 +84,8 @@ ROLES = ("uav", "gcs", "edge", "observer")
 POSE, MESSAGE, COMMAND = 0, 1, 2
 _BATCH = 3  # an edge-feed batch: unpacked into POSE items before the shim
 FAULT = 4  # an injected fault (docs/reliability.md); never impaired by the shim
+_HANDED = 5  # a pose a pool's shared session decoded and handed over (a member with a netem shim of its own)
+_HANDED_PAYLOAD = bytes(32)  # what a handed pose weighs for the shim's rate limit: a pose's usual size on the wire, bytes
 INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed (its channel is then closed)
 
 
@@ -146,6 +150,7 @@ class SwarmNode:
         netem_control: bool = True,
         arrival_stamps: bool = True,
         near_feed: bool = False,
+        shared: SharedSession | None = None,
     ):
         if pose_rate_hz <= 0:
             raise ValueError("pose_rate_hz must be > 0")
@@ -162,11 +167,23 @@ class SwarmNode:
         self.max_message_bytes = max_message_bytes
         self.ring_size = ring_size
         self.clock = clock
-        self.neighbours = NeighbourTable(stale_after, forget_after)
-        self.intake = PoseIntake(self.neighbours)  # poses into it: compiled when built
+        # a pool's member (uav_stack/pool.py): the pool's one session, its poses and liveliness
+        # (swarmnet/shared_session.py); the rest is the node's own
+        self.shared = shared
+        if shared is not None and identity.role != "uav":
+            raise ValueError("only a UAV node shares a pool's session")
+        self.neighbours: NeighbourTable | NeighbourView = (
+            NeighbourTable(stale_after, forget_after) if shared is None else NeighbourView(shared.neighbours, identity.uav))
+        self.intake = PoseIntake(self.neighbours) if shared is None else shared.intake  # type: ignore[arg-type]
+        self._token: Any = None  # the liveliness token, while open
+        self._handed: list[tuple[Pose, float]] = []  # poses the shared session handed over, for the next poll
+        self._alive_cursor = 0  # where this member is in the shared session's liveliness changes
         self._pose_rule: Accept[Pose] = accept_pose  # a direct pose's rule; a UAV's (not its own id) once open
         self.stats = NodeStats()
         self.alive: set[str] = set()  # liveliness keys currently present
+        if shared is not None:  # the pool's: its poses arrive once (their ages noted here), and so do the tokens
+            self.stats.ages.exclude = identity.uav
+            self.alive = shared.alive
         self._alive_uavs: set[int] | None = None  # alive_uavs() parsed from alive (None: to parse again)
         self._members: tuple[int, ...] | None = None  # members(), kept with _alive_uavs
         self.session: zenoh.Session | None = None
@@ -197,73 +214,107 @@ class SwarmNode:
     def open(self) -> SwarmNode:
         if self.session is not None:
             return self
-        ident = self.identity
-        bind = getattr(self.connectivity, "bind", None)
-        if callable(bind):  # strategies that announce the node (discovery) take its identity, and count its refusals
-            bind(ident, self.stats.refused)
         if self.waker.closed:  # opened again after a close
             self.waker = Waker()
-        self.session = s = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))
+        s = self._open_session()
         try:
-            k = self.keys
-            me = ident.uav
-            streams = self._streams
-            clock = self.clock
-
-            def inlet(key: str, size: int, how: How, wakes: bool = False, weigh: Callable[[zenoh.Sample], int] | None = None,
-                      lazy: bool = False, **options: Any) -> Inlet:
-                if not self.arrival_stamps and not wakes:
-                    how = "ring"  # an observer: the drain's time will do
-                into = Inlet(size, self.waker if wakes else None, clock, how, weigh, lazy)
-                self._subscribers.append(subscribe(s, key, into, **options))
-                return into
+            ident, k = self.identity, self.keys
             if ident.role == "uav":
-                self._pubs["pose"] = s.declare_publisher(
-                    k.pose(me), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
-                )
-                self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me))
-                self._pubs["state"] = s.declare_publisher(k.state(me))
-                self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
-            # poses first: the hot path
-            if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
-                # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
-                # spatial interest, whose far poses come at a lower rate on a feed of their own
-                counts = ident.role == "uav" and not self.near_feed
-                count = self.intake.count
-                feed = inlet(k.pose_feed, 256, "thread",
-                             weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None, lazy=counts)
-                if counts and feed.how == "thread":
-                    self._pose_inlet = feed
-                streams.append((_BATCH, feed, _as_received))
-                if self.near_feed:
-                    streams.append((_BATCH, inlet(k.near_feed(me), 256, "thread"), _as_received))
-            else:
-                self._pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
-                poses = inlet(k.all_poses, self.ring_size, "thread", lazy=ident.role == "uav",
-                              allowed_origin=zenoh.Locality.REMOTE)
-                if poses.how == "thread":
-                    self._pose_inlet = poses
-                streams.append((POSE, poses, _as_received))
-            message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
-            streams.append((MESSAGE, inlet(k.all_broadcast, 256, "ring", allowed_origin=zenoh.Locality.REMOTE), message_rule))
-            if ident.role == "uav":
-                streams.append((MESSAGE, inlet(k.all_unicast(me), 64, "ring"), message_rule))
-                command_rule = partial(accept_command, me=me)
-                streams.append((COMMAND, inlet(k.cmd(me), 64, "callback", wakes=True), command_rule))
-                streams.append((COMMAND, inlet(k.swarm_cmd, 64, "callback", wakes=True), command_rule))
-                streams.append((FAULT, inlet(k.fault(me), 16, "callback", wakes=True), partial(accept_fault, me=me)))
-            self._alive_inlet = alive = Inlet(256, None, clock, "ring")  # joins and leaves: the drain's time will do
-            self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
-            alive.attach(sub)
-            if self.netem_control:
-                self._netem_inlet = inlet(k.netem_set, 16, "callback", wakes=True)
+                self._declare_publishers(s)
+            self._subscribe_poses(s)  # poses first: the hot path
+            self._subscribe_rest(s)
             self._token = s.liveliness().declare_token(k.alive(ident.role, ident.uav))
-            self._watch_links(s)
-            self.connectivity.attach(s)
+            if self.shared is None:  # (the shared session watches its links, and attaches its connectivity)
+                self._watch_links(s)
+                self.connectivity.attach(s)
+            elif self.netem is not None:
+                self.shared.impair(self)
         except BaseException:
             self.close()
             raise
         return self
+
+    def _open_session(self) -> zenoh.Session:
+        """A session of the node's own, or a pool's shared one (joined)."""
+        shared = self.shared
+        if shared is None:
+            bind = getattr(self.connectivity, "bind", None)
+            if callable(bind):  # strategies that announce the node (discovery) take its identity, and count its refusals
+                bind(self.identity, self.stats.refused)
+            self.session = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))
+            return self.session
+        if shared.session is None:
+            raise RuntimeError(f"UAV {self.identity.uav}: the pool's shared session is not open")
+        self.session = shared.session
+        shared.join(self)
+        self._alive_cursor = 0  # every change the pool has seen is news to a member that just joined
+        return self.session
+
+    def _inlet(self, s: zenoh.Session, key: str, size: int, how: How, wakes: bool = False,
+               weigh: Callable[[zenoh.Sample], int] | None = None, lazy: bool = False, **options: Any) -> Inlet:
+        """An inlet subscribed to ``key`` on session ``s``; ``wakes``: it notifies :attr:`waker`."""
+        if not self.arrival_stamps and not wakes:
+            how = "ring"  # an observer: the drain's time will do
+        into = Inlet(size, self.waker if wakes else None, self.clock, how, weigh, lazy)
+        self._subscribers.append(subscribe(s, key, into, **options))
+        return into
+
+    def _declare_publishers(self, s: zenoh.Session) -> None:
+        k, me = self.keys, self.identity.uav
+        self._pubs["pose"] = s.declare_publisher(
+            k.pose(me), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
+        )
+        self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me))
+        self._pubs["state"] = s.declare_publisher(k.state(me))
+        self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
+
+    def _subscribe_poses(self, s: zenoh.Session) -> None:
+        """The pose stream: direct poses, or the edge feed's batches (and the near feed, with
+        spatial interest); for a pool's member, the shared session's."""
+        k, ident, me = self.keys, self.identity, self.identity.uav
+        if self.shared is not None:  # the pool's session takes them in, once for every member
+            if self.near_feed:
+                self.shared.add_near_feed(me)
+            return
+        if self.pose_feed == "edge":  # batches of the edge router's feed instead of a message per neighbour
+            # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
+            # spatial interest, whose far poses come at a lower rate on a feed of their own
+            counts = ident.role == "uav" and not self.near_feed
+            count = self.intake.count
+            feed = self._inlet(s, k.pose_feed, 256, "thread",
+                               weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None, lazy=counts)
+            if counts and feed.how == "thread":
+                self._pose_inlet = feed
+            self._streams.append((_BATCH, feed, _as_received))
+            if self.near_feed:
+                self._streams.append((_BATCH, self._inlet(s, k.near_feed(me), 256, "thread"), _as_received))
+            return
+        self._pose_rule = partial(accept_neighbour_pose, me=me) if ident.role == "uav" else accept_pose
+        poses = self._inlet(s, k.all_poses, self.ring_size, "thread", lazy=ident.role == "uav",
+                            allowed_origin=zenoh.Locality.REMOTE)
+        if poses.how == "thread":
+            self._pose_inlet = poses
+        self._streams.append((POSE, poses, _as_received))
+
+    def _subscribe_rest(self, s: zenoh.Session) -> None:
+        """Messages, commands, faults, liveliness (a pool's member: the shared session's), netem changes."""
+        k, ident, me, streams = self.keys, self.identity, self.identity.uav, self._streams
+        message_rule = partial(accept_swarm_message, me=me, max_bytes=self.max_message_bytes)
+        # a pool's members share a session: their broadcasts to each other are local (and their own come back)
+        origin: dict[str, Any] = {} if self.shared is not None else {"allowed_origin": zenoh.Locality.REMOTE}
+        streams.append((MESSAGE, self._inlet(s, k.all_broadcast, 256, "ring", **origin), message_rule))
+        if ident.role == "uav":
+            streams.append((MESSAGE, self._inlet(s, k.all_unicast(me), 64, "ring"), message_rule))
+            command_rule = partial(accept_command, me=me)
+            streams.append((COMMAND, self._inlet(s, k.cmd(me), 64, "callback", wakes=True), command_rule))
+            streams.append((COMMAND, self._inlet(s, k.swarm_cmd, 64, "callback", wakes=True), command_rule))
+            streams.append((FAULT, self._inlet(s, k.fault(me), 16, "callback", wakes=True), partial(accept_fault, me=me)))
+        if self.shared is None:
+            self._alive_inlet = alive = Inlet(256, None, self.clock, "ring")  # joins and leaves: the drain's time will do
+            self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
+            alive.attach(sub)
+        if self.netem_control:
+            self._netem_inlet = self._inlet(s, k.netem_set, 16, "callback", wakes=True)
 
     def _watch_links(self, session: zenoh.Session) -> None:
         creds = self.connectivity.credentials
@@ -276,6 +327,9 @@ class SwarmNode:
 
     def close(self) -> None:
         if self.session is None:
+            return
+        if self.shared is not None:
+            self._leave_shared()
             return
         try:
             self.connectivity.detach()
@@ -297,6 +351,27 @@ class SwarmNode:
                 if not inlet.join(INLET_JOIN_S):
                     log.warning("a receive thread did not end within %.1f s of the session's close", INLET_JOIN_S)
             self.waker.close()
+
+    def _leave_shared(self) -> None:
+        """A pool's member leaves the shared session (which stays open for the others): its
+        publishers, subscribers and token undeclared."""
+        assert self.shared is not None
+        shared, self.session = self.shared, None
+        shared.leave(self)
+        declared = [*self._pubs.values(), *self._subscribers]
+        if self._token is not None:
+            declared.append(self._token)
+            self._token = None
+        for d in declared:
+            try:
+                d.undeclare()
+            except zenoh.ZError as exc:  # the shared session closed first: nothing left to undeclare
+                log.debug("undeclare: %s", exc)
+        self._streams.clear()
+        self._netem_inlet = self._pose_inlet = None
+        self._pubs.clear()
+        self._subscribers.clear()
+        self.waker.close()
 
     def __enter__(self) -> SwarmNode:
         return self.open()
@@ -392,6 +467,12 @@ class SwarmNode:
         self.stats.sent["ack"] += 1
 
     # ---- receiving ----------------------------------------------------------------------
+    def hand(self, poses: list[tuple[Pose, float]]) -> None:
+        """Poses a pool's shared session decoded, with their arrival times (wall, s), for this
+        member's own table and netem shim: taken in at its next :meth:`poll`."""
+        self._handed += poses
+        del self._handed[:-4 * self.ring_size]  # a member that stopped polling: a bounded backlog
+
     def poll(self, now: float | None = None, max_samples: int = DRAIN_BUDGET) -> Inbox:
         """Take in what arrived since the last poll: poses into :attr:`neighbours`, the rest returned.
 
@@ -404,6 +485,8 @@ class SwarmNode:
         if self.session is None:
             return inbox
         self._apply_netem_sets(now, max_samples)  # first, so a change applies to what this poll drains
+        if self.shared is not None:  # the pool's poses: the first member to poll takes them in for all
+            self.shared.pump(now, max_samples)
         waiting = self._pose_inlet if self._pose_inlet is not None and not self._pose_inlet.started else None
         if waiting is not None:
             waiting.poke()  # a pose came before its sender's token: the inlet's thread starts now
@@ -424,7 +507,11 @@ class SwarmNode:
         earlier than an arrival.
         """
         now = self.clock() if now is None else now
-        out = self.neighbours.snapshot()
+        table = self.neighbours
+        out = table.snapshot()
+        if isinstance(table, NeighbourView):  # a pool's member: its own first uses
+            self.stats.ages.used_many(table.first_uses(out, now))
+            return out
         ages = []
         for n in out:
             if not n.used:
@@ -473,7 +560,14 @@ class SwarmNode:
             self._pose_inlet.cancel_expectation()
 
     def _arrivals(self, budget: int) -> Iterator[tuple[int, Accepted[Any]]]:
-        """Every accepted sample of the data streams, stream by stream (poses first)."""
+        """Every accepted sample of the data streams, stream by stream (poses first: a pool's
+        member with a table of its own gets those its shared session handed over)."""
+        if self._handed:
+            handed, self._handed = self._handed, []
+            own, pose_key = self.identity.uav, self.keys.pose
+            for pose, at in handed:
+                if pose.uav != own:
+                    yield _HANDED, Accepted(pose_key(pose.uav), pose, _HANDED_PAYLOAD, at)
         for kind, ring, accept in self._streams:
             for arrival in receive(ring, accept, self.stats, budget):
                 yield kind, arrival
@@ -505,6 +599,8 @@ class SwarmNode:
                         self._deliver(POSE, pose, arrival.at, inbox)
             elif kind == _BATCH:
                 self._take_batch(arrival.key, arrival.payload, arrival.at)
+            elif kind == _HANDED:
+                self._deliver(POSE, arrival.item, arrival.at, inbox)
             else:
                 self._deliver(kind, arrival.item, arrival.at, inbox)
         if direct:
@@ -545,6 +641,9 @@ class SwarmNode:
         an edge-feed batch into the poses it carries (:meth:`_batch_poses`). Each keeps the key and
         arrival stamp it came with: that is where and when it arrived."""
         for kind, arrival in arrivals:
+            if kind == _HANDED:  # decoded by a pool's shared session
+                yield POSE, arrival
+                continue
             if kind == POSE:  # a direct pose, kept as it came: decoded here
                 pose = self._accept(self._pose_rule, arrival.key, arrival.payload)
                 if pose is not None:
@@ -581,7 +680,9 @@ class SwarmNode:
         """Poses that arrived at ``at`` (local wall time, s) into the neighbour table, counted as
         received, the transport age of each one the table takes recorded (as :meth:`_deliver`
         does for one)."""
-        update = self.neighbours.update
+        table = self.neighbours
+        assert isinstance(table, NeighbourTable)  # (a pool's member takes in none: its shared session does)
+        update = table.update
         srcs: list[int] = []
         ages: list[float] = []
         n = 0
@@ -638,9 +739,12 @@ class SwarmNode:
         stats = self.stats
         if kind == POSE:
             stats.received["pose"] += 1
-            if self.neighbours.update(item, at):
+            table = self.neighbours
+            if isinstance(table, NeighbourTable) and table.update(item, at):  # (a view: a shared member's, none come)
                 stats.ages.arrived(item.uav, at - item.t_wall)
         elif kind == MESSAGE:
+            if item.dst == 0 and self.shared is not None and item.src == self.identity.uav:
+                return  # a pool's member: its own broadcast, back through the shared session
             stats.received["broadcast" if item.dst == 0 else "unicast"] += 1
             inbox.messages.append(item)
         elif kind == FAULT:
@@ -652,6 +756,13 @@ class SwarmNode:
 
     def _track_liveliness(self, inbox: Inbox, budget: int) -> None:
         """Update :attr:`alive` from the liveliness tokens that appeared or disappeared."""
+        if self.shared is not None:  # the pool's session keeps alive; this member reads what changed
+            changes, self._alive_cursor = self.shared.changes_since(self._alive_cursor)
+            for key, appeared in changes:
+                (inbox.joined if appeared else inbox.left).append(key)
+            if changes:
+                self._alive_uavs = None
+            return
         if self._alive_inlet is None:
             return
         for _at, sample in self._alive_inlet.drain(budget):
@@ -689,6 +800,7 @@ class SwarmNode:
             if self.netem is None:
                 self.netem = NetemShim(cfg, self.identity.uav, self.identity.realm, self.identity.role)
                 self.netem.own_pos = self.own_position
+                self._own_table()
             else:
                 self.netem.reconfigure(cfg)
             desc = cfg.describe()
@@ -696,6 +808,20 @@ class SwarmNode:
         self.netem_changes.append({"t": now, "source": source, "id": msg_id, "preset": preset, "config": desc})
         del self.netem_changes[:-50]  # a bounded history
         return desc
+
+    def _own_table(self) -> None:
+        """A pool's member whose links are impaired from now on: a neighbour table of its own, fed
+        with the poses the shared session decodes, through its shim (it starts with what the
+        pool's table holds now, as it was delivered)."""
+        view = self.neighbours
+        if not isinstance(view, NeighbourView):
+            return
+        table = NeighbourTable(view.stale_after, view.forget_after)
+        for n in view.snapshot():
+            table.update(n.pose, n.last_recv)
+        self.neighbours = table
+        if self.shared is not None and self.session is not None:
+            self.shared.impair(self)
 
     def _apply_netem_sets(self, now: float, budget: int) -> None:
         """Apply the runtime changes that arrived on ``mrs/<swarm>/netem/set``, each acked (ok or not)."""

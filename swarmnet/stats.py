@@ -38,7 +38,7 @@ class PoseAges:
     """
 
     __slots__ = ("_transport", "_links", "_use", "negative", "most_negative", "_srcs", "_ages", "_uses", "_link_notes",
-                 "_link_noted")
+                 "_link_noted", "exclude")
 
     FILE_AT = 8192  # notes kept unread at most (a node that nobody reads stays bounded)
 
@@ -53,6 +53,9 @@ class PoseAges:
         self._uses: list[float] = []  # ages at use, s
         self._link_notes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (senders, bins, ages) in transport, not links
         self._link_noted = 0
+        # a UAV whose poses come back with the others' (a pool's member: its shared session notes
+        # every pose the pool takes in, swarmnet/shared_session.py): its own are no link, left out
+        self.exclude: int | None = None
 
     @property
     def transport(self) -> LogHistogram:
@@ -96,6 +99,12 @@ class PoseAges:
         srcs = np.array(self._srcs, dtype=np.int64)
         self._ages.clear()
         self._srcs.clear()
+        if self.exclude is not None:
+            mine = srcs == self.exclude
+            if mine.any():
+                srcs, ages = srcs[~mine], ages[~mine]
+                if not ages.size:
+                    return
         keep = self._count_negative("transport", ages)
         if keep is not None:  # a NaN age stays, as add_at keeps it
             srcs, ages = srcs[keep], ages[keep]

@@ -46,6 +46,13 @@ def test_pooled_uavs_fly_the_mission_each_as_its_own_uav(tmp_path: Path) -> None
     assert all(st["uav"] == u and st["phase"] in ("mission", "done") for u, st in status.items()), \
         {u: st["phase"] for u, st in status.items()}
     assert all(st["net"]["sent"]["pose"] > 50 for st in status.values())
+    # one Zenoh session per pool, as pool-<n>, whose certificate speaks for its two UAVs: each pose
+    # reaching the pool is taken in once, for both
+    sessions = {u: st["pool_session"] for u, st in status.items()}
+    assert {u: s["name"] for u, s in sessions.items()} == {1: "pool 1", 2: "pool 1", 3: "pool 2", 4: "pool 2"}
+    assert all(len(s["uavs"]) == 2 and s["received"]["pose"] > 50 and not s["rejected"] for s in sessions.values()), sessions
+    roster = json.loads((rd / "keys" / "roster.json").read_text())
+    assert roster["nodes"]["pool-1.e2e"]["uavs"] == [1, 2] and roster["nodes"]["pool-2.e2e"]["uavs"] == [3, 4]
     assert summary["security"]["mode"] == "mtls" and not summary["security"].get("refused")
     # every UAV saw the three others, pool-mates as well as the other pool's
     assert summary["network"]["transport_age_links"]["links"] == 12

@@ -23,6 +23,7 @@ import os
 import selectors
 import sys
 import time
+from functools import partial
 from typing import TYPE_CHECKING, Annotated
 
 import msgspec
@@ -33,18 +34,22 @@ from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.runtime import (
     FCU_LEAD_S,
+    OPEN_TIMEOUT_S,
     LoopStats,
     StopFlag,
     VirtualUav,
     check_signing_key,
     make_virtual_fcu,
     next_grid_instant,
+    open_shared_session,
     open_virtual_uav,
+    shares_session,
     tick_hz_for,
     virtual_process_start,
 )
 
 if TYPE_CHECKING:
+    from swarmnet.shared_session import SharedSession
     from uav_stack.fcu import VirtualFcu
     from uav_stack.sim_faults import SimFaults
 
@@ -57,6 +62,8 @@ class PoolConfig(Config, frozen=True):
     """The virtual UAVs of one pool process (what the runner writes, ``pool<N>.json``)."""
 
     uavs: Annotated[tuple[VirtualUavConfig, ...], Meta(min_length=1, max_length=MAX_POOL)]
+    # the pool's number in its run: its session speaks as pool-<number> (docs/security.md)
+    number: Annotated[int, Meta(ge=1, le=65535)] = 1
     # stop the process after this long (None: until signalled)
     duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
@@ -179,15 +186,23 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
     # the FCU's 10 Hz positions on the ticks' grid, a hair before each instant (as a UAV process's, aligned)
     fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S)
     uavs: list[VirtualUav] = []
+    shares: dict[str, SharedSession] = {}  # swarm -> the pool's one session for its UAVs of that swarm
     try:
+        if shares_session(cfgs[0].agent.network):
+            for swarm, members in _by_swarm(cfgs).items():
+                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop, OPEN_TIMEOUT_S)
         for i, c in enumerate(cfgs):
             if stop.stopped:
                 return 0
+            share = shares.get(c.agent.swarm)
             try:
-                uavs.append(open_virtual_uav(c, fcu, i, stop, tap_zenoh_log=tap_zenoh_log and i == 0))
+                uavs.append(open_virtual_uav(c, fcu, i, stop, tap_zenoh_log=tap_zenoh_log and i == 0, shared=share))
             except LinkOpenError as exc:
                 log.error("UAV %d: %s", c.agent.uav, exc)
                 return 2
+            if share is not None:  # the pool session's own counters (poses, rejections, links) in each UAV's stats
+                ids = [m.agent.uav for m in _by_swarm(cfgs)[c.agent.swarm]]
+                uavs[-1].agent.stats_sources["pool_session"] = partial(_session_stats, share, ids)
         pool = Pool(uavs, fcu)
         log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))
         try:
@@ -200,8 +215,23 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
                 u.close()
             except Exception:  # noqa: BLE001 - close the others too
                 log.exception("UAV %d: close failed", u.agent.uav)
+        for share in shares.values():  # after its members
+            share.close()
         fcu.close()
     return 0
+
+
+def _by_swarm(cfgs: list[VirtualUavConfig]) -> dict[str, list[VirtualUavConfig]]:
+    out: dict[str, list[VirtualUavConfig]] = {}
+    for c in cfgs:
+        out.setdefault(c.agent.swarm, []).append(c)
+    return out
+
+
+def _session_stats(share: SharedSession, uavs: list[int]) -> dict[str, object]:
+    st = share.stats
+    return {"name": share.name, "uavs": uavs, "received": dict(st.received), "rejected": dict(st.rejected),
+            "refused": dict(st.refused)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,6 +36,7 @@ from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
 from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
 if TYPE_CHECKING:  # imported at run time only where it is used (numpy-heavy)
+    from swarmnet.shared_session import SharedSession
     from uav_stack.fcu import VirtualFcu
 
 C = TypeVar("C")  # a process's configuration type (virtual_process_start)
@@ -85,14 +86,39 @@ def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Conne
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
-def make_node(cfg: AgentConfig) -> SwarmNode:
+def make_node(cfg: AgentConfig, shared: SharedSession | None = None) -> SwarmNode:
+    """The agent's swarm node: a session of its own, or a member of a pool's ``shared`` one."""
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
     conn = make_connectivity(cfg.network, NodeName.uav(cfg.uav, cfg.swarm))
     return SwarmNode(ident, conn, pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
-                     pose_feed=cfg.network.pose_feed, netem=cfg.network.netem, near_feed=cfg.network.interest is not None)
+                     pose_feed=cfg.network.pose_feed, netem=cfg.network.netem, near_feed=cfg.network.interest is not None,
+                     shared=shared)
 
 
-def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S) -> SwarmNode:
+def shares_session(net: NetworkConfig) -> bool:
+    """Pooled UAVs on this network share their pool's one session (swarmnet/shared_session.py):
+    every connectivity but discovery, whose beacons announce each UAV's own session."""
+    return net.connectivity != "discovery"
+
+
+def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
+                        timeout: float = OPEN_TIMEOUT_S) -> SharedSession:
+    """Pool ``number``'s one session for the UAVs of ``cfgs`` (one swarm, one network), opened: it
+    speaks as ``pool-<number>``, whose certificate speaks for those UAVs (docs/security.md)."""
+    from swarmnet.shared_session import SharedSession
+
+    first = cfgs[0]
+    net = first.network
+    share = SharedSession(first.swarm, make_connectivity(net, NodeName("pool", number, first.swarm)), pose_feed=net.pose_feed,
+                          stale_after=first.stale_after, name=f"pool {number}")
+    if net.security is None:
+        log.warning("plain TCP without access control (network.security: off): anyone who reaches this pool's "
+                    "network can command its UAVs and speak for any UAV (docs/security.md)")
+    return open_retrying(share.open, timeout, f"pool {number}", lambda: stop.stopped)
+
+
+def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S,
+              shared: SharedSession | None = None) -> SwarmNode:
     """The agent's node, opened. A secured node in its own process (``tap_zenoh_log``) also counts
     the TLS handshakes its listener refuses (swarmnet/security/zenoh_log.py); an insecure one says
     at start that anyone on its network can command it.
@@ -101,7 +127,9 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
     edge router can take longer than Zenoh's connect timeout to accept a client, and the session
     refuses to open: it is tried again until ``timeout`` s (swarmnet.connectivity.open_retrying).
     """
-    node = make_node(cfg)
+    node = make_node(cfg, shared)
+    if shared is not None:
+        return node.open()  # (the shared session said it all when it opened)
     if cfg.network.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this node's "
                     "network can command it and speak for any UAV (docs/security.md)")
@@ -403,9 +431,10 @@ class VirtualUav:
 
 
 def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: StopFlag,
-                     tap_zenoh_log: bool = False) -> VirtualUav:
+                     tap_zenoh_log: bool = False, shared: SharedSession | None = None) -> VirtualUav:
     """The agent of the FCU's vehicle ``index``: its FCU link (the vehicle's only client), its
-    swarm node, its faults. :class:`LinkOpenError` if the link cannot open."""
+    swarm node (a member of a pool's ``shared`` session, if given), its faults.
+    :class:`LinkOpenError` if the link cannot open."""
     a = cfg.agent
     host, port = fcu.vehicles[index].link.sock.getsockname()[:2]  # type: ignore[union-attr]
     link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
@@ -414,7 +443,7 @@ def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: S
     assert link.local_address is not None
     fcu.vehicles[index].link.set_owner(link.local_address, owner_only=True)
     try:
-        node = open_node(a, stop, tap_zenoh_log)
+        node = open_node(a, stop, tap_zenoh_log, shared=shared)
     except BaseException:
         link.close()
         if router is not None:

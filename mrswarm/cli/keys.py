@@ -2,6 +2,7 @@
 
     mrswarm keys init --swarm alpha                   # keys/alpha: a new CA and an empty roster
     mrswarm keys issue --swarm alpha edge ctl gcs-1 --uavs 1-10
+    mrswarm keys issue --swarm alpha pool-1 --speaks-for 1-50   # one session for virtual UAVs 1 to 50
     mrswarm keys bundle --swarm alpha uav-3 --out /media/usb/uav3   # what UAV 3's companion needs
     mrswarm keys revoke --swarm alpha uav-3           # a lost or stolen UAV
     mrswarm keys rotate --swarm alpha                 # a new CA: every old certificate stops working
@@ -9,8 +10,9 @@
     mrswarm keys mavlink --swarm alpha                # the MAVLink signing key, for QGroundControl and MAVProxy
     mrswarm keys mavlink --run results/coverage-...   # the key of a run
 
-Names are ``uav-<id>``, ``gcs-<id>``, ``ctl`` (the experiment controller) and ``edge`` (the edge
-router), or full certificate names such as ``uav-3.alpha``. The key directory is ``keys/<swarm>``
+Names are ``uav-<id>``, ``gcs-<id>``, ``pool-<id>`` (a pool of virtual UAVs), ``ctl`` (the
+experiment controller) and ``edge`` (the edge router), or full certificate names such as
+``uav-3.alpha``. The key directory is ``keys/<swarm>``
 unless ``--dir`` says otherwise. Exit code 2 on any refusal, with one line saying why.
 
 The MAVLink signing key (``mavlink.key``, a passphrase) is made with the CA and renewed by
@@ -39,20 +41,27 @@ def _dir(a: argparse.Namespace) -> Path:
     raise KeysError("which swarm? give --swarm NAME (key directory keys/NAME) or --dir DIR")
 
 
-def _names(kd: KeyDir, a: argparse.Namespace) -> list[NodeName]:
-    swarm = kd.roster.swarm
-    names = [NodeName.in_swarm(n, swarm) for n in a.names]
-    for part in (a.uavs or "").split(","):
+def _ids(text: str | None, option: str) -> list[int]:
+    """UAV ids and ranges (``1-10,12``) -> the ids; KeysError naming ``option`` for anything else."""
+    out: list[int] = []
+    for part in (text or "").split(","):
         if not part.strip():
             continue
         lo, _, hi = part.partition("-")
         try:
             first, last = int(lo), int(hi or lo)
         except ValueError:
-            raise KeysError(f"--uavs {a.uavs!r}: use ids and ranges like 1-10,12") from None
+            raise KeysError(f"{option} {text!r}: use ids and ranges like 1-10,12") from None
         if not 1 <= first <= last <= 65535:
-            raise KeysError(f"--uavs {a.uavs!r}: ids are 1..65535, ranges ascending")
-        names += [NodeName.uav(u, swarm) for u in range(first, last + 1)]
+            raise KeysError(f"{option} {text!r}: ids are 1..65535, ranges ascending")
+        out += range(first, last + 1)
+    return out
+
+
+def _names(kd: KeyDir, a: argparse.Namespace) -> list[NodeName]:
+    swarm = kd.roster.swarm
+    names = [NodeName.in_swarm(n, swarm) for n in a.names]
+    names += [NodeName.uav(u, swarm) for u in _ids(a.uavs, "--uavs")]
     if not names:
         raise KeysError("name at least one identity (uav-3, gcs-1, ctl, edge) or --uavs")
     return names
@@ -73,8 +82,10 @@ def _init(a: argparse.Namespace) -> int:
 
 def _issue(a: argparse.Namespace) -> int:
     kd = KeyDir(_dir(a))
+    speaks_for = _ids(a.speaks_for, "--speaks-for")
     for name in _names(kd, a):
-        e = kd.issue(name, days=a.days or NODE_DAYS, extra_names=a.name, renew=a.renew)
+        e = kd.issue(name, days=a.days or NODE_DAYS, extra_names=a.name, renew=a.renew,
+                     uavs=speaks_for if name.role == "pool" else ())
         print(f"{name.cn}: {kd.cert_path(name)} (serial {e.serial[:16]}..., valid until {_date(e.not_after)})")
     return 0
 
@@ -183,7 +194,7 @@ def _mavlink(a: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     doc = __doc__.splitlines()
     ap = argparse.ArgumentParser(prog="mrswarm keys", description=doc[0], formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog="\n".join(doc[2:11]))
+                                 epilog="\n".join(doc[2:12]))
     sub = ap.add_subparsers(dest="what", required=True, metavar="COMMAND")
 
     def command(name: str, help: str, func: object, names: bool = False) -> argparse.ArgumentParser:
@@ -202,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--days", type=int, default=None, help=f"validity (default {NODE_DAYS}; expiry closes the node's links)")
     p.add_argument("--name", action="append", default=[], metavar="HOST_OR_IP", help="extra subject name (repeatable)")
     p.add_argument("--renew", action="store_true", help="replace the certificate of an identity already issued")
+    p.add_argument("--speaks-for", metavar="IDS", help="a pool's certificate (pool-<id>): the UAVs its session speaks "
+                                                       "for, e.g. 1-50 (docs/security.md)")
     command("revoke", "take identities out of the swarm (a lost or stolen node)", _revoke, names=True)
     p = command("rotate", "a new CA and a new certificate for every member: all older certificates stop working", _rotate)
     p.add_argument("--days", type=int, default=None, help=f"validity of the re-issued certificates (default {NODE_DAYS})")

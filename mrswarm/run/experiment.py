@@ -137,7 +137,7 @@ class Experiment:
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
-        from mrswarm.run.keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
+        from mrswarm.run.keys import RUN_KEYS, check_keys, pool_identities, run_identities, throwaway_keys
         from swarmnet.security.pki import KeysError
 
         sec = self.scn.network.secured
@@ -147,10 +147,11 @@ class Experiment:
                                "reaches this machine's network can command or impersonate the UAVs[/]")
             return None
         names = run_identities(self.scn.swarm, [u.id for u in self.scn.uav_list()])
+        pools = pool_identities(self.scn.swarm, self.scn.pool_layout())  # each pool's one session (docs/scale.md)
         try:
             if sec.keys is not None:
-                return check_keys(Path(sec.keys), self.scn.swarm, names)
-            return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names)
+                return check_keys(Path(sec.keys), self.scn.swarm, names, pools)
+            return throwaway_keys(self.run_dir / RUN_KEYS, self.scn.swarm, names, pools=pools)
         except KeysError as exc:
             raise RuntimeError(f"network.security.keys: {exc}") from None
 
@@ -325,9 +326,10 @@ class Experiment:
             if scn.pool_size == 1:
                 self.runtime.start_uav(group[0])
                 continue
-            name = f"pool{len(pools) + 1}"
+            number = len(pools) + 1
+            name = f"pool{number}"
             pools[name] = tuple(c.agent.uav for c in group)
-            self.runtime.start_pool(name, group)
+            self.runtime.start_pool(name, group, number)
         self.run_info.pools = {name: list(uavs) for name, uavs in pools.items()}
         # the runtime's processes and the runner's flight recorder, each restarted as it should be
         children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})

@@ -26,22 +26,34 @@ THROWAWAY_DAYS = 2  # a run lasts at most 2 h (Scenario.duration)
 RUN_KEYS = "keys"  # <run>/keys
 
 
+Pools = dict[int, tuple[int, ...]]  # pool number -> the UAV ids its session speaks for
+
+
 def run_identities(swarm: str, uavs: list[int]) -> list[NodeName]:
     """Every identity a run of these UAVs speaks as: the UAVs, the edge router, the runner, one ground station."""
     return [*(NodeName.uav(u, swarm) for u in uavs), NodeName("edge", 0, swarm), NodeName("ctl", 0, swarm),
             NodeName("gcs", 1, swarm)]
 
 
-def throwaway_keys(path: Path, swarm: str, names: list[NodeName], days: int = THROWAWAY_DAYS) -> Path:
-    """A fresh CA in ``path`` with a certificate for each of ``names``."""
+def pool_identities(swarm: str, layout: list[tuple[str, tuple[int, ...]]]) -> Pools:
+    """The pools of a run's layout (:meth:`~mrswarm.scenario.Scenario.pool_layout`) in ``swarm``:
+    pool ``k`` is the layout's k-th (``pool<k>``), with the UAVs its certificate speaks for."""
+    return {k: uavs for k, (s, uavs) in enumerate(layout, start=1) if s == swarm}
+
+
+def throwaway_keys(path: Path, swarm: str, names: list[NodeName], days: int = THROWAWAY_DAYS, pools: Pools | None = None) -> Path:
+    """A fresh CA in ``path`` with a certificate for each of ``names`` and each pool of ``pools``."""
     kd = KeyDir.init(path, swarm, days=days)
     for name in names:
         kd.issue(name, days=days, extra_names=("127.0.0.1",))
+    for k, uavs in (pools or {}).items():
+        kd.issue(NodeName("pool", k, swarm), days=days, extra_names=("127.0.0.1",), uavs=uavs)
     return kd.path
 
 
-def check_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
-    """``path`` if it holds a member certificate and key for each of ``names``; KeysError saying what is missing."""
+def check_keys(path: Path, swarm: str, names: list[NodeName], pools: Pools | None = None) -> Path:
+    """``path`` if it holds a member certificate and key for each of ``names`` and for each pool of
+    ``pools``, speaking for at least that pool's UAVs; KeysError saying what is missing."""
     try:
         roster = Roster.load(path)
     except ValueError as exc:
@@ -54,6 +66,14 @@ def check_keys(path: Path, swarm: str, names: list[NodeName]) -> Path:
     if missing:
         raise KeysError(f"{path} has no certificate for {', '.join(missing)}: "
                         f"`mrswarm keys issue --dir {path} {' '.join(missing)}`")
+    for k, uavs in (pools or {}).items():
+        pool = NodeName("pool", k, swarm)
+        if not set(uavs) <= set(roster.speaks_for(pool.cn)) or not kd.cert_path(pool).is_file():
+            ids = ",".join(str(u) for u in uavs)
+            raise KeysError(f"{path} has no certificate for {pool.short} speaking for UAVs {ids} (fleet.pool): "
+                            f"`mrswarm keys issue --dir {path} {pool.short} --speaks-for {ids}` (or --renew it), "
+                            "or fly a process per UAV (fleet.pool: 1)")
+        names = [*names, pool]
     kd.ensure_tokens(names)
     return path.resolve()
 

@@ -38,8 +38,9 @@ class Runtime(Protocol):
         """Start one virtual UAV (FCU + agent) with this configuration."""
         ...
 
-    def start_pool(self, name: str, cfgs: list[VirtualUavConfig]) -> None:
-        """Start several virtual UAVs in one process named ``name`` (``fleet.pool``; the process runtime)."""
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int) -> None:
+        """Start several virtual UAVs in one process named ``name``, pool ``number`` of the run (its
+        identity ``pool-<number>``; ``fleet.pool``; the process runtime)."""
         ...
 
     def start_agent(self, cfg: AgentConfig) -> None:

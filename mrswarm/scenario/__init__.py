@@ -272,7 +272,7 @@ class Network(Config, frozen=True):
         assert w is not None, "a Network outside a Scenario: call sized_for first"
         return w / 1000.0
 
-    def sized_for(self, uavs: int, needs_discovery: bool = False) -> Network:
+    def sized_for(self, uavs: int, needs_discovery: bool = False, pooled: bool = False) -> Network:
         """This network with every unset choice made for ``uavs`` UAVs on one machine.
 
         Up to :data:`MESH_MAX_UAVS`: the peer mesh (``discovery``, ``peer``, ``direct``), the
@@ -280,10 +280,12 @@ class Network(Config, frozen=True):
         the unset choices become client mode through the edge router (``rendezvous``) and the
         edge pose feed: one link and one batch per window per UAV, the window
         :data:`LARGE_FLEET_FEED_WINDOW_MS` wide rather than 3 ms. ``needs_discovery`` (faults
-        on the discovery server) keeps the peer topology. A choice the scenario made is kept;
-        client mode always means ``rendezvous``.
+        on the discovery server) keeps the peer topology. ``pooled`` (virtual UAVs in pools,
+        ``fleet.pool``) chooses as for a large fleet: a pool's one session speaks for its UAVs
+        through the edge router (docs/scale.md). A choice the scenario made is kept; client mode
+        always means ``rendezvous``.
         """
-        big = uavs > MESH_MAX_UAVS
+        big = uavs > MESH_MAX_UAVS or pooled
         mode = self.mode
         if mode is None:
             mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
@@ -479,7 +481,7 @@ class Scenario(Config, kw_only=True, frozen=True):
             raise ConfigError("fleet.first_id", "UAV ids must stay <= 65535")
         self._check_other_swarms()
         needs_discovery = any("discovery" in f.kind for f in self.faults)
-        force_setattr(self, "network", self.network.sized_for(len(self.all_uavs()), needs_discovery))
+        force_setattr(self, "network", self.network.sized_for(len(self.all_uavs()), needs_discovery, self.pool_size > 1))
         self._check_world()
         self._check_spawn_spacing(self.all_uavs())
         for u in self.all_uavs():
@@ -542,16 +544,29 @@ class Scenario(Config, kw_only=True, frozen=True):
                 raise ConfigError(f"faults.{i}", f"{f.kind} acts on a UAV's process, which a pool shares with "
                                                  f"{self.fleet.pool - 1} other UAVs: use fleet.pool: 1 for process faults")
 
-    def pools(self, configs: list[VirtualUavConfig]) -> list[list[VirtualUavConfig]]:
-        """The virtual UAVs grouped into the processes that host them: one each, or pools of
-        ``fleet.pool`` that share a flavour and an RTF (one virtual FCU steps a pool)."""
+    def pool_layout(self) -> list[tuple[str, tuple[int, ...]]]:
+        """The pools of this run, each a swarm and the ids of its virtual UAVs, in the order they
+        start (``pool1``, ``pool2``, ...); empty with a process per UAV. A pool holds UAVs of one
+        swarm (one shared session, one pool certificate) with one flavour and one RTF (one virtual
+        FCU steps a pool), at most ``fleet.pool`` of them."""
         size = self.pool_size
         if size == 1:
+            return []
+        groups: dict[tuple[str, str, float], list[int]] = {}
+        for swarm, uavs in [(self.swarm, self.uav_list()), *((o.swarm, o.uav_list()) for o in self.other_swarms)]:
+            for u in uavs:
+                if not u.external:
+                    groups.setdefault((swarm, u.flavour, u.rtf), []).append(u.id)
+        return [(key[0], tuple(g[i:i + size])) for key, g in groups.items() for i in range(0, len(g), size)]
+
+    def pools(self, configs: list[VirtualUavConfig]) -> list[list[VirtualUavConfig]]:
+        """The virtual UAVs grouped into the processes that host them: one each, or the pools of
+        :meth:`pool_layout`."""
+        layout = self.pool_layout()
+        if not layout:
             return [[c] for c in configs]
-        groups: dict[tuple[str, float, float], list[VirtualUavConfig]] = {}
-        for c in configs:
-            groups.setdefault((c.flavour, c.target_rtf, c.physics_hz), []).append(c)
-        return [g[i:i + size] for g in groups.values() for i in range(0, len(g), size)]
+        by_id = {c.agent.uav: c for c in configs}
+        return [[by_id[u] for u in uavs] for _, uavs in layout]
 
     def _check_external(self) -> None:
         """External flight controllers: process runtime only, no faults injected into them."""

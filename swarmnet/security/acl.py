@@ -4,8 +4,9 @@ Every node of a secured swarm (UAVs, ground stations, the runner, the edge route
 same rules: a node enforces them on what its links bring in (``ingress``) and on what it sends
 out (``egress``), and Zenoh names the remote end of a link by its certificate's common name.
 Zenoh's rules have no per-subject templates, so there is one subject, one ingress rule and one
-egress rule per UAV (``uav-3.alpha`` may put only ``mrs/alpha/3/...``), and one subject and
-rule set per other role. ``default_permission`` is ``deny``: a certificate the roster does not
+egress rule per UAV (``uav-3.alpha`` may put only ``mrs/alpha/3/...``) and per pool of virtual
+UAVs (``pool-1.alpha`` may put what each UAV its roster entry lists may put, and no other's), and
+one subject and rule set per other role. ``default_permission`` is ``deny``: a certificate the roster does not
 list (revoked, or never issued) gets nothing through.
 
 =========  ======================================================  ===========================================
@@ -17,6 +18,7 @@ list (revoked, or never issued) gets nothing through.
             ``N/behaviour``                                         broadcasts and its unicasts, its sensor
                                                                     readings ``N/sense/*``, the airspace feed
                                                                     ``mrs/airspace/<swarm>/traffic``
+ pool-N     what each UAV of its roster entry may put           what each of those UAVs receives
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
  ctl        commands, ``netem/set``, ``<uav>/fault``,               everything of the swarm
             ``alive/observer/*``
@@ -75,12 +77,15 @@ def access_control(roster: Roster) -> dict[str, Any]:
     policies: list[dict[str, Any]] = []
     staff: dict[str, list[str]] = {"gcs": [], "ctl": [], "edge": []}  # CNs per non-UAV role
     for name in roster.names():
-        if name.role != "uav":
+        if name.role not in ("uav", "pool"):
             staff[name.role].append(name.cn)
             continue
         sid = name.short
-        rules.append(_rule(f"{sid}.in", ("put", "liveliness_token"), ("ingress",), uav_puts(keys, name.node)))
-        rules.append(_rule(f"{sid}.out", ("put", "liveliness_token"), ("egress",), uav_receives(keys, name.node)))
+        uavs = roster.speaks_for(name.cn) if name.role == "pool" else (name.node,)
+        rules.append(_rule(f"{sid}.in", ("put", "liveliness_token"), ("ingress",),
+                           [k for u in uavs for k in uav_puts(keys, u)]))
+        rules.append(_rule(f"{sid}.out", ("put", "liveliness_token"), ("egress",),
+                           list(dict.fromkeys(k for u in uavs for k in uav_receives(keys, u)))))
         subjects.append({"id": sid, "cert_common_names": [name.cn]})
         policies.append({"id": sid, "rules": ["declare", f"{sid}.in", f"{sid}.out"], "subjects": [sid]})
     command = [keys.swarm_cmd, keys.cmd("*")]

@@ -7,6 +7,9 @@ A CN says the node's role, its id where the role has one, and its swarm:
 ``gcs-1.alpha``          a ground station: may command the swarm's UAVs
 ``ctl.alpha``            the experiment controller (``mrswarm run``): commands, netem, faults
 ``edge.alpha``           the swarm's edge router: forwards what others publish, runs the pose feed
+``pool-2.alpha``         pool 2 of virtual UAVs: one session speaking for the UAVs its roster
+                         entry lists (:class:`~swarmnet.security.roster.Issued`, ``uavs``), and
+                         for no other
 ======================  =====================================================================
 
 Zenoh's access control matches a link's certificate CN exactly (``cert_common_names``), so the
@@ -20,15 +23,15 @@ from dataclasses import dataclass
 
 from swarmnet.keyspace import check_swarm
 
-ROLES = ("uav", "gcs", "ctl", "edge")
-NUMBERED = ("uav", "gcs")  # roles whose CN carries an id
-_CN_RE = re.compile(r"^(uav|gcs)-([0-9]{1,5})\.([A-Za-z0-9_\-]{1,32})$|^(ctl|edge)\.([A-Za-z0-9_\-]{1,32})$")
-_NAME_RE = re.compile(r"^(uav|gcs)-([0-9]{1,5})$|^(ctl|edge)$")
+ROLES = ("uav", "gcs", "ctl", "edge", "pool")
+NUMBERED = ("uav", "gcs", "pool")  # roles whose CN carries an id
+_CN_RE = re.compile(r"^(uav|gcs|pool)-([0-9]{1,5})\.([A-Za-z0-9_\-]{1,32})$|^(ctl|edge)\.([A-Za-z0-9_\-]{1,32})$")
+_NAME_RE = re.compile(r"^(uav|gcs|pool)-([0-9]{1,5})$|^(ctl|edge)$")
 
 
 @dataclass(frozen=True, order=True)
 class NodeName:
-    """One identity of a swarm: ``role`` (uav, gcs, ctl, edge), ``node`` id (uav, gcs; else 0), ``swarm``."""
+    """One identity of a swarm: ``role`` (uav, gcs, ctl, edge, pool), ``node`` id (uav, gcs, pool; else 0), ``swarm``."""
 
     role: str
     node: int
@@ -63,7 +66,7 @@ class NodeName:
         m = _CN_RE.match(cn) if isinstance(cn, str) else None
         if m is None:
             raise ValueError(f"{cn!r} is not a swarm identity: expected uav-<id>.<swarm>, gcs-<id>.<swarm>, "
-                             "ctl.<swarm> or edge.<swarm>")
+                             "pool-<id>.<swarm>, ctl.<swarm> or edge.<swarm>")
         if m.group(1):
             return cls(m.group(1), int(m.group(2)), m.group(3))
         return cls(m.group(4), 0, m.group(5))

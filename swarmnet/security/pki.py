@@ -220,12 +220,14 @@ class KeyDir:
             for p in (self.path / f"{cn}.pem", self.path / f"{cn}.key", token_path(self.path, cn)):
                 p.unlink(missing_ok=True)
         for name in members:
-            self.issue(name, days=node_days)
+            self.issue(name, days=node_days, uavs=old.nodes[name.cn].uavs)
         return members
 
     # ---- node certificates ------------------------------------------------------------------------
-    def issue(self, name: NodeName, days: int = NODE_DAYS, extra_names: Iterable[str] = (), renew: bool = False) -> Issued:
-        """A new key and certificate for ``name``, added to the roster.
+    def issue(self, name: NodeName, days: int = NODE_DAYS, extra_names: Iterable[str] = (), renew: bool = False,
+              uavs: Iterable[int] = ()) -> Issued:
+        """A new key and certificate for ``name``, added to the roster; a pool's (``pool-<id>``) speaks
+        for the UAV ids ``uavs`` (at least one), which the roster records for access control.
 
         Refuses a name already issued (``renew=True`` replaces its certificate: the old one stays
         valid until it expires, as it belongs to the same node) and a revoked name (see the module
@@ -242,6 +244,11 @@ class KeyDir:
             raise KeysError(f"{name.cn} already has a certificate (renew it with --renew)")
         if not 1 <= days <= CA_DAYS:
             raise KeysError(f"days must be 1..{CA_DAYS}, got {days}")
+        speaks_for = tuple(sorted(set(uavs)))
+        if (name.role == "pool") != bool(speaks_for):
+            raise KeysError(f"{name.cn}: a pool's certificate names the UAVs it speaks for (--uavs), and only a pool's does")
+        if any(not 1 <= u <= 65535 for u in speaks_for):
+            raise KeysError(f"{name.cn}: UAV ids are 1..65535, got {list(speaks_for)}")
         ca_cert, ca_key = self._ca()
         key = _new_key()
         now = dt.datetime.now(dt.UTC)
@@ -266,7 +273,8 @@ class KeyDir:
         )
         write_atomic(self.key_path(name), _key_pem(key), private=True)
         self.cert_path(name).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-        entry = Issued(serial=format(cert.serial_number, "x"), not_after=not_after.timestamp(), issued=time.time())
+        entry = Issued(serial=format(cert.serial_number, "x"), not_after=not_after.timestamp(), issued=time.time(),
+                       uavs=speaks_for)
         self.write_token(name, entry.serial)
         self._save_roster(roster, nodes={**roster.nodes, name.cn: entry})
         return entry

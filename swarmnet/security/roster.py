@@ -32,6 +32,9 @@ class Issued(Config, frozen=True):
     serial: Annotated[str, Meta(pattern=r"^[0-9a-f]{1,40}$", description="certificate serial number, hex")]
     not_after: Seconds  # the certificate expires then
     issued: Seconds
+    # a pool's certificate (``pool-<id>``): the UAV ids its session speaks for (access control grants it
+    # theirs and nothing else, swarmnet/security/acl.py); empty for every other identity
+    uavs: tuple[Annotated[int, Meta(ge=1, le=65535)], ...] = ()
 
 
 class Revoked(Config, frozen=True):
@@ -55,6 +58,12 @@ class Roster(Config, frozen=True):
                 raise ConfigError(f"nodes.{cn}", str(exc)) from None
             if name.swarm != self.swarm:
                 raise ConfigError(f"nodes.{cn}", f"belongs to swarm {name.swarm!r}, the roster is swarm {self.swarm!r}")
+        for cn, issued in self.nodes.items():
+            is_pool = cn.startswith("pool-")
+            if is_pool and not issued.uavs:
+                raise ConfigError(f"nodes.{cn}.uavs", "a pool's certificate speaks for at least one UAV")
+            if not is_pool and issued.uavs:
+                raise ConfigError(f"nodes.{cn}.uavs", "only a pool's certificate speaks for UAVs")
 
     def names(self) -> list[NodeName]:
         """The identities in good standing (issued, not revoked), sorted."""
@@ -62,6 +71,10 @@ class Roster(Config, frozen=True):
 
     def is_member(self, cn: str) -> bool:
         return cn in self.nodes and cn not in self.revoked
+
+    def speaks_for(self, cn: str) -> tuple[int, ...]:
+        """The UAV ids a member pool's certificate speaks for (empty: not a member pool)."""
+        return self.nodes[cn].uavs if self.is_member(cn) else ()
 
     def to_json(self) -> bytes:
         return msgspec.json.format(msgspec.json.encode(self), indent=2) + b"\n"

@@ -1,0 +1,340 @@
+"""One Zenoh session for the swarm nodes of a pool of virtual UAVs (``uav_stack/pool.py``).
+
+A pool hosts K virtual UAVs in one process. Each is still its own :class:`~swarmnet.node.SwarmNode`:
+its own id, its publishers under its own keys (``mrs/<swarm>/<uav>/pose`` ...), its liveliness
+token, its commands, faults, unicasts and netem changes. What they share is this session, so
+that the pool has one link to its router instead of K, and the poses that reach the pool:
+
+* **one pose stream for the pool.** The swarm's poses (direct, or the edge feed's batches, and
+  each member's near feed with spatial interest) arrive once, are decoded once (the compiled
+  intake where it can) into one :class:`~swarmnet.neighbours.NeighbourTable` holding every UAV
+  the pool hears, its own members included. A member sees that table through a
+  :class:`NeighbourView` without itself. A member with a netem shim of its own (docs/netem.md)
+  keeps a table of its own instead, and the pool hands it each decoded pose to impair.
+* **one liveliness view**: who is alive, kept once for every member.
+* **one decode for the ages**: the pool notes each pose's transport age once, and hands the
+  notes to every member (which leaves its own pose out when it files them).
+
+Everything else a member receives it subscribes to itself on this session (commands, faults,
+netem changes, broadcasts, unicasts): rare streams, which Zenoh delivers to each subscriber.
+
+Security: the session speaks as the pool's identity (``pool-<id>.<swarm>``), whose certificate
+speaks for the UAVs of its roster entry and for no other (swarmnet/security/acl.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from swarmnet.connectivity import Connectivity, to_zenoh
+from swarmnet.intake import PoseIntake
+from swarmnet.keyspace import SwarmKeys
+from swarmnet.messages import Pose, Rejected, accept_batched_pose, accept_pose, accept_pose_batch
+from swarmnet.neighbours import Neighbour, NeighbourTable
+from swarmnet.receive import DRAIN_BUDGET, Inlet, subscribe
+from swarmnet.stats import NodeStats
+
+if TYPE_CHECKING:
+    from swarmnet.node import SwarmNode
+    from swarmnet.security.links import LinkWatch
+
+log = logging.getLogger(__name__)
+
+INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed
+MAX_CHANGES = 4096  # liveliness changes kept for members that have not read them yet
+
+
+class NeighbourView:
+    """A pool member's neighbours: the pool's table (:class:`SharedSession`) without the member
+    itself, read-only (the pool's session takes the poses in and forgets the silent ones). Its
+    own first uses are its own: the age at use it records is from each pose's arrival to this
+    member's first use of it."""
+
+    __slots__ = ("table", "own", "_used")
+
+    def __init__(self, table: NeighbourTable, own: int):
+        self.table = table
+        self.own = own
+        self._used: dict[int, float] = {}  # neighbour -> arrival of the pose this member used last
+
+    @property
+    def stale_after(self) -> float:
+        return self.table.stale_after
+
+    @property
+    def forget_after(self) -> float:
+        return self.table.forget_after
+
+    def get(self, uav: int) -> Neighbour | None:
+        return None if uav == self.own else self.table.get(uav)
+
+    def fresh(self, now: float) -> list[Neighbour]:
+        own = self.own
+        return [n for n in self.table.fresh(now) if n.pose.uav != own]
+
+    def expire(self, now: float) -> list[int]:
+        """Nothing: the pool's session forgets silent neighbours for all its members."""
+        return []
+
+    def snapshot(self) -> list[Neighbour]:
+        own = self.own
+        return [n for n in self.table.snapshot() if n.pose.uav != own]
+
+    def first_uses(self, neighbours: list[Neighbour], now: float) -> list[float]:
+        """The age at use (``now`` minus arrival, s) of each of ``neighbours`` whose pose this
+        member had not used yet; they count as used from now on."""
+        used = self._used
+        ages = []
+        for n in neighbours:
+            at = n.last_recv
+            if used.get(n.pose.uav) != at:
+                used[n.pose.uav] = at
+                ages.append(now - at)
+        return ages
+
+    def __iter__(self) -> Iterator[Neighbour]:
+        return iter(self.snapshot())
+
+    def __len__(self) -> int:
+        return len(self.table) - (self.own in self.table)
+
+    def __contains__(self, uav: object) -> bool:
+        return uav != self.own and uav in self.table
+
+
+class SharedSession:
+    """The one Zenoh session of a pool, shared by its members' :class:`~swarmnet.node.SwarmNode`.
+
+    Open it, then open each member with ``SwarmNode(..., shared=this)``; close the members, then
+    this. Not thread-safe: the pool's loop is its one owner. ``pose_feed``, ``stale_after`` and
+    ``forget_after`` are the members' (every member of a pool has the same).
+    """
+
+    def __init__(self, swarm: str, connectivity: Connectivity, *, pose_feed: str = "direct", stale_after: float = 1.0,
+                 forget_after: float = 10.0, ring_size: int = 1024, clock: Callable[[], float] = time.time,
+                 name: str = "pool"):
+        if pose_feed not in ("direct", "edge"):
+            raise ValueError(f"pose_feed must be 'direct' or 'edge', not {pose_feed!r}")
+        self.keys = SwarmKeys(swarm)
+        self.connectivity = connectivity
+        self.pose_feed = pose_feed
+        self.ring_size = ring_size
+        self.clock = clock
+        self.name = name
+        self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
+        self.intake = PoseIntake(self.neighbours)
+        self.stats = NodeStats()  # the pose stream's: received, rejected; the links of outsiders
+        self.alive: set[str] = set()  # liveliness keys present (the members' alive)
+        self._changes: list[tuple[str, bool]] = []  # (key, appeared) in order; members read from their cursors
+        self._changes_base = 0  # the index of _changes[0] in the whole history
+        self.members: dict[int, SwarmNode] = {}
+        self.impaired: list[SwarmNode] = []  # members with a table of their own (a netem shim): handed each pose
+        self.session: zenoh.Session | None = None
+        self._pose_inlets: list[tuple[bool, Inlet]] = []  # (a feed of batches, inlet)
+        self._alive_inlet: Inlet | None = None
+        self._subscribers: list[Any] = []
+        self._links: LinkWatch | None = None
+        self._pumped = 0  # poses taken in by the last pump, for the members' counters
+
+    # ---- lifecycle ------------------------------------------------------------------------------
+    def open(self) -> SharedSession:
+        if self.session is not None:
+            return self
+        self.session = s = zenoh.open(to_zenoh(self.connectivity.zenoh_config()))
+        try:
+            k = self.keys
+            if self.pose_feed == "edge":
+                self._pose_inlet(k.pose_feed, batches=True, size=256)
+            else:  # every pose, the members' own too (published on this session: delivered locally)
+                self._pose_inlet(k.all_poses, batches=False, size=self.ring_size)
+            self._alive_inlet = alive = Inlet(4096, None, self.clock, "ring")
+            self._subscribers.append(sub := s.liveliness().declare_subscriber(k.all_alive, alive.handler(), history=True))
+            alive.attach(sub)
+            creds = self.connectivity.credentials
+            if creds is not None:
+                from swarmnet.security.acl import member_names
+                from swarmnet.security.links import LinkWatch
+
+                self._links = LinkWatch(s, member_names(creds.roster()), self.stats)
+            self.connectivity.attach(s)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _pose_inlet(self, key: str, batches: bool, size: int) -> None:
+        assert self.session is not None
+        inlet = Inlet(size, None, self.clock, "thread")
+        self._subscribers.append(subscribe(self.session, key, inlet))
+        self._pose_inlets.append((batches, inlet))
+
+    def add_near_feed(self, uav: int) -> None:
+        """Spatial interest: member ``uav``'s near feed too (its neighbours' poses at the full rate),
+        into the pool's table like every other batch."""
+        self._pose_inlet(self.keys.near_feed(uav), batches=True, size=256)
+
+    def close(self) -> None:
+        if self.session is None:
+            return
+        try:
+            self.connectivity.detach()
+        finally:
+            s, self.session = self.session, None
+            if self._links is not None:
+                self._links.close()
+                self._links = None
+            inlets = [inlet for _, inlet in self._pose_inlets]
+            self._pose_inlets.clear()
+            self._alive_inlet = None
+            try:
+                s.close()
+            except zenoh.ZError as exc:
+                log.debug("zenoh close: %s", exc)
+            self._subscribers.clear()
+            for inlet in inlets:
+                if not inlet.join(INLET_JOIN_S):
+                    log.warning("a receive thread did not end within %.1f s of the session's close", INLET_JOIN_S)
+
+    def __enter__(self) -> SharedSession:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- members --------------------------------------------------------------------------------
+    def join(self, node: SwarmNode) -> None:
+        self.members[node.identity.uav] = node
+
+    def leave(self, node: SwarmNode) -> None:
+        self.members.pop(node.identity.uav, None)
+        if node in self.impaired:
+            self.impaired.remove(node)
+
+    def impair(self, node: SwarmNode) -> None:
+        """``node`` has a netem shim from now on: it gets each pose the pool takes in, to impair."""
+        if node not in self.impaired:
+            self.impaired.append(node)
+
+    def changes_since(self, cursor: int) -> tuple[list[tuple[str, bool]], int]:
+        """The liveliness changes from ``cursor`` on (a member's position in the history), and the new cursor."""
+        start = max(cursor - self._changes_base, 0)
+        return self._changes[start:], self._changes_base + len(self._changes)
+
+    @property
+    def changes_now(self) -> int:
+        """The cursor of a member that has seen every change so far."""
+        return self._changes_base + len(self._changes)
+
+    # ---- receiving ------------------------------------------------------------------------------
+    def pump(self, now: float | None = None, budget: int = DRAIN_BUDGET) -> int:
+        """Take in what reached the pool since the last pump: poses into the pool's table (each
+        decoded once; the rejected counted in :attr:`stats`, under the sender's key), liveliness
+        changes, the links of outsiders. Every member's poll pumps first; the first finds what
+        is new, the rest find nothing. Returns how many poses were taken in."""
+        if self.session is None:
+            return 0
+        now = self.clock() if now is None else now
+        handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
+        srcs: list[int] = []
+        ages: list[float] = []
+        n = 0
+        for batches, inlet in self._pose_inlets:
+            for at, sample in inlet.drain(budget):
+                payload = sample.payload.to_bytes()
+                if batches:
+                    n += self._take_batch(str(sample.key_expr), payload, at, srcs, ages, handed)
+                else:
+                    n += self._take_pose(str(sample.key_expr), payload, at, srcs, ages, handed)
+        if n:
+            self.stats.received["pose"] += n
+            for node in self.members.values():  # every member took them in (its own left out as it files them)
+                node.stats.received["pose"] += n
+                if node not in self.impaired:
+                    node.stats.ages.arrived_many(srcs, ages)
+        if handed:
+            for node in self.impaired:
+                node.hand(handed)
+        self._track_liveliness(budget)
+        if self._links is not None:
+            self._links.poll()
+        self.neighbours.expire(now)
+        self._pumped = n
+        return n
+
+    def _take_batch(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
+                    handed: list[tuple[Pose, float]] | None) -> int:
+        start = len(srcs)
+        n = self.intake.take(payload, None, at, srcs, ages)
+        if n is not None:
+            self.stats.received["pose_batch"] += 1
+            if handed is not None:
+                table = self.neighbours
+                handed += ((table._table[u].pose, at) for u in srcs[start:])  # noqa: SLF001 - the poses just taken
+            return n
+        try:
+            batch = accept_pose_batch(key, payload)
+        except Rejected as exc:
+            self.stats.reject(exc.reason, key, exc.detail)
+            return 0
+        self.stats.received["pose_batch"] += 1
+        taken = 0
+        for sender, data in zip(batch.senders, batch.poses, strict=True):
+            try:
+                pose = accept_batched_pose(sender, data)
+            except Rejected as exc:
+                self.stats.reject(exc.reason, self.keys.pose(sender), exc.detail)
+                continue
+            taken += 1
+            self._update(pose, at, srcs, ages, handed)
+        return taken
+
+    def _take_pose(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
+                   handed: list[tuple[Pose, float]] | None) -> int:
+        start = len(srcs)
+        if self.intake.take_pose(key, payload, None, at, srcs, ages):
+            if handed is not None and len(srcs) > start:
+                handed.append((self.neighbours._table[srcs[-1]].pose, at))  # noqa: SLF001
+            return 1
+        try:
+            pose = accept_pose(key, payload)
+        except Rejected as exc:
+            self.stats.reject(exc.reason, key, exc.detail)
+            return 0
+        self._update(pose, at, srcs, ages, handed)
+        return 1
+
+    def _update(self, pose: Pose, at: float, srcs: list[int], ages: list[float],
+                handed: list[tuple[Pose, float]] | None) -> None:
+        if self.neighbours.update(pose, at):
+            srcs.append(pose.uav)
+            ages.append(at - pose.t_wall)
+            if handed is not None:
+                handed.append((pose, at))
+
+    def _track_liveliness(self, budget: int) -> None:
+        if self._alive_inlet is None:
+            return
+        changes = self._changes
+        for _at, sample in self._alive_inlet.drain(budget):
+            key = str(sample.key_expr)
+            if sample.kind == zenoh.SampleKind.PUT:
+                if key not in self.alive:
+                    self.alive.add(key)
+                    changes.append((key, True))
+            elif key in self.alive:
+                self.alive.discard(key)
+                changes.append((key, False))
+        if len(changes) > MAX_CHANGES:  # members read every tick: the old ones have been seen
+            drop = len(changes) - MAX_CHANGES
+            del changes[:drop]
+            self._changes_base += drop
+
+    @property
+    def zid(self) -> str:
+        assert self.session is not None
+        return str(self.session.info.zid())
