@@ -823,7 +823,8 @@ def encode_fault(f: FaultInjection) -> bytes:
     for k, v in f.args.items():
         if not NAME_RE.match(k) or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise ValueError(f"fault argument {k}={v!r}: names of [A-Za-z0-9_-], finite numbers")
-    data = _encode(FaultWire(f.sender, f.fault_id & 0xFFFFFFFF, f.target, f.kind, dict(f.args), _us(f.t_wall)))
+    args = {k: float(v) if isinstance(v, float) else v for k, v in f.args.items()}  # (a float subclass: numpy's)
+    data = _encode(FaultWire(f.sender, f.fault_id & 0xFFFFFFFF, f.target, f.kind, args, _us(f.t_wall)))
     if len(data) > MAX_FAULT_BYTES:
         raise ValueError(f"fault {f.kind!r} is {len(data)} bytes, over {MAX_FAULT_BYTES}")
     return data

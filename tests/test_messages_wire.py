@@ -167,3 +167,14 @@ def test_every_payload_decodes_or_is_refused_as_before() -> None:
     differ = [(kind, data, want, got) for kind, data, want in CASES
               if (got := _outcome(kind, bytes.fromhex(data))) != want and not (NOW_REFUSED.match(want) and got == "bad_field")]
     assert not differ, f"{len(differ)} of {len(CASES)} differ, e.g. {differ[:3]}"
+
+
+def test_a_float_subclass_encodes_as_a_float_where_the_application_gives_values() -> None:
+    """A behaviour's numpy floats (a float subclass) in a swarm message, a command or a fault encode as before."""
+    np = pytest.importorskip("numpy")
+    x = np.float64(2.5)
+    assert M.encode_swarm_message(SwarmMessage(1, 0, "t", 1, 1.0, {"x": x})) == M.encode_swarm_message(
+        SwarmMessage(1, 0, "t", 1, 1.0, {"x": 2.5}))
+    assert M.encode_command(Command("gcs", 1, 0, "goto", {"x": x})) == M.encode_command(Command("gcs", 1, 0, "goto", {"x": 2.5}))
+    assert M.encode_fault(FaultInjection("chaos", 1, 3, "gps_jump", {"dx_m": x, "dy_m": -2})) == bytes.fromhex(
+        "97cc81a56368616f730103a86770735f6a756d7082a464785f6dcb4004000000000000a464795f6dfe00")
