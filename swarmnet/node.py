@@ -51,7 +51,6 @@ from swarmnet.messages import (
     Rejected,
     SwarmMessage,
     Telemetry,
-    accept_batched_pose,
     accept_command,
     accept_fault,
     accept_neighbour_pose,
@@ -65,7 +64,18 @@ from swarmnet.messages import (
     encode_telemetry,
 )
 from swarmnet.neighbours import Neighbour, NeighbourTable
-from swarmnet.receive import DRAIN_BUDGET, Accept, Accepted, How, Inlet, Waker, receive, subscribe
+from swarmnet.receive import (
+    DRAIN_BUDGET,
+    Accept,
+    Accepted,
+    How,
+    Inlet,
+    Waker,
+    batched_poses,
+    receive,
+    subscribe,
+    token_changes,
+)
 from swarmnet.shared_session import NeighbourView
 from swarmnet.stats import NodeStats
 
@@ -664,17 +674,8 @@ class SwarmNode:
         from the sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a
         bad one is counted under the sender's pose key, the others kept); our own pose, which
         comes back in the swarm's batch, left out."""
-        own = self._own_uav
-        stats = self.stats
-        stats.received["pose_batch"] += 1
-        for sender, data in zip(batch.senders, batch.poses, strict=True):
-            try:
-                pose = accept_batched_pose(sender, data)
-            except Rejected as exc:
-                stats.reject(exc.reason, self.keys.pose(sender), exc.detail)
-                continue
-            if pose.uav != own:
-                yield pose, data
+        self.stats.received["pose_batch"] += 1
+        return batched_poses(batch, self.stats, self.keys.pose, self._own_uav)
 
     def _take_poses(self, poses: Iterable[tuple[Pose, bytes]], at: float) -> None:
         """Poses that arrived at ``at`` (local wall time, s) into the neighbour table, counted as
@@ -758,24 +759,14 @@ class SwarmNode:
         """Update :attr:`alive` from the liveliness tokens that appeared or disappeared."""
         if self.shared is not None:  # the pool's session keeps alive; this member reads what changed
             changes, self._alive_cursor = self.shared.changes_since(self._alive_cursor)
-            for key, appeared in changes:
-                (inbox.joined if appeared else inbox.left).append(key)
-            if changes:
-                self._alive_uavs = None
+        elif self._alive_inlet is not None:
+            changes = token_changes(self._alive_inlet, self.alive, budget)
+        else:
             return
-        if self._alive_inlet is None:
-            return
-        for _at, sample in self._alive_inlet.drain(budget):
-            key = str(sample.key_expr)
-            if sample.kind == zenoh.SampleKind.PUT:
-                if key not in self.alive:
-                    self.alive.add(key)
-                    inbox.joined.append(key)
-                    self._alive_uavs = None
-            elif key in self.alive:
-                self.alive.discard(key)
-                inbox.left.append(key)
-                self._alive_uavs = None
+        for key, appeared in changes:
+            (inbox.joined if appeared else inbox.left).append(key)
+        if changes:
+            self._alive_uavs = None
 
     # ---- netem shim (docs/netem.md) ----------------------------------------------------------
     def set_netem(self, config: dict[str, Any] | None, *, source: str = "api", now: float | None = None,

@@ -40,7 +40,7 @@ from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import zenoh
 
-from swarmnet.messages import Rejected
+from swarmnet.messages import Pose, PoseBatch, Rejected, accept_batched_pose
 from swarmnet.stats import NodeStats
 
 T = TypeVar("T")
@@ -381,6 +381,38 @@ def _accepted(samples: Iterable[tuple[float, zenoh.Sample]], accept: Accept[T], 
             stats.reject(exc.reason, key, exc.detail)
             continue
         yield Accepted(key, item, payload, at)
+
+
+def token_changes(inlet: Inlet, alive: set[str], budget: int = DRAIN_BUDGET) -> list[tuple[str, bool]]:
+    """The liveliness tokens that appeared (True) or disappeared (False) in what ``inlet`` holds,
+    in order, applied to ``alive`` (the keys present); a token seen twice is one change."""
+    changes: list[tuple[str, bool]] = []
+    for _at, sample in inlet.drain(budget):
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.PUT:
+            if key not in alive:
+                alive.add(key)
+                changes.append((key, True))
+        elif key in alive:
+            alive.discard(key)
+            changes.append((key, False))
+    return changes
+
+
+def batched_poses(batch: PoseBatch, stats: NodeStats, pose_key: Callable[[int], str],
+                  own: int | None = None) -> Iterator[tuple[Pose, bytes]]:
+    """The poses an edge-feed batch carries, with their payloads, each accepted on its own as from
+    the sender the batch names for it (:func:`~swarmnet.messages.accept_batched_pose`: a bad one is
+    counted in ``stats`` under the sender's pose key ``pose_key(sender)``, the others kept); ``own``'s
+    pose, which comes back in the swarm's batch, left out."""
+    for sender, data in zip(batch.senders, batch.poses, strict=True):
+        try:
+            pose = accept_batched_pose(sender, data)
+        except Rejected as exc:
+            stats.reject(exc.reason, pose_key(sender), exc.detail)
+            continue
+        if pose.uav != own:
+            yield pose, data
 
 
 def subscribe(session: zenoh.Session, key: str, inlet: Inlet, **options: Any) -> Any:

@@ -34,9 +34,9 @@ import zenoh
 from swarmnet.connectivity import Connectivity, to_zenoh
 from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Pose, Rejected, accept_batched_pose, accept_pose, accept_pose_batch
+from swarmnet.messages import Pose, Rejected, accept_pose, accept_pose_batch
 from swarmnet.neighbours import Neighbour, NeighbourTable
-from swarmnet.receive import DRAIN_BUDGET, Inlet, subscribe
+from swarmnet.receive import DRAIN_BUDGET, Inlet, batched_poses, subscribe, token_changes
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
@@ -139,7 +139,6 @@ class SharedSession:
         self._alive_inlet: Inlet | None = None
         self._subscribers: list[Any] = []
         self._links: LinkWatch | None = None
-        self._pumped = 0  # poses taken in by the last pump, for the members' counters
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> SharedSession:
@@ -225,11 +224,6 @@ class SharedSession:
         start = max(cursor - self._changes_base, 0)
         return self._changes[start:], self._changes_base + len(self._changes)
 
-    @property
-    def changes_now(self) -> int:
-        """The cursor of a member that has seen every change so far."""
-        return self._changes_base + len(self._changes)
-
     # ---- receiving ------------------------------------------------------------------------------
     def pump(self, now: float | None = None, budget: int = DRAIN_BUDGET) -> int:
         """Take in what reached the pool since the last pump: poses into the pool's table (each
@@ -263,7 +257,6 @@ class SharedSession:
         if self._links is not None:
             self._links.poll()
         self.neighbours.expire(now)
-        self._pumped = n
         return n
 
     def _take_batch(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
@@ -283,12 +276,7 @@ class SharedSession:
             return 0
         self.stats.received["pose_batch"] += 1
         taken = 0
-        for sender, data in zip(batch.senders, batch.poses, strict=True):
-            try:
-                pose = accept_batched_pose(sender, data)
-            except Rejected as exc:
-                self.stats.reject(exc.reason, self.keys.pose(sender), exc.detail)
-                continue
+        for pose, _ in batched_poses(batch, self.stats, self.keys.pose):
             taken += 1
             self._update(pose, at, srcs, ages, handed)
         return taken
@@ -320,21 +308,8 @@ class SharedSession:
         if self._alive_inlet is None:
             return
         changes = self._changes
-        for _at, sample in self._alive_inlet.drain(budget):
-            key = str(sample.key_expr)
-            if sample.kind == zenoh.SampleKind.PUT:
-                if key not in self.alive:
-                    self.alive.add(key)
-                    changes.append((key, True))
-            elif key in self.alive:
-                self.alive.discard(key)
-                changes.append((key, False))
+        changes += token_changes(self._alive_inlet, self.alive, budget)
         if len(changes) > MAX_CHANGES:  # members read every tick: the old ones have been seen
             drop = len(changes) - MAX_CHANGES
             del changes[:drop]
             self._changes_base += drop
-
-    @property
-    def zid(self) -> str:
-        assert self.session is not None
-        return str(self.session.info.zid())

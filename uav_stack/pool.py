@@ -34,7 +34,6 @@ from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
 from uav_stack.runtime import (
     FCU_LEAD_S,
-    OPEN_TIMEOUT_S,
     LoopStats,
     StopFlag,
     VirtualUav,
@@ -188,9 +187,10 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
     uavs: list[VirtualUav] = []
     shares: dict[str, SharedSession] = {}  # swarm -> the pool's one session for its UAVs of that swarm
     try:
+        swarms = _by_swarm(cfgs)
         if shares_session(cfgs[0].agent.network):
-            for swarm, members in _by_swarm(cfgs).items():
-                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop, OPEN_TIMEOUT_S)
+            for swarm, members in swarms.items():
+                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop)
         for i, c in enumerate(cfgs):
             if stop.stopped:
                 return 0
@@ -201,7 +201,7 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
                 log.error("UAV %d: %s", c.agent.uav, exc)
                 return 2
             if share is not None:  # the pool session's own counters (poses, rejections, links) in each UAV's stats
-                ids = [m.agent.uav for m in _by_swarm(cfgs)[c.agent.swarm]]
+                ids = [m.agent.uav for m in swarms[c.agent.swarm]]
                 uavs[-1].agent.stats_sources["pool_session"] = partial(_session_stats, share, ids)
         pool = Pool(uavs, fcu)
         log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))

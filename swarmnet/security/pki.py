@@ -246,7 +246,8 @@ class KeyDir:
             raise KeysError(f"days must be 1..{CA_DAYS}, got {days}")
         speaks_for = tuple(sorted(set(uavs)))
         if (name.role == "pool") != bool(speaks_for):
-            raise KeysError(f"{name.cn}: a pool's certificate names the UAVs it speaks for (--uavs), and only a pool's does")
+            raise KeysError(f"{name.cn}: a pool's certificate names the UAVs it speaks for (--speaks-for), "
+                            "and only a pool's does")
         if any(not 1 <= u <= 65535 for u in speaks_for):
             raise KeysError(f"{name.cn}: UAV ids are 1..65535, got {list(speaks_for)}")
         ca_cert, ca_key = self._ca()
