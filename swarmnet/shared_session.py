@@ -135,7 +135,7 @@ class SharedSession:
         self.members: dict[int, SwarmNode] = {}
         self.impaired: list[SwarmNode] = []  # members with a table of their own (a netem shim): handed each pose
         self.session: zenoh.Session | None = None
-        self._pose_inlets: list[tuple[bool, Inlet]] = []  # (a feed of batches, inlet)
+        self._pose_inlets: list[tuple[bool, int | None, Inlet]] = []  # (a feed of batches, its member or None: all, inlet)
         self._alive_inlet: Inlet | None = None
         self._subscribers: list[Any] = []
         self._links: LinkWatch | None = None
@@ -166,16 +166,16 @@ class SharedSession:
             raise
         return self
 
-    def _pose_inlet(self, key: str, batches: bool, size: int) -> None:
+    def _pose_inlet(self, key: str, batches: bool, size: int, member: int | None = None) -> None:
         assert self.session is not None
         inlet = Inlet(size, None, self.clock, "thread")
         self._subscribers.append(subscribe(self.session, key, inlet))
-        self._pose_inlets.append((batches, inlet))
+        self._pose_inlets.append((batches, member, inlet))
 
     def add_near_feed(self, uav: int) -> None:
         """Spatial interest: member ``uav``'s near feed too (its neighbours' poses at the full rate),
         into the pool's table like every other batch."""
-        self._pose_inlet(self.keys.near_feed(uav), batches=True, size=256)
+        self._pose_inlet(self.keys.near_feed(uav), batches=True, size=256, member=uav)
 
     def close(self) -> None:
         if self.session is None:
@@ -187,7 +187,7 @@ class SharedSession:
             if self._links is not None:
                 self._links.close()
                 self._links = None
-            inlets = [inlet for _, inlet in self._pose_inlets]
+            inlets = [inlet for _, _, inlet in self._pose_inlets]
             self._pose_inlets.clear()
             self._alive_inlet = None
             try:
@@ -229,35 +229,53 @@ class SharedSession:
         """Take in what reached the pool since the last pump: poses into the pool's table (each
         decoded once; the rejected counted in :attr:`stats`, under the sender's key), liveliness
         changes, the links of outsiders. Every member's poll pumps first; the first finds what
-        is new, the rest find nothing. Returns how many poses were taken in."""
+        is new, the rest find nothing. Returns how many poses were taken in.
+
+        A pose on the swarm's stream counts as received by every member; one on a member's near
+        feed (spatial interest) by that member only, as it would have counted in a process of its
+        own (and only that member's netem shim is handed it)."""
         if self.session is None:
             return 0
         now = self.clock() if now is None else now
-        handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
-        srcs: list[int] = []
-        ages: list[float] = []
-        n = 0
-        for batches, inlet in self._pose_inlets:
+        total = 0
+        for batches, member, inlet in self._pose_inlets:
+            handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
+            srcs: list[int] = []
+            ages: list[float] = []
+            n = 0
             for at, sample in inlet.drain(budget):
                 payload = sample.payload.to_bytes()
                 if batches:
                     n += self._take_batch(str(sample.key_expr), payload, at, srcs, ages, handed)
                 else:
                     n += self._take_pose(str(sample.key_expr), payload, at, srcs, ages, handed)
-        if n:
-            self.stats.received["pose"] += n
-            for node in self.members.values():  # every member took them in (its own left out as it files them)
-                node.stats.received["pose"] += n
-                if node not in self.impaired:
-                    node.stats.ages.arrived_many(srcs, ages)
-        if handed:
-            for node in self.impaired:
-                node.hand(handed)
+            if n:
+                total += n
+                self._credit(member, n, srcs, ages, handed)
+        if total:
+            self.stats.received["pose"] += total
         self._track_liveliness(budget)
         if self._links is not None:
             self._links.poll()
         self.neighbours.expire(now)
-        return n
+        return total
+
+    def _credit(self, member: int | None, n: int, srcs: list[int], ages: list[float],
+                handed: list[tuple[Pose, float]] | None) -> None:
+        """Count ``n`` poses as received by ``member`` (None: every member; each leaves its own
+        pose out as it files the ages), and hand the decoded ones to its netem shim."""
+        if member is None:
+            nodes = list(self.members.values())
+        else:
+            node = self.members.get(member)
+            nodes = [node] if node is not None else []
+        for node in nodes:
+            node.stats.received["pose"] += n
+            if node in self.impaired:
+                if handed:
+                    node.hand(handed)
+            else:
+                node.stats.ages.arrived_many(srcs, ages)
 
     def _take_batch(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
                     handed: list[tuple[Pose, float]] | None) -> int:

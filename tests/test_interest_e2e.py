@@ -66,6 +66,11 @@ def test_fifty_uavs_receive_five_times_fewer_poses_without_collisions(tmp_path: 
     full_feed = (N - 1) * sent  # every pose of every UAV to every other UAV
     reduction = full_feed / sum(received.values())
     assert reduction >= 5.0, (reduction, mean_within)
+    # 50 UAVs are pooled by default (fleet.pool auto): each pool's one session downloads the near
+    # feeds of its UAVs and the far feed once, so what reached the pools is as far below the full feed
+    pools = {s["pool_session"]["name"]: s["pool_session"]["received"]["pose"] for s in stats.values() if "pool_session" in s}
+    assert len(pools) == 2, pools
+    assert full_feed / sum(pools.values()) >= 5.0, (full_feed, pools)
     # and everyone still hears from everyone (the far rate), so the map and the membership stay whole
     heard = [len(s.get("neighbours", {})) for s in stats.values()]
     assert min(heard) >= N - 1 - 2, heard

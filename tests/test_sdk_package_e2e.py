@@ -1,6 +1,6 @@
 """End to end: a behaviour package of one's own, outside the repository, written by `mrswarm new behaviour`,
-installed with pip, flies on 20 virtual UAVs from a scenario naming it by its import path, with the process
-and the Docker runtime."""
+installed with pip, flies on 20 virtual UAVs (in two pools, as a large run is) from a scenario naming it by its
+import path, with the process and the Docker runtime."""
 
 from __future__ import annotations
 
@@ -42,7 +42,8 @@ def test_a_package_written_by_mrswarm_new_and_pip_installed_flies_on_20_uavs(tmp
         assert f"'{NAME}': '{NAME}.behaviour:SdkE2eRing'" in listed.stdout, listed.stdout + listed.stderr
         out = tmp_path / "runs"
         res = subprocess.run([sys.executable, "-m", "mrswarm", "run", str(pkg / "scenario.yaml"), "--set", "fleet.count=20",
-                              "--set", "mission.params.radius=40", "--set", "duration=25", "--out", str(out), "--no-live",
+                              "--set", "fleet.pool=10", "--set", "mission.params.radius=40",
+                              "--set", "duration=25", "--out", str(out), "--no-live",
                               "--no-record", "--log-level", "WARNING"],
                              capture_output=True, text=True, timeout=600, cwd=elsewhere)
         assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
