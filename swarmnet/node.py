@@ -183,7 +183,8 @@ class SwarmNode:
         if shared is not None and identity.role != "uav":
             raise ValueError("only a UAV node shares a pool's session")
         self.neighbours: NeighbourTable | NeighbourView = (
-            NeighbourTable(stale_after, forget_after) if shared is None else NeighbourView(shared.neighbours, identity.uav))
+            NeighbourTable(stale_after, forget_after) if shared is None
+            else NeighbourView(shared.neighbours, identity.uav, shared.positions))
         self.intake = PoseIntake(self.neighbours) if shared is None else shared.intake  # type: ignore[arg-type]
         self._token: Any = None  # the liveliness token, while open
         self._handed: list[tuple[Pose, float]] = []  # poses the shared session handed over, for the next poll
@@ -509,16 +510,26 @@ class SwarmNode:
         self.neighbours.expire(now)
         return inbox
 
-    def take_neighbours(self, now: float | None = None) -> list[Neighbour]:
-        """Every neighbour, for the controller about to use them at ``now`` (default: the clock).
+    def take_neighbours(self, now: float | None = None,
+                        around: tuple[float, float, float] | None = None) -> list[Neighbour]:
+        """The neighbours, for the controller about to use them at ``now`` (default: the clock):
+        every one, or with ``around = (x, y, radius)`` (m) those whose latest pose is at most
+        ``radius`` horizontally from (x, y) (a pool's member finds them in the pool's index).
 
-        Records the age at use (``now`` minus its arrival) of each pose used for the first time.
-        Call it right before the poses are used, after :meth:`poll`, so that ``now`` is never
-        earlier than an arrival.
+        Records the age at use (``now`` minus its arrival) of each pose returned for the first
+        time. Call it right before the poses are used, after :meth:`poll`, so that ``now`` is
+        never earlier than an arrival.
         """
         now = self.clock() if now is None else now
         table = self.neighbours
-        out = table.snapshot()
+        if around is None:
+            out = table.snapshot()
+        elif isinstance(table, NeighbourView):
+            out = table.around(*around)
+        else:
+            x, y, r = around
+            r2 = r * r
+            out = [n for n in table.snapshot() if (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r2]
         if isinstance(table, NeighbourView):  # a pool's member: its own first uses
             self.stats.ages.used_many(table.first_uses(out, now))
             return out

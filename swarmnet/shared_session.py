@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
@@ -49,17 +50,80 @@ INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed
 MAX_CHANGES = 4096  # liveliness changes kept for members that have not read them yet
 
 
+class Positions:
+    """Where each UAV of the pool's table was at its latest pose (x, y, m), in one array, so that
+    each member finds the neighbours around it with one vectorised comparison instead of a
+    Python loop over the whole table (at N = 1,000 that loop is most of a member's tick).
+
+    The pool updates it with the UAVs each pump took a pose of and those the table forgot.
+    A free row holds NaN, which no comparison selects."""
+
+    __slots__ = ("_ids", "_index", "_free", "_xy")
+
+    def __init__(self, capacity: int = 64):
+        self._ids: list[int] = []  # row -> UAV (0: a free row)
+        self._index: dict[int, int] = {}  # UAV -> row
+        self._free: list[int] = []
+        self._xy = np.full((capacity, 2), np.nan)
+
+    def moved(self, table: NeighbourTable, uavs: list[int]) -> None:
+        """The UAVs in ``uavs`` have a new latest pose in ``table``."""
+        index, entries = self._index, table._table  # noqa: SLF001 - the pool owns this table
+        for u in uavs:
+            n = entries.get(u)
+            if n is None:
+                continue
+            i = index.get(u)
+            if i is None:
+                i = index[u] = self._row(u)
+            row = self._xy[i]
+            row[0] = n.pose.x
+            row[1] = n.pose.y
+
+    def _row(self, uav: int) -> int:
+        if self._free:
+            i = self._free.pop()
+            self._ids[i] = uav
+            return i
+        i = len(self._ids)
+        if i == len(self._xy):
+            grown = np.full((2 * i, 2), np.nan)
+            grown[:i] = self._xy
+            self._xy = grown
+        self._ids.append(uav)
+        return i
+
+    def forget(self, uavs: list[int]) -> None:
+        for u in uavs:
+            i = self._index.pop(u, None)
+            if i is not None:
+                self._xy[i] = np.nan
+                self._ids[i] = 0
+                self._free.append(i)
+
+    def within(self, x: float, y: float, radius: float) -> list[int]:
+        """The UAVs whose latest pose is at most ``radius`` (m, horizontal) from (x, y)."""
+        n = len(self._ids)
+        if not n:
+            return []
+        d = self._xy[:n] - (x, y)
+        rows = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= radius * radius)
+        ids = self._ids
+        return [ids[i] for i in rows.tolist()]
+
+
 class NeighbourView:
     """A pool member's neighbours: the pool's table (:class:`SharedSession`) without the member
     itself, read-only (the pool's session takes the poses in and forgets the silent ones). Its
     own first uses are its own: the age at use it records is from each pose's arrival to this
     member's first use of it."""
 
-    __slots__ = ("table", "own", "_used")
+    __slots__ = ("table", "own", "positions", "_used")
 
-    def __init__(self, table: NeighbourTable, own: int):
+    def __init__(self, table: NeighbourTable, own: int, positions: Positions | None = None):
         self.table = table
         self.own = own
+        self.positions = positions  # the pool's index of the table's positions (None: none kept)
         self._used: dict[int, float] = {}  # neighbour -> arrival of the pose this member used last
 
     @property
@@ -84,6 +148,19 @@ class NeighbourView:
     def snapshot(self) -> list[Neighbour]:
         own = self.own
         return [n for n in self.table.snapshot() if n.pose.uav != own]
+
+    def around(self, x: float, y: float, radius: float) -> list[Neighbour]:
+        """The neighbours whose latest pose is at most ``radius`` (m, horizontal) from (x, y)."""
+        if self.positions is None:
+            r2 = radius * radius
+            return [n for n in self.snapshot() if (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r2]
+        entries, own = self.table._table, self.own  # noqa: SLF001 - read-only, the pool's loop owns it
+        out = []
+        for u in self.positions.within(x, y, radius):
+            n = entries.get(u)
+            if n is not None and u != own:
+                out.append(n)
+        return out
 
     def first_uses(self, neighbours: list[Neighbour], now: float) -> list[float]:
         """The age at use (``now`` minus arrival, s) of each of ``neighbours`` whose pose this
@@ -127,6 +204,7 @@ class SharedSession:
         self.clock = clock
         self.name = name
         self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
+        self.positions = Positions()  # where each of them is, for the members' queries (NeighbourView.around)
         self.intake = PoseIntake(self.neighbours)
         self.stats = NodeStats()  # the pose stream's: received, rejected; the links of outsiders
         self.alive: set[str] = set()  # liveliness keys present (the members' alive)
@@ -252,12 +330,13 @@ class SharedSession:
             if n:
                 total += n
                 self._credit(member, n, srcs, ages, handed)
+                self.positions.moved(self.neighbours, srcs)
         if total:
             self.stats.received["pose"] += total
         self._track_liveliness(budget)
         if self._links is not None:
             self._links.poll()
-        self.neighbours.expire(now)
+        self.positions.forget(self.neighbours.expire(now))
         return total
 
     def _credit(self, member: int | None, n: int, srcs: list[int], ages: list[float],

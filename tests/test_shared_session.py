@@ -8,6 +8,7 @@ but not itself, and the pool's certificate speaks for its roster's UAVs and for 
 from __future__ import annotations
 
 import json
+import random
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +17,7 @@ import pytest
 
 from groundfloor.schema import ConfigError
 from swarmnet.connectivity import Rendezvous
-from swarmnet.messages import Command, decode_pose, encode_command
+from swarmnet.messages import Command, Pose, Realm, decode_pose, encode_command
 from swarmnet.neighbours import NeighbourTable
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
@@ -24,7 +25,7 @@ from swarmnet.security.acl import access_control
 from swarmnet.security.identity import NodeName
 from swarmnet.security.pki import KeyDir, KeysError
 from swarmnet.security.roster import Roster
-from swarmnet.shared_session import NeighbourView, SharedSession
+from swarmnet.shared_session import NeighbourView, Positions, SharedSession
 from tests.conftest import wait_for
 from tests.test_security import KEYS, SWARM, creds, pose, router_process
 
@@ -79,6 +80,10 @@ def test_pool_members_are_each_their_own_uav_on_one_session(pool: tuple[SharedSe
     # each member's own age at use; its transport ages leave its own pose out
     m1.take_neighbours()
     assert set(m1.stats.ages.links) <= {2, 3} and set(m2.stats.ages.links) <= {1, 3}
+    # the neighbours around a member come from the pool's index of positions: UAV 2 is 10 m
+    # from UAV 1, UAV 3 20 m
+    assert [n.uav for n in m1.take_neighbours(around=(10.0, 0.0, 15.0))] == [2]
+    assert sorted(n.uav for n in m2.take_neighbours(around=(20.0, 0.0, 15.0))) == [1, 3]
 
     # commands: to one member, only it; to the swarm, each
     ctl.node.session.put(KEYS.cmd(2), encode_command(Command("ctl", 5, 2, "hold", {}, time.time())))  # type: ignore[union-attr]
@@ -135,6 +140,34 @@ def test_neighbour_view_leaves_the_member_out_and_counts_its_own_first_uses() ->
     assert view.first_uses(view.snapshot(), 100.6) == []  # already used
     other = NeighbourView(table, 1)  # another member: its first use is its own
     assert other.first_uses(other.snapshot(), 100.7) == pytest.approx([0.7, 0.7])
+
+
+def test_the_neighbours_around_a_member_are_those_within_the_radius_as_the_table_changes() -> None:
+    rng = random.Random(7)
+    table = NeighbourTable(forget_after=10.0)
+    positions = Positions(capacity=4)  # grows as UAVs come
+    view = NeighbourView(table, 1, positions)
+    seq: dict[int, int] = {}
+
+    def move(uavs: list[int], at: float) -> None:
+        for u in uavs:
+            seq[u] = seq.get(u, 0) + 1
+            table.update(Pose(u, Realm.VIRTUAL, seq[u], 0.0, at, rng.uniform(-100, 100), rng.uniform(-100, 100),
+                              10, 0, 0, 0, 0), at)
+        positions.moved(table, uavs)
+
+    def brute(x: float, y: float, r: float) -> set[int]:
+        return {n.uav for n in table.snapshot() if n.uav != 1 and (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r * r}
+
+    move(list(range(1, 41)), 100.0)
+    for step in range(20):
+        at = 100.0 + step
+        move(rng.sample(range(1, 61), 15), at)  # some move, some new ones come
+        positions.forget(table.expire(at))  # the silent ones go
+        for _ in range(5):
+            x, y, r = rng.uniform(-100, 100), rng.uniform(-100, 100), rng.uniform(5, 80)
+            assert {n.uav for n in view.around(x, y, r)} == brute(x, y, r)
+    assert 1 not in {n.uav for n in view.around(0.0, 0.0, 1e6)}  # never the member itself
 
 
 def test_a_pool_certificate_names_its_uavs_and_the_rules_grant_theirs(tmp_path: Path) -> None:

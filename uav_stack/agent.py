@@ -406,21 +406,16 @@ class Agent:
         """Collision avoidance on the preferred velocity, from the neighbours that could matter."""
         avoidance = self.avoidance
         assert avoidance is not None
-        # only neighbours within reach (avoidance looks at most neighbour_range away): at N = 50
-        # this skips building most views per tick. The time of use is taken now, after the poll,
-        # so each pose's age (sender's stamp to now) and age at use are exact. A plain loop: it
-        # runs once per neighbour per tick, and costs half what a comprehension does.
+        # only the neighbours within reach (avoidance looks at most neighbour_range away, and a
+        # neighbour closes at most 2 x speed over the time it is trusted): in a pool the node finds
+        # them in the pool's index, without a loop over the whole swarm. The time of use is taken
+        # now, after the poll, so each pose's age (sender's stamp to now) and age at use are exact.
         reach = avoidance.neighbour_range + 2.0 * self.cfg.speed * avoidance.forget_after
         r2 = reach * reach
         t_use = self.clock()
         o = self.own
-        ox, oy = o.x, o.y
-        neigh: list[NeighbourView] = []
-        for n in self.node.take_neighbours(t_use):
-            p = n.pose
-            dx, dy = p.x - ox, p.y - oy
-            if dx * dx + dy * dy <= r2:  # its age from the sender's stamp (avoidance takes < 0 as 0)
-                neigh.append(NeighbourView(p.uav, (p.x, p.y), (p.vx, p.vy), t_use - p.t_wall))
+        neigh = [NeighbourView(p.uav, (p.x, p.y), (p.vx, p.vy), t_use - p.t_wall)  # its age from the sender's stamp
+                 for p in (n.pose for n in self.node.take_neighbours(t_use, (o.x, o.y, reach)))]
         if self.payload is not None and self.payload.traffic is not None:
             neigh += traffic_views(self.payload, o.x, o.y, o.z, now, r2, self.cfg.avoidance.safety_distance)
         res = avoidance.adjust(me, (vx, vy), neigh, altitude=o.z)
