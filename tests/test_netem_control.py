@@ -10,7 +10,9 @@ and never acked, a change for other UAVs left alone.
 from __future__ import annotations
 
 import json
+import math
 import random
+import re
 from types import SimpleNamespace
 from typing import Any
 
@@ -63,6 +65,27 @@ def test_a_sender_cannot_write_a_bad_sender_name_or_an_oversized_message() -> No
         encode_netem_set(NetemSet(id=1, sender="a", t_wall=1.0, config={"x": "y" * MAX_BYTES}))
 
 
+@pytest.mark.parametrize(("msg", "names"), [
+    (NetemSet(id=1, sender="a", t_wall=1.0, config={}, targets=(0,)), "netem_set.targets.0"),
+    (NetemSet(id=1, sender="a", t_wall=-1.0, config={}), "netem_set.t_wall"),
+    (NetemSet(id=1, sender="a", t_wall=math.nan, config={}), "netem_set.t_wall"),
+    (NetemSet(id=1, sender="a", t_wall=1.0, config={"a": [[[[[[[[]]]]]]]]}), "nested deeper than 8"),
+])
+def test_a_sender_cannot_write_what_receivers_refuse(msg: NetemSet, names: str) -> None:
+    """Before the msgspec codec only the sender's name and the size were checked: these were sent, and refused by every UAV."""
+    with pytest.raises(ValueError, match=re.escape(names)):
+        encode_netem_set(msg)
+
+
+def test_numbers_of_other_types_are_written_as_json_numbers() -> None:
+    np = pytest.importorskip("numpy")
+    msg = NetemSet(id=1, sender="a", t_wall=np.float64(2.5), config={"seed": np.int64(4), "v2v": {"duplicate": np.float32(0.5)}})
+    assert encode_netem_set(msg) == (b'{"v":1,"id":1,"sender":"a","t_wall":2.5,"targets":null,'
+                                     b'"config":{"seed":4,"v2v":{"duplicate":0.5}}}')
+    with pytest.raises(TypeError, match="JSON values only"):
+        encode_netem_set(NetemSet(id=1, sender="a", t_wall=1.0, config={"x": object()}))
+
+
 # ---- what a receiver takes ----------------------------------------------------------------------------
 ACCEPTED = [
     (payload(), (1, "x", 1.0, None, {})),
@@ -75,8 +98,10 @@ ACCEPTED = [
     (b"  " + payload() + b"\n", (1, "x", 1.0, None, {})),  # JSON whitespace
     (b'{"v":1,"id":1,"id":2,"sender":"x","t_wall":1,"targets":null,"config":{}}', (2, "x", 1.0, None, {})),  # the last one counts
     (b'{"config":{},"targets":null,"t_wall":1,"sender":"x","id":1,"v":1}', (1, "x", 1.0, None, {})),  # in any order
-    (payload(v=True), (1, "x", 1.0, None, {})),  # (Python's True == 1)
-    (payload(v=1.0), (1, "x", 1.0, None, {})),
+    (payload(config={"links": [{"src": 1, "dst": 2, "outage": {"every_s": 9, "duration_ms": [1, 2]}}]}),  # as deep as one gets
+     (1, "x", 1.0, None, {"links": [{"src": 1, "dst": 2, "outage": {"every_s": 9, "duration_ms": [1, 2]}}]})),
+    # 8 levels of objects and lists, config's own counted
+    (payload(config={"a": {"b": [[[[[[]]]]]]}}), (1, "x", 1.0, None, {"a": {"b": [[[[[[]]]]]]}})),
 ]
 
 
@@ -100,6 +125,8 @@ REFUSED = [
     (payload(v=2), "wrong_version", "version"),
     (payload(v=...), "wrong_version", "version"),
     (payload(v="1"), "wrong_version", "version"),
+    (payload(v=True), "wrong_version", "version"),  # taken before the msgspec codec (Python's True == 1)
+    (payload(v=1.0), "wrong_version", "version"),  # ditto
     (payload(x=1), "malformed", "x"),
     (payload(id=-1), "bad_field", "id"),
     (payload(id=2**32), "bad_field", "id"),
@@ -115,8 +142,9 @@ REFUSED = [
     (payload(t_wall=True), "bad_field", "t_wall"),
     (payload(t_wall="1"), "bad_field", "t_wall"),
     (payload(t_wall=2**63), "bad_field", "t_wall"),
-    (b'{"v":1,"id":1,"sender":"x","t_wall":NaN,"targets":null,"config":{}}', "bad_field", "t_wall"),
-    (b'{"v":1,"id":1,"sender":"x","t_wall":Infinity,"targets":null,"config":{}}', "bad_field", "t_wall"),
+    # not JSON (Python's decoder read them, and the range check refused them as bad_field)
+    (b'{"v":1,"id":1,"sender":"x","t_wall":NaN,"targets":null,"config":{}}', "malformed", "JSON"),
+    (b'{"v":1,"id":1,"sender":"x","t_wall":Infinity,"targets":null,"config":{}}', "malformed", "JSON"),
     (payload(t_wall=...), "bad_field", "t_wall"),
     (payload(targets=[0]), "bad_field", "targets"),
     (payload(targets=[65536]), "bad_field", "targets"),
@@ -126,6 +154,8 @@ REFUSED = [
     (payload(config=[]), "bad_field", "config"),
     (payload(config=None), "bad_field", "config"),
     (payload(config=...), "bad_field", "config"),
+    (payload(config={"a": {"b": [[[[[[[]]]]]]]}}), "malformed", "netem_set.config.a.b.0.0.0.0.0.0: nested deeper than 8"),
+    (b'{"v":1,"id":1,"sender":"x","t_wall":1,"config":{"a":' + b"[" * 5000 + b"]" * 5000 + b"}}", "malformed", "nested"),
     (bytes(MAX_BYTES + 1), "oversized", ""),
     (b"[" * 100_000, "oversized", ""),
 ]
@@ -137,6 +167,21 @@ def test_a_bad_netem_set_is_refused_with_its_reason_naming_the_field(data: bytes
         decode_netem_set(data)
     assert err.value.reason == reason, err.value
     assert names in err.value.detail, err.value
+    assert reason == "oversized" or err.value.detail.startswith("netem_set"), err.value
+
+
+def test_a_refusal_names_the_field_and_what_it_must_be() -> None:
+    def detail(data: bytes) -> str:
+        with pytest.raises(DecodeError) as err:
+            decode_netem_set(data)
+        return err.value.detail
+
+    assert detail(payload(t_wall=-1)) == "netem_set.t_wall: must be a number in [0, 9.22337e+18), got -1"
+    assert detail(payload(id=2**32)) == "netem_set.id: must be an integer in [0, 4294967295], got 4294967296"
+    assert detail(payload(targets=[1, 0])) == "netem_set.targets.1: must be an integer in [1, 65535], got 0"
+    assert detail(payload(config=[])) == "netem_set.config: must be a mapping, got []"
+    assert detail(payload(id=...)) == "netem_set.id: required"
+    assert detail(payload(x=1)) == "netem_set.x: unknown field (expected one of: config, id, sender, t_wall, targets, v)"
 
 
 def test_random_bytes_and_mangled_messages_only_ever_raise_decode_errors() -> None:
@@ -218,10 +263,64 @@ def test_a_node_leaves_a_change_for_other_uavs_alone() -> None:
 
 
 def test_a_node_refuses_a_config_nested_too_deep_to_copy() -> None:
+    """Before the msgspec codec this payload decoded, and the config's merge raised RecursionError,
+    which the node caught (with TypeError, KeyError...) and nacked; now it never decodes."""
     n, inlet, pub = _node()
-    deep = b"[" * 900 + b"]" * 900  # (JSON's own decoder takes it; copying it in the config's merge does not)
+    deep = b"[" * 900 + b"]" * 900
     _arrive(inlet, b'{"v":1,"id":81,"sender":"x","t_wall":1,"targets":null,"config":{"v2v":{"delay":{"x":' + deep + b"}}}}")
     n._apply_netem_sets(11.0, 100)
-    assert dict(n.stats.rejected) == {"bad_netem_config": 1} and n.netem is None
-    [ack] = pub.acks
-    assert ack.cmd_id == 81 and not ack.ok
+    assert dict(n.stats.rejected) == {"malformed": 1} and n.netem is None and not pub.acks
+
+
+def test_whatever_a_node_is_sent_it_applies_or_refuses_and_answers_never_raising() -> None:
+    """Random configs (valid ones among them) and random JSON in random places: each message is
+    applied and acked, refused as a bad config and nacked, or refused as a payload; nothing else."""
+    from tests.test_netem_shim import random_config
+
+    rng = random.Random(4)
+    n, inlet, pub = _node()
+    sent = applied = 0
+    for i in range(2000):
+        cfg = random_config(rng)
+        if not isinstance(cfg, dict) or rng.random() < 0.1:
+            data = payload(id=i, config=cfg if rng.random() < 0.5 else {"v2v": cfg})
+        else:
+            data = payload(id=i, config=cfg)
+        _arrive(inlet, data)
+        n._apply_netem_sets(11.0, 100)
+        received, rejected = n.stats.received["netem_set"], sum(n.stats.rejected.values())
+        assert received + rejected == i + 1
+        if len(pub.acks) > sent:
+            sent = len(pub.acks)
+            assert pub.acks[-1].cmd_id == i
+            applied += pub.acks[-1].ok
+    assert applied == n.stats.received["netem_set"] > 100
+    assert sent == applied + n.stats.rejected["bad_netem_config"]
+
+
+_NO_SHIM = """
+import sys
+from swarmnet.messages import SwarmMessage, encode_swarm_message
+from swarmnet.node import MESSAGE, Inbox, NodeIdentity, SwarmNode
+from swarmnet.receive import Accepted, Inlet
+
+n = SwarmNode(NodeIdentity("alpha", 2), connectivity=None)
+n._netem_inlet = Inlet(16)  # subscribed, as every UAV's is, and empty
+msg = SwarmMessage(1, 0, "chat", 0, 1.0, "hi")
+inbox = Inbox()
+for _ in range(3):
+    n._apply_netem_sets(2.0, 100)
+    n._take_in(iter([(MESSAGE, Accepted("mrs/alpha/1/msg/chat", msg, encode_swarm_message(msg), 1.5))]), 2.0, inbox)
+assert len(inbox.messages) == 3 and n.netem is None and n.expected_poses_due() is None
+print(sorted(m for m in sys.modules if m.startswith("swarmnet.netem") or m == "groundfloor.schema"))
+"""
+
+
+def test_a_node_without_netem_never_loads_the_shim_nor_the_control_codec() -> None:
+    """The shim is an optional stage: a node that was never configured and was sent no change
+    delivers what it takes in straight away, and never imports the netem package's modules."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _NO_SHIM], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
