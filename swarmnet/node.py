@@ -7,7 +7,8 @@ samples). Commands and netem changes also notify :attr:`SwarmNode.waker`, so the
 can handle them at once. :meth:`SwarmNode.poll` drains the inlets from the owner's loop through
 the one receive path of :mod:`swarmnet.receive`, top to bottom:
 
-1. runtime netem changes (``mrs/<swarm>/netem/set``), so a change applies to this poll;
+1. runtime netem changes (``mrs/<swarm>/netem/set``, decoded by their codec,
+   :func:`~swarmnet.netem.control.accept_netem_set`), so a change applies to this poll;
 2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
    messages, commands), rejections counted in :attr:`SwarmNode.stats`; poses and batches are
    kept as they came for step 3;
@@ -81,7 +82,6 @@ from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
     from swarmnet.netem import NetemShim
-    from swarmnet.netem.control import NetemSet
     from swarmnet.netem.shim import Link
     from swarmnet.security.links import LinkWatch
     from swarmnet.shared_session import SharedSession
@@ -129,12 +129,6 @@ def _as_received(key: str, data: bytes) -> bytes:
     """The pose streams (direct poses, the edge feed's batches) keep a sample as it came: the
     compiled intake takes it from there, or the stream's rule in :meth:`SwarmNode._accept`."""
     return data
-
-
-def _accept_netem_set(key: str, data: bytes) -> NetemSet:
-    from swarmnet.netem.control import decode_netem_set
-
-    return decode_netem_set(data)
 
 
 class SwarmNode:
@@ -709,17 +703,14 @@ class SwarmNode:
     def _through_netem(self, arrivals: Iterable[tuple[int, Accepted[Any]]], now: float) -> Iterator[tuple[int, Any, float]]:
         """The netem shim as a filter (docs/netem.md): the one place items are offered to it and released.
 
-        Yields ``(kind, item, arrival time)``. Without a shim every item passes with its arrival
-        stamp. With one, each item crosses the link from its sender (:meth:`_netem_link`) from
-        its arrival stamp on: a pass-through link delivers it at once; otherwise the shim holds
-        it until its time to send, which becomes its arrival, or drops it. Items due at ``now``
-        follow the fresh ones.
+        Yields ``(kind, item, arrival time)``. Each item crosses the link from its sender
+        (:meth:`_netem_link`) from its arrival stamp on: a pass-through link delivers it at once;
+        otherwise the shim holds it until its time to send, which becomes its arrival, or drops
+        it. Items due at ``now`` follow the fresh ones. Only a node with a shim comes here
+        (:meth:`_take_in`): one without delivers each item as it comes.
         """
         shim = self.netem
-        if shim is None:
-            for kind, arrival in arrivals:
-                yield kind, arrival.item, arrival.at
-            return
+        assert shim is not None
         for kind, arrival in arrivals:
             item = arrival.item
             link = self._netem_link(shim, kind, item)
@@ -830,14 +821,15 @@ class SwarmNode:
         if self._netem_inlet is None or not len(self._netem_inlet):  # the usual case, every tick: nothing to import
             return
         from swarmnet.netem import NetemConfigError
+        from swarmnet.netem.control import accept_netem_set
 
-        for arrival in receive(self._netem_inlet, _accept_netem_set, self.stats, budget):
+        for arrival in receive(self._netem_inlet, accept_netem_set, self.stats, budget):
             m = arrival.item
-            if m.targets is not None and self.identity.uav not in m.targets:
+            if not m.applies_to(self.identity.uav):
                 continue  # a change for other UAVs
             try:
                 desc = self.set_netem(m.config, source=m.sender, now=now, msg_id=m.id)
-            except (NetemConfigError, ValueError, TypeError, KeyError, RecursionError) as exc:  # bad input never crashes the UAV
+            except NetemConfigError as exc:  # the one error of a config that decoded (tests/test_netem_control.py)
                 self.stats.reject("bad_netem_config", arrival.key, str(exc))
                 if "ack" in self._pubs:
                     self.ack(m.id, False, f"netem: {exc}"[:200])

@@ -57,6 +57,10 @@ def test_bad_values_fail_before_sending_and_name_the_field() -> None:
     res = subprocess.run(cli("set", "--connect", "tcp/127.0.0.1:9", "--delay", "fast"), cwd=ROOT, capture_output=True,
                          text=True, timeout=60)
     assert res.returncode == 2 and "--delay: 'fast' is not a time" in res.stderr
+    # the message itself, as every UAV would refuse it (before its codec, sent and waited for in vain)
+    res = subprocess.run(cli("set", "--connect", "tcp/127.0.0.1:9", "--preset", "lan", "--targets", "1,0"), cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "netem_set.targets.1: must be an integer in [1, 65535], got 0" in res.stderr
 
 
 def test_presets_lists_every_preset_per_class() -> None:

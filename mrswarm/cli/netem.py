@@ -206,12 +206,15 @@ def send(endpoints: list[str], swarm: str, config: dict[str, Any], targets: list
 
 def _cmd_set(a: argparse.Namespace) -> int:
     from swarmnet.netem import NetemConfigError, parse_netem
+    from swarmnet.netem.control import NetemSet, encode_netem_set
 
     try:
         cfg = build_config(a)
         parsed = parse_netem(cfg)
         endpoints, swarm, creds = endpoint_and_swarm(a)
         targets = [int(t) for t in a.targets.split(",")] if a.targets else None
+        # the message as it will be sent (its targets, its size): refused here, naming the field
+        encode_netem_set(NetemSet(0, "cli", time.time(), cfg, tuple(targets) if targets else None))
     except (NetemConfigError, ValueError, OSError) as exc:  # ConfigError (bad --keys) is a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2

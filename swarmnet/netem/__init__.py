@@ -8,7 +8,8 @@ See docs/netem.md. The pieces:
   (Bernoulli, Gilbert-Elliott, 4-state), distance models, outage schedules;
 * :mod:`swarmnet.netem.shim`: :class:`NetemShim`, the per-(sender -> me) links, the single
   time-ordered heap and the statistics;
-* :mod:`swarmnet.netem.control`: the runtime control message on ``mrs/<swarm>/netem/set``.
+* :mod:`swarmnet.netem.control`: the runtime control message on ``mrs/<swarm>/netem/set``
+  and its codec (a msgspec Struct, decoded and checked in one call).
 
 The names below are imported on first use: a UAV process reads its configuration (which
 names :class:`~swarmnet.netem.config.NetemSpec`) without loading the shim and its models,
