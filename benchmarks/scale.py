@@ -77,8 +77,10 @@ def scenario_for(n: int, duration: float, config: str, interest: dict[str, float
                                if v is not None}
     if lease_s is not None:
         network["lease_s"] = lease_s
+    spacing = 8.0  # a packed start, spreading over the field during the mission
     if config.endswith("-interest"):
         network["interest"] = interest or INTEREST
+        spacing = side / math.ceil(math.sqrt(n))  # at the field's density from the start: interest filters from the first tick
     if config != "default":  # each named configuration says it; the default's choice is the scenario's
         network["align_ticks"] = config.endswith("-aligned")
     return parse_scenario({
@@ -91,7 +93,7 @@ def scenario_for(n: int, duration: float, config: str, interest: dict[str, float
         "flight": {"altitude": 6, "speed": 5.0, "safety_distance": 5.0, "collision_distance": 1.0},
         "mission": {"type": "coverage", "strategy": "random",
                     "area": {"x_min": -side / 2, "x_max": side / 2, "y_min": -side / 2, "y_max": side / 2}, "sensor_radius": 10},
-        "fleet": {"count": n, "spawn": {"pattern": "grid", "spacing": 8, "center": [0, 0]}, "pool": pool},
+        "fleet": {"count": n, "spawn": {"pattern": "grid", "spacing": spacing, "center": [0, 0]}, "pool": pool},
     })
 
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mrswarm.results.coverage import coverage
+from mrswarm.results.coverage import CellGrid, cell_centres, cell_grid, coverage, seen
 from mrswarm.run.live import LiveMetrics
 from mrswarm.scenario import load_scenario
 from swarmnet.messages import Pose, Realm
@@ -66,3 +66,25 @@ def test_the_live_coverage_is_what_the_analysis_finds_for_the_same_positions() -
                           scn.mission.area.as_tuple(), scn.mission.sensor_radius, scn.mission.coverage_cell_m)
     assert metrics.coverage is not None and 0.0 < metrics.coverage < 1.0
     assert metrics.coverage == pytest.approx(float(frac[-1]), abs=1e-12)
+
+
+@pytest.mark.parametrize(("area", "cell", "radius"), [((-100.0, 100.0, -80.0, 80.0), 5.0, 10.0),
+                                                       ((0.0, 37.0, -3.0, 41.0), 0.5, 1.0),
+                                                       ((-50.0, 50.0, -50.0, 50.0), 5.0, 23.0)])
+def test_the_cells_a_grid_finds_are_those_the_definition_sees(area: tuple[float, float, float, float], cell: float,
+                                                              radius: float) -> None:
+    """The grid's neighbourhood search marks exactly the cells whose centres lie within the radius of a
+    point, as comparing every cell with every point does: points inside, on the edges, outside, NaN."""
+    xs, ys = cell_centres(area, cell)
+    grid = CellGrid(xs, ys, cell)
+    rng = np.random.default_rng(3)
+    x0, x1, y0, y1 = area
+    for n in (1, 7, 300):
+        pts = np.stack([rng.uniform(x0 - 2 * radius, x1 + 2 * radius, n),
+                        rng.uniform(y0 - 2 * radius, y1 + 2 * radius, n)], axis=1)
+        pts[: n // 3, 0] = np.round(pts[: n // 3, 0] / cell) * cell  # on cell borders: the rounding cases
+        if n > 1:
+            pts[1] = (np.nan, 0.0)
+        expected = seen(cell_grid(xs, ys), pts[np.isfinite(pts).all(axis=1)], radius)
+        assert np.array_equal(grid.seen(pts, radius), expected)
+        assert expected.any() or n == 1

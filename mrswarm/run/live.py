@@ -14,7 +14,7 @@ from enum import Enum
 
 import numpy as np
 
-from mrswarm.results.coverage import cell_centres, cell_grid, seen
+from mrswarm.results.coverage import CellGrid, cell_centres
 from mrswarm.results.run_data import AIRBORNE_Z
 from mrswarm.scenario import Scenario
 from swarmnet.messages import Pose
@@ -65,7 +65,7 @@ class LiveMetrics:
     """Coverage and separation estimated live from the poses the runner's observer receives."""
 
     scenario: Scenario
-    cells: np.ndarray | None = field(init=False, default=None)  # (n, 2) centres of the area's cells, m
+    cells: CellGrid | None = field(init=False, default=None)  # the area's cells, as the analysis cuts them
     covered: np.ndarray | None = field(init=False, default=None)  # per cell: seen by a working UAV
     min_sep: float = field(init=False, default=math.inf)  # m, lowest seen so far
     min_sep_now: float = field(init=False, default=math.inf)  # m, at the last update
@@ -73,8 +73,8 @@ class LiveMetrics:
     def __post_init__(self) -> None:
         m = self.scenario.mission
         if m.type == "coverage" and m.area is not None:
-            self.cells = cell_grid(*cell_centres(m.area.as_tuple(), m.coverage_cell_m))  # the analysis' cells
-            self.covered = np.zeros(len(self.cells), dtype=bool)
+            self.cells = CellGrid(*cell_centres(m.area.as_tuple(), m.coverage_cell_m), m.coverage_cell_m)
+            self.covered = np.zeros(self.cells.size, dtype=bool)
 
     def add_poses(self, obs: SwarmObserver, fresh: list[Pose]) -> None:
         """Mark the cells within the sensor radius of each fresh pose of a UAV working on its mission."""
@@ -82,7 +82,7 @@ class LiveMetrics:
             return
         pts = [(p.x, p.y) for p in fresh if (v := obs.uavs.get(p.uav)) and v.state and v.state.phase in WORKING]
         if pts:
-            self.covered |= seen(self.cells, np.array(pts), self.scenario.mission.sensor_radius)
+            self.covered[self.cells.indices(np.array(pts), self.scenario.mission.sensor_radius)] = True
 
     def update_separation(self, obs: SwarmObserver) -> None:
         """Minimum 3-D distance between airborne UAVs (higher than AIRBORNE_Z), each at the time of the newest pose.
