@@ -46,6 +46,11 @@ def test_pooled_uavs_fly_the_mission_each_as_its_own_uav(tmp_path: Path) -> None
     assert all(st["uav"] == u and st["phase"] in ("mission", "done") for u, st in status.items()), \
         {u: st["phase"] for u, st in status.items()}
     assert all(st["net"]["sent"]["pose"] > 50 for st in status.values())
+    # each reaches its vehicle through the pool's in-process link: the same MAVLink, nothing lost, no socket
+    links = {u: st["fcu_inproc"] for u, st in status.items()}
+    assert all(ln["to_fcu"]["datagrams"] > 100 and ln["to_agent"]["datagrams"] > 100 and not ln["to_fcu"]["dropped"]
+               and not ln["to_agent"]["dropped"] for ln in links.values()), links
+    assert all(st["fcu_link"]["foreign_source"] == 0 and st["fcu_link"]["bad"] == 0 for st in status.values())
     # one Zenoh session per pool, as pool-<n>, whose certificate speaks for its two UAVs: each pose
     # reaching the pool is taken in once, for both
     sessions = {u: st["pool_session"] for u, st in status.items()}

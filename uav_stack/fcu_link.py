@@ -2,7 +2,8 @@
 
 The agent reaches its FCU only through a pymavlink connection string, so one agent flies a
 real Pixhawk (``serial:/dev/ttyACM0:921600``), PX4/ArduPilot SITL (``udpin:127.0.0.1:14540``)
-or our virtual FCU (``udpout:127.0.0.1:<port>``). Everything here is non-blocking: the
+or our virtual FCU (``udpout:127.0.0.1:<port>``; a pooled virtual UAV's ``inproc:<name>``, the same
+datagrams through an in-process channel, :mod:`uav_stack.inproc`). Everything here is non-blocking: the
 agent's loop calls :meth:`FcuLink.poll` and :meth:`FcuLink.service`; commands return a
 :class:`CommandHandle` that resolves when the COMMAND_ACK arrives (retried like MAVSDK:
 0.5 s timeout, 3 retries).
@@ -52,6 +53,7 @@ from uav_stack.autopilot import (
 )
 from uav_stack.fcu_contract import FcuContract
 from uav_stack.fcu_udp import FcuUdpSocket, parse_udp_url
+from uav_stack.inproc import InprocFcuSocket, parse_inproc_url
 from uav_stack.mav import mavlink, mavutil
 from uav_stack.mavcodec import MAVLink
 from uav_stack.rtf import RtfMeter
@@ -263,7 +265,8 @@ class FcuLink:
         self.contract = FcuContract(self.rx_types, self._send_command_long, self._send_data_stream, position_hz=position_hz,
                                     ask=ask_streams, rtf=lambda: self.rtf.value)
         self.conn: Any = None
-        self.udp: FcuUdpSocket | None = None  # set for UDP links (then conn.mav writes through it)
+        # set for datagram links, UDP or in-process (then conn.mav writes through it)
+        self.udp: FcuUdpSocket | InprocFcuSocket | None = None
         self.fcu_ids: tuple[int, int] | None = None  # (sysid, compid) pinned by the first autopilot heartbeat
         self._next_heartbeat = 0.0
         self._px4_report = False  # within a PX4 arming-check report (its summary event, then its checks)
@@ -273,6 +276,14 @@ class FcuLink:
         """Open the link. A URL that is not one raises ValueError; a link that cannot be opened
         (a udpin port another process holds, a serial device that is not there) raises
         :class:`LinkOpenError`, which names the setting and the link."""
+        name = parse_inproc_url(self.url)
+        if name is not None:  # a pooled virtual UAV's vehicle, in this process: the same datagrams, no socket
+            try:
+                self.udp = InprocFcuSocket(name).open()
+            except OSError as exc:
+                raise LinkOpenError.of("fcu", self.url, "connect to the in-process FCU", exc) from exc
+            self.conn = _UdpConnection(self.udp, self.source_system, self.source_component)
+            return self
         udp = parse_udp_url(self.url)
         if udp is not None:
             mode, host, port = udp
@@ -311,7 +322,7 @@ class FcuLink:
 
     @property
     def local_address(self) -> Addr | None:
-        """Where a UDP link sends from (the virtual FCU's owner address); None for other links."""
+        """Where a datagram link sends from (the virtual FCU's owner address); None for other links."""
         return self.udp.local_address if self.udp is not None else None
 
     @property
@@ -637,9 +648,10 @@ def _frame_ids(msg: Any) -> tuple[int, int]:
 
 
 class _UdpConnection:
-    """What :class:`FcuLink` needs of a pymavlink connection, over :class:`FcuUdpSocket`."""
+    """What :class:`FcuLink` needs of a pymavlink connection, over :class:`FcuUdpSocket` (or its
+    in-process twin)."""
 
-    def __init__(self, sock: FcuUdpSocket, source_system: int, source_component: int):
+    def __init__(self, sock: FcuUdpSocket | InprocFcuSocket, source_system: int, source_component: int):
         self.sock = sock
         self.mav = MAVLink(sock, srcSystem=source_system, srcComponent=source_component)
         self.mav.robust_parsing = True

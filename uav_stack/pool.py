@@ -3,10 +3,13 @@
 Each pooled UAV is still its own UAV: its own agent (the same code as an isolated virtual UAV's
 or a real UAV's companion), its own id, its own credentials and swarm node (so its own keys in
 the key space, under access control), its own vehicle of the virtual FCU with its own MAVLink
-link and, when asked for, its own ground-station endpoint. What the pool shares is the process:
-one interpreter, one virtual FCU stepping every vehicle together (struct of arrays), one loop,
-and Zenoh's runtime threads. A process per UAV costs an interpreter and its imports each (about
-60 MB and a share of a core's wake-ups); a pool pays them once (docs/scale.md).
+link and, when asked for, its own ground-station endpoint. That link carries the same MAVLink
+datagrams as a lone virtual UAV's, through an in-process channel (``inproc:<name>``,
+:mod:`uav_stack.inproc`) rather than a UDP socket pair: the agent's FCU link is the same code.
+What the pool shares is the process: one interpreter, one virtual FCU stepping every vehicle
+together (struct of arrays), one loop, and Zenoh's runtime threads. A process per UAV costs an
+interpreter and its imports each (about 60 MB and a share of a core's wake-ups); a pool pays them
+once (docs/scale.md).
 
 The loop runs every UAV's tick at the same instants, in two halves as aligned ticks do
 (:func:`uav_stack.runtime.run_loop`): the FCU's step and every UAV's sense (FCU in, own pose
@@ -101,7 +104,7 @@ class PooledFcu:
             return
         for f in cut:  # datagrams from the agent are lost on the cut link
             f.dropped_datagrams += len(f.vehicle.link.recv())
-        self.fcu.poll_io(f.vehicle.link.fileno() for f in self.faults if not f.cut)
+        self.fcu.poll_io(vehicles=[f.vehicle for f in self.faults if not f.cut])
 
     def service(self) -> None:
         now = time.time()
@@ -183,7 +186,8 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
     cfgs = list(cfg.uavs)
     period = 1.0 / max(tick_hz_for(c.agent) for c in cfgs)
     # the FCU's 10 Hz positions on the ticks' grid, a hair before each instant (as a UAV process's, aligned)
-    fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S)
+    # every agent is in this process: each vehicle's link an in-process channel, not a socket pair
+    fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S, inproc=True)
     uavs: list[VirtualUav] = []
     shares: dict[str, SharedSession] = {}  # swarm -> the pool's one session for its UAVs of that swarm
     try:

@@ -32,6 +32,7 @@ from uav_stack.agent import Agent
 from uav_stack.cli_args import ArgumentParser
 from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig, fcu_url_problem
 from uav_stack.fcu_link import FcuLink, LinkOpenError
+from uav_stack.inproc import InprocFcuSocket
 from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
 from uav_stack.mavlink_signing import SigningKeyError, read_key_file
 
@@ -390,18 +391,20 @@ def virtual_stream_rates(cfg: VirtualUavConfig) -> dict[str, float]:
     return turned_down(cfg.flavour, wanted)
 
 
-def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None) -> VirtualFcu:
+def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, inproc: bool = False) -> VirtualFcu:
     """One virtual FCU for these virtual UAVs (one vehicle each, stepped together), opened: one
-    UDP socket per vehicle on the loopback. They share its physics rate and target RTF (the
-    first's); its streams are the first's flavour's, with a ground station's view if any has a
-    MAVLink endpoint."""
+    UDP socket per vehicle on the loopback, or with ``inproc`` (a pool: every agent in this
+    process) an in-process channel per vehicle (:mod:`uav_stack.inproc`). They share its physics
+    rate and target RTF (the first's); its streams are the first's flavour's, with a ground
+    station's view if any has a MAVLink endpoint."""
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
     first = cfgs[0]
     rates = virtual_stream_rates(next((c for c in cfgs if c.agent.gcs.mavlink_endpoints), first))
     fcu = VirtualFcu(
         FcuConfig(
-            vehicles=[VehicleConfig(sysid=c.agent.mavlink_sysid, home=c.home, flavour=c.flavour, yaw=c.heading) for c in cfgs],
+            vehicles=[VehicleConfig(sysid=c.agent.mavlink_sysid, home=c.home, flavour=c.flavour, yaw=c.heading, inproc=inproc)
+                      for c in cfgs],
             stream_rates=rates,
             physics_hz=first.physics_hz,
             target_rtf=first.target_rtf,
@@ -432,12 +435,11 @@ class VirtualUav:
 
 def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: StopFlag,
                      tap_zenoh_log: bool = False, shared: SharedSession | None = None) -> VirtualUav:
-    """The agent of the FCU's vehicle ``index``: its FCU link (the vehicle's only client), its
-    swarm node (a member of a pool's ``shared`` session, if given), its faults.
-    :class:`LinkOpenError` if the link cannot open."""
+    """The agent of the FCU's vehicle ``index``: its FCU link (the vehicle's only client: over UDP,
+    or the vehicle's in-process channel), its swarm node (a member of a pool's ``shared`` session,
+    if given), its faults. :class:`LinkOpenError` if the link cannot open."""
     a = cfg.agent
-    host, port = fcu.vehicles[index].link.sock.getsockname()[:2]  # type: ignore[union-attr]
-    link, router = open_fcu_link(a, f"udpout:{host}:{port}", target_system=a.mavlink_sysid)
+    link, router = open_fcu_link(a, fcu.vehicles[index].link.url, target_system=a.mavlink_sysid)
     # the agent is its FCU's only client (ground stations come through its router): nobody
     # else's datagrams reach the FCU, nor churn the agent out of its peers
     assert link.local_address is not None
@@ -451,6 +453,8 @@ def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: S
         raise
     agent = Agent(a, node, link, router=router)
     agent.stats_sources["virtual_fcu"] = fcu.stats.as_dict  # its counters (refused datagrams too) in uav<N>.json
+    if isinstance(link.udp, InprocFcuSocket):  # what the in-process link carried and dropped, each way
+        agent.stats_sources["fcu_inproc"] = link.udp.channel.as_dict
     return VirtualUav(agent, attach_sim_faults(agent, fcu, a.seed * 1_000_003 + a.uav, index))
 
 

@@ -23,6 +23,9 @@ class VehicleConfig:
     params: dict[str, float] = field(default_factory=dict)  # parameter overrides by name (as if saved before boot)
     owner: tuple[str, int] | None = None  # the companion's address: never churned out; None: the first peer heard
     owner_only: bool = False  # answer the owner only (a virtual UAV: ground stations use the agent's router)
+    # the link is an in-process channel (inproc:<name>, uav_stack/inproc.py) instead of a UDP socket on
+    # ``listen``: for a vehicle whose agent runs in the FCU's own process (a pool of virtual UAVs)
+    inproc: bool = False
     # the boot's durations: "short" (ready to arm 1 s after launch) or "firmware" (the firmware's own times,
     # ArduCopter about 42 s); the sequence of states and messages is the firmware's either way (uav_stack/fcu/boot.py)
     boot: str = "short"

@@ -1,4 +1,7 @@
-"""VirtualFcu: a fleet of N virtual vehicles stepped together, one UDP socket per vehicle.
+"""VirtualFcu: a fleet of N virtual vehicles stepped together, one MAVLink link per vehicle.
+
+A vehicle's link is a UDP socket, or, for a vehicle whose agent runs in the FCU's own process (a
+pool of virtual UAVs), an in-process channel (``VehicleConfig.inproc``, :mod:`uav_stack.inproc`).
 
 Single-threaded and non-blocking. A host loop calls ``poll_io()`` when a socket is readable
 and ``service()`` when the deadline it returned has come (``run()`` does this with a
@@ -22,7 +25,7 @@ from uav_stack.fcu.clock import SimClock
 from uav_stack.fcu.config import FcuConfig
 from uav_stack.fcu.dynamics import MultirotorArray
 from uav_stack.fcu.handlers import HANDLERS, Handler, addressed_to
-from uav_stack.fcu.link import UdpLink
+from uav_stack.fcu.link import InprocLink, UdpLink
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.fcu.vehicle import FleetContext, Vehicle
 from uav_stack.rtf import RtfMeter
@@ -75,7 +78,7 @@ class VirtualFcu:
         self.vehicles: list[Vehicle] = []
         self._dirty: list[UdpLink] = []  # links with queued (coalesced) output
         for i, vc in enumerate(config.vehicles):
-            link = UdpLink(
+            link = (InprocLink if vc.inproc else UdpLink)(
                 tuple(vc.listen),  # type: ignore[arg-type]
                 tuple(vc.remotes),
                 config.max_peers,
@@ -98,13 +101,14 @@ class VirtualFcu:
 
     # ----------------------------------------------------------- lifecycle
     def open(self, start: float | None = None) -> list[tuple[str, int]]:
-        """Bind every vehicle's socket; return the bound (host, port) per vehicle.
+        """Bind every vehicle's socket (or open its in-process channel); return the bound (host, port)
+        per vehicle (an in-process one's address, ``("inproc:<name>", 0)``; ``link.url`` is what its agent opens).
 
         ``start``: the time on the FCU's clock (s, at most a step or so before now) from which
         the simulation runs, so that its steps, and the telemetry on every 10 Hz step, fall on a
         grid of the caller's (aligned ticks); default now."""
         if self._opened:
-            return [v.link.sock.getsockname()[:2] for v in self.vehicles]  # type: ignore[union-attr]
+            return [v.link.address for v in self.vehicles]
         addrs: list[tuple[str, int]] = []
         try:
             for v in self.vehicles:
@@ -113,7 +117,7 @@ class VirtualFcu:
             for v in self.vehicles:
                 v.link.close()
             raise
-        self._by_fd = {v.link.fileno(): v for v in self.vehicles}
+        self._by_fd = {v.link.fileno(): v for v in self.vehicles if v.link.fileno() >= 0}
         now = self._wall()
         self.clock.start(now if start is None else min(start, now))
         self._meter.restart()
@@ -128,7 +132,8 @@ class VirtualFcu:
         return addrs
 
     def fds(self) -> list[int]:
-        return [v.link.fileno() for v in self.vehicles]
+        """The sockets' descriptors (an in-process link has none)."""
+        return [fd for fd in (v.link.fileno() for v in self.vehicles) if fd >= 0]
 
     def close(self) -> None:
         self._flush()
@@ -143,12 +148,12 @@ class VirtualFcu:
         self.close()
 
     # ---------------------------------------------------------------- I/O
-    def poll_io(self, ready_fds: Iterable[int] | None = None) -> None:
-        """Read and handle every pending datagram (optionally only on the given fds)."""
-        if ready_fds is None:
-            vehicles: Iterable[Vehicle] = self.vehicles
-        else:
+    def poll_io(self, ready_fds: Iterable[int] | None = None, vehicles: Iterable[Vehicle] | None = None) -> None:
+        """Read and handle every pending datagram (optionally only on the given fds, or of the given vehicles)."""
+        if ready_fds is not None:
             vehicles = [self._by_fd[fd] for fd in ready_fds if fd in self._by_fd]
+        elif vehicles is None:
+            vehicles = self.vehicles
         wall = self._wall()
         if self._opened:
             self._advance(wall)  # handle messages against the state at their arrival
@@ -279,6 +284,9 @@ class VirtualFcu:
 
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> None:
         """Standalone loop: service + select on the sockets until duration/stop."""
+        if any(isinstance(v.link, InprocLink) for v in self.vehicles):  # nothing would wake the loop for them
+            raise RuntimeError("VirtualFcu.run: in-process links have no socket to wait on; the host's loop "
+                               "drives them (poll_io, service)")
         if not self._opened:
             self.open()
         sel = selectors.DefaultSelector()

@@ -10,6 +10,10 @@ ports cannot churn it out of the table (they only replace each other, counted in
 ``peers_evicted``). With ``owner_only`` (a virtual UAV, whose agent is its only client: ground
 stations go through the agent's router) datagrams from anyone else are dropped before they
 are parsed, counted in ``foreign_datagrams``.
+
+:class:`InprocLink` is the same endpoint without a socket, for a vehicle whose agent runs in the
+FCU's process (a pool of virtual UAVs): its datagrams go through an in-process channel
+(:mod:`uav_stack.inproc`), reached as ``inproc:<name>``; peers, owner and coalescing are the same.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import socket
 from dataclasses import dataclass, field
 
 from groundfloor.net import Addr
+from uav_stack import inproc
 from uav_stack.fcu.stats import FcuStats
 from uav_stack.mav import mavlink
 from uav_stack.mavcodec import MAVLink
@@ -58,6 +63,19 @@ class UdpLink:
         self.sock = s
         host, port = s.getsockname()[:2]
         return host, port
+
+    @property
+    def address(self) -> Addr:
+        """Where the vehicle listens (once open)."""
+        assert self.sock is not None
+        host, port = self.sock.getsockname()[:2]
+        return str(host), int(port)
+
+    @property
+    def url(self) -> str:
+        """The FCU connection string an agent reaches this vehicle with (once open)."""
+        host, port = self.address
+        return f"udpout:{host}:{port}"
 
     def fileno(self) -> int:
         return self.sock.fileno() if self.sock is not None else -1
@@ -138,6 +156,62 @@ class UdpLink:
                 s.sendto(buf, addr)
                 ok += 1
             except OSError:  # full buffer, unreachable peer...: drop, like UDP
+                err += 1
+        if self.stats is not None:
+            self.stats.datagrams_out += ok
+            self.stats.send_errors += err
+
+
+@dataclass
+class InprocLink(UdpLink):
+    """A vehicle's endpoint on an in-process channel (``inproc:<name>``) instead of a UDP socket:
+    the one peer it can hear is the channel's other end (its agent). No descriptor (``fileno`` -1):
+    the host's loop polls it (:meth:`VirtualFcu.poll_io`)."""
+
+    name: str = ""  # "" : a name of its own (:func:`uav_stack.inproc.unique_name`)
+    capacity: int = inproc.DEFAULT_CAPACITY
+    channel: inproc.InprocChannel | None = None
+
+    def open(self) -> Addr:
+        if not self.name:
+            self.name = inproc.unique_name("fcu")
+        self.channel = inproc.listen(self.name, self.capacity)
+        return self.channel.listener.address
+
+    @property
+    def address(self) -> Addr:
+        assert self.channel is not None
+        return self.channel.listener.address
+
+    @property
+    def url(self) -> str:
+        assert self.channel is not None
+        return self.channel.url
+
+    def fileno(self) -> int:
+        return -1
+
+    def close(self) -> None:
+        self._pending.clear()
+        self._pending_len = 0
+        if self.channel is not None:
+            self.channel.listener.close()
+            self.channel = None
+
+    def recv(self, max_datagrams: int = 256) -> list[tuple[bytes, Addr]]:
+        ch = self.channel
+        return ch.listener.recvfrom_all(max_datagrams) if ch is not None else []
+
+    def send(self, buf: bytes) -> None:
+        ch = self.channel
+        if ch is None:
+            return
+        ok = err = 0
+        end = ch.listener
+        for addr in self.targets:  # (a static remote or a stale peer is not on the channel: an error, as unreachable)
+            if end.sendto(buf, addr):
+                ok += 1
+            else:
                 err += 1
         if self.stats is not None:
             self.stats.datagrams_out += ok
