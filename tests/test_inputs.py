@@ -117,3 +117,14 @@ def test_a_fleet_too_large_for_the_machine_is_refused_with_the_estimate(tmp_path
                                          "network.mode=peer", "fleet.pool=1"]))
     assert mesh.cores_needed == pytest.approx(500 * 0.04)
     assert check_resources(load_scenario(MINI)) == ""  # four UAVs fit any machine that runs the tests
+
+
+def test_pools_never_span_two_mavlink_shards() -> None:
+    """A pool's virtual FCU gives its vehicles distinct system ids, so a pool holds the UAVs of one
+    shard of 240 (uav_stack/sysid.py): 500 UAVs in pools of 250 fly in pools of 240, 240 and 20,
+    and 1,000 UAVs (the fleet's most) by default in pools of at most 240."""
+    layout = load_scenario(MINI, ["fleet.count=500", "fleet.pool=250"]).pool_layout()
+    assert [(uavs[0], uavs[-1]) for _, uavs in layout] == [(1, 240), (241, 480), (481, 500)]
+    big = load_scenario(MINI, ["fleet.count=1000"]).pool_layout()
+    assert sum(len(uavs) for _, uavs in big) == 1000 and max(len(uavs) for _, uavs in big) <= 240
+    assert all(len({(u - 1) // 240 for u in uavs}) == 1 for _, uavs in big)

@@ -57,8 +57,10 @@ from uav_stack.config import (
 )
 from uav_stack.failsafe import FailsafeConfig
 from uav_stack.geo import GeoPoint, LocalFrame
+from uav_stack.sysid import allocate_sysid
 from world.config import WorldConfig
 
+MAX_FLEET = 1000  # UAVs of one fleet: what pools of virtual UAVs carry on a 2-core machine (docs/scale.md)
 MAX_OFFSET_M = 50_000.0  # every position of a scenario lies within this of the origin (east and north)
 MAX_SCENARIO_BYTES = 1024 * 1024  # a scenario file larger than this is refused unread
 MAX_COVERAGE_CELLS = 1_000_000  # analysis and live coverage grids (memory: mrswarm/results/coverage.py)
@@ -310,7 +312,7 @@ class Spawn(Config, frozen=True):
 
 
 class Fleet(Config, frozen=True):
-    count: Annotated[int, Meta(ge=1, le=500)]
+    count: Annotated[int, Meta(ge=1, le=MAX_FLEET, description="virtual UAVs (pooled above 25 by default: fleet.pool)")]
     first_id: UavId = 1
     spawn: Spawn = field(default_factory=Spawn)
     rtf: Rtf = 1.0
@@ -494,7 +496,6 @@ class Scenario(Config, kw_only=True, frozen=True):
         self._check_pools()
         g = self.gcs
         if g.mavlink:
-            from uav_stack.sysid import allocate_sysid
 
             if g.port is not None and g.port + allocate_sysid(top)[0] > 65535:
                 raise ConfigError("gcs.port", "plus the highest shard is above 65535")
@@ -548,15 +549,16 @@ class Scenario(Config, kw_only=True, frozen=True):
         """The pools of this run, each a swarm and the ids of its virtual UAVs, in the order they
         start (``pool1``, ``pool2``, ...); empty with a process per UAV. A pool holds UAVs of one
         swarm (one shared session, one pool certificate) with one flavour and one RTF (one virtual
-        FCU steps a pool), at most ``fleet.pool`` of them."""
+        FCU steps a pool) and one MAVLink shard (a virtual FCU's vehicles have distinct system ids:
+        uav_stack/sysid.py), at most ``fleet.pool`` of them."""
         size = self.pool_size
         if size == 1:
             return []
-        groups: dict[tuple[str, str, float], list[int]] = {}
+        groups: dict[tuple[str, str, float, int], list[int]] = {}
         for swarm, uavs in [(self.swarm, self.uav_list()), *((o.swarm, o.uav_list()) for o in self.other_swarms)]:
             for u in uavs:
                 if not u.external:
-                    groups.setdefault((swarm, u.flavour, u.rtf), []).append(u.id)
+                    groups.setdefault((swarm, u.flavour, u.rtf, allocate_sysid(u.id)[0]), []).append(u.id)
         return [(key[0], tuple(g[i:i + size])) for key, g in groups.items() for i in range(0, len(g), size)]
 
     def pools(self, configs: list[VirtualUavConfig]) -> list[list[VirtualUavConfig]]:
