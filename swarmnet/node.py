@@ -429,7 +429,11 @@ class SwarmNode:
             t_wall=now if t_wall is None else t_wall,
             x=x, y=y, z=z, vx=vx, vy=vy, vz=vz, yaw=yaw,
         )
-        self._pubs["pose"].put(encode_pose(pose))
+        held = self.shared.held if self.shared is not None else None
+        if held is None:
+            self._pubs["pose"].put(encode_pose(pose))
+        else:  # the pool puts its members' poses back to back (SharedSession.together)
+            held.append((self._pubs["pose"], encode_pose(pose)))
         self.stats.sent["pose"] += 1
         self.own_position = (x, y, z)
         if self.netem is not None:

@@ -116,6 +116,29 @@ def test_a_pools_certificate_speaks_for_its_roster_only(pool: tuple[SharedSessio
     assert {n.uav for n in ctl.node.neighbours} == {1, 2}  # its own UAVs' poses do pass
 
 
+def test_poses_published_together_all_leave_when_it_ends_even_if_a_member_raises(
+        pool: tuple[SharedSession, SwarmNode, SwarmNode, SwarmNode, SwarmObserver]) -> None:
+    share, m1, m2, u3, ctl = pool
+
+    def heard(x1: float, x2: float) -> bool:  # a UAV outside the pool has both members' latest poses
+        u3.poll()
+        n1, n2 = u3.neighbours.get(1), u3.neighbours.get(2)
+        return n1 is not None and n2 is not None and (n1.pose.x, n2.pose.x) == (x1, x2)
+
+    assert wait_for(lambda: (fly([m1, m2, u3], time.time()), heard(10.0, 20.0))[-1], 10.0, 0.1)
+    with pytest.raises(RuntimeError, match="an agent failed"), share.together():
+        for m, x in ((m1, 11.0), (m2, 22.0)):
+            m.publish_pose(t_sim=1.0, x=x, y=0.0, z=10.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+        time.sleep(0.3)
+        assert not heard(11.0, 22.0)  # held inside: none put yet
+        raise RuntimeError("an agent failed")
+    assert share.held is None
+    assert wait_for(lambda: heard(11.0, 22.0), 5.0)  # both put as it ended, each under its own key
+    # outside it, a pose leaves at once as ever
+    m1.publish_pose(t_sim=2.0, x=12.0, y=0.0, z=10.0, vx=0.0, vy=0.0, vz=0.0, yaw=0.0)
+    assert wait_for(lambda: heard(12.0, 22.0), 5.0)
+
+
 def test_a_member_with_a_netem_shim_impairs_its_own_links(pool: tuple[SharedSession, SwarmNode, SwarmNode, SwarmNode,
                                                                       SwarmObserver]) -> None:
     share, m1, m2, u3, ctl = pool
