@@ -429,11 +429,7 @@ class SwarmNode:
             t_wall=now if t_wall is None else t_wall,
             x=x, y=y, z=z, vx=vx, vy=vy, vz=vz, yaw=yaw,
         )
-        held = self.shared.held if self.shared is not None else None
-        if held is None:
-            self._pubs["pose"].put(encode_pose(pose))
-        else:  # the pool puts its members' poses back to back (SharedSession.together)
-            held.append((self._pubs["pose"], encode_pose(pose)))
+        self._put("pose", encode_pose(pose))
         self.stats.sent["pose"] += 1
         self.own_position = (x, y, z)
         if self.netem is not None:
@@ -448,7 +444,7 @@ class SwarmNode:
             mode=mode, armed=armed, battery=battery, voltage=voltage, lat=lat, lon=lon, alt=alt, rtf=rtf,
             transport_ms=transport_ms, use_ms=use_ms,
         )
-        self._pubs["telemetry"].put(encode_telemetry(t))
+        self._put("telemetry", encode_telemetry(t))
         self.stats.sent["telemetry"] += 1
 
     def publish_state(self, phase: str, behaviour: str, override: str = "", detail: str = "") -> None:
@@ -456,8 +452,17 @@ class SwarmNode:
             uav=self.identity.uav, realm=self.identity.realm, seq=self._next("state", 1 << 32), t_wall=self.clock(),
             phase=phase, behaviour=behaviour, override=override, detail=detail,
         )
-        self._pubs["state"].put(encode_state(st))
+        self._put("state", encode_state(st))
         self.stats.sent["state"] += 1
+
+    def _put(self, kind: str, payload: bytes) -> None:
+        """Put on this node's publisher of ``kind``: now, or inside a pool's
+        :meth:`~swarmnet.shared_session.SharedSession.together` back to back with its pool-mates' puts."""
+        held = self.shared.held if self.shared is not None else None
+        if held is None:
+            self._pubs[kind].put(payload)
+        else:
+            held.append((self._pubs[kind], payload))
 
     def send(self, topic: str, body: Any, to: int | None = None) -> None:
         """Send a swarm message: to one UAV (unicast) or, with ``to=None``, to the whole swarm."""

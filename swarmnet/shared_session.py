@@ -218,7 +218,7 @@ class SharedSession:
         self._alive_inlet: Inlet | None = None
         self._subscribers: list[Any] = []
         self._links: LinkWatch | None = None
-        self.held: list[tuple[Any, bytes]] | None = None  # inside together(): (publisher, pose) not put yet
+        self.held: list[tuple[Any, bytes]] | None = None  # inside together(): (publisher, payload) not put yet
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> SharedSession:
@@ -307,16 +307,16 @@ class SharedSession:
     # ---- sending --------------------------------------------------------------------------------
     @contextlib.contextmanager
     def together(self) -> Iterator[None]:
-        """The poses the members publish inside leave back to back as it ends, in their order.
+        """The poses, telemetry and states the members publish inside leave back to back as it
+        ends, in their order.
 
         A pool publishes one pose per member and tick, each between two members' other work (their
         FCU's messages, their control). Put one at a time like that, every put runs Zenoh's send
         path with the CPU's caches cold and wakes Zenoh's transmit thread for a message of its own:
         several times the CPU of the same puts back to back, and more than access control, TLS,
         Zenoh's runtime or the publishers' options change (docs/scale.md). For a pool's loop, around
-        the half tick in which every member publishes (its neighbours take the poses in at their act,
-        after it). A member that raises inside does not keep the others' poses in. Nested: the outer
-        one puts.
+        a few members' turn at a time (a pose then waits for at most their work). A member that
+        raises inside does not keep the others' puts in. Nested: the outer one puts.
         """
         if self.held is not None:
             yield
@@ -331,7 +331,7 @@ class SharedSession:
                 try:
                     pub.put(payload)
                 except zenoh.ZError as exc:  # (a member closed meanwhile: its publisher is gone)
-                    log.debug("a held pose not put: %s", exc)
+                    log.debug("a held put not made: %s", exc)
 
     # ---- receiving ------------------------------------------------------------------------------
     def pump(self, now: float | None = None, budget: int = DRAIN_BUDGET) -> int:
