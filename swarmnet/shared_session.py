@@ -366,10 +366,11 @@ class SharedSession:
     def _credit_near(self, srcs: list[int], ages: list[float], handed: list[tuple[Pose, float]] | None) -> None:
         """The poses the pool's near feed brought (``srcs``, each just taken into the table): each
         counts as received by the members within the interest radius plus its margin of its
-        sender, as the edge would have sent it to each of them alone (a pair within the margin
-        only, not yet within the radius, counts though the edge sent it for another member), and
-        its age and decoded pose go to those members only. Member positions are their own latest
-        published poses; a member that has published none yet is near nobody."""
+        sender, as the edge would have sent it to each of them alone, and its age and decoded pose
+        go to those members only. (A member between the radius and the margin that never came
+        within the radius counts too, though the edge sent the pose for a pool-mate: a slight
+        overcount.) Member positions are their own latest published poses; a member that has
+        published none yet is near nobody."""
         nodes = [node for node in self.members.values() if node.near_feed]
         if not nodes or not srcs:
             return
