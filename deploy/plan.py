@@ -3,7 +3,8 @@
 A :class:`NetworkPlan` is made once from the typed scenario (``Scenario.network_plan`` in the
 runner; ``deploy`` never reads a scenario): the swarms of the airspace with their credentials
 and discovery keys, the topology (connectivity, Zenoh mode, pose feed), the edge feed's window
-and spatial interest, the discovery service's timing. :attr:`NetworkPlan.services` is the one
+and spatial interest (with the pools of virtual UAVs that share one session each, so that the
+edge sends each pool one near batch), the discovery service's timing. :attr:`NetworkPlan.services` is the one
 place that decides which services run: the discovery server (connectivity ``discovery``) and one
 edge router per swarm (``router``, then ``router-<swarm>``), each with its identity.
 
@@ -31,11 +32,11 @@ from typing import Literal, Protocol
 from discovery.netutil import free_port
 from discovery.options import DiscoveryServerOptions, DiscoveryService, FeedOptions, ProxyOptions, RouterOptions
 from groundfloor.net import Addr
-from swarmnet.interest import Interest
+from swarmnet.interest import Interest, PoolMembers
 from swarmnet.keyspace import check_swarm
 from swarmnet.security.credentials import Credentials
 from swarmnet.security.identity import NodeName
-from uav_stack.config import NetworkConfig, PoseFeed, ZenohMode
+from uav_stack.config import NetworkConfig, PoseFeed, ZenohMode, pool_shares_session
 
 ROUTER_PORT = 7447  # Zenoh's registered port
 UAV_PORT = 7447  # each UAV container listens on its own IP
@@ -239,6 +240,9 @@ class NetworkPlan:
     interest: Interest | None = None  # spatial interest of every edge feed (docs/scale.md)
     discovery: DiscoveryService = field(default_factory=DiscoveryService)  # its beacon period and TTL (keys: per swarm)
     lease_s: float = 3.0  # a node silent this long is gone
+    # swarm -> its pools of virtual UAVs (process runtime, fleet.pool): with spatial interest on a
+    # connectivity where a pool shares one session, its edge sends each pool one near batch
+    pools: Mapping[str, tuple[PoolMembers, ...]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         names = [s.name for s in self.swarms]
@@ -259,6 +263,12 @@ class NetworkPlan:
                 return s
         raise KeyError(name)
 
+    @property
+    def grouped_near(self) -> bool:
+        """The edge sends each pool of virtual UAVs one near batch: with spatial interest, where
+        a pool's UAVs share its one session (every connectivity but discovery)."""
+        return self.interest is not None and pool_shares_session(self.connectivity)
+
     def router_name(self, swarm: str) -> str:
         """``router`` for the plan's first swarm, ``router-<swarm>`` for every other."""
         return "router" if swarm == self.swarms[0].name else f"router-{swarm}"
@@ -273,7 +283,8 @@ class NetworkPlan:
             out.append(Service("discovery", "discovery", first.name, DISCOVERY_PORT, "udp",
                                NodeName("edge", 0, first.name) if first.keys is not None else None))
         for s in self.swarms:
-            feed = FeedOptions(swarm=s.name, window_s=self.feed_window_s, interest=self.interest) \
+            feed = FeedOptions(swarm=s.name, window_s=self.feed_window_s, interest=self.interest,
+                               pools=self.pools.get(s.name, ()) if self.grouped_near else ()) \
                 if self.pose_feed == "edge" else None
             out.append(Service(self.router_name(s.name), "router", s.name, ROUTER_PORT, "tcp",
                                NodeName("edge", 0, s.name) if s.keys is not None else None, feed))

@@ -8,8 +8,9 @@
 * the services' own options, each writing its command line (:meth:`argv`) for every runtime
   (``deploy/plan.py`` places them): :class:`RouterOptions` (``mrswarm router``,
   discovery/rendezvous.py) with its :class:`FeedOptions` (the edge pose feed: window, spatial
-  interest), and :class:`DiscoveryServerOptions` (discovery/server.py). Durations are seconds
-  here; an ``argv`` converts to a flag's unit (``--feed-window-ms``), the one place that does.
+  interest, the pools of virtual UAVs each sent one near batch), and
+  :class:`DiscoveryServerOptions` (discovery/server.py). Durations are seconds here; an
+  ``argv`` converts to a flag's unit (``--feed-window-ms``), the one place that does.
 
 Light imports only (msgspec, no zenoh): a scenario or a UAV config names these types.
 """
@@ -23,7 +24,7 @@ from msgspec import Meta, field
 
 from discovery.protocol import DEFAULT_PERIOD, MIN_KEY_LEN
 from groundfloor.schema import Config, ConfigError
-from swarmnet.interest import Interest
+from swarmnet.interest import Interest, PoolMembers, pool_groups
 
 Key = Annotated[str, Meta(min_length=MIN_KEY_LEN, description="a swarm's discovery key (`mrswarm discovery keygen`)")]
 ServerAddress = Annotated[str, Meta(pattern=r"^\S+$", min_length=1, max_length=300, description="HOST:PORT (or HOST)")]
@@ -73,11 +74,18 @@ class ProxyOptions(Config, frozen=True):
 
 
 class FeedOptions(Config, frozen=True):
-    """The edge router's pose feed (swarmnet/feed.py) for one swarm: its batch window and spatial interest."""
+    """The edge router's pose feed (swarmnet/feed.py) for one swarm: its batch window, spatial interest,
+    and with it the pools of virtual UAVs of the run, each sent one near batch for all its UAVs."""
 
     swarm: str  # the swarm whose poses it batches ('*': every swarm)
     window_s: Annotated[float, Meta(ge=0.0, le=1.0)] | None = None  # s a pose may wait for others (None: the router's default)
     interest: Interest | None = None  # spatial interest (docs/scale.md); None: every pose to every UAV
+    pools: tuple[PoolMembers, ...] = ()  # the pools sharing one session (uav_stack/pool.py); with interest only
+
+    def __post_init__(self) -> None:
+        if self.pools and self.interest is None:
+            raise ConfigError("pools", "group the near feed of spatial interest: they need an interest")
+        pool_groups(self.pools)
 
     def argv(self) -> list[str]:
         argv = ["--feed", self.swarm]
@@ -85,7 +93,7 @@ class FeedOptions(Config, frozen=True):
             argv += ["--feed-window-ms", f"{self.window_s * 1000.0:g}"]
         if self.interest is not None:
             argv += self.interest.argv()
-        return argv
+        return argv + [a for p in self.pools for a in ("--pool", p.arg())]
 
 
 class RouterOptions(Config, frozen=True):

@@ -8,7 +8,9 @@ route all data through it instead.
 
 With ``--feed SWARM`` it also runs the edge pose feed for that swarm (swarmnet/feed.py):
 the poses that arrive within a short window (``--feed-window-ms``, 3 ms by default; 0 forwards
-at once) leave as one batch, instead of a message per neighbour.
+at once) leave as one batch, instead of a message per neighbour. With spatial interest
+(``--interest-radius-m``), ``--pool pool-<n>=<ids>`` names the UAVs a pool of virtual UAVs hosts
+(repeatable; the runner gives its layout): each pool gets one near batch for all of them.
 
 With ``--keys DIR`` (the swarm's key directory, or the router's bundle of it) every link is
 mutual TLS and the router enforces the swarm's access control on what enters and what leaves
@@ -28,6 +30,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +41,7 @@ from groundfloor.process import say, stop_event
 from groundfloor.schema import ConfigError, convert
 from swarmnet.connectivity import TransportTuning, secured
 from swarmnet.feed import DEFAULT_WINDOW, PoseFeed
-from swarmnet.interest import Interest
+from swarmnet.interest import Interest, PoolMembers, pool_groups
 from swarmnet.security.credentials import Credentials
 from swarmnet.stats import NodeStats
 
@@ -98,7 +101,8 @@ class StatsFile:
 def serve(listen: list[str], stop: threading.Event, duration: float | None = None,
           feed_swarms: list[str] | None = None, feed_window: float = DEFAULT_WINDOW,
           credentials: Credentials | None = None, stats: NodeStats | None = None, stats_file: Path | None = None,
-          interest: Interest | None = None, connect: list[str] | None = None) -> None:
+          interest: Interest | None = None, connect: list[str] | None = None,
+          pools: Sequence[PoolMembers] = ()) -> None:
     """Run the router until ``stop`` is set (or ``duration`` s); ``stats`` receives its refusals."""
     stats = stats if stats is not None else NodeStats()
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(router_config(listen, credentials=credentials, connect=connect))))
@@ -110,14 +114,15 @@ def serve(listen: list[str], stop: threading.Event, duration: float | None = Non
               + (f" as {credentials.identity} (mutual TLS, access control)" if credentials else " (plain TCP, no access control)")
               + (f", pose feed for {', '.join(feed_swarms)} (window {feed_window * 1000:g} ms)" if feed_swarms else "")
               + (f", interest radius {interest.radius_m:g} m (+{interest.margin_m:g}), far {interest.far_rate_hz:g} Hz"
-                 if feed_swarms and interest else ""))
+                 if feed_swarms and interest else "")
+              + (f", {len(pools)} pools of virtual UAVs ({sum(len(p.uavs) for p in pools)} UAVs)" if pools else ""))
         if credentials is not None:
             from swarmnet.security.acl import member_names
             from swarmnet.security.links import LinkWatch
 
             links = LinkWatch(session, member_names(credentials.roster()), stats)
         # the feed runs in threads of its own (swarmnet/feed.py); this loop only watches
-        feed = PoseFeed(session, feed_swarms, feed_window, interest=interest).start() if feed_swarms else None
+        feed = PoseFeed(session, feed_swarms, feed_window, interest=interest, pools=pools).start() if feed_swarms else None
         end = time.monotonic() + duration if duration is not None else float("inf")
         next_stats = 0.0
         out = StatsFile(stats_file) if stats_file is not None else None
@@ -155,6 +160,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="with --interest-radius-m: a neighbour stays at full rate until this much farther")
     ap.add_argument("--interest-far-hz", type=float, default=1.0, metavar="HZ",
                     help="with --interest-radius-m: every UAV's pose to the whole swarm at this rate (0: never)")
+    ap.add_argument("--pool", action="append", default=[], metavar="pool-N=IDS",
+                    help="with --interest-radius-m: the UAVs pool N hosts (e.g. pool-1=1-50,52), sent one near batch "
+                         "for all of them on feed/near/pool-N (repeatable)")
     ap.add_argument("--keys", default=None, metavar="DIR",
                     help="the swarm's key directory (mrswarm keys init), or the router's bundle: mutual TLS and access control")
     ap.add_argument("--identity", default=None, help="certificate to speak as (default: edge.<swarm of --keys>)")
@@ -176,6 +184,15 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--interest: {exc}")
         if not args.feed:
             ap.error("--interest-radius-m filters the pose feed: give --feed SWARM too")
+    pools: list[PoolMembers] = []
+    if args.pool:
+        if interest is None:
+            ap.error("--pool groups the near feed of spatial interest: give --interest-radius-m too")
+        try:
+            pools = [PoolMembers.parse(text) for text in args.pool]
+            pool_groups(pools)
+        except ConfigError as exc:
+            ap.error(f"--pool: {exc}")
     stop = stop_event()
     stats = NodeStats()
     credentials = None
@@ -192,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         print("WARNING: plain TCP without access control: anyone who reaches this router can command the swarm "
               "(docs/security.md)", file=sys.stderr, flush=True)
     serve(args.listen or ["tcp/127.0.0.1:7447"], stop, args.duration, args.feed, args.feed_window_ms / 1000.0, credentials,
-          stats, Path(args.stats) if args.stats else None, interest, args.connect)
+          stats, Path(args.stats) if args.stats else None, interest, args.connect, pools)
     return 0
 
 

@@ -35,6 +35,10 @@ that UAV) and measure its transport age exactly as for a direct pose.
 the UAVs within the interest radius of its sender, each on its own key
 ``mrs/<swarm>/feed/near/<uav>``, and to the whole swarm on the shared key once every
 ``1 / far_rate_hz`` s. A UAV's download then grows with the UAVs around it, not with N.
+The UAVs of a pool (``pools``: one process, one Zenoh session, uav_stack/pool.py) get one batch
+for the pool instead, on ``mrs/<swarm>/feed/near/pool-<n>``: every sender near any of them,
+each once. A pool of K UAVs then costs the edge one put per flush instead of K, and its session
+one batch to decode, with no sender's pose in it twice.
 """
 
 from __future__ import annotations
@@ -43,12 +47,12 @@ import itertools
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import zenoh
 
-from swarmnet.interest import Interest, NearFilter
+from swarmnet.interest import Interest, NearFilter, PoolMembers, pool_groups
 from swarmnet.keyspace import ROOT, SwarmKeys, swarm_from_key
 from swarmnet.messages import PoseBatch, Rejected, accept_pose, encode_pose_batch
 from swarmnet.receive import DRAIN_BUDGET
@@ -62,20 +66,26 @@ class PoseFeed:
     """Aggregates poses of the given swarms (``["*"]``: every swarm) on an open session.
 
     ``window``: seconds from the first pose of a batch to its departure (0: forward at once).
-    ``interest``: spatial interest (None: every pose to every UAV).
+    ``interest``: spatial interest (None: every pose to every UAV); ``pools``: with it, the pools of
+    virtual UAVs, each sent one near batch for all its UAVs (their UAV ids are the same in every
+    swarm the feed serves: a run's ids differ across swarms).
     :meth:`start` runs one worker thread per swarm subscription; :meth:`close` ends them.
     """
 
     def __init__(self, session: zenoh.Session, swarms: Iterable[str] = ("*",), window: float = DEFAULT_WINDOW,
-                 clock: Callable[[], float] = time.time, interest: Interest | None = None):
+                 clock: Callable[[], float] = time.time, interest: Interest | None = None,
+                 pools: Sequence[PoolMembers] = ()):
         if not 0.0 <= window <= MAX_WINDOW:
             raise ValueError(f"window must be in 0..{MAX_WINDOW} s, got {window}")
+        if pools and interest is None:
+            raise ValueError("pools group the near feed of spatial interest: give an interest too")
         self.session = session
         self.window = window
         self.clock = clock
         self.interest = interest
+        self._groups = pool_groups(pools)  # UAV -> its pool's near feed (pool-<n>)
         self._filters: dict[str, NearFilter] = {}  # per swarm; each touched by the one worker of its subscription
-        self._pubs: dict[tuple[str, int], Any] = {}
+        self._pubs: dict[tuple[str, int | str], Any] = {}
         self.stats = NodeStats()
         self.batches: Counter[str] = Counter()
         self._seq = itertools.count()
@@ -129,7 +139,7 @@ class PoseFeed:
         if self.interest is not None:
             near = self._filters.get(swarm)
             if near is None:
-                near = self._filters[swarm] = NearFilter(self.interest)
+                near = self._filters[swarm] = NearFilter(self.interest, self._groups)
             near.seen(pose.uav, pose.x, pose.y, self.clock())
 
     def _flush(self, latest: dict[str, dict[int, bytes]]) -> int:
@@ -150,21 +160,22 @@ class PoseFeed:
 
     def _flush_near(self, swarm: str, poses: dict[int, bytes], now: float) -> int:
         """Spatial interest: the senders due on the shared feed in one batch there, and to each
-        UAV near the others a batch of those on its own key; return how many poses left."""
+        UAV near the others a batch of those on its own key (to each pool one batch, on the
+        pool's key); return how many poses left."""
         far, near = self._filters[swarm].split(list(poses), now)
         keys = SwarmKeys(swarm)
         if far:
             self._put(swarm, keys.pose_feed, far, [poses[s] for s in far], now)
         near_poses = 0
-        for uav, senders in near.items():
-            self._put(swarm, keys.near_feed(uav), senders, [poses[s] for s in senders], now, uav)
+        for to, senders in near.items():
+            self._put(swarm, keys.near_feed(to), senders, [poses[s] for s in senders], now, to)
             near_poses += len(senders)
         with self._lock:
             self.stats.sent["near_pose"] += near_poses
         return len(far) + near_poses
 
-    def _put(self, swarm: str, key: str, senders: list[int], payloads: list[bytes], now: float, to: int = 0) -> None:
-        """One batch on ``key`` (``to``: the UAV of a near feed key, 0: the swarm's shared feed)."""
+    def _put(self, swarm: str, key: str, senders: list[int], payloads: list[bytes], now: float, to: int | str = 0) -> None:
+        """One batch on ``key`` (``to``: the UAV or pool of a near feed key, 0: the swarm's shared feed)."""
         with self._lock:
             pub = self._pubs.get((swarm, to))
             if pub is None:

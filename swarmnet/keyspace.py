@@ -93,6 +93,11 @@ class SwarmKeys:
         """Batches of the poses within UAV ``uav``'s interest radius, for it only (swarmnet/interest.py)."""
         return f"{self.prefix}/feed/near/{uav}"
 
+    def pool_near_feed(self, pool: int) -> str:
+        """Batches of the poses within the interest radius of any UAV of pool ``pool`` (a process of
+        virtual UAVs on one session), each pose once, for that pool only (swarmnet/interest.py)."""
+        return self.near_feed(f"pool-{pool}")
+
     @property
     def netem_set(self) -> str:
         """Runtime changes of the netem shim's configuration (see swarmnet/netem/control.py)."""

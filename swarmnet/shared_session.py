@@ -6,9 +6,10 @@ token, its commands, faults, unicasts and netem changes. What they share is this
 that the pool has one link to its router instead of K, and the poses that reach the pool:
 
 * **one pose stream for the pool.** The swarm's poses (direct, or the edge feed's batches, and
-  each member's near feed with spatial interest) arrive once, are decoded once (the compiled
-  intake where it can) into one :class:`~swarmnet.neighbours.NeighbourTable` holding every UAV
-  the pool hears, its own members included. A member sees that table through a
+  with spatial interest the pool's one near feed ``mrs/<swarm>/feed/near/pool-<n>``: every
+  sender near any member, each once) arrive once, are decoded once (the compiled intake where
+  it can) into one :class:`~swarmnet.neighbours.NeighbourTable` holding every UAV the pool
+  hears, its own members included. A member sees that table through a
   :class:`NeighbourView` without itself. A member with a netem shim of its own (docs/netem.md)
   keeps a table of its own instead, and the pool hands it each decoded pose to impair.
 * **one liveliness view**: who is alive, kept once for every member.
@@ -35,6 +36,7 @@ import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
 from swarmnet.intake import PoseIntake
+from swarmnet.interest import Interest
 from swarmnet.keyspace import SwarmKeys
 from swarmnet.messages import Pose, Rejected, accept_pose, accept_pose_batch
 from swarmnet.neighbours import Neighbour, NeighbourTable
@@ -189,13 +191,14 @@ class SharedSession:
     """The one Zenoh session of a pool, shared by its members' :class:`~swarmnet.node.SwarmNode`.
 
     Open it, then open each member with ``SwarmNode(..., shared=this)``; close the members, then
-    this. Not thread-safe: the pool's loop is its one owner. ``pose_feed``, ``stale_after`` and
-    ``forget_after`` are the members' (every member of a pool has the same).
+    this. Not thread-safe: the pool's loop is its one owner. ``pose_feed``, ``stale_after``,
+    ``forget_after`` and ``interest`` are the members' (every member of a pool has the same);
+    ``number`` is the pool's (``pool-<number>``: its identity and its near feed).
     """
 
     def __init__(self, swarm: str, connectivity: Connectivity, *, pose_feed: str = "direct", stale_after: float = 1.0,
                  forget_after: float = 10.0, ring_size: int = 1024, clock: Callable[[], float] = time.time,
-                 name: str = "pool"):
+                 name: str = "pool", number: int | None = None, interest: Interest | None = None):
         if pose_feed not in ("direct", "edge"):
             raise ValueError(f"pose_feed must be 'direct' or 'edge', not {pose_feed!r}")
         self.keys = SwarmKeys(swarm)
@@ -204,6 +207,8 @@ class SharedSession:
         self.ring_size = ring_size
         self.clock = clock
         self.name = name
+        self.number = number
+        self.interest = interest
         self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
         self.positions = Positions()  # where each of them is, for the members' queries (NeighbourView.around)
         self.intake = PoseIntake(self.neighbours)
@@ -214,7 +219,8 @@ class SharedSession:
         self.members: dict[int, SwarmNode] = {}
         self.impaired: list[SwarmNode] = []  # members with a table of their own (a netem shim): handed each pose
         self.session: zenoh.Session | None = None
-        self._pose_inlets: list[tuple[bool, int | None, Inlet]] = []  # (a feed of batches, its member or None: all, inlet)
+        # (a feed of batches, the pool's near feed (its poses for the members near their senders) or for all, inlet)
+        self._pose_inlets: list[tuple[bool, bool, Inlet]] = []
         self._alive_inlet: Inlet | None = None
         self._subscribers: list[Any] = []
         self._links: LinkWatch | None = None
@@ -246,16 +252,20 @@ class SharedSession:
             raise
         return self
 
-    def _pose_inlet(self, key: str, batches: bool, size: int, member: int | None = None) -> None:
+    def _pose_inlet(self, key: str, batches: bool, size: int, near: bool = False) -> None:
         assert self.session is not None
         inlet = Inlet(size, None, self.clock, "thread")
         self._subscribers.append(subscribe(self.session, key, inlet))
-        self._pose_inlets.append((batches, member, inlet))
+        self._pose_inlets.append((batches, near, inlet))
 
     def add_near_feed(self, uav: int) -> None:
-        """Spatial interest: member ``uav``'s near feed too (its neighbours' poses at the full rate),
-        into the pool's table like every other batch."""
-        self._pose_inlet(self.keys.near_feed(uav), batches=True, size=256, member=uav)
+        """Spatial interest: member ``uav`` takes the near feed. The pool subscribes once, to its own
+        ``mrs/<swarm>/feed/near/pool-<n>`` (the edge sends it one batch per flush for all its
+        members, each sender once), into the pool's table like every other batch."""
+        if self.number is None or self.interest is None:
+            raise ValueError(f"{self.name}: a near feed needs the pool's number and the members' interest")
+        if not any(near for _, near, _ in self._pose_inlets):
+            self._pose_inlet(self.keys.pool_near_feed(self.number), batches=True, size=256, near=True)
 
     def close(self) -> None:
         if self.session is None:
@@ -340,14 +350,14 @@ class SharedSession:
         changes, the links of outsiders. Every member's poll pumps first; the first finds what
         is new, the rest find nothing. Returns how many poses were taken in.
 
-        A pose on the swarm's stream counts as received by every member; one on a member's near
-        feed (spatial interest) by that member only, as it would have counted in a process of its
-        own (and only that member's netem shim is handed it)."""
+        A pose on the swarm's stream counts as received by every member; one on the pool's near
+        feed (spatial interest) by the members near its sender only (:meth:`_credit_near`), as it
+        would have counted in a process of its own (and only their netem shims are handed it)."""
         if self.session is None:
             return 0
         now = self.clock() if now is None else now
         total = 0
-        for batches, member, inlet in self._pose_inlets:
+        for batches, near, inlet in self._pose_inlets:
             handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
             srcs: list[int] = []
             ages: list[float] = []
@@ -360,7 +370,10 @@ class SharedSession:
                     n += self._take_pose(str(sample.key_expr), payload, at, srcs, ages, handed)
             if n:
                 total += n
-                self._credit(member, n, srcs, ages, handed)
+                if near:
+                    self._credit_near(srcs, ages, handed)
+                else:
+                    self._credit(n, srcs, ages, handed)
                 self.positions.moved(self.neighbours, srcs)
         if total:
             self.stats.received["pose"] += total
@@ -370,22 +383,47 @@ class SharedSession:
         self.positions.forget(self.neighbours.expire(now))
         return total
 
-    def _credit(self, member: int | None, n: int, srcs: list[int], ages: list[float],
-                handed: list[tuple[Pose, float]] | None) -> None:
-        """Count ``n`` poses as received by ``member`` (None: every member; each leaves its own
-        pose out as it files the ages), and hand the decoded ones to its netem shim."""
-        if member is None:
-            nodes = list(self.members.values())
-        else:
-            node = self.members.get(member)
-            nodes = [node] if node is not None else []
-        for node in nodes:
+    def _credit(self, n: int, srcs: list[int], ages: list[float], handed: list[tuple[Pose, float]] | None) -> None:
+        """Count ``n`` poses as received by every member (each leaves its own pose out as it files
+        the ages), and hand the decoded ones to the netem shims."""
+        for node in self.members.values():
             node.stats.received["pose"] += n
             if node in self.impaired:
                 if handed:
                     node.hand(handed)
             else:
                 node.stats.ages.arrived_many(srcs, ages)
+
+    def _credit_near(self, srcs: list[int], ages: list[float], handed: list[tuple[Pose, float]] | None) -> None:
+        """The poses the pool's near feed brought (``srcs``, each just taken into the table): each
+        counts as received by the members within the interest radius plus its margin of its
+        sender, as the edge would have sent it to each of them alone, and its age and decoded pose
+        go to those members only. (A member between the radius and the margin that never came
+        within the radius counts too, though the edge sent the pose for a pool-mate: a slight
+        overcount.) Member positions are their own latest published poses; a member that has
+        published none yet is near nobody."""
+        nodes = [node for node in self.members.values() if node.near_feed]
+        if not nodes or not srcs:
+            return
+        assert self.interest is not None  # (add_near_feed checked it)
+        reach = self.interest.radius_m + self.interest.margin_m
+        entries = self.neighbours._table  # noqa: SLF001 - the pool's own table; every sender in srcs is in it
+        senders = np.array([(entries[u].pose.x, entries[u].pose.y) for u in srcs])
+        at = np.array([node.own_position[:2] if node.own_position is not None else (np.nan, np.nan) for node in nodes])
+        d = senders[:, None, :] - at[None, :, :]  # senders x members
+        near = np.einsum("ijk,ijk->ij", d, d) <= reach * reach
+        near &= np.array(srcs)[:, None] != np.array([node.identity.uav for node in nodes])[None, :]  # not its own
+        counts = near.sum(axis=0).tolist()
+        for j, node in enumerate(nodes):
+            if not counts[j]:
+                continue
+            node.stats.received["pose"] += counts[j]
+            rows = np.flatnonzero(near[:, j]).tolist()
+            if node in self.impaired:
+                if handed:
+                    node.hand([handed[i] for i in rows])
+            else:
+                node.stats.ages.arrived_many([srcs[i] for i in rows], [ages[i] for i in rows])
 
     def _take_batch(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
                     handed: list[tuple[Pose, float]] | None) -> int:

@@ -170,3 +170,24 @@ def test_a_plan_refuses_what_no_runtime_can_run() -> None:
     scn = load_scenario(COVERAGE)
     with pytest.raises(ValueError, match="its own swarm, alpha"):
         scn.network_plan({})
+
+
+def test_the_edge_is_told_the_pools_where_they_share_a_session_with_spatial_interest(tmp_path: Path) -> None:
+    """``fleet.pool``: the router's feed gets each pool's UAVs (``--pool pool-<n>=<ids>``, numbered as
+    the pools' certificates), so that it sends each pool one near batch; not without interest (no near
+    feed), not with discovery (each pooled UAV keeps a session of its own there)."""
+    pooled = ["fleet.count=5", "fleet.pool=2", "network.pose_feed=edge", "network.interest={radius_m: 30}"]
+    scn = load_scenario(COVERAGE, [*pooled, "network.connectivity=rendezvous", "network.mode=client"])
+    assert scn.pool_layout() == [("alpha", (1, 2)), ("alpha", (3, 4)), ("alpha", (5,))]
+    plan = scn.network_plan({"alpha": None})
+    router = plan.place(LocalSite(tmp_path)).service("router")
+    assert isinstance(router.options, RouterOptions) and router.options.feed is not None
+    assert [p.name for p in router.options.feed.pools] == ["pool-1", "pool-2", "pool-3"]
+    argv = router.argv()
+    assert [argv[i + 1] for i, a in enumerate(argv) if a == "--pool"] == ["pool-1=1-2", "pool-2=3-4", "pool-3=5"]
+    assert "--pool" not in load_scenario(COVERAGE, [*pooled, "network.connectivity=discovery", "network.mode=peer",
+                                                    f"network.discovery.key={KEY}"]).network_plan(
+        {"alpha": None}).place(CONTAINERS).service("router").argv()  # discovery: a session per UAV
+    no_interest = load_scenario(COVERAGE, ["fleet.count=5", "fleet.pool=2", "network.pose_feed=edge",
+                                           "network.connectivity=rendezvous"]).network_plan({"alpha": None})
+    assert "--pool" not in no_interest.place(CONTAINERS).service("router").argv()

@@ -10,13 +10,16 @@ from __future__ import annotations
 import json
 import random
 import time
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from groundfloor.schema import ConfigError
 from swarmnet.connectivity import Rendezvous
+from swarmnet.interest import Interest
 from swarmnet.messages import Command, Pose, Realm, decode_pose, encode_command
 from swarmnet.neighbours import NeighbourTable
 from swarmnet.node import NodeIdentity, SwarmNode
@@ -232,3 +235,43 @@ def test_a_runs_own_key_directory_needs_its_pools_certificates(tmp_path: Path) -
     assert check_keys(d, SWARM, names, {1: (1, 2)}) == d.resolve()
     with pytest.raises(KeysError, match="pool-1 speaking for UAVs 1,2,3"):  # a larger pool than the certificate's
         check_keys(d, SWARM, names, {1: (1, 2, 3)})
+
+
+class _Member:
+    """What the pool's near-feed credit reads of a member and writes to it."""
+
+    def __init__(self, uav: int, at: tuple[float, float] | None) -> None:
+        self.identity = SimpleNamespace(uav=uav)
+        self.near_feed = True
+        self.own_position = None if at is None else (*at, 10.0)
+        self.filed: list[tuple[int, float]] = []
+        self.handed: list[tuple[Pose, float]] = []
+        self.stats = SimpleNamespace(received=Counter(), ages=SimpleNamespace(
+            arrived_many=lambda srcs, ages: self.filed.extend(zip(srcs, ages, strict=True))))
+
+    def hand(self, poses: list[tuple[Pose, float]]) -> None:
+        self.handed += poses
+
+
+def test_a_pose_of_the_pools_near_batch_counts_for_the_members_within_reach_of_its_sender() -> None:
+    """Radius 20 m + margin 5: members at x = 0 (1), 22 (2, within the margin of x = 0), 100 (3,
+    with a netem shim) and one that has not flown yet (4). Each is credited the senders within
+    25 m of it, never its own pose; the one with a shim is handed those poses, no ages."""
+    share = SharedSession(SWARM, Rendezvous(("tcp/127.0.0.1:9",), mode="client"), pose_feed="edge", number=1,
+                          interest=Interest(radius_m=20.0, margin_m=5.0))
+    members = {1: _Member(1, (0.0, 0.0)), 2: _Member(2, (22.0, 0.0)), 3: _Member(3, (100.0, 0.0)), 4: _Member(4, None)}
+    share.members.update(members)  # type: ignore[arg-type]
+    share.impaired.append(members[3])  # type: ignore[arg-type]
+    at = time.time()
+    where = {1: 0.0, 2: 22.0, 7: 3.0, 8: 90.0, 9: 300.0}  # 7 near 1 and 2, 8 near 3 only, 9 near nobody
+    srcs, ages, handed = list(where), [0.001 * u for u in where], []
+    for u, x in where.items():
+        p = Pose(u, Realm.VIRTUAL, 1, 0.0, at - 0.001 * u, x, 0.0, 10.0, 0, 0, 0, 0)
+        assert share.neighbours.update(p, at)
+        handed.append((p, at))
+    share._credit_near(srcs, ages, handed)
+    assert {u: m.stats.received["pose"] for u, m in members.items()} == {1: 2, 2: 2, 3: 1, 4: 0}
+    assert members[1].filed == [(2, 0.002), (7, 0.007)] and members[2].filed == [(1, 0.001), (7, 0.007)]
+    assert [p.uav for p, _ in members[3].handed] == [8] and members[3].filed == [] and members[4].filed == []
+    with pytest.raises(ValueError, match="number"):
+        SharedSession(SWARM, Rendezvous(("tcp/127.0.0.1:9",), mode="client")).add_near_feed(1)

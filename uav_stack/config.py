@@ -71,6 +71,12 @@ def fcu_url_problem(url: str) -> str:
     return ""
 
 
+def pool_shares_session(connectivity: str) -> bool:
+    """Pooled UAVs on this connectivity share their pool's one session (swarmnet/shared_session.py):
+    every connectivity but discovery, whose beacons announce each UAV's own session."""
+    return connectivity != "discovery"
+
+
 class NetworkConfig(Config, frozen=True):
     """How the node reaches its swarm (``swarmnet.connectivity``, docs/discovery.md)."""
 

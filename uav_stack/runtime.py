@@ -30,7 +30,7 @@ from swarmnet.security.identity import NodeName
 from uav_stack import tick_meter
 from uav_stack.agent import Agent
 from uav_stack.cli_args import ArgumentParser
-from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig, fcu_url_problem
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig, fcu_url_problem, pool_shares_session
 from uav_stack.fcu_link import FcuLink, LinkOpenError
 from uav_stack.inproc import InprocFcuSocket
 from uav_stack.mavlink_router import MavlinkRouter, SigningPolicy
@@ -97,9 +97,8 @@ def make_node(cfg: AgentConfig, shared: SharedSession | None = None) -> SwarmNod
 
 
 def shares_session(net: NetworkConfig) -> bool:
-    """Pooled UAVs on this network share their pool's one session (swarmnet/shared_session.py):
-    every connectivity but discovery, whose beacons announce each UAV's own session."""
-    return net.connectivity != "discovery"
+    """Pooled UAVs on this network share their pool's one session (:func:`~uav_stack.config.pool_shares_session`)."""
+    return pool_shares_session(net.connectivity)
 
 
 def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
@@ -111,7 +110,7 @@ def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
     first = cfgs[0]
     net = first.network
     share = SharedSession(first.swarm, make_connectivity(net, NodeName("pool", number, first.swarm)), pose_feed=net.pose_feed,
-                          stale_after=first.stale_after, name=f"pool {number}")
+                          stale_after=first.stale_after, name=f"pool {number}", number=number, interest=net.interest)
     if net.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this pool's "
                     "network can command its UAVs and speak for any UAV (docs/security.md)")

@@ -33,7 +33,7 @@ from groundfloor.schema import Config, ConfigError, convert, to_builtins
 from mrswarm.scenario.behaviour_check import check_mission, check_per_uav, uav_behaviour
 from mrswarm.scenario.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
 from swarmnet.feed import DEFAULT_WINDOW
-from swarmnet.interest import Interest
+from swarmnet.interest import Interest, PoolMembers
 from swarmnet.keyspace import SWARM_RE
 from swarmnet.netem.config import NetemSpec
 from uav_stack.config import (
@@ -658,8 +658,11 @@ class Scenario(Config, kw_only=True, frozen=True):
         """The run's network, planned once (``deploy/plan.py``) for every runtime to place: the swarms named
         in ``keys`` (each with its key directory; None: plain TCP), in the airspace's order, the scenario's
         own first (a Swarm stack deploys that one only), on the network this scenario chose. Every swarm
-        without a discovery key in the scenario gets a fresh one for this run."""
+        without a discovery key in the scenario gets a fresh one for this run. The pools of
+        :meth:`pool_layout`, numbered as their certificates are (``pool-<n>``), go with it: with
+        spatial interest the edge sends each pool one near batch (docs/scale.md)."""
         from discovery.protocol import new_key
+        from mrswarm.run.keys import pool_identities
 
         own = self.network
         connectivity, mode, pose_feed = own.topology
@@ -669,8 +672,11 @@ class Scenario(Config, kw_only=True, frozen=True):
         if self.swarm not in keys:
             raise ValueError(f"the plan of scenario {self.name} starts with its own swarm, {self.swarm}")
         swarms = tuple(SwarmPlan(s, keys[s], given[s] or new_key()) for s in given if s in keys)
+        layout = self.pool_layout()
+        pools = {s.name: tuple(PoolMembers(number=k, uavs=uavs) for k, uavs in pool_identities(s.name, layout).items())
+                 for s in swarms}
         return NetworkPlan(swarms, connectivity, mode, pose_feed, feed_window_s=own.feed_window_s, interest=own.interest,
-                           discovery=own.discovery, lease_s=own.lease_s)
+                           discovery=own.discovery, lease_s=own.lease_s, pools={k: v for k, v in pools.items() if v})
 
     # ---- per-UAV configuration for the runtime ----------------------------------------------
     def virtual_uav_configs(self, network: NetworkConfig, record_dir: str | None,

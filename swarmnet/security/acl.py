@@ -18,7 +18,8 @@ list (revoked, or never issued) gets nothing through.
             ``N/behaviour``                                         broadcasts and its unicasts, its sensor
                                                                     readings ``N/sense/*``, the airspace feed
                                                                     ``mrs/airspace/<swarm>/traffic``
- pool-N     what each UAV of its roster entry may put           what each of those UAVs receives
+ pool-N     what each UAV of its roster entry may put           what each of those UAVs receives, and the
+                                                                    pool's near feed ``feed/near/pool-N``
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
  ctl        commands, ``netem/set``, ``<uav>/fault``,               everything of the swarm
             ``alive/observer/*``
@@ -84,8 +85,10 @@ def access_control(roster: Roster) -> dict[str, Any]:
         uavs = roster.speaks_for(name.cn) if name.role == "pool" else (name.node,)
         rules.append(_rule(f"{sid}.in", ("put", "liveliness_token"), ("ingress",),
                            [k for u in uavs for k in uav_puts(keys, u)]))
-        rules.append(_rule(f"{sid}.out", ("put", "liveliness_token"), ("egress",),
-                           list(dict.fromkeys(k for u in uavs for k in uav_receives(keys, u)))))
+        receives = [k for u in uavs for k in uav_receives(keys, u)]
+        if name.role == "pool":  # the edge's one near batch for all its UAVs (swarmnet/interest.py)
+            receives.append(keys.pool_near_feed(name.node))
+        rules.append(_rule(f"{sid}.out", ("put", "liveliness_token"), ("egress",), list(dict.fromkeys(receives))))
         subjects.append({"id": sid, "cert_common_names": [name.cn]})
         policies.append({"id": sid, "rules": ["declare", f"{sid}.in", f"{sid}.out"], "subjects": [sid]})
     command = [keys.swarm_cmd, keys.cmd("*")]
