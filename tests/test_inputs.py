@@ -110,7 +110,7 @@ def test_a_fleet_too_large_for_the_machine_is_refused_with_the_estimate(tmp_path
     big = load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6"])
     est = estimate(big)
     # 500 UAVs get client mode and the edge feed (scenario.MESH_MAX_UAVS) and pools (fleet.pool auto): a pooled UAV's cost
-    assert est.cores_needed == pytest.approx(500 * 0.015) and est.memory_mb_needed == pytest.approx(300 + 500 * 8)
+    assert est.cores_needed == pytest.approx(500 * 0.008) and est.memory_mb_needed == pytest.approx(300 + 500 * 4)
     one_each = estimate(load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6", "fleet.pool=1"]))
     assert one_each.cores_needed == pytest.approx(500 * 0.025) and one_each.memory_mb_needed == pytest.approx(300 + 500 * 60)
     mesh = estimate(load_scenario(MINI, ["fleet.count=500", "fleet.spawn.spacing=6", "network.pose_feed=direct",

@@ -27,8 +27,8 @@ from mrswarm.scenario import Scenario
 
 CPU_PER_UAV_DIRECT = 0.04  # cores
 CPU_PER_UAV_BATCHED = 0.025
-CPU_PER_UAV_POOLED = 0.015  # a UAV of a pool (fleet.pool): 1.09 % measured at 50 UAVs in two pools, rounded up
-MB_PER_UAV_POOLED = 8.0  # 4.9 MB measured, with its share of the pool's interpreter
+CPU_PER_UAV_POOLED = 0.008  # a UAV of a pool (fleet.pool) with its share of the edge router: 0.4-0.7 % measured at 100-250 UAVs
+MB_PER_UAV_POOLED = 4.0  # 1.3-3.3 MB measured, with its share of the pool's interpreter
 MB_PER_UAV_PROCESS = 60.0
 MB_PER_UAV_CONTAINER = 75.0
 MB_BASE = 300.0
