@@ -25,3 +25,6 @@ def test_late_ticks_say_the_machine_could_not_keep_up() -> None:
 def test_lost_poses_count_only_where_no_impairment_was_asked_for() -> None:
     assert any("34.0 % of poses lost" in w for w in saturation_reasons(0.34, _stats(late=0)))
     assert saturation_reasons(0.34, _stats(late=0, netem_class="lte")) == []  # a netem profile's losses are the experiment's
+    # with spatial interest a far neighbour's poses come at the far rate: their gaps are the filter's
+    assert saturation_reasons(0.34, _stats(late=0), interest=True) == []
+    assert len(saturation_reasons(0.34, _stats(late=200), interest=True)) == 1  # late ticks still say so

@@ -606,7 +606,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
     if age_error is not None:
         network.pose_age_over_time_error = age_error
     summary.network = network
-    summary.saturated = saturation_reasons(network.pose_loss, stats)
+    summary.saturated = saturation_reasons(network.pose_loss, stats, interest=scenario.network.interest is not None)
     summary.duration_s = float(t_end - t0)
     world_data = None
     if scenario.world is not None:
