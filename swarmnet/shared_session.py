@@ -36,7 +36,6 @@ import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
 from swarmnet.intake import PoseIntake
-from swarmnet.interest import Interest
 from swarmnet.keyspace import SwarmKeys
 from swarmnet.messages import Pose, Rejected, accept_pose, accept_pose_batch
 from swarmnet.neighbours import Neighbour, NeighbourTable
@@ -44,6 +43,7 @@ from swarmnet.receive import DRAIN_BUDGET, Inlet, batched_poses, subscribe, toke
 from swarmnet.stats import NodeStats
 
 if TYPE_CHECKING:
+    from swarmnet.interest import Interest  # (a node without interest never loads the configuration system)
     from swarmnet.node import SwarmNode
     from swarmnet.security.links import LinkWatch
 

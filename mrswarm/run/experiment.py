@@ -137,7 +137,7 @@ class Experiment:
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
-        from mrswarm.run.keys import RUN_KEYS, check_keys, pool_identities, run_identities, throwaway_keys
+        from mrswarm.run.keys import RUN_KEYS, check_keys, run_identities, throwaway_keys
         from swarmnet.security.pki import KeysError
 
         sec = self.scn.network.secured
@@ -147,7 +147,7 @@ class Experiment:
                                "reaches this machine's network can command or impersonate the UAVs[/]")
             return None
         names = run_identities(self.scn.swarm, [u.id for u in self.scn.uav_list()])
-        pools = pool_identities(self.scn.swarm, self.scn.pool_layout())  # each pool's one session (docs/scale.md)
+        pools = self.scn.pool_numbers(self.scn.swarm)  # each pool's one session (docs/scale.md)
         try:
             if sec.keys is not None:
                 return check_keys(Path(sec.keys), self.scn.swarm, names, pools)

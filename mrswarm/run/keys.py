@@ -35,12 +35,6 @@ def run_identities(swarm: str, uavs: list[int]) -> list[NodeName]:
             NodeName("gcs", 1, swarm)]
 
 
-def pool_identities(swarm: str, layout: list[tuple[str, tuple[int, ...]]]) -> Pools:
-    """The pools of a run's layout (:meth:`~mrswarm.scenario.Scenario.pool_layout`) in ``swarm``:
-    pool ``k`` is the layout's k-th (``pool<k>``), with the UAVs its certificate speaks for."""
-    return {k: uavs for k, (s, uavs) in enumerate(layout, start=1) if s == swarm}
-
-
 def throwaway_keys(path: Path, swarm: str, names: list[NodeName], days: int = THROWAWAY_DAYS, pools: Pools | None = None) -> Path:
     """A fresh CA in ``path`` with a certificate for each of ``names`` and each pool of ``pools``."""
     kd = KeyDir.init(path, swarm, days=days)

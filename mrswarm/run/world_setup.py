@@ -33,11 +33,10 @@ def other_swarm_credentials(scn: Scenario, run_dir: Path, secured: bool) -> dict
     with its UAVs, its edge, its ctl and one ground station; None each when the run is not secured."""
     if not secured:
         return {o.swarm: None for o in scn.other_swarms}
-    from mrswarm.run.keys import pool_identities, run_identities, throwaway_keys
+    from mrswarm.run.keys import run_identities, throwaway_keys
 
-    layout = scn.pool_layout()
     return {o.swarm: throwaway_keys(run_dir / f"keys-{o.swarm}", o.swarm, run_identities(o.swarm, [u.id for u in o.uav_list()]),
-                                    pools=pool_identities(o.swarm, layout))
+                                    pools=scn.pool_numbers(o.swarm))
             for o in scn.other_swarms}
 
 

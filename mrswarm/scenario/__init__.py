@@ -561,6 +561,11 @@ class Scenario(Config, kw_only=True, frozen=True):
                     groups.setdefault((swarm, u.flavour, u.rtf, allocate_sysid(u.id)[0]), []).append(u.id)
         return [(key[0], tuple(g[i:i + size])) for key, g in groups.items() for i in range(0, len(g), size)]
 
+    def pool_numbers(self, swarm: str) -> dict[int, tuple[int, ...]]:
+        """The pools of :meth:`pool_layout` in ``swarm``, by number: pool ``k`` is the layout's k-th
+        (``pool<k>``, certificate ``pool-<k>``), with the UAVs its certificate speaks for."""
+        return {k: uavs for k, (s, uavs) in enumerate(self.pool_layout(), start=1) if s == swarm}
+
     def pools(self, configs: list[VirtualUavConfig]) -> list[list[VirtualUavConfig]]:
         """The virtual UAVs grouped into the processes that host them: one each, or the pools of
         :meth:`pool_layout`."""
@@ -662,7 +667,6 @@ class Scenario(Config, kw_only=True, frozen=True):
         :meth:`pool_layout`, numbered as their certificates are (``pool-<n>``), go with it: with
         spatial interest the edge sends each pool one near batch (docs/scale.md)."""
         from discovery.protocol import new_key
-        from mrswarm.run.keys import pool_identities
 
         own = self.network
         connectivity, mode, pose_feed = own.topology
@@ -672,8 +676,7 @@ class Scenario(Config, kw_only=True, frozen=True):
         if self.swarm not in keys:
             raise ValueError(f"the plan of scenario {self.name} starts with its own swarm, {self.swarm}")
         swarms = tuple(SwarmPlan(s, keys[s], given[s] or new_key()) for s in given if s in keys)
-        layout = self.pool_layout()
-        pools = {s.name: tuple(PoolMembers(number=k, uavs=uavs) for k, uavs in pool_identities(s.name, layout).items())
+        pools = {s.name: tuple(PoolMembers(number=k, uavs=uavs) for k, uavs in self.pool_numbers(s.name).items())
                  for s in swarms}
         return NetworkPlan(swarms, connectivity, mode, pose_feed, feed_window_s=own.feed_window_s, interest=own.interest,
                            discovery=own.discovery, lease_s=own.lease_s, pools={k: v for k, v in pools.items() if v})
