@@ -15,8 +15,6 @@ a fresh interpreter, alternating, so that both see the machine's load of the mom
     git worktree add /tmp/before HEAD~1
     python benchmarks/receive_path.py --repo /tmp/before --repo . --rounds 3
 
-``--pure-python`` measures each checkout a second time with ``MRSWARM_PURE_PYTHON=1``: the
-Python rules in place of the compiled intake (``swarmnet._intake``), in the same run.
 ``--direct`` feeds direct poses instead (a message per neighbour pose, the default network up
 to 25 UAVs), each accepted by its stream's rule as the drain does it, then taken in.
 
@@ -29,7 +27,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -88,12 +85,11 @@ print(json.dumps({"us_per_pose": 1e6 * statistics.median(per)}))
 """
 
 
-def measure(repo: Path, senders: int, batches: int, repeats: int, pure_python: bool = False, direct: bool = False) -> float:
+def measure(repo: Path, senders: int, batches: int, repeats: int, direct: bool = False) -> float:
     """Median µs per pose of one fresh interpreter importing swarmnet from ``repo``."""
-    env = {**os.environ, "MRSWARM_PURE_PYTHON": "1" if pure_python else "0"}
     out = subprocess.run([sys.executable, "-c", f"import sys; sys.path.insert(0, {str(repo)!r})\n" + _CHILD,
                           str(senders), str(batches), str(repeats), "direct" if direct else "batch"],
-                         capture_output=True, text=True, timeout=300, cwd=repo, env=env)
+                         capture_output=True, text=True, timeout=300, cwd=repo)
     if out.returncode != 0:
         raise SystemExit(f"{repo}: the measuring interpreter failed:\n{out.stderr}")
     return float(json.loads(out.stdout.strip().splitlines()[-1])["us_per_pose"])
@@ -107,7 +103,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    names = [(Path(r["repo"]).name or r["repo"]) + (" (python)" if r.get("pure_python") else "") for r in rows]
+    names = [Path(r["repo"]).name or r["repo"] for r in rows]
     ax.bar(names, [r["us_per_pose_median"] for r in rows], color="tab:blue", alpha=0.6)
     for i, r in enumerate(rows):
         ax.plot([i] * len(r["us_per_pose_rounds"]), r["us_per_pose_rounds"], "k.", ms=5)
@@ -126,7 +122,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batches", type=int, default=200, help="batches per round")
     ap.add_argument("--repeats", type=int, default=7, help="rounds per interpreter (the median is kept)")
     ap.add_argument("--rounds", type=int, default=3, help="fresh interpreters per checkout, alternated")
-    ap.add_argument("--pure-python", action="store_true", help="also each checkout with MRSWARM_PURE_PYTHON=1")
     ap.add_argument("--direct", action="store_true",
                     help="direct poses (a message each, the default network up to 25 UAVs), each accepted by its "
                          "stream's rule, instead of edge-feed batches")
@@ -134,26 +129,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tag", default="receive_path", help="file name stem in --out")
     args = ap.parse_args(argv)
     repos = [r.resolve() for r in (args.repo or [ROOT])]
-    variants = [(repo, pure) for repo in repos for pure in ((False, True) if args.pure_python else (False,))]
     results: list[dict[str, Any]] = []
-    per: dict[tuple[Path, bool], list[float]] = {v: [] for v in variants}
+    per: dict[Path, list[float]] = {repo: [] for repo in repos}
     for i in range(args.rounds):
-        for repo, pure in variants if i % 2 == 0 else variants[::-1]:
-            per[(repo, pure)].append(measure(repo, args.senders, args.batches, args.repeats, pure, args.direct))
-    for (repo, pure), vals in per.items():
-        row = {"repo": str(repo), "pure_python": pure, "direct": args.direct, "senders": args.senders,
+        for repo in repos if i % 2 == 0 else repos[::-1]:
+            per[repo].append(measure(repo, args.senders, args.batches, args.repeats, args.direct))
+    for repo, vals in per.items():
+        row = {"repo": str(repo), "direct": args.direct, "senders": args.senders,
                "us_per_pose_median": round(statistics.median(vals), 2), "us_per_pose_rounds": [round(v, 2) for v in vals]}
         results.append(row)
-        label = f"{repo}{' (python)' if pure else ''}"
-        print(f"{label}: {row['us_per_pose_median']:.2f} us/pose (rounds: {row['us_per_pose_rounds']})")
+        print(f"{repo}: {row['us_per_pose_median']:.2f} us/pose (rounds: {row['us_per_pose_rounds']})")
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / f"{args.tag}.json").write_text(json.dumps(results, indent=2) + "\n")
         with open(args.out / f"{args.tag}.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["repo", "pure_python", "senders", "us_per_pose_median", "us_per_pose_rounds"])
+            w.writerow(["repo", "senders", "us_per_pose_median", "us_per_pose_rounds"])
             for r in results:
-                w.writerow([r["repo"], r["pure_python"], r["senders"], r["us_per_pose_median"],
+                w.writerow([r["repo"], r["senders"], r["us_per_pose_median"],
                             " ".join(map(str, r["us_per_pose_rounds"]))])
         plot(results, args.out / f"{args.tag}.png")
     return 0

@@ -27,8 +27,7 @@ for any value in range (the paper's ROS/swarmio pose was 399 B). Resolution: 1 c
 1e-4 rad, 1 ms of sim time, 1 us of wall time. The full layout is in docs/keyspace.md.
 
 The message types stay dataclasses, not the wire structs: their fields are floats in SI units
-where the wire holds fixed-point integers, and the compiled intake (``swarmnet/_intake.c``) fills
-a :class:`Pose`'s slots directly.
+where the wire holds fixed-point integers.
 """
 
 from __future__ import annotations
@@ -395,8 +394,7 @@ _BEHAVIOUR_REPORT_TAG = tag(Kind.BEHAVIOUR_REPORT)
 
 
 class PoseWire(Wire, tag=_POSE_TAG, gc=False):
-    """``[tag, uav, realm, seq, t_sim_ms, t_wall_us, x_cm, y_cm, z_cm, vx_cms, vy_cms, vz_cms, yaw_1e-4rad]``
-    (the layout ``swarmnet/_intake.c`` reads too)."""
+    """``[tag, uav, realm, seq, t_sim_ms, t_wall_us, x_cm, y_cm, z_cm, vx_cms, vy_cms, vz_cms, yaw_1e-4rad]``."""
 
     uav: Uav
     realm: RealmValue

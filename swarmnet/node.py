@@ -12,9 +12,7 @@ the one receive path of :mod:`swarmnet.receive`, top to bottom:
 2. every data stream drained and accepted (poses first, then edge-feed batches, swarm
    messages, commands), rejections counted in :attr:`SwarmNode.stats`; poses and batches are
    kept as they came for step 3;
-3. poses decoded and checked, edge-feed batches unpacked into the poses they carry; without a
-   shim, a pose or batch every rule accepts goes into the neighbour table in one compiled pass
-   (:class:`~swarmnet.intake.PoseIntake`), with the outcome of steps 3 to 5;
+3. poses decoded and checked, edge-feed batches unpacked into the poses they carry;
 4. the netem shim (docs/netem.md), if any: the one place items are offered to it and released;
 5. delivery: poses into the neighbour table with their arrival time (their transport age
    recorded), messages and commands into the :class:`Inbox`;
@@ -38,7 +36,6 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
-from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys, check_swarm
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
@@ -58,6 +55,7 @@ from swarmnet.messages import (
     accept_pose,
     accept_pose_batch,
     accept_swarm_message,
+    batched_pose_count,
     encode_ack,
     encode_pose,
     encode_state,
@@ -127,7 +125,7 @@ class Inbox:
 
 def _as_received(key: str, data: bytes) -> bytes:
     """The pose streams (direct poses, the edge feed's batches) keep a sample as it came: the
-    compiled intake takes it from there, or the stream's rule in :meth:`SwarmNode._accept`."""
+    stream's rule in :meth:`SwarmNode._accept` takes it from there."""
     return data
 
 
@@ -179,7 +177,6 @@ class SwarmNode:
         self.neighbours: NeighbourTable | NeighbourView = (
             NeighbourTable(stale_after, forget_after) if shared is None
             else NeighbourView(shared.neighbours, identity.uav, shared.positions))
-        self.intake = PoseIntake(self.neighbours) if shared is None else shared.intake  # type: ignore[arg-type]
         self._token: Any = None  # the liveliness token, while open
         self._handed: list[tuple[Pose, float]] = []  # poses the shared session handed over, for the next poll
         self._alive_cursor = 0  # where this member is in the shared session's liveliness changes
@@ -285,9 +282,8 @@ class SwarmNode:
             # a UAV counts the neighbours' poses in each batch as it arrives (expect_poses); not with
             # spatial interest, whose far poses come at a lower rate on a feed of their own
             counts = ident.role == "uav" and not self.near_feed
-            count = self.intake.count
-            feed = self._inlet(s, k.pose_feed, 256, "thread",
-                               weigh=(lambda sample: count(sample.payload.to_bytes(), me)) if counts else None, lazy=counts)
+            weigh = (lambda sample: batched_pose_count(sample.payload.to_bytes(), me)) if counts else None
+            feed = self._inlet(s, k.pose_feed, 256, "thread", weigh=weigh, lazy=counts)
             if counts and feed.how == "thread":
                 self._pose_inlet = feed
             self._streams.append((_BATCH, feed, _as_received))
@@ -609,43 +605,22 @@ class SwarmNode:
             for kind, item, at in self._through_netem(self._unbatch(arrivals), now):
                 self._deliver(kind, item, at, inbox)
             return
-        take_pose, own = self.intake.take_pose, self._own_uav
-        srcs: list[int] = []
-        ages: list[float] = []
-        direct = 0  # direct poses the compiled intake delivered
         for kind, arrival in arrivals:
             if kind == POSE:
-                if take_pose(arrival.key, arrival.payload, own, arrival.at, srcs, ages):
-                    direct += 1
-                else:
-                    pose = self._accept(self._pose_rule, arrival.key, arrival.payload)
-                    if pose is not None:
-                        self._deliver(POSE, pose, arrival.at, inbox)
+                pose = self._accept(self._pose_rule, arrival.key, arrival.payload)
+                if pose is not None:
+                    self._deliver(POSE, pose, arrival.at, inbox)
             elif kind == _BATCH:
                 self._take_batch(arrival.key, arrival.payload, arrival.at)
             elif kind == _HANDED:
                 self._deliver(POSE, arrival.item, arrival.at, inbox)
             else:
                 self._deliver(kind, arrival.item, arrival.at, inbox)
-        if direct:
-            self.stats.received["pose"] += direct
-            self.stats.ages.arrived_many(srcs, ages)
 
     def _take_batch(self, key: str, payload: bytes, at: float) -> None:
-        """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table: in
-        one compiled pass when every rule accepts all of it (:class:`~swarmnet.intake.PoseIntake`),
-        otherwise the Python way (:func:`~swarmnet.messages.accept_pose_batch`, :meth:`_batch_poses`,
-        :meth:`_take_poses`),
-        which names and counts what it refuses. Both end alike (tests/test_intake.py)."""
-        srcs: list[int] = []
-        ages: list[float] = []
-        n = self.intake.take(payload, self._own_uav, at, srcs, ages)
-        if n is not None:
-            stats = self.stats
-            stats.received["pose_batch"] += 1
-            stats.received["pose"] += n
-            stats.ages.arrived_many(srcs, ages)
-            return
+        """An edge-feed batch that arrived at ``at`` (wall time, s) into the neighbour table
+        (:func:`~swarmnet.messages.accept_pose_batch`, :meth:`_batch_poses`, :meth:`_take_poses`),
+        what any rule refuses named and counted."""
         batch = self._accept(accept_pose_batch, key, payload)
         if batch is not None:
             self._take_poses(self._batch_poses(batch), at)

@@ -7,9 +7,9 @@ that the pool has one link to its router instead of K, and the poses that reach 
 
 * **one pose stream for the pool.** The swarm's poses (direct, or the edge feed's batches, and
   with spatial interest the pool's one near feed ``mrs/<swarm>/feed/near/pool-<n>``: every
-  sender near any member, each once) arrive once, are decoded once (the compiled intake where
-  it can) into one :class:`~swarmnet.neighbours.NeighbourTable` holding every UAV the pool
-  hears, its own members included. A member sees that table through a
+  sender near any member, each once) arrive once, are decoded once into one
+  :class:`~swarmnet.neighbours.NeighbourTable` holding every UAV the pool hears, its own
+  members included. A member sees that table through a
   :class:`NeighbourView` without itself. A member with a netem shim of its own (docs/netem.md)
   keeps a table of its own instead, and the pool hands it each decoded pose to impair.
 * **one liveliness view**: who is alive, kept once for every member.
@@ -35,7 +35,6 @@ import numpy as np
 import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
-from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys
 from swarmnet.messages import Pose, Rejected, accept_pose, accept_pose_batch
 from swarmnet.neighbours import Neighbour, NeighbourTable
@@ -211,7 +210,6 @@ class SharedSession:
         self.interest = interest
         self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
         self.positions = Positions()  # where each of them is, for the members' queries (NeighbourView.around)
-        self.intake = PoseIntake(self.neighbours)
         self.stats = NodeStats()  # the pose stream's: received, rejected; the links of outsiders
         self.alive: set[str] = set()  # liveliness keys present (the members' alive)
         self._changes: list[tuple[str, bool]] = []  # (key, appeared) in order; members read from their cursors
@@ -427,14 +425,6 @@ class SharedSession:
 
     def _take_batch(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
                     handed: list[tuple[Pose, float]] | None) -> int:
-        start = len(srcs)
-        n = self.intake.take(payload, None, at, srcs, ages)
-        if n is not None:
-            self.stats.received["pose_batch"] += 1
-            if handed is not None:
-                table = self.neighbours
-                handed += ((table._table[u].pose, at) for u in srcs[start:])  # noqa: SLF001 - the poses just taken
-            return n
         try:
             batch = accept_pose_batch(key, payload)
         except Rejected as exc:
@@ -449,11 +439,6 @@ class SharedSession:
 
     def _take_pose(self, key: str, payload: bytes, at: float, srcs: list[int], ages: list[float],
                    handed: list[tuple[Pose, float]] | None) -> int:
-        start = len(srcs)
-        if self.intake.take_pose(key, payload, None, at, srcs, ages):
-            if handed is not None and len(srcs) > start:
-                handed.append((self.neighbours._table[srcs[-1]].pose, at))  # noqa: SLF001
-            return 1
         try:
             pose = accept_pose(key, payload)
         except Rejected as exc:

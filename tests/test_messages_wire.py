@@ -1,12 +1,12 @@
 """The wire format, byte for byte: every kind encodes as it always has, and a bad payload is refused for the same reason.
 
 ``GOLDEN`` holds the payloads the codec wrote for ``EXAMPLES`` when it was hand-written msgpack
-arrays, before it became msgspec structs; the C intake (``swarmnet/_intake.c``), the images of
-other versions and recorded MCAP files read exactly these bytes. ``messages_wire_cases.json`` holds
-payloads derived from these examples (each field in turn replaced by values of every msgpack type
-and range, elements of the lists and maps too; another tag, one field fewer or more, truncated or
-corrupted bytes), each with what that codec answered: the reason it refused it (the counter of
-``NodeStats.rejected``) or the message it decoded (its ``repr``).
+arrays, before it became msgspec structs; the images of other versions and recorded MCAP files
+read exactly these bytes. ``messages_wire_cases.json`` holds payloads derived from these examples
+(each field in turn replaced by values of every msgpack type and range, elements of the lists
+and maps too; another tag, one field fewer or more, truncated or corrupted bytes), each with
+what that codec answered: the reason it refused it (the counter of ``NodeStats.rejected``) or
+the message it decoded (its ``repr``).
 """
 
 from __future__ import annotations

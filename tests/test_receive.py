@@ -16,10 +16,17 @@ import zenoh
 from discovery.rendezvous import serve
 from groundfloor.histogram import LogHistogram
 from swarmnet.connectivity import Rendezvous, to_zenoh
-from swarmnet.intake import PoseIntake
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import Pose, PoseBatch, Realm, decode_pose, decode_pose_batch, encode_pose, encode_pose_batch
-from swarmnet.neighbours import NeighbourTable
+from swarmnet.messages import (
+    Pose,
+    PoseBatch,
+    Realm,
+    batched_pose_count,
+    decode_pose,
+    decode_pose_batch,
+    encode_pose,
+    encode_pose_batch,
+)
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.observer import SwarmObserver
 from swarmnet.receive import How, Inlet, Waker, subscribe
@@ -241,7 +248,6 @@ def test_the_pose_inlet_counts_the_neighbours_poses_in_batches_and_wakes_at_the_
     inlet's clock, and wakes the owner on the batch that completes the instant; a count that
     fails counts nothing and the thread goes on."""
     me = 7
-    intake = PoseIntake(NeighbourTable())
 
     def batch(*uavs: int) -> bytes:
         poses = [encode_pose(Pose(u, Realm.VIRTUAL, 1, 0.0, time.time(), 0.0, float(u), 5.0, 0.0, 0.0, 0.0, 0.0))
@@ -252,7 +258,7 @@ def test_the_pose_inlet_counts_the_neighbours_poses_in_batches_and_wakes_at_the_
     with zenoh.open(to_zenoh(rendezvous.zenoh_config())) as s:
         waker = Waker()
         inlet = Inlet(64, None, lambda: time.time() + skew, "thread",
-                      weigh=lambda sample: intake.count(sample.payload.to_bytes(), me))
+                      weigh=lambda sample: batched_pose_count(sample.payload.to_bytes(), me))
         sub = subscribe(s, "t/feed", inlet)
         try:
             since = time.time() + skew

@@ -70,10 +70,8 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
     # every UAV flew the compiled physics step (the test command installs the compiler that builds it)
     status = [json.loads(p.read_text()) for p in run_dir.glob("uav[0-9]*.json")]
     assert len(status) == 4 and {st["virtual_fcu"]["dynamics"] for st in status} == {"compiled"}
-    assert {st["net"]["intake"] for st in status} == {"compiled"}
     # and all of Zenoh on one worker thread (swarmnet.connectivity.lean_zenoh_runtime)
     assert {st["net"]["zenoh_runtime"] for st in status} == {LEAN_ZENOH_RUNTIME}
-    assert {st["virtual_fcu"]["mavlink"] for st in status} == {"compiled"}
     takeoff = summary["takeoff"]
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]
     assert (run_dir / "mini_coverage.png").stat().st_size > 10_000

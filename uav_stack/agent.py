@@ -474,10 +474,8 @@ class Agent:
             "fcu_link": dict(self.link.counts),
             "fcu": self.link.summary(),
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
-            # "intake": how edge-feed batches enter the neighbour table, "compiled" or "python" (swarmnet.intake);
             # "zenoh_runtime": the process's ZENOH_RUNTIME ("": Zenoh's defaults; swarmnet.connectivity.lean_zenoh_runtime)
-            "net": {**self.node.stats.to_dict(links), "intake": "compiled" if self.node.intake.compiled else "python",
-                    "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
+            "net": {**self.node.stats.to_dict(links), "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
             "neighbours": {
                 str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
                              "rate": round(n.rate, 2)}

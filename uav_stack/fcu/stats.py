@@ -6,7 +6,6 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from uav_stack.fcu.dynamics import DYNAMICS
-from uav_stack.mavcodec import MAVCODEC
 
 
 @dataclass
@@ -53,5 +52,4 @@ class FcuStats:
             "dropped_wall_s": self.dropped_wall_s,
             "failsafes": dict(self.failsafes),
             "dynamics": DYNAMICS,  # which scalar step this process runs: "compiled" or "python"
-            "mavlink": MAVCODEC,  # who frames the FCU link's plain messages: "compiled" or "pymavlink"
         }

@@ -44,7 +44,6 @@ from uav_stack.fcu.streams import ENCODERS_BY_FLAVOUR, StreamSet, ardupilot_grou
 from uav_stack.fcu.telemetry import heartbeat
 from uav_stack.geo import GeoPoint, LocalFrame
 from uav_stack.mav import mavlink
-from uav_stack.mavcodec import pack
 
 M = mavlink
 NAN = math.nan
@@ -212,11 +211,11 @@ class Vehicle:
         if self._deferred is not None:
             self._deferred.append(msg)  # packed (and numbered) once the command's ACK is out
             return
-        self.send_frame(pack(msg, self.mav))
+        self.send_frame(msg.pack(self.mav))
 
     def send_now(self, msg: mavlink.MAVLink_message) -> None:
         """Send ahead of a command's ACK (PX4 replies to REQUEST_MESSAGE before it ACKs)."""
-        self.send_frame(pack(msg, self.mav))
+        self.send_frame(msg.pack(self.mav))
 
     def send_frame(self, frame: bytes) -> None:
         """A frame packed with this vehicle's next sequence number (by :meth:`send`, or whole by telemetry.FRAMERS)."""
