@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 from swarmnet.messages import Pose
@@ -116,3 +116,10 @@ class NeighbourTable:
 
     def __contains__(self, uav: object) -> bool:
         return uav in self._table
+
+
+def neighbour_counters(neighbours: Iterable[Neighbour]) -> dict[str, dict[str, float]]:
+    """Each neighbour's pose counters by UAV id, as a counters file lists them (``neighbours``)."""
+    return {str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
+                         "rate": round(n.rate, 2)}
+            for n in neighbours}

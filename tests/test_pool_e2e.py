@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from mrswarm.results.analysis import load_stats
 from mrswarm.scenario import ScenarioError, load_scenario
 from tests.conftest import wait_for
 from tests.gcs_helpers import run_dir, start_run, stop_run
@@ -61,6 +62,15 @@ def test_pooled_uavs_fly_the_mission_each_as_its_own_uav(tmp_path: Path) -> None
     assert summary["security"]["mode"] == "mtls" and not summary["security"].get("refused")
     # every UAV saw the three others, pool-mates as well as the other pool's
     assert summary["network"]["transport_age_links"]["links"] == 12
+    # a pool's per-neighbour counters are written once, in the pool's file its UAVs' counters files name;
+    # read back, each UAV has the three others and never itself
+    assert {u: st.get("neighbours_in") for u, st in status.items()} == {
+        1: "neighbours_pool1.json", 2: "neighbours_pool1.json", 3: "neighbours_pool2.json", 4: "neighbours_pool2.json"}
+    assert all("neighbours" not in st for st in status.values())
+    stats = load_stats(rd)
+    assert {u: set(stats[u]["neighbours"]) for u in (1, 2, 3, 4)} == {
+        u: {str(o) for o in (1, 2, 3, 4) if o != u} for u in (1, 2, 3, 4)}
+    assert all(nb["received"] > 50 for u in (1, 2, 3, 4) for nb in stats[u]["neighbours"].values())
 
 
 @pytest.mark.e2e

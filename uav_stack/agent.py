@@ -21,7 +21,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from swarmnet.messages import Command, FaultInjection, Realm, SwarmMessage
+from swarmnet.neighbours import neighbour_counters
 from swarmnet.node import SwarmNode
+from swarmnet.shared_session import NeighbourView as PoolTableView
 from uav_stack.behaviours.avoidance import CollisionAvoidance
 from uav_stack.behaviours.base import Behaviour, Cooperative, NeighbourView, Rect, SelfState
 from uav_stack.behaviours.zones import ZoneField, zone_field
@@ -97,6 +99,7 @@ class Agent:
         self.router = router
         # more sections for the stats file: name -> what to write (the virtual FCU's counters, in a virtual UAV)
         self.stats_sources: dict[str, Callable[[], Any]] = {}
+        self.neighbours_in: str | None = None  # a pool's file of the per-neighbour counters its UAVs share
         self.clock = node.clock
         self.frame = LocalFrame(cfg.origin)
         self.realm = Realm.parse(cfg.realm)
@@ -476,11 +479,7 @@ class Agent:
             "mavlink_router": self.router.stats.as_dict() if self.router is not None else None,
             # "zenoh_runtime": the process's ZENOH_RUNTIME ("": Zenoh's defaults; swarmnet.connectivity.lean_zenoh_runtime)
             "net": {**self.node.stats.to_dict(links), "zenoh_runtime": os.environ.get("ZENOH_RUNTIME", "")},
-            "neighbours": {
-                str(n.uav): {"received": n.received, "lost": n.lost, "duplicates": n.duplicates, "out_of_order": n.out_of_order,
-                             "rate": round(n.rate, 2)}
-                for n in self.node.neighbours
-            },
+            **self._neighbour_counters(),
             "netem": self.node.netem_stats(),
             "failsafes": self.failsafes.as_dict(),
             "records": self.records.as_dict(),
@@ -489,6 +488,13 @@ class Agent:
             **{name: source() for name, source in self.stats_sources.items()},
             "written_at": now,
         }
+
+    def _neighbour_counters(self) -> dict[str, Any]:
+        """The per-neighbour pose counters, or where they are: a pool's UAV that sees the pool's
+        table (no netem shim of its own) has them in the pool's file, once for all its UAVs."""
+        if self.neighbours_in is not None and isinstance(self.node.neighbours, PoolTableView):
+            return {"neighbours_in": self.neighbours_in}
+        return {"neighbours": neighbour_counters(self.node.neighbours)}
 
     def write_stats(self, now: float, final: bool = False) -> None:
         """The counters file (every second), the per-link pose-age histograms in a file of their

@@ -28,14 +28,17 @@ import selectors
 import sys
 import time
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 from msgspec import Meta
 
 from groundfloor.schema import Config, ConfigError, decode_json
+from swarmnet.neighbours import neighbour_counters
 from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
+from uav_stack.recorder import RecordHealth, SwappedJsonFile, pool_neighbours_file_name
 from uav_stack.runtime import (
     FCU_LEAD_S,
     LoopStats,
@@ -118,8 +121,11 @@ class PooledFcu:
 class Pool:
     """The UAVs of one pool and the loop that drives them."""
 
-    def __init__(self, uavs: list[VirtualUav], fcu: VirtualFcu):
+    def __init__(self, uavs: list[VirtualUav], fcu: VirtualFcu,
+                 neighbour_files: list[tuple[SharedSession, SwappedJsonFile]] | None = None):
         self.uavs = uavs
+        self.neighbour_files = neighbour_files or []  # each shared session's per-neighbour counters, once a second
+        self.records = RecordHealth()
         self.fcu = PooledFcu(fcu, [u.faults for u in uavs])
         self.errors: dict[int, int] = {}  # UAV id -> exceptions its agent raised (logged, counted, never fatal)
         self._sel = selectors.DefaultSelector()
@@ -136,6 +142,7 @@ class Pool:
         t0 = time.monotonic()
         end = math.inf if duration is None else t0 + duration
         next_sense = next_grid_instant(t0, period)
+        next_counters = t0 + 1.0
         next_act = math.inf
         while not stop.stopped:
             now_m = time.monotonic()
@@ -159,6 +166,9 @@ class Pool:
             self.fcu.service()
             self._each("sense")
             self.fcu.poll_io()
+            if now_m >= next_counters:
+                next_counters = now_m + 1.0
+                self.write_neighbours()
             if os.getppid() != parent:  # re-parented: the launcher is gone
                 break
 
@@ -185,9 +195,19 @@ class Pool:
             if n == 1 or n % 100 == 0:
                 log.exception("UAV %d: %s failed (%d so far); the pool flies on", u.agent.uav, what, n)
 
+    def write_neighbours(self) -> None:
+        """Each shared session's per-neighbour pose counters, in the file its UAVs' counters files
+        name (``neighbours_in``): once for the pool instead of once per UAV."""
+        now = time.time()
+        for share, out in self.neighbour_files:
+            out.write({"pool": share.name, "written_at": now, "neighbours": neighbour_counters(share.neighbours)},
+                      self.records, now)
+
     def close(self) -> None:
         """The loop's own resources; the UAVs are closed by their opener (:func:`run_pool`)."""
         self._sel.close()
+        for _, out in self.neighbour_files:
+            out.close()
 
 
 def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
@@ -215,11 +235,18 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
             if share is not None:  # the pool session's own counters (poses, rejections, links) in each UAV's stats
                 ids = [m.agent.uav for m in swarms[c.agent.swarm]]
                 uavs[-1].agent.stats_sources["pool_session"] = partial(_session_stats, share, ids)
-        pool = Pool(uavs, fcu)
+        files = []
+        if cfgs[0].agent.record_dir and shares:  # the pool's UAVs share a table: its counters once, in one file
+            name = pool_neighbours_file_name(cfg.number)
+            for u in uavs:
+                u.agent.neighbours_in = name
+            files = [(share, SwappedJsonFile(Path(cfgs[0].agent.record_dir) / name)) for share in shares.values()][:1]
+        pool = Pool(uavs, fcu, files)
         log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))
         try:
             pool.run(stop, period, cfg.duration)
         finally:
+            pool.write_neighbours()  # the last counters, as each UAV writes its own at the end
             pool.close()
     finally:
         for u in uavs:

@@ -181,6 +181,13 @@ _encode = msgspec.json.Encoder().encode  # ~10x faster than json.dumps on the co
 LINKS_GLOB = "age_links_uav*.json"
 
 
+def pool_neighbours_file_name(pool: int) -> str:
+    """The file of a pool's per-neighbour pose counters (``{"pool", "written_at", "neighbours"}``),
+    which its UAVs share (one neighbour table for the pool: docs/scale.md); each of their counters
+    files names it in ``neighbours_in`` instead of listing every neighbour again."""
+    return f"neighbours_pool{pool}.json"
+
+
 def links_file_name(uav: int) -> str:
     """The file of a UAV's per-link transport-age histograms (``{"uav", "written_at",
     "transport_age_links"}``), beside its counters file ``uav<N>.json`` in the run folder."""

@@ -115,7 +115,8 @@ def load_tracks(run_dir: Path) -> dict[int, Track]:
 
 def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
     """The last counters JSON of every UAV (``uav<N>.json``), with its per-link pose ages
-    (``age_links_uav<N>.json``) as ``net.transport_age_links``; unreadable files are skipped."""
+    (``age_links_uav<N>.json``) as ``net.transport_age_links`` and, for a pool's UAV, the per-neighbour
+    counters of its pool's file (``neighbours_in``) as ``neighbours``; unreadable files are skipped."""
     out = {}
     for path in sorted(run_dir.glob("uav*.json")):
         try:
@@ -125,6 +126,17 @@ def load_stats(run_dir: Path) -> dict[int, dict[str, Any]]:
             continue
         if isinstance(d, dict):
             out[uav] = d
+    shared: dict[str, dict[str, Any]] = {}  # a pool's file of the per-neighbour counters its UAVs share
+    for uav, d in out.items():
+        name = d.get("neighbours_in")
+        if isinstance(name, str) and "neighbours" not in d:
+            if name not in shared:
+                try:
+                    nb = json.loads((run_dir / Path(name).name).read_text()).get("neighbours")
+                except (ValueError, OSError, AttributeError):
+                    nb = None
+                shared[name] = nb if isinstance(nb, dict) else {}
+            d["neighbours"] = {k: v for k, v in shared[name].items() if k != str(uav)}  # every UAV but itself
     for uav, d in out.items():
         try:
             links = json.loads((run_dir / links_file_name(uav)).read_text())
