@@ -81,7 +81,7 @@ def _campaign(tmp_path: Path, body: str) -> Path:
     ("seeds: 0\n", "seeds: must be an integer in [1, 1000], got 0"),
     ("grid: {seed: [1, 2]}\n", "grid.seed: the seeds come from `seeds`"),
     ("set: {fleet.count: 2}\ngrid: {fleet.count: [2, 3]}\n", "grid.fleet.count: also in `set`"),
-    ("grid: {fleet.count: [2, 0]}\n", f"grid.fleet.count = 0: {MINI}: fleet.count: must be an integer in [1, 500], got 0"),
+    ("grid: {fleet.count: [2, 0]}\n", f"grid.fleet.count = 0: {MINI}: fleet.count: must be an integer in [1, 1000], got 0"),
     ("grid: {flight.sped: [1, 2]}\n", "grid.flight.sped = 1: " + str(MINI) + ": flight.sped: unknown field"),
     ("set: {flight.speed: 99}\n", "set.flight.speed = 99: " + str(MINI) + ": flight.speed: must be a number in (0, 15]"),
     ("grid: {'fleet count': [1]}\n", "grid: 'fleet count' is not a scenario field's key"),

@@ -312,7 +312,7 @@ class Spawn(Config, frozen=True):
 
 
 class Fleet(Config, frozen=True):
-    count: Annotated[int, Meta(ge=1, le=MAX_FLEET, description="virtual UAVs (pooled above 25 by default: fleet.pool)")]
+    count: Annotated[int, Meta(ge=1, le=MAX_FLEET)]  # virtual UAVs (pooled above 25 by default: fleet.pool)
     first_id: UavId = 1
     spawn: Spawn = field(default_factory=Spawn)
     rtf: Rtf = 1.0
