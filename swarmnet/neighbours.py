@@ -108,6 +108,11 @@ class NeighbourTable:
         """Every neighbour, in a list of its own (the table may change while it is used)."""
         return list(self._table.values())
 
+    def around(self, x: float, y: float, radius: float) -> list[Neighbour]:
+        """The neighbours whose latest pose is at most ``radius`` (m, horizontal) from (x, y)."""
+        r2 = radius * radius
+        return [n for n in self._table.values() if (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r2]
+
     def __iter__(self) -> Iterator[Neighbour]:
         return iter(self.snapshot())
 

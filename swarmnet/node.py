@@ -521,14 +521,7 @@ class SwarmNode:
         """
         now = self.clock() if now is None else now
         table = self.neighbours
-        if around is None:
-            out = table.snapshot()
-        elif isinstance(table, NeighbourView):
-            out = table.around(*around)
-        else:
-            x, y, r = around
-            r2 = r * r
-            out = [n for n in table.snapshot() if (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r2]
+        out = table.snapshot() if around is None else table.around(*around)
         if isinstance(table, NeighbourView):  # a pool's member: its own first uses
             self.stats.ages.used_many(table.first_uses(out, now))
             return out

@@ -154,8 +154,7 @@ class NeighbourView:
     def around(self, x: float, y: float, radius: float) -> list[Neighbour]:
         """The neighbours whose latest pose is at most ``radius`` (m, horizontal) from (x, y)."""
         if self.positions is None:
-            r2 = radius * radius
-            return [n for n in self.snapshot() if (n.pose.x - x) ** 2 + (n.pose.y - y) ** 2 <= r2]
+            return [n for n in self.table.around(x, y, radius) if n.pose.uav != self.own]
         entries, own = self.table._table, self.own  # noqa: SLF001 - read-only, the pool's loop owns it
         out = []
         for u in self.positions.within(x, y, radius):

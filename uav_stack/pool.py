@@ -236,11 +236,12 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
                 ids = [m.agent.uav for m in swarms[c.agent.swarm]]
                 uavs[-1].agent.stats_sources["pool_session"] = partial(_session_stats, share, ids)
         files = []
-        if cfgs[0].agent.record_dir and shares:  # the pool's UAVs share a table: its counters once, in one file
+        if cfgs[0].agent.record_dir and len(shares) == 1:  # the pool's UAVs share one table: its counters once, in one file
+            (share,) = shares.values()  # (a pool holds one swarm: Scenario.pool_layout; else each UAV writes its own)
             name = pool_neighbours_file_name(cfg.number)
             for u in uavs:
                 u.agent.neighbours_in = name
-            files = [(share, SwappedJsonFile(Path(cfgs[0].agent.record_dir) / name)) for share in shares.values()][:1]
+            files = [(share, SwappedJsonFile(Path(cfgs[0].agent.record_dir) / name))]
         pool = Pool(uavs, fcu, files)
         log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))
         try:

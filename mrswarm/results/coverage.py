@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-CELL_CHUNK = 2_000_000  # cells x points compared at once (~32 MB of float64 pairs): bounded memory, whatever the area
+CELL_CHUNK = 2_000_000  # point x nearby-cell pairs compared at once: bounded memory, whatever the fleet
 
 
 def cell_centres(area: tuple[float, float, float, float], cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -19,39 +19,22 @@ def cell_centres(area: tuple[float, float, float, float], cell: float) -> tuple[
     return np.arange(x0 + cell / 2, x1, cell), np.arange(y0 + cell / 2, y1, cell)
 
 
-def cell_grid(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-    """(n, 2) centres of every cell, row by row (north), as :func:`coverage` reshapes them."""
-    gx, gy = np.meshgrid(xs, ys)
-    return np.stack([gx.ravel(), gy.ravel()], axis=1)
-
-
-def seen(cells: np.ndarray, pts: np.ndarray, radius: float) -> np.ndarray:
-    """Per cell of ``cells`` (n, 2): within ``radius`` m of one of ``pts`` (k, 2), compared a chunk at a time.
-
-    The definition, for any set of cells; :class:`CellGrid` answers the same for the cells of an area
-    without comparing every cell with every point."""
-    out = np.zeros(len(cells), dtype=bool)
-    step = max(1, CELL_CHUNK // len(pts))
-    for c0 in range(0, len(cells), step):
-        d2 = ((cells[c0:c0 + step, None, :] - pts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-        out[c0:c0 + step] = d2 <= radius * radius
-    return out
-
-
 class CellGrid:
-    """The cells of an area (centres ``xs`` east, ``ys`` north, ``cell`` m apart), row by row as
-    :func:`cell_grid` lists them, and which of them lie within a radius of some points.
+    """The cells of an area (centres ``xs`` east, ``ys`` north, ``cell`` m apart), row by row (cell
+    ``iy * len(xs) + ix``, as :func:`coverage` reshapes them), and which of them lie within a radius
+    of some points.
 
     Each point is compared only with the cells of the square around it that can hold a centre within
     the radius (7 x 7 cells at the default cell of half the sensor radius): the work grows with the
-    points, not with the area (:func:`seen` on 100,000 cells and 1,000 UAVs compares 10^8 pairs)."""
+    points, not with the area (every cell against every point: 10^8 pairs for 100,000 cells and
+    1,000 UAVs)."""
 
     def __init__(self, xs: np.ndarray, ys: np.ndarray, cell: float):
         self.xs, self.ys, self.cell = xs, ys, cell
         self.size = len(xs) * len(ys)
 
     def seen(self, pts: np.ndarray, radius: float) -> np.ndarray:
-        """Per cell: its centre within ``radius`` m of one of ``pts`` (k, 2), as :func:`seen` says."""
+        """Per cell: its centre within ``radius`` m of one of ``pts`` (k, 2)."""
         out = np.zeros(self.size, dtype=bool)
         out[self.indices(pts, radius)] = True
         return out
@@ -59,7 +42,7 @@ class CellGrid:
     def indices(self, pts: np.ndarray, radius: float) -> np.ndarray:
         """The indices of the cells within ``radius`` m of one of ``pts`` (k, 2), with repeats."""
         xs, ys, nx, ny = self.xs, self.ys, len(self.xs), len(self.ys)
-        pts = pts[np.isfinite(pts).all(axis=1)]  # a point nowhere sees nothing (as in seen: NaN compares False)
+        pts = pts[np.isfinite(pts).all(axis=1)]  # a point nowhere sees nothing
         if not len(pts) or not nx or not ny:
             return np.zeros(0, dtype=np.intp)
         k = int(np.ceil(radius / self.cell)) + 1
