@@ -106,17 +106,22 @@ class Flight:
         return float(np.mean(vals))
 
     def order_series(self, step_s: float = 0.5) -> list[tuple[float, float]]:
-        """``(s after the mission start, order parameter)`` on a grid of ``step_s``, where every UAV is in the mission."""
-        tracks = dict(self.in_mission())
-        if not tracks:
+        """``(s after the mission start, order parameter)`` on a grid of ``step_s``, over the UAVs in
+        the mission at that moment, from when two of them are: a UAV that reaches the mission late
+        does not hide how the others began."""
+        tracks = [tr for _, tr in self.in_mission() if len(tr.t)]
+        if len(tracks) < 2:
             return []
-        t0 = max(float(tr.t[0]) for tr in tracks.values())
-        t1 = min(float(tr.t[-1]) for tr in tracks.values())
+        t0 = sorted(float(tr.t[0]) for tr in tracks)[1]
+        t1 = max(float(tr.t[-1]) for tr in tracks)
         out = []
         start = self.mission_start
         for t in np.arange(t0, t1, step_s):
-            vx = np.array([np.interp(t, tr.t, tr.vx) for tr in tracks.values()])
-            vy = np.array([np.interp(t, tr.t, tr.vy) for tr in tracks.values()])
+            here = [tr for tr in tracks if tr.t[0] <= t <= tr.t[-1]]
+            if len(here) < 2:
+                continue
+            vx = np.array([np.interp(t, tr.t, tr.vx) for tr in here])
+            vy = np.array([np.interp(t, tr.t, tr.vy) for tr in here])
             speed = np.hypot(vx, vy).sum()
             if speed > 1e-6:
                 out.append((float(t - start), float(math.hypot(vx.sum(), vy.sum()) / speed)))

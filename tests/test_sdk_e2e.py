@@ -33,7 +33,9 @@ def test_flocking_aligns_the_flock_within_60_s_without_collisions(tmp_path: Path
     in_mission_to_the_end(flight)
     assert flight.collisions == 0 and flight.incidents == []
     series = flight.order_series()
-    assert series[0][1] < 0.8  # random headings at first: no order to begin with
+    # random headings at first: no order to begin with (over the first 2 s: the UAVs enter the mission
+    # within a tick or two of each other on a quiet machine, seconds apart on a loaded one)
+    assert min(phi for t, phi in series if t <= series[0][0] + 2.0) < 0.8
     reached = next(t for t, phi in series if phi >= 0.9)
     assert reached <= 60.0
     assert flight.order_parameter(last_s=10.0) >= 0.9  # and it stays
