@@ -216,7 +216,7 @@ class DockerRuntime:
                   identity=NodeName("edge", 0, cfg.swarms[0].name))
 
     # ---- UAVs ------------------------------------------------------------------------------
-    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int) -> None:
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int, lockstep_epoch: float | None = None) -> None:
         """Pools are the process runtime's: here every virtual UAV is a container of its own."""
         raise RuntimeError("fleet.pool: pools of virtual UAVs run with the process runtime; a container per UAV here")
 

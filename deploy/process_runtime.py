@@ -155,13 +155,13 @@ class ProcessRuntime:
             [*self._py, "-m", "uav_stack.virtual_uav", "--config", str(path), "--log-level", self.log_level],
         )
 
-    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int) -> None:
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int, lockstep_epoch: float | None = None) -> None:
         """Several virtual UAVs in one process (``python -m uav_stack.pool``): one virtual FCU, an agent
         each, one Zenoh session as ``pool-<number>``."""
         from uav_stack.pool import PoolConfig
 
         path = self.run_dir / "config" / f"{name}.json"
-        write_atomic(path, PoolConfig(uavs=tuple(cfgs), number=number).to_json(), private=True)
+        write_atomic(path, PoolConfig(uavs=tuple(cfgs), number=number, lockstep_epoch=lockstep_epoch).to_json(), private=True)
         self._spawn(name, [*self._py, "-m", "uav_stack.pool", "--config", str(path), "--log-level", self.log_level])
 
     def start_agent(self, cfg: AgentConfig) -> None:

@@ -104,6 +104,19 @@ class SwarmKeys:
         return f"{self.prefix}/netem/set"
 
     @property
+    def clock_step(self) -> str:
+        """Lock-step time: the leader's steps of simulated time (see swarmnet/lockstep.py)."""
+        return f"{self.prefix}/clock/step"
+
+    def clock_done(self, pool: int | str) -> str:
+        """Lock-step time: pool ``pool``'s answers to the leader's steps."""
+        return f"{self.prefix}/clock/done/pool-{pool}"
+
+    @property
+    def all_clock_done(self) -> str:
+        return f"{self.prefix}/clock/done/*"
+
+    @property
     def swarm_cmd(self) -> str:
         return f"{self.prefix}/cmd"
 

@@ -95,6 +95,7 @@ FAULT = 4  # an injected fault (docs/reliability.md); never impaired by the shim
 _HANDED = 5  # a pose a pool's shared session decoded and handed over (a member with a netem shim of its own)
 _HANDED_PAYLOAD = bytes(32)  # what a handed pose weighs for the shim's rate limit: a pose's usual size on the wire, bytes
 INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed (its channel is then closed)
+HELD_MESSAGES_MAX = 4096  # lock-step time: swarm messages a node holds for its next poll, at most
 
 
 @dataclass(frozen=True)
@@ -201,6 +202,7 @@ class SwarmNode:
         self._links: LinkWatch | None = None  # secured swarms: counts links of non-members
         self._pubs: dict[str, Any] = {}
         self._seq: dict[str, int] = {"pose": 0, "telemetry": 0, "state": 0, "msg": 0}
+        self._held_messages: list[SwarmMessage] = []  # lock-step time: sent at or after the last poll's instant
         self._next_pose = 0.0
         # netem shim (docs/netem.md): receive-side impairment of UAV and ground-station nodes
         self.netem: NetemShim | None = None
@@ -263,11 +265,13 @@ class SwarmNode:
 
     def _declare_publishers(self, s: zenoh.Session) -> None:
         k, me = self.keys, self.identity.uav
-        self._pubs["pose"] = s.declare_publisher(
-            k.pose(me), congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH, express=True
-        )
-        self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me))
-        self._pubs["state"] = s.declare_publisher(k.state(me))
+        # lock-step time (a pool's shared session says so): nothing may be lost, a full queue waits instead
+        lossless = self.shared is not None and self.shared.lossless
+        cc = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
+        self._pubs["pose"] = s.declare_publisher(k.pose(me), congestion_control=cc, priority=zenoh.Priority.DATA_HIGH,
+                                                 express=True)
+        self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me), congestion_control=cc)
+        self._pubs["state"] = s.declare_publisher(k.state(me), congestion_control=cc)
         self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
 
     def _subscribe_poses(self, s: zenoh.Session) -> None:
@@ -468,7 +472,10 @@ class SwarmNode:
         data = encode_swarm_message(msg, self.max_message_bytes)
         me = self.identity.uav
         key = self.keys.broadcast(me, topic) if to is None else self.keys.unicast(me, to, topic)
-        self.session.put(key, data)
+        if self.shared is not None and self.shared.lossless:  # lock-step time: nothing may be lost
+            self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
+        else:
+            self.session.put(key, data)
         self.stats.sent["broadcast" if to is None else "unicast"] += 1
 
     def ack(self, cmd_id: int, ok: bool, message: str = "") -> None:
@@ -501,6 +508,8 @@ class SwarmNode:
         if waiting is not None:
             waiting.poke()  # a pose came before its sender's token: the inlet's thread starts now
         self._take_in(self._arrivals(max_samples), now, inbox)
+        if self.shared is not None and self.shared.lossless:
+            self._hold_early_messages(inbox, now)
         self._track_liveliness(inbox, max_samples)
         if waiting is not None and inbox.joined and self.alive_uavs() - {self.identity.uav}:
             waiting.start()  # the first other UAV: its poses are stamped as they arrive from now on
@@ -508,6 +517,22 @@ class SwarmNode:
             self._links.poll()
         self.neighbours.expire(now)
         return inbox
+
+    def _hold_early_messages(self, inbox: Inbox, now: float) -> None:
+        """Lock-step time (swarmnet/lockstep.py): a swarm message sent at simulated time ``t`` is
+        taken at the first poll at or after ``t`` plus the pool's :attr:`~swarmnet.shared_session.SharedSession.message_hold_s`
+        (a tick: the receivers' next act, by which every pool's messages of the act before are in,
+        whichever pool ran first); those held from before, now due, come first, in the order they were sent."""
+        assert self.shared is not None
+        hold = self.shared.message_hold_s - 1e-9
+        held = self._held_messages
+        due = [m for m in held if m.t_wall + hold <= now]
+        later = [m for m in held if m.t_wall + hold > now]
+        for m in inbox.messages:
+            (due if m.t_wall + hold <= now else later).append(m)
+        due.sort(key=lambda m: (m.t_wall, m.src, m.seq))  # one order, however the pools' messages interleaved
+        inbox.messages = due
+        self._held_messages = later[-HELD_MESSAGES_MAX:]
 
     def take_neighbours(self, now: float | None = None,
                         around: tuple[float, float, float] | None = None) -> list[Neighbour]:
@@ -522,6 +547,8 @@ class SwarmNode:
         now = self.clock() if now is None else now
         table = self.neighbours
         out = table.snapshot() if around is None else table.around(*around)
+        if self.shared is not None and self.shared.lossless:  # lock-step time: one order, however the poses arrived
+            out.sort(key=lambda n: n.pose.uav)
         if isinstance(table, NeighbourView):  # a pool's member: its own first uses
             self.stats.ages.used_many(table.first_uses(out, now))
             return out

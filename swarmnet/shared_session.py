@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 
 INLET_JOIN_S = 2.0  # s a receive thread gets to end after the session closed
 MAX_CHANGES = 4096  # liveliness changes kept for members that have not read them yet
+EARLY_MAX = 65536  # lock-step time: poses held for a later instant, at most (a whole tick of 1,000 UAVs fits)
 
 
 class Positions:
@@ -196,7 +197,7 @@ class SharedSession:
 
     def __init__(self, swarm: str, connectivity: Connectivity, *, pose_feed: str = "direct", stale_after: float = 1.0,
                  forget_after: float = 10.0, ring_size: int = 1024, clock: Callable[[], float] = time.time,
-                 name: str = "pool", number: int | None = None, interest: Interest | None = None):
+                 name: str = "pool", number: int | None = None, interest: Interest | None = None, lossless: bool = False):
         if pose_feed not in ("direct", "edge"):
             raise ValueError(f"pose_feed must be 'direct' or 'edge', not {pose_feed!r}")
         self.keys = SwarmKeys(swarm)
@@ -207,6 +208,12 @@ class SharedSession:
         self.name = name
         self.number = number
         self.interest = interest
+        # lock-step time (swarmnet/lockstep.py): the members' publishers wait rather than drop, and a pose
+        # stamped after the pump's instant (a pool ahead by a half tick sent it) waits for that instant
+        self.lossless = lossless
+        self.message_hold_s = 0.0  # lock-step: a swarm message waits this long in simulated time (the pool's tick)
+        self._early: list[Pose] = []
+        self._now = 0.0  # the last pump's instant
         self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
         self.positions = Positions()  # where each of them is, for the members' queries (NeighbourView.around)
         self.stats = NodeStats()  # the pose stream's: received, rejected; the links of outsiders
@@ -353,12 +360,19 @@ class SharedSession:
         if self.session is None:
             return 0
         now = self.clock() if now is None else now
+        self._now = now
         total = 0
         for batches, near, inlet in self._pose_inlets:
             handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
             srcs: list[int] = []
             ages: list[float] = []
             n = 0
+            if self._early and not batches:  # lock-step: the poses whose instant has come, as they left then
+                due = [p for p in self._early if p.t_wall <= now]
+                self._early = [p for p in self._early if p.t_wall > now]
+                for pose in due:
+                    self._update(pose, pose.t_wall, srcs, ages, handed)
+                n += len(due)
             for at, sample in inlet.drain(budget):
                 payload = sample.payload.to_bytes()
                 if batches:
@@ -443,11 +457,17 @@ class SharedSession:
         except Rejected as exc:
             self.stats.reject(exc.reason, key, exc.detail)
             return 0
+        if self.lossless and pose.t_wall > self._now:  # lock-step: from a pool already at a later instant
+            self._early.append(pose)
+            del self._early[:-EARLY_MAX]
+            return 0
         self._update(pose, at, srcs, ages, handed)
         return 1
 
     def _update(self, pose: Pose, at: float, srcs: list[int], ages: list[float],
                 handed: list[tuple[Pose, float]] | None) -> None:
+        if self.lossless and at < pose.t_wall:  # lock-step: it left at its sender's instant, before this clock got there
+            at = pose.t_wall
         if self.neighbours.update(pose, at):
             srcs.append(pose.uav)
             ages.append(at - pose.t_wall)

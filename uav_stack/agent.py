@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -272,8 +273,9 @@ class Agent:
             node.publish_state(f.phase, self.behaviour_name, self.failsafes.label or f.override, f.detail)
         if self.sdk is not None:  # what an SDK behaviour recorded and its message counters, once a second
             self.sdk.report(now)
-        if now >= self._next_stats:
-            self._next_stats = now + 1.0
+        wall = time.monotonic()  # the stats file once a second of the wall clock's (lock-step time runs faster)
+        if wall >= self._next_stats:
+            self._next_stats = wall + 1.0
             self.write_stats(now)
         if router is not None:
             router.flush()

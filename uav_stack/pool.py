@@ -27,6 +27,7 @@ import os
 import selectors
 import sys
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -35,6 +36,8 @@ import msgspec
 from msgspec import Meta
 
 from groundfloor.schema import Config, ConfigError, decode_json
+from swarmnet.keyspace import SwarmKeys
+from swarmnet.lockstep import LockstepFollower
 from swarmnet.neighbours import neighbour_counters
 from uav_stack.config import MAX_POOL, VirtualUavConfig
 from uav_stack.fcu_link import LinkOpenError
@@ -42,6 +45,7 @@ from uav_stack.recorder import RecordHealth, SwappedJsonFile, pool_neighbours_fi
 from uav_stack.runtime import (
     FCU_LEAD_S,
     LoopStats,
+    SimTime,
     StopFlag,
     VirtualUav,
     check_signing_key,
@@ -61,6 +65,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+LOCKSTEP_IDLE_S = 60.0  # wall s without a lock-step step: the leader is gone, the pool stops
+LOCKSTEP_POLL_S = 1.0  # wall s between looks at the stop flag and the parent while waiting for a step
 PUT_TOGETHER = 16  # UAVs whose puts of a half tick leave back to back: a pose waits for at most their work
 ACT_AFTER = 0.3  # of a period after the instant: when the pool acts (its UAVs' poses of the instant are in by then)
 
@@ -73,6 +79,9 @@ class PoolConfig(Config, frozen=True):
     number: Annotated[int, Meta(ge=1, le=65535)] = 1
     # stop the process after this long (None: until signalled)
     duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
+    # lock-step time (swarmnet/lockstep.py): the simulated time of the first instant, s since the Unix
+    # epoch; the pool runs each half tick when the run's leader steps it. None: real time
+    lockstep_epoch: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
     def __post_init__(self) -> None:
         first = self.uavs[0]
@@ -111,19 +120,21 @@ class PooledFcu:
             f.dropped_datagrams += len(f.vehicle.link.recv())
         self.fcu.poll_io(vehicles=[f.vehicle for f in self.faults if not f.cut])
 
-    def service(self) -> None:
-        now = time.time()
+    def service(self, now: float, fcu_now: float | None = None) -> None:
+        """The FCU's due steps (by ``fcu_now`` on its clock: default its own), faults updated to ``now``."""
         for f in self.faults:
             f.update(now)
-        self.fcu.service()
+        self.fcu.service(fcu_now)
 
 
 class Pool:
     """The UAVs of one pool and the loop that drives them."""
 
     def __init__(self, uavs: list[VirtualUav], fcu: VirtualFcu,
-                 neighbour_files: list[tuple[SharedSession, SwappedJsonFile]] | None = None):
+                 neighbour_files: list[tuple[SharedSession, SwappedJsonFile]] | None = None,
+                 clock: Callable[[], float] = time.time):
         self.uavs = uavs
+        self.clock = clock  # what the UAVs are told the time is: the wall clock, or lock-step's simulated time
         self.neighbour_files = neighbour_files or []  # each shared session's per-neighbour counters, once a second
         self.records = RecordHealth()
         self.fcu = PooledFcu(fcu, [u.faults for u in uavs])
@@ -163,7 +174,7 @@ class Pool:
             next_sense = next_grid_instant(now_m, period)
             next_act = max(instant, next_sense - period) + ACT_AFTER * period
             self.fcu.poll_io()
-            self.fcu.service()
+            self.fcu.service(time.time())
             self._each("sense")
             self.fcu.poll_io()
             if now_m >= next_counters:
@@ -171,6 +182,53 @@ class Pool:
                 self.write_neighbours()
             if os.getppid() != parent:  # re-parented: the launcher is gone
                 break
+
+    def run_lockstep(self, stop: StopFlag, follower: LockstepFollower, sim: SimTime, period: float,
+                     duration: float | None = None, idle_timeout: float = LOCKSTEP_IDLE_S) -> None:
+        """Each tick when the leader steps it, at the step's simulated time, as fast as the steps come
+        (swarmnet/lockstep.py): every UAV acts on the poses of the last instant (at its
+        :data:`ACT_AFTER`, as in real time), then the FCU steps to the new instant and every UAV
+        senses and its pose goes out. A UAV's command or fault is taken in at the start of the step.
+        Ends when stopped, after ``duration`` s of simulated time, or when no step came for
+        ``idle_timeout`` s of wall time (the leader is gone)."""
+        parent = os.getppid()
+        loop = LoopStats(period)
+        for u in self.uavs:
+            u.agent.stats_sources["loop"] = loop.as_dict
+        end = math.inf if duration is None else sim.now + duration
+        next_counters = time.monotonic() + 1.0
+        waiting = time.monotonic()
+        while not stop.stopped and sim.now < end:
+            step = follower.next_step(min(LOCKSTEP_POLL_S, idle_timeout))
+            if step is None:
+                if time.monotonic() - waiting > idle_timeout:
+                    log.error("no lock-step step for %.0f s: the run's leader is gone; the pool stops", idle_timeout)
+                    break
+                if os.getppid() != parent:
+                    break
+                continue
+            waiting = time.monotonic()
+            if step.k > 0:  # the act of the last instant
+                sim.now = step.t - (1.0 - ACT_AFTER) * period
+                self._react_woken()
+                self.fcu.poll_io()
+                self._each("act")
+            sim.now = step.t
+            loop.tick(0.0)
+            self.fcu.poll_io()
+            self.fcu.service(step.t, step.t)
+            self._each("sense")
+            self.fcu.poll_io()
+            follower.done(step)
+            if waiting >= next_counters:  # (files on the wall clock: a faster run does not write more often)
+                next_counters = waiting + 1.0
+                self.write_neighbours()
+
+    def _react_woken(self) -> None:
+        for key, _ in self._sel.select(0):
+            u: VirtualUav = key.data
+            u.agent.node.waker.clear()
+            self._guarded(u, "react")
 
     def _wait(self, timeout: float) -> None:
         for key, _ in self._sel.select(timeout):
@@ -189,7 +247,7 @@ class Pool:
 
     def _guarded(self, u: VirtualUav, what: str) -> None:
         try:
-            getattr(u.agent, what)(time.time())
+            getattr(u.agent, what)(self.clock())
         except Exception:  # noqa: BLE001 - one UAV's failure never takes its pool-mates down
             n = self.errors[u.agent.uav] = self.errors.get(u.agent.uav, 0) + 1
             if n == 1 or n % 100 == 0:
@@ -198,7 +256,7 @@ class Pool:
     def write_neighbours(self) -> None:
         """Each shared session's per-neighbour pose counters, in the file its UAVs' counters files
         name (``neighbours_in``): once for the pool instead of once per UAV."""
-        now = time.time()
+        now = self.clock()
         for share, out in self.neighbour_files:
             out.write({"pool": share.name, "written_at": now, "neighbours": neighbour_counters(share.neighbours)},
                       self.records, now)
@@ -213,22 +271,29 @@ class Pool:
 def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> int:
     cfgs = list(cfg.uavs)
     period = 1.0 / max(tick_hz_for(c.agent) for c in cfgs)
+    # lock-step: every clock of the pool (FCU, nodes, agents) reads the simulated time the leader steps
+    sim = SimTime(cfg.lockstep_epoch) if cfg.lockstep_epoch is not None else None
     # the FCU's 10 Hz positions on the ticks' grid, a hair before each instant (as a UAV process's, aligned)
     # every agent is in this process: each vehicle's link an in-process channel, not a socket pair
-    fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S, inproc=True)
+    if sim is None:
+        fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S, inproc=True)
+    else:
+        fcu = make_virtual_fcu(cfgs, sim.now - FCU_LEAD_S, inproc=True, clock=sim)
+    clock: Callable[[], float] = time.time if sim is None else sim
     uavs: list[VirtualUav] = []
     shares: dict[str, SharedSession] = {}  # swarm -> the pool's one session for its UAVs of that swarm
     try:
         swarms = _by_swarm(cfgs)
         if shares_session(cfgs[0].agent.network):
             for swarm, members in swarms.items():
-                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop)
+                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop, clock=clock)
         for i, c in enumerate(cfgs):
             if stop.stopped:
                 return 0
             share = shares.get(c.agent.swarm)
             try:
-                uavs.append(open_virtual_uav(c, fcu, i, stop, tap_zenoh_log=tap_zenoh_log and i == 0, shared=share))
+                uavs.append(open_virtual_uav(c, fcu, i, stop, tap_zenoh_log=tap_zenoh_log and i == 0, shared=share,
+                                             clock=clock))
             except LinkOpenError as exc:
                 log.error("UAV %d: %s", c.agent.uav, exc)
                 return 2
@@ -242,10 +307,11 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
             for u in uavs:
                 u.agent.neighbours_in = name
             files = [(share, SwappedJsonFile(Path(cfgs[0].agent.record_dir) / name))]
-        pool = Pool(uavs, fcu, files)
+        pool = Pool(uavs, fcu, files, clock)
         log.info("pool of %d virtual UAVs (%s) flying", len(uavs), ", ".join(str(c.agent.uav) for c in cfgs))
         try:
-            pool.run(stop, period, cfg.duration)
+            if not _fly(pool, cfg, stop, period, sim, shares):
+                return 2
         finally:
             pool.write_neighbours()  # the last counters, as each UAV writes its own at the end
             pool.close()
@@ -259,6 +325,27 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
             share.close()
         fcu.close()
     return 0
+
+
+def _fly(pool: Pool, cfg: PoolConfig, stop: StopFlag, period: float, sim: SimTime | None,
+         shares: dict[str, SharedSession]) -> bool:
+    """The pool's loop on the wall clock, or on the run's lock-step clock (False: it cannot follow one)."""
+    if sim is None:
+        pool.run(stop, period, cfg.duration)
+        return True
+    session = next(iter(shares.values())).session if len(shares) == 1 else None
+    if session is None:
+        log.error("lock-step time needs the pool's UAVs on one shared session (one swarm, client mode)")
+        return False
+    (share,) = shares.values()
+    share.message_hold_s = period  # a swarm message is taken at the receivers' next act (swarmnet/lockstep.py)
+    follower = LockstepFollower(session, SwarmKeys(cfg.uavs[0].agent.swarm), cfg.number)
+    log.info("lock-step time: waiting for the run's leader")
+    try:
+        pool.run_lockstep(stop, follower, sim, period, cfg.duration)
+    finally:
+        follower.close()
+    return True
 
 
 def _by_swarm(cfgs: list[VirtualUavConfig]) -> dict[str, list[VirtualUavConfig]]:

@@ -87,13 +87,26 @@ def make_connectivity(net: NetworkConfig, name: NodeName | None = None) -> Conne
     raise ValueError(f"unknown connectivity {net.connectivity!r}")
 
 
-def make_node(cfg: AgentConfig, shared: SharedSession | None = None) -> SwarmNode:
+class SimTime:
+    """Lock-step time as a clock: ``sim()`` is the simulated time (s since the Unix epoch) that the
+    loop set last (:attr:`now`), for every part of a pool that reads a clock."""
+
+    __slots__ = ("now",)
+
+    def __init__(self, start: float):
+        self.now = start
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def make_node(cfg: AgentConfig, shared: SharedSession | None = None, clock: Callable[[], float] = time.time) -> SwarmNode:
     """The agent's swarm node: a session of its own, or a member of a pool's ``shared`` one."""
     ident = NodeIdentity(cfg.swarm, cfg.uav, Realm.parse(cfg.realm), "uav")
     conn = make_connectivity(cfg.network, NodeName.uav(cfg.uav, cfg.swarm))
     return SwarmNode(ident, conn, pose_rate_hz=cfg.pose_rate_hz, stale_after=cfg.stale_after,
                      pose_feed=cfg.network.pose_feed, netem=cfg.network.netem, near_feed=cfg.network.interest is not None,
-                     shared=shared)
+                     shared=shared, clock=clock)
 
 
 def shares_session(net: NetworkConfig) -> bool:
@@ -102,7 +115,7 @@ def shares_session(net: NetworkConfig) -> bool:
 
 
 def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
-                        timeout: float = OPEN_TIMEOUT_S) -> SharedSession:
+                        timeout: float = OPEN_TIMEOUT_S, clock: Callable[[], float] = time.time) -> SharedSession:
     """Pool ``number``'s one session for the UAVs of ``cfgs`` (one swarm, one network), opened: it
     speaks as ``pool-<number>``, whose certificate speaks for those UAVs (docs/security.md)."""
     from swarmnet.shared_session import SharedSession
@@ -110,7 +123,8 @@ def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
     first = cfgs[0]
     net = first.network
     share = SharedSession(first.swarm, make_connectivity(net, NodeName("pool", number, first.swarm)), pose_feed=net.pose_feed,
-                          stale_after=first.stale_after, name=f"pool {number}", number=number, interest=net.interest)
+                          stale_after=first.stale_after, name=f"pool {number}", number=number, interest=net.interest,
+                          clock=clock, lossless=clock is not time.time)
     if net.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this pool's "
                     "network can command its UAVs and speak for any UAV (docs/security.md)")
@@ -118,7 +132,7 @@ def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
 
 
 def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, timeout: float = OPEN_TIMEOUT_S,
-              shared: SharedSession | None = None) -> SwarmNode:
+              shared: SharedSession | None = None, clock: Callable[[], float] = time.time) -> SwarmNode:
     """The agent's node, opened. A secured node in its own process (``tap_zenoh_log``) also counts
     the TLS handshakes its listener refuses (swarmnet/security/zenoh_log.py); an insecure one says
     at start that anyone on its network can command it.
@@ -127,7 +141,7 @@ def open_node(cfg: AgentConfig, stop: StopFlag, tap_zenoh_log: bool = False, tim
     edge router can take longer than Zenoh's connect timeout to accept a client, and the session
     refuses to open: it is tried again until ``timeout`` s (swarmnet.connectivity.open_retrying).
     """
-    node = make_node(cfg, shared)
+    node = make_node(cfg, shared, clock)
     if shared is not None:
         return node.open()  # (the shared session said it all when it opened)
     if cfg.network.security is None:
@@ -164,15 +178,17 @@ def signing_policy(cfg: AgentConfig) -> SigningPolicy:
     return policy
 
 
-def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None) -> tuple[FcuLink, MavlinkRouter | None]:
+def open_fcu_link(cfg: AgentConfig, url: str, target_system: int | None = None,
+                  clock: Callable[[], float] = time.time) -> tuple[FcuLink, MavlinkRouter | None]:
     """The agent's FCU link and, if ground-station endpoints are configured, its MAVLink router
-    (:func:`signing_policy`). ``target_system``: the FCU's sysid, if known.
+    (:func:`signing_policy`). ``target_system``: the FCU's sysid, if known; ``clock``: what stamps
+    the FCU's messages (lock-step: simulated time; the router's ground stations keep the wall's).
 
     Raises :class:`~uav_stack.fcu_link.LinkOpenError`, naming the setting and the link, when a
     ground-station socket or the FCU link cannot be opened (a ``udpin`` port another process
     holds, a serial device that is not there)."""
     sysid = cfg.mavlink_sysid
-    link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind)
+    link = FcuLink(url, source_system=sysid, target_system=target_system, bind=cfg.fcu_bind, clock=clock)
     router = None
     if cfg.gcs.mavlink_endpoints:
         router = MavlinkRouter(cfg.gcs.mavlink_endpoints, link.write, own=(sysid, link.source_component),
@@ -390,7 +406,8 @@ def virtual_stream_rates(cfg: VirtualUavConfig) -> dict[str, float]:
     return turned_down(cfg.flavour, wanted)
 
 
-def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, inproc: bool = False) -> VirtualFcu:
+def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, inproc: bool = False,
+                     clock: Callable[[], float] | None = None) -> VirtualFcu:
     """One virtual FCU for these virtual UAVs (one vehicle each, stepped together), opened: one
     UDP socket per vehicle on the loopback, or with ``inproc`` (a pool: every agent in this
     process) an in-process channel per vehicle (:mod:`uav_stack.inproc`). They share its physics
@@ -409,9 +426,12 @@ def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, i
             target_rtf=first.target_rtf,
             # the loop comes back once per tick: a tick's lateness beyond that drops sim time, not less
             max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(first.agent),
-        )
+        ),
+        **({} if clock is None else {"clock": clock}),  # lock-step: simulated time, the Unix clock's origin
     )
     fcu.open(start)
+    if clock is not None:  # its GPS time: simulated too
+        fcu.ctx.unix_at_start = clock() if start is None else start
     return fcu
 
 
@@ -433,18 +453,19 @@ class VirtualUav:
 
 
 def open_virtual_uav(cfg: VirtualUavConfig, fcu: VirtualFcu, index: int, stop: StopFlag,
-                     tap_zenoh_log: bool = False, shared: SharedSession | None = None) -> VirtualUav:
+                     tap_zenoh_log: bool = False, shared: SharedSession | None = None,
+                     clock: Callable[[], float] = time.time) -> VirtualUav:
     """The agent of the FCU's vehicle ``index``: its FCU link (the vehicle's only client: over UDP,
     or the vehicle's in-process channel), its swarm node (a member of a pool's ``shared`` session,
     if given), its faults. :class:`LinkOpenError` if the link cannot open."""
     a = cfg.agent
-    link, router = open_fcu_link(a, fcu.vehicles[index].link.url, target_system=a.mavlink_sysid)
+    link, router = open_fcu_link(a, fcu.vehicles[index].link.url, target_system=a.mavlink_sysid, clock=clock)
     # the agent is its FCU's only client (ground stations come through its router): nobody
     # else's datagrams reach the FCU, nor churn the agent out of its peers
     assert link.local_address is not None
     fcu.vehicles[index].link.set_owner(link.local_address, owner_only=True)
     try:
-        node = open_node(a, stop, tap_zenoh_log, shared=shared)
+        node = open_node(a, stop, tap_zenoh_log, shared=shared, clock=clock)
     except BaseException:
         link.close()
         if router is not None:

@@ -76,6 +76,9 @@ class RunInfo(Struct):
     pids: dict[str, int] = {}  # process (or container's main process) per name: "uav3", "router", "discovery", "pool1"
     pools: dict[str, list[int]] = {}  # pool process -> the virtual UAVs it hosts (fleet.pool > 1)
     mission_start: float | None = None  # wall time of the "start" command; None if the mission never started
+    # time: lockstep: how the simulated clock ran (ticks, sim_s, wall_s, speedup, waiting_s...); the run's times
+    # (mission_start, takeoff_sent, the UAVs' records) are then simulated time
+    lockstep: dict[str, Any] | None = None
     all_done_at: float | None = None  # s after mission_start at which every UAV was done (if before the duration)
     # the takeoff: command sent (wall), every UAV acknowledged (s after it), every UAV airborne (s after it), sends
     takeoff_sent: float | None = None

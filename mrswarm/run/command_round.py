@@ -68,13 +68,15 @@ class CommandRound:
 def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeout: float,
                   progress: Callable[[CommandRound], None] | None = None, clock: Callable[[], float] = time.time,
                   took_effect: Callable[[int], bool] | None = None, tick: Callable[[], None] | None = None,
-                  active: Callable[[], Iterable[int]] | None = None, tick_every: float = 0.1) -> CommandRound:
+                  active: Callable[[], Iterable[int]] | None = None, tick_every: float = 0.1,
+                  tick_advances: bool = False) -> CommandRound:
     """Send ``verb`` to ``targets`` until each acknowledged or ``timeout`` s passed (see the module's docstring).
 
     ``progress`` is called after every wake-up (for a display); ``took_effect(uav)`` tells from
     the UAV's last reported state that it got the command; ``tick`` runs at least every
     ``tick_every`` s (the runner's supervision; it may raise to abort); ``active()`` names the
-    targets still expected (a UAV whose process was lost is not waited for). Never raises for
+    targets still expected (a UAV whose process was lost is not waited for); ``tick_advances``: each
+    ``tick`` moves ``clock`` on by itself (lock-step time), nothing is waited for. Never raises for
     missing or refused acknowledgements: the caller reads :attr:`CommandRound.missing` and ``refused``.
     """
     r = CommandRound(verb, sorted(targets), sent_at=clock())
@@ -111,6 +113,8 @@ def command_round(observer: SwarmObserver, verb: str, targets: list[int], timeou
             r.sends += 1
             backoff = min(backoff * 2.0, MAX_BACKOFF_S)
             next_send = now + backoff
+        if tick_advances:
+            continue
         wake = min(next_send, deadline, clock() + tick_every if tick is not None else math.inf)
         observer.waker.wait(max(0.0, wake - clock()))
     for p in sent:

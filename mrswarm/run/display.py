@@ -75,7 +75,7 @@ def status_line(progress: RunProgress, metrics: LiveMetrics, obs: SwarmObserver 
     ``[mission] 35 of 120 s, coverage 40.1 %, separation 6.0 m (lowest 5.2 m), RTF 1.00 (lowest 0.98)``; before
     the mission, the stage's own clock (``since``, wall time it began) and the agents per phase."""
     now = time.time()
-    elapsed = progress.elapsed(now)
+    elapsed = progress.elapsed()
     parts: list[str] = []
     if elapsed is not None:
         parts.append(f"{min(elapsed, progress.duration):.0f} of {progress.duration:.0f} s")

@@ -66,9 +66,12 @@ from mrswarm.run.world_setup import (
 )
 from mrswarm.scenario import MESH_MAX_UAVS, Scenario
 from mrswarm.scenario.faults import plan
+from swarmnet.keyspace import SwarmKeys
+from swarmnet.lockstep import LOCKSTEP_EPOCH, LockstepLeader, LockstepStalled
 from swarmnet.observer import SwarmObserver
-from uav_stack.config import AgentConfig, NetworkConfig
+from uav_stack.config import AgentConfig, NetworkConfig, VirtualUavConfig
 from uav_stack.phases import FINISHED, WORKING, AgentPhase
+from uav_stack.runtime import tick_hz_for
 
 READY_TIMEOUT_BASE = 30.0  # s for every agent to report "ready" ...
 READY_TIMEOUT_PER_UAV = 0.6  # ... plus this per UAV (processes start one after another)
@@ -134,6 +137,10 @@ class Experiment:
         self.rejoin: dict[int, tuple[float, float]] = {}  # restarted UAV -> (restart time, next start command), until it flies
         self.stalls = StallWatch()  # UAVs alive but silent (SIGSTOP, starved): events with their duration
         self._linked_since: float | None = None  # the runner's link to the edge router up since (wall)
+        # the run's clock: the wall's, or with time: lockstep the leader's simulated time (swarmnet/lockstep.py)
+        self.now: Callable[[], float] = time.time
+        self.progress.clock = lambda: self.now()
+        self.leader: LockstepLeader | None = None
 
     def _credentials(self) -> Path | None:
         """The swarm's key directory for this run (docs/security.md), or None with ``network.security: off``."""
@@ -222,6 +229,12 @@ class Experiment:
         raises on a dead observer."""
         if self.observer is not None and self.supervisor is not None:
             self._watch_stalls(final=True)  # a UAV still stalled now: its stall lasted to the end
+        if self.leader is not None:  # how fast simulated time ran
+            self.run_info.lockstep = self.leader.stats()
+            try:
+                self.leader.close()
+            except Exception as exc:  # noqa: BLE001 - stopping must go on
+                self.run_info.write_errors.append(f"lock-step leader close: {exc}")
         try:
             self._land_external()
         except Exception as exc:  # noqa: BLE001 - stopping must go on
@@ -232,9 +245,9 @@ class Experiment:
             except Exception as exc:  # noqa: BLE001 - stopping must go on
                 self.run_info.write_errors.append(f"observer close: {exc}")
         grace = FAST_GRACE_S if self.signals.fast else GRACE_S + GRACE_S_PER_PROCESS * len(self.scn.all_uavs())
-        self.run_info.stopping = time.time()
+        self.run_info.stopping = self.now()  # (lock-step: the simulated time the clock stopped at, as the records)
         self.run_info.exit_codes = dict(self.runtime.stop(grace))
-        self.run_info.stopped = time.time()
+        self.run_info.stopped = self.now()
         self.run_info.stop_signals = self.signals.names
         self.run_info.interrupted = self.run_info.interrupted or self.signals.requested
         self._save_info()
@@ -321,6 +334,7 @@ class Experiment:
             self.signals.check()
             self._start_external(a)
         pools: dict[str, tuple[int, ...]] = {}  # pool process -> its UAVs (fleet.pool > 1)
+        lockstep = scn.time == "lockstep"
         for group in scn.pools(configs):
             self.signals.check()
             if scn.pool_size == 1:
@@ -329,12 +343,13 @@ class Experiment:
             number = len(pools) + 1
             name = f"pool{number}"
             pools[name] = tuple(c.agent.uav for c in group)
-            self.runtime.start_pool(name, group, number)
+            self.runtime.start_pool(name, group, number, lockstep_epoch=LOCKSTEP_EPOCH if lockstep else None)
         self.run_info.pools = {name: list(uavs) for name, uavs in pools.items()}
         # the runtime's processes and the runner's flight recorder, each restarted as it should be
         children = RunnerChildren(self.runtime, {RECORDER: self.recorder} if self.recorder is not None else {})
         self.run_info.pids = children.pids()
-        self.supervisor = Supervisor(children, restart_uavs=scn.fleet is not None and scn.fleet.restart == "on-failure",
+        restart = scn.fleet is not None and scn.fleet.restart == "on-failure"
+        self.supervisor = Supervisor(children, clock=lambda: self.now(), restart_uavs=restart,
                                      last_pose=self._last_pose, log_of=lambda name: self.run_dir / "logs" / f"{name}.log",
                                      pools=pools)
         self.supervisor.adopt()
@@ -360,9 +375,11 @@ class Experiment:
         # (with the run's key directory as seen from here: a container's credentials sit elsewhere);
         # one observer per swarm when several share the airspace
         try:
-            self.observer = open_observer(scn, nets, self.swarm_keys)
+            self.observer = open_observer(scn, nets, self.swarm_keys, clock=lambda: self.now())
         except zenoh.ZError as exc:  # the edge router never accepted the runner: every UAV is stopped, the run says why
             raise RunAborted(f"the runner could not join the swarm: {exc}") from None
+        if lockstep:
+            self._start_lockstep(configs, len(pools))
         n = len(ids)
         slowest = min([c.target_rtf for c in configs] or [1.0])
         ready_own = {u.id: u.wait_s for u in scn.external_uavs()}  # each external UAV its own wait
@@ -380,31 +397,46 @@ class Experiment:
             hover_s = TAKEOFF_MARGIN + climb + command_deadline(n)
             # a real autopilot may take longer to arm and climb (pre-arm checks, its own climb rate)
             self._wait_phase(ids, {AgentPhase.HOVER}, hover_s, own={u: hover_s + TAKEOFF_MARGIN for u in ready_own})
-            self.run_info.all_airborne_s = time.time() - takeoff.sent_at
+            self.run_info.all_airborne_s = self.now() - takeoff.sent_at
             self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
             self._command("start", ids, set(WORKING))
-            start = time.time()
+            start = self.now()
             self.run_info.mission_start = self.progress.mission_start = start
             if scn.faults:
-                self.chaos = Chaos(plan(scn.faults, scn.seed), self._swarm(net))
+                self.chaos = Chaos(plan(scn.faults, scn.seed), self._swarm(net), clock=self.now)
             self._save_info()
             end = start + scn.duration
-            while time.time() < end:
+            while self.now() < end:
                 self._tick()
                 if self.chaos is not None:
-                    self.chaos.tick(time.time() - start)
+                    self.chaos.tick(self.now() - start)
                     if self.chaos.changed:
                         self._save_info()
                 if self.probe is not None:
-                    self.probe(self, time.time() - start)
+                    self.probe(self, self.now() - start)
                 active = self._active_ids()
                 if active and not self.rejoin and all(self._finished(u) for u in active) \
                         and (self.chaos is None or not self.chaos.pending):
-                    self.run_info.all_done_at = time.time() - start
+                    self.run_info.all_done_at = self.now() - start
                     break
             self.progress.stage = RunStage.STOPPING
             self.display.refresh(self.observer)
+
+    def _start_lockstep(self, configs: list[VirtualUavConfig], pools: int) -> None:
+        """time: lockstep: the runner leads the clock (swarmnet/lockstep.py) once every pool is ready for
+        it; from then on the run's clock is simulated time, and each of its ticks (TICK) is stepped."""
+        assert self.observer is not None and self.observer.node.session is not None
+        period = 1.0 / max(tick_hz_for(c.agent) for c in configs)
+        self.leader = LockstepLeader(self.observer.node.session, SwarmKeys(self.scn.swarm), range(1, pools + 1), period,
+                                     LOCKSTEP_EPOCH)
+        self.progress.detail = f"waiting for {plural(pools, 'pool')} to take lock-step time"
+        try:
+            self.leader.wait_ready(READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * len(configs))
+        except LockstepStalled as exc:
+            raise RunAborted(f"lock-step time: {exc} ({format_ids(exc.missing)}; see {self.run_dir / 'logs'})") from None
+        self.now = self.leader.clock
+        self._say(f"lock-step time: {plural(pools, 'pool')} on the simulated clock, as fast as they run")
 
     def _swarm(self, net: NetworkConfig) -> Swarm:
         """What the fault schedule acts on."""
@@ -458,9 +490,12 @@ class Experiment:
         def tick() -> None:
             self.signals.check()
             self._supervise()
+            if self.leader is not None:
+                self._step_clock()
 
-        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show,
-                          took_effect=lambda u: self._phase_of(u) in took_effect, tick=tick, active=self._active_ids)
+        r = command_round(self.observer, verb, ids, command_deadline(len(ids)), progress=show, clock=self.now,
+                          took_effect=lambda u: self._phase_of(u) in took_effect, tick=tick, active=self._active_ids,
+                          tick_advances=self.leader is not None)
         if r.refused:
             raise RunAborted(f"'{verb}' refused by {r.refused}")
         if r.missing and not self._go_on_without(r.missing, verb, len(ids)):
@@ -481,12 +516,12 @@ class Experiment:
         with a wait of their own (s from now; the external ones), which the others' deadline does not end."""
         own = own or {}
         ids = [u for u in ids if u not in self.rejoin]  # late ones join when they are ready (_rejoin_tick)
-        t0 = time.time()
+        t0 = self.now()
         deadline = t0 + timeout
         hard = t0 + max(timeout, cap if cap is not None else timeout)
         best = 0
         while True:
-            now = time.time()
+            now = self.now()
             active = [u for u in ids if u in self._active_ids()]
             behind = [u for u in active if self._phase_of(u) not in phases]
             if active and not behind:
@@ -510,7 +545,7 @@ class Experiment:
         behind = [u for u in ids if self._phase_of(u) not in phases]
         said = {u: str(self._phase_of(u) or "?") for u in behind}
         why = "".join(f"; UAV {u} ({self._external_what(u)}): {self._external_hint(u)}" for u in behind if u in own)
-        raise RunAborted(f"timed out after {time.time() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {said}{why}")
+        raise RunAborted(f"timed out after {self.now() - t0:.0f} s waiting for {'/'.join(sorted(phases))}; still: {said}{why}")
 
     # ---- UAVs whose flight controller is external (docs/scenarios.md, "Physical and external UAVs") ------------------
     def _start_external(self, cfg: AgentConfig) -> None:
@@ -576,7 +611,7 @@ class Experiment:
         self.progress.stage = RunStage.STOPPING
         self._say(f"landing UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} (external flight controller) before "
                   "stopping" + (" (stop again to skip)" if self.signals.requested else ""))
-        t0 = time.time()
+        t0 = self.now()
         deadline = t0 + self.scn.flight.altitude / LAND_SPEED + LAND_MARGIN_S
         sent: dict[int, float] = {}
         while up and time.time() < deadline and not self.signals.fast:
@@ -617,7 +652,18 @@ class Experiment:
             self.display.refresh(self.observer)
         except OSError:  # the terminal is gone
             self.console.quiet = True
-        time.sleep(TICK)
+        if self.leader is None:
+            time.sleep(TICK)
+        else:
+            self._step_clock()
+
+    def _step_clock(self) -> None:
+        """Lock-step time: TICK s of simulated time, as fast as the pools run them."""
+        assert self.leader is not None
+        try:
+            self.leader.advance(TICK)
+        except LockstepStalled as exc:
+            raise RunAborted(f"lock-step time stalled: {exc}") from None
 
     def _supervise(self) -> None:
         """Process exits and restarts become events (mrswarm/run/supervisor.py); the run goes on."""
@@ -641,7 +687,7 @@ class Experiment:
     def _watch_stalls(self, final: bool = False) -> None:
         """Flying UAVs whose poses stopped while their process lives: an event when the stall ends (or the run does)."""
         assert self.observer is not None and self.supervisor is not None
-        now = time.time()
+        now = self.now()
         began: list[int] = []
         if final:
             ended = self.stalls.close(now)
@@ -688,7 +734,7 @@ class Experiment:
         if not late or len(late) > int(LATE_MAX_FRACTION * of) or set(late) & (external or set()) \
                 or set(late) & {u.id for u in self.scn.external_uavs()}:
             return False
-        now = time.time()
+        now = self.now()
         for u in late:
             self.run_info.late.append(LateUav(uav=u, stage=stage, t=now))
             self.rejoin[u] = (0.0, now)  # any state it reports from now on
@@ -700,7 +746,7 @@ class Experiment:
     def _rejoin_tick(self) -> None:
         """A restarted UAV reports ready: send it start (takeoff before the mission), until it flies."""
         assert self.observer is not None
-        now = time.time()
+        now = self.now()
         for uav, (since, next_send) in list(self.rejoin.items()):
             v = self.observer.uavs.get(uav)
             if v is None or v.state is None or v.state_recv <= since:

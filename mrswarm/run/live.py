@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -44,6 +45,7 @@ class RunProgress:
     mission_start: float | None = None  # wall time of the "start" command
     detail: str = ""  # what the stage is doing (a command's acknowledgements so far, the takeoff time)
     milestones: list[str] = field(default_factory=list)  # what the run reached, in order (a log prints each once)
+    clock: Callable[[], float] = time.time  # the run's clock: the wall's, or lock-step's simulated time
 
     def reached(self, text: str) -> None:
         """A milestone (every UAV acknowledged a command, all airborne): the detail now, and a line of its own in a log."""
@@ -54,7 +56,7 @@ class RunProgress:
         """Seconds since the mission started (None before)."""
         if self.mission_start is None:
             return None
-        return (time.time() if now is None else now) - self.mission_start
+        return (self.clock() if now is None else now) - self.mission_start
 
 
 SEPARATION_STALE_S = 1.0  # s: a pose this much older than the newest is not carried forward (its UAV went quiet)

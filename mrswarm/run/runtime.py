@@ -38,9 +38,10 @@ class Runtime(Protocol):
         """Start one virtual UAV (FCU + agent) with this configuration."""
         ...
 
-    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int) -> None:
+    def start_pool(self, name: str, cfgs: list[VirtualUavConfig], number: int, lockstep_epoch: float | None = None) -> None:
         """Start several virtual UAVs in one process named ``name``, pool ``number`` of the run (its
-        identity ``pool-<number>``; ``fleet.pool``; the process runtime)."""
+        identity ``pool-<number>``; ``fleet.pool``; the process runtime); with ``lockstep_epoch``, on the
+        run's lock-step clock from that simulated time on (swarmnet/lockstep.py)."""
         ...
 
     def start_agent(self, cfg: AgentConfig) -> None:

@@ -10,7 +10,8 @@ service joins every swarm as a client of its edge router, as that swarm's ``edge
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -154,7 +155,7 @@ class FleetObserver(SwarmObserver):
 
 
 def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str, Path | None],
-                  name: str = "runner") -> SwarmObserver:
+                  name: str = "runner", clock: Callable[[], float] = time.time) -> SwarmObserver:
     """The runner's observer (as each swarm's ``ctl``): of the scenario's swarm, or of every swarm of the airspace."""
 
     def conn(s: str) -> Connectivity:
@@ -162,7 +163,7 @@ def open_observer(scn: Scenario, nets: dict[str, NetworkConfig], keys: dict[str,
 
     obs: SwarmObserver
     if not scn.other_swarms:
-        obs = SwarmObserver(scn.swarm, conn(scn.swarm), name=name)
+        obs = SwarmObserver(scn.swarm, conn(scn.swarm), name=name, clock=clock)
     else:
         swarm_ids = {scn.swarm: {u.id for u in scn.uav_list()}} | {o.swarm: {u.id for u in o.uav_list()} for o in
                                                                    scn.other_swarms}

@@ -274,7 +274,7 @@ class Network(Config, frozen=True):
         assert w is not None, "a Network outside a Scenario: call sized_for first"
         return w / 1000.0
 
-    def sized_for(self, uavs: int, needs_discovery: bool = False, pooled: bool = False) -> Network:
+    def sized_for(self, uavs: int, needs_discovery: bool = False, pooled: bool = False, lockstep: bool = False) -> Network:
         """This network with every unset choice made for ``uavs`` UAVs on one machine.
 
         Up to :data:`MESH_MAX_UAVS`: the peer mesh (``discovery``, ``peer``, ``direct``), the
@@ -285,14 +285,15 @@ class Network(Config, frozen=True):
         on the discovery server) keeps the peer topology. ``pooled`` (virtual UAVs in pools,
         ``fleet.pool``) chooses as for a large fleet: a pool's one session speaks for its UAVs
         through the edge router (docs/scale.md). A choice the scenario made is kept; client mode
-        always means ``rendezvous``.
+        always means ``rendezvous``. ``lockstep`` (``time: lockstep``) keeps every pose direct: the
+        lock-step clock relies on every message crossing the edge router in the order it was put.
         """
         big = uavs > MESH_MAX_UAVS or pooled
         mode = self.mode
         if mode is None:
             mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
         connectivity = self.connectivity or ("rendezvous" if mode == "client" else "discovery")
-        feed = self.pose_feed or ("edge" if big or self.interest is not None else "direct")
+        feed = self.pose_feed or ("edge" if (big or self.interest is not None) and not lockstep else "direct")
         window = self.feed_window_ms
         if window is None:
             window = LARGE_FLEET_FEED_WINDOW_MS if big else DEFAULT_WINDOW * 1000.0
@@ -387,6 +388,11 @@ class Uav(Config, frozen=True):
         return self.realm
 
 
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def uav_list(fleet: Fleet | None, uavs: tuple[Uav, ...] | None) -> list[Uav]:
     """A swarm's UAVs: the explicit list, or the fleet's spawn points."""
     if uavs is not None:
@@ -461,6 +467,9 @@ class Scenario(Config, kw_only=True, frozen=True):
     faults: tuple[FaultSpec, ...] = ()  # chaos: faults injected during the mission (docs/reliability.md)
     world: WorldConfig | None = None  # the world service: plume, fire, targets, zones, sensors (docs/world.md)
     other_swarms: tuple[OtherSwarm, ...] = ()  # more swarms in the same airspace
+    # real: every part on the wall clock; lockstep: the pools of virtual UAVs, the network shim and the runner
+    # advance in simulated time together, as fast as the CPU allows (docs/campaigns.md)
+    time: Literal["real", "lockstep"] = "real"
 
     def __post_init__(self) -> None:
         if self.uavs is not None:
@@ -483,7 +492,9 @@ class Scenario(Config, kw_only=True, frozen=True):
             raise ConfigError("fleet.first_id", "UAV ids must stay <= 65535")
         self._check_other_swarms()
         needs_discovery = any("discovery" in f.kind for f in self.faults)
-        force_setattr(self, "network", self.network.sized_for(len(self.all_uavs()), needs_discovery, self.pool_size > 1))
+        lockstep = self.time == "lockstep"
+        force_setattr(self, "network", self.network.sized_for(len(self.all_uavs()), needs_discovery, self.pool_size > 1,
+                                                              lockstep))
         self._check_world()
         self._check_spawn_spacing(self.all_uavs())
         for u in self.all_uavs():
@@ -494,6 +505,8 @@ class Scenario(Config, kw_only=True, frozen=True):
             check_against(self.faults, {u.id for u in uavs}, self.duration, self.network.topology[0])
         self._check_external()
         self._check_pools()
+        if lockstep:
+            self._check_lockstep()
         g = self.gcs
         if g.mavlink:
 
@@ -527,10 +540,43 @@ class Scenario(Config, kw_only=True, frozen=True):
         if pool != "auto":
             return pool
         n = len(self.all_uavs())
+        if self.time == "lockstep":  # only pools follow the lock-step clock: one per core
+            return max(2, min(MAX_POOL, math.ceil(n / _cores()))) if n > 1 else 2
         if n <= POOL_ABOVE or self.runtime != "process" or any(f.kind in UAV_PROCESS for f in self.faults):
             return 1
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        return min(MAX_POOL, math.ceil(n / cores))
+        return min(MAX_POOL, math.ceil(n / _cores()))
+
+    def _check_lockstep(self) -> None:
+        """``time: lockstep``: what the lock-step clock steps (pools of virtual UAVs of one swarm, through
+        the edge router, every pose direct) is all the run may have."""
+        def no(name: str, why: str) -> ConfigError:
+            return ConfigError(name, f"{why}, which lock-step time cannot step (time: lockstep; docs/campaigns.md)")
+
+        external = [u.id for u in self.all_uavs() if u.external]
+        if external:
+            raise no("uavs", f"UAV(s) {external} fly a physical or external flight controller on the wall clock")
+        if self.runtime != "process":
+            raise no("runtime", "the container runtime runs a UAV per container")
+        if self.fleet is None:
+            raise no("uavs", "an explicit uavs list is flown a process per UAV; give a fleet")
+        if self.pool_size < 2:
+            raise no("fleet.pool", "fleet.pool: 1 runs a process per UAV")
+        if self.fleet.restart != "no":
+            raise no("fleet.restart", "a restarted pool would start its clock again")
+        if self.fleet.rtf != 1.0:
+            raise no("fleet.rtf", f"a target real-time factor ({self.fleet.rtf:g}) paces the FCU on the wall clock")
+        if self.other_swarms:
+            raise no("other_swarms", "a second swarm has a clock of its own")
+        if self.world is not None:
+            raise no("world", "the world service runs on the wall clock")
+        net = self.network
+        connectivity, mode, feed = net.topology
+        if mode != "client" or connectivity != "rendezvous":
+            raise no("network.mode", f"{mode} mode over {connectivity} has links that bypass the edge router")
+        if feed != "direct":
+            raise no("network.pose_feed", "the edge feed batches poses on the wall clock")
+        if net.interest is not None:
+            raise no("network.interest", "spatial interest batches poses on the wall clock")
 
     def _check_pools(self) -> None:
         """Pools (``fleet.pool`` > 1): the process runtime hosts them; a process fault would hit a whole pool."""

@@ -18,11 +18,12 @@ list (revoked, or never issued) gets nothing through.
             ``N/behaviour``                                         broadcasts and its unicasts, its sensor
                                                                     readings ``N/sense/*``, the airspace feed
                                                                     ``mrs/airspace/<swarm>/traffic``
- pool-N     what each UAV of its roster entry may put           what each of those UAVs receives, and the
-                                                                    pool's near feed ``feed/near/pool-N``
+ pool-N     what each UAV of its roster entry may put, and its      what each of those UAVs receives, the
+            answers to the lock-step clock ``clock/done/pool-N``    pool's near feed ``feed/near/pool-N`` and
+                                                                    the lock-step clock's steps ``clock/step``
  gcs-N      commands (``cmd``, ``<uav>/cmd``), ``alive/gcs/*``       everything of the swarm
  ctl        commands, ``netem/set``, ``<uav>/fault``,               everything of the swarm
-            ``alive/observer/*``
+            ``alive/observer/*``, the clock's steps ``clock/step``
  edge       everything of the swarm (it forwards what others put),  everything of the swarm
             the airspace feed (the world service speaks as edge)
 =========  ======================================================  ===========================================
@@ -83,18 +84,19 @@ def access_control(roster: Roster) -> dict[str, Any]:
             continue
         sid = name.short
         uavs = roster.speaks_for(name.cn) if name.role == "pool" else (name.node,)
-        rules.append(_rule(f"{sid}.in", ("put", "liveliness_token"), ("ingress",),
-                           [k for u in uavs for k in uav_puts(keys, u)]))
+        puts = [k for u in uavs for k in uav_puts(keys, u)]
         receives = [k for u in uavs for k in uav_receives(keys, u)]
         if name.role == "pool":  # the edge's one near batch for all its UAVs (swarmnet/interest.py)
-            receives.append(keys.pool_near_feed(name.node))
+            receives += [keys.pool_near_feed(name.node), keys.clock_step]  # and lock-step time (swarmnet/lockstep.py)
+            puts.append(keys.clock_done(name.node))
+        rules.append(_rule(f"{sid}.in", ("put", "liveliness_token"), ("ingress",), puts))
         rules.append(_rule(f"{sid}.out", ("put", "liveliness_token"), ("egress",), list(dict.fromkeys(receives))))
         subjects.append({"id": sid, "cert_common_names": [name.cn]})
         policies.append({"id": sid, "rules": ["declare", f"{sid}.in", f"{sid}.out"], "subjects": [sid]})
     command = [keys.swarm_cmd, keys.cmd("*")]
     rules.append(_rule("gcs.in", ("put", "liveliness_token"), ("ingress",), [*command, keys.alive("gcs", "*")]))
     rules.append(_rule("ctl.in", ("put", "liveliness_token"), ("ingress",),
-                       [*command, keys.netem_set, keys.fault("*"), keys.alive("observer", "*")]))
+                       [*command, keys.netem_set, keys.fault("*"), keys.alive("observer", "*"), keys.clock_step]))
     grants = {"gcs": ["declare", "observe", "gcs.in"], "ctl": ["declare", "observe", "ctl.in"], "edge": ["forward"]}
     for role, cns in staff.items():
         if cns:
