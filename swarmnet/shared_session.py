@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
@@ -208,12 +209,13 @@ class SharedSession:
         self.name = name
         self.number = number
         self.interest = interest
-        # lock-step time (swarmnet/lockstep.py): the members' publishers wait rather than drop, and a pose
-        # stamped after the pump's instant (a pool ahead by a half tick sent it) waits for that instant
+        # lock-step time (swarmnet/lockstep.py): the members' publishers wait rather than drop; a pose
+        # stamped after :attr:`instant` (a pool ahead by a half tick sent it) waits until the pool's loop
+        # moves the instant there, and a swarm message waits :attr:`message_hold_s` of simulated time
         self.lossless = lossless
-        self.message_hold_s = 0.0  # lock-step: a swarm message waits this long in simulated time (the pool's tick)
+        self.instant = math.inf  # lock-step: the latest instant whose poses the members may see (set by the loop)
+        self.message_hold_s = 0.0  # lock-step: the pool's tick
         self._early: list[Pose] = []
-        self._now = 0.0  # the last pump's instant
         self.neighbours = NeighbourTable(stale_after, forget_after)  # every UAV the pool hears, its members too
         self.positions = Positions()  # where each of them is, for the members' queries (NeighbourView.around)
         self.stats = NodeStats()  # the pose stream's: received, rejected; the links of outsiders
@@ -258,7 +260,9 @@ class SharedSession:
 
     def _pose_inlet(self, key: str, batches: bool, size: int, near: bool = False) -> None:
         assert self.session is not None
-        inlet = Inlet(size, None, self.clock, "thread")
+        # lock-step: taken in on Zenoh's receive thread as it runs, so that every pose put before a clock
+        # step is in before the step is (a thread of the inlet's own could still hold it)
+        inlet = Inlet(size, None, self.clock, "callback" if self.lossless else "thread")
         self._subscribers.append(subscribe(self.session, key, inlet))
         self._pose_inlets.append((batches, near, inlet))
 
@@ -360,7 +364,6 @@ class SharedSession:
         if self.session is None:
             return 0
         now = self.clock() if now is None else now
-        self._now = now
         total = 0
         for batches, near, inlet in self._pose_inlets:
             handed: list[tuple[Pose, float]] | None = [] if self.impaired else None
@@ -368,8 +371,8 @@ class SharedSession:
             ages: list[float] = []
             n = 0
             if self._early and not batches:  # lock-step: the poses whose instant has come, as they left then
-                due = [p for p in self._early if p.t_wall <= now]
-                self._early = [p for p in self._early if p.t_wall > now]
+                due = [p for p in self._early if p.t_wall <= self.instant]
+                self._early = [p for p in self._early if p.t_wall > self.instant]
                 for pose in due:
                     self._update(pose, pose.t_wall, srcs, ages, handed)
                 n += len(due)
@@ -457,7 +460,7 @@ class SharedSession:
         except Rejected as exc:
             self.stats.reject(exc.reason, key, exc.detail)
             return 0
-        if self.lossless and pose.t_wall > self._now:  # lock-step: from a pool already at a later instant
+        if pose.t_wall > self.instant:  # lock-step: from a pool already at a later instant
             self._early.append(pose)
             del self._early[:-EARLY_MAX]
             return 0

@@ -209,10 +209,12 @@ class Pool:
                 continue
             waiting = time.monotonic()
             if step.k > 0:  # the act of the last instant
+                self._instant(step.t - period)
                 sim.now = step.t - (1.0 - ACT_AFTER) * period
                 self._react_woken()
                 self.fcu.poll_io()
                 self._each("act")
+            self._instant(step.t)
             sim.now = step.t
             loop.tick(0.0)
             self.fcu.poll_io()
@@ -223,6 +225,11 @@ class Pool:
             if waiting >= next_counters:  # (files on the wall clock: a faster run does not write more often)
                 next_counters = waiting + 1.0
                 self.write_neighbours()
+
+    def _instant(self, t: float) -> None:
+        """Lock-step: the UAVs see the poses of instant ``t`` and before, not those a pool ahead sent since."""
+        for share in self._shares:
+            share.instant = t
 
     def _react_woken(self) -> None:
         for key, _ in self._sel.select(0):
