@@ -293,7 +293,8 @@ class Network(Config, frozen=True):
         if mode is None:
             mode = "client" if big and self.connectivity != "discovery" and not needs_discovery else "peer"
         connectivity = self.connectivity or ("rendezvous" if mode == "client" else "discovery")
-        feed = self.pose_feed or ("edge" if (big or self.interest is not None) and not lockstep else "direct")
+        # interest always means the edge feed (a lock-step scenario then refuses it, naming network.interest)
+        feed = self.pose_feed or ("edge" if (big and not lockstep) or self.interest is not None else "direct")
         window = self.feed_window_ms
         if window is None:
             window = LARGE_FLEET_FEED_WINDOW_MS if big else DEFAULT_WINDOW * 1000.0
@@ -561,6 +562,9 @@ class Scenario(Config, kw_only=True, frozen=True):
             raise no("uavs", "an explicit uavs list is flown a process per UAV; give a fleet")
         if self.pool_size < 2:
             raise no("fleet.pool", "fleet.pool: 1 runs a process per UAV")
+        for i, f in enumerate(self.faults):  # as with a fleet.pool given (_check_pools): lock-step's pools are 'auto' too
+            if f.kind in UAV_PROCESS:
+                raise no(f"faults.{i}", f"{f.kind} acts on a UAV's process, which its pool shares with other UAVs")
         if self.fleet.restart != "no":
             raise no("fleet.restart", "a restarted pool would start its clock again")
         if self.fleet.rtf != 1.0:
@@ -573,10 +577,10 @@ class Scenario(Config, kw_only=True, frozen=True):
         connectivity, mode, feed = net.topology
         if mode != "client" or connectivity != "rendezvous":
             raise no("network.mode", f"{mode} mode over {connectivity} has links that bypass the edge router")
-        if feed != "direct":
-            raise no("network.pose_feed", "the edge feed batches poses on the wall clock")
         if net.interest is not None:
             raise no("network.interest", "spatial interest batches poses on the wall clock")
+        if feed != "direct":
+            raise no("network.pose_feed", "the edge feed batches poses on the wall clock")
 
     def _check_pools(self) -> None:
         """Pools (``fleet.pool`` > 1): the process runtime hosts them; a process fault would hit a whole pool."""
