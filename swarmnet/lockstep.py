@@ -35,8 +35,9 @@ from typing import Annotated, Any
 import msgspec
 import zenoh
 
+from groundfloor.errors import Rejected
 from swarmnet.keyspace import SwarmKeys
-from swarmnet.messages import DecodeError
+from swarmnet.messages import DecodeError, check_key_names
 
 log = logging.getLogger(__name__)
 
@@ -94,11 +95,18 @@ def decode_done(data: bytes) -> ClockDone:
         raise DecodeError("malformed", f"clock_done: {exc}") from None
 
 
+def check_done_key(key: str, done: ClockDone) -> None:
+    """An answer sits under the pool it names (``key_mismatch``): access control lets a pool put
+    only its own ``clock/done/pool-<n>``, so a pool cannot answer for another."""
+    check_key_names(key, f"pool-{done.pool}")
+
+
 class _Mailbox:
     """What a subscriber hands over from Zenoh's thread, decoded; refusals counted by reason."""
 
-    def __init__(self, decode: Any, size: int):
+    def __init__(self, decode: Any, size: int, check: Any = None):
         self._decode = decode
+        self._check = check  # (key, item) -> None, or Rejected
         self._items: deque[Any] = deque(maxlen=size)
         self._cond = threading.Condition()
         self.rejected: dict[str, int] = {}
@@ -106,7 +114,9 @@ class _Mailbox:
     def handler(self, sample: zenoh.Sample) -> None:
         try:
             item = self._decode(sample.payload.to_bytes())
-        except DecodeError as exc:
+            if self._check is not None:
+                self._check(str(sample.key_expr), item)
+        except Rejected as exc:
             with self._cond:
                 self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
                 n = self.rejected[exc.reason]
@@ -194,7 +204,7 @@ class LockstepLeader:
         self.period = period
         self.epoch = epoch
         self.step_timeout = step_timeout
-        self._box = _Mailbox(decode_done, 4096)
+        self._box = _Mailbox(decode_done, 4096, check_done_key)
         self._sub = session.declare_subscriber(keys.all_clock_done, self._box.handler)
         self._pub = session.declare_publisher(keys.clock_step, **CLOCK_QOS)
         self.k = -1  # the last tick whose both halves every pool ran
