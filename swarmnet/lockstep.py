@@ -45,6 +45,9 @@ SEQ_MAX = 2**62
 # the simulated clock's origin, s since the Unix epoch (2026-01-01 00:00 UTC): one for every run, so that
 # two runs of one seed compute with the same numbers (a float's rounding depends on its magnitude)
 LOCKSTEP_EPOCH = 1_767_225_600.0
+# s: what two stamps of one instant may differ by (a float near the epoch resolves 0.24 us, the wire 1 us);
+# stamps of two different instants of a run differ by at least a tick's act offset (30 ms at 10 Hz)
+SLACK_S = 1e-4
 
 
 class ClockStep(msgspec.Struct, array_like=True, forbid_unknown_fields=True, frozen=True):
@@ -231,8 +234,9 @@ class LockstepLeader:
         while not self.pools <= ready:
             left = deadline - time.monotonic()
             if left <= 0.0:
-                raise LockstepStalled(f"pools not ready for lock-step time within {timeout:.0f} s",
-                                      self.pools - ready)
+                missing = self.pools - ready
+                raise LockstepStalled(f"pool(s) {', '.join(map(str, sorted(missing)))} not ready for lock-step time "
+                                      f"within {timeout:g} s", missing)
             ready.update(d.pool for d in self._box.take(min(left, 0.5)) if d.k == -1)
         self.wall_started = time.monotonic()
 
@@ -244,9 +248,8 @@ class LockstepLeader:
 
     def advance(self, seconds: float) -> None:
         """Ticks until ``seconds`` more of simulated time have passed (at least one)."""
-        end = self.now + seconds - 1e-9
-        self.tick()
-        while self.epoch + self.k * self.period < end:
+        ticks = max(1, round(seconds / self.period))  # whole ticks: no float drift over a long run
+        for _ in range(ticks):
             self.tick()
 
     def _step(self, step: ClockStep) -> None:
@@ -262,7 +265,7 @@ class LockstepLeader:
             if now >= deadline:
                 self.wall_waiting += now - t0
                 raise LockstepStalled(f"tick {step.k}: no answer within "
-                                      f"{self.step_timeout:.0f} s from pool(s) {', '.join(map(str, sorted(waiting)))}",
+                                      f"{self.step_timeout:g} s from pool(s) {', '.join(map(str, sorted(waiting)))}",
                                       waiting)
             if now >= resend:  # an answer lost (a pool's session reconnected): ask again, it answers again
                 self.resends += 1

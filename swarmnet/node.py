@@ -37,6 +37,7 @@ import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
 from swarmnet.keyspace import SwarmKeys, check_swarm
+from swarmnet.lockstep import SLACK_S as LOCKSTEP_SLACK_S
 from swarmnet.messages import (
     DEFAULT_MAX_MESSAGE_BYTES,
     AgentState,
@@ -268,8 +269,9 @@ class SwarmNode:
         # lock-step time (a pool's shared session says so): nothing may be lost, a full queue waits instead
         lossless = self.shared is not None and self.shared.lossless
         cc = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
+        # (lock-step: batched with the pool's other puts, not a batch each: the clock's step waits for all of them anyway)
         self._pubs["pose"] = s.declare_publisher(k.pose(me), congestion_control=cc, priority=zenoh.Priority.DATA_HIGH,
-                                                 express=True)
+                                                 express=not lossless)
         self._pubs["telemetry"] = s.declare_publisher(k.telemetry(me), congestion_control=cc)
         self._pubs["state"] = s.declare_publisher(k.state(me), congestion_control=cc)
         self._pubs["ack"] = s.declare_publisher(k.ack(me), priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
@@ -524,7 +526,7 @@ class SwarmNode:
         (a tick: the receivers' next act, by which every pool's messages of the act before are in,
         whichever pool ran first); those held from before, now due, come first, in the order they were sent."""
         assert self.shared is not None
-        hold = self.shared.message_hold_s - 1e-9
+        hold = self.shared.message_hold_s - LOCKSTEP_SLACK_S
         held = self._held_messages
         due = [m for m in held if m.t_wall + hold <= now]
         later = [m for m in held if m.t_wall + hold > now]

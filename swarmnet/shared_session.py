@@ -37,6 +37,7 @@ import zenoh
 
 from swarmnet.connectivity import Connectivity, to_zenoh
 from swarmnet.keyspace import SwarmKeys
+from swarmnet.lockstep import SLACK_S as LOCKSTEP_SLACK_S
 from swarmnet.messages import Pose, Rejected, accept_pose, accept_pose_batch
 from swarmnet.neighbours import Neighbour, NeighbourTable
 from swarmnet.receive import DRAIN_BUDGET, Inlet, batched_poses, subscribe, token_changes
@@ -371,8 +372,9 @@ class SharedSession:
             ages: list[float] = []
             n = 0
             if self._early and not batches:  # lock-step: the poses whose instant has come, as they left then
-                due = [p for p in self._early if p.t_wall <= self.instant]
-                self._early = [p for p in self._early if p.t_wall > self.instant]
+                until = self.instant + LOCKSTEP_SLACK_S
+                due = [p for p in self._early if p.t_wall <= until]
+                self._early = [p for p in self._early if p.t_wall > until]
                 for pose in due:
                     self._update(pose, pose.t_wall, srcs, ages, handed)
                 n += len(due)
@@ -460,7 +462,7 @@ class SharedSession:
         except Rejected as exc:
             self.stats.reject(exc.reason, key, exc.detail)
             return 0
-        if pose.t_wall > self.instant:  # lock-step: from a pool already at a later instant
+        if pose.t_wall > self.instant + LOCKSTEP_SLACK_S:  # lock-step: from a pool already at a later instant
             self._early.append(pose)
             del self._early[:-EARLY_MAX]
             return 0

@@ -154,9 +154,11 @@ def test_advance_runs_ticks_until_that_much_simulated_time_has_passed(sessions: 
     with clock(sessions, pools=(1,)) as (leader, followers):
         pool = Pool(followers[0], until_k=11).start()
         leader.wait_ready(10.0)
-        leader.advance(PERIOD)  # the first: the instant of the epoch and the one a period later
-        assert leader.k == 1 and leader.clock() == t_of(1)
-        for k in range(2, 12):  # then one tick per period, as the runner's TICK of 0.1 s asks
+        leader.advance(PERIOD)  # the first: the instant of the epoch
+        assert leader.k == 0 and leader.clock() == t_of(0)
+        leader.advance(3 * PERIOD)  # whole ticks, one per period
+        assert leader.k == 3 and leader.clock() == t_of(3)
+        for k in range(4, 12):  # one tick per period, as the runner's TICK of 0.1 s asks
             leader.advance(PERIOD)
             assert leader.k == k, k
         pool.join()

@@ -658,8 +658,16 @@ class Experiment:
             self._step_clock()
 
     def _step_clock(self) -> None:
-        """Lock-step time: TICK s of simulated time, as fast as the pools run them."""
+        """Lock-step time: TICK s of simulated time, as fast as the pools run them (a pool whose process
+        is gone, all its UAVs lost, is not waited for: the others fly on)."""
         assert self.leader is not None
+        gone = [int(name.removeprefix("pool")) for name, uavs in self.run_info.pools.items()
+                if int(name.removeprefix("pool")) in self.leader.pools and uavs and set(uavs) <= self.lost]
+        if gone:
+            self.leader.drop(gone)
+            self._say(f"[yellow]lock-step time goes on without pool(s) {format_ids(gone)}[/] (their process exited)")
+            if not self.leader.pools:
+                raise RunAborted("lock-step time: every pool has exited")
         try:
             self.leader.advance(TICK)
         except LockstepStalled as exc:
