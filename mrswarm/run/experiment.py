@@ -82,6 +82,8 @@ READY_TIMEOUT_CAP_PER_UAV = 3.0
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
+# lock-step time: s of simulated time between two polls (the runner's look between ticks holds every pool)
+LOCKSTEP_LOOK_S = 0.5
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
 # at most this fraction of the virtual UAVs may be late at a stage (not ready, not airborne, not acknowledging in
 # time): the run goes on without them, records them as late, and sends them the command until they fly with the
@@ -658,7 +660,7 @@ class Experiment:
             self._step_clock()
 
     def _step_clock(self) -> None:
-        """Lock-step time: TICK s of simulated time, as fast as the pools run them (a pool whose process
+        """Lock-step time: LOCKSTEP_LOOK_S of simulated time, as fast as the pools run them (a pool whose process
         is gone, all its UAVs lost, is not waited for: the others fly on)."""
         assert self.leader is not None
         gone = [int(name.removeprefix("pool")) for name, uavs in self.run_info.pools.items()
@@ -669,7 +671,7 @@ class Experiment:
             if not self.leader.pools:
                 raise RunAborted("lock-step time: every pool has exited")
         try:
-            self.leader.advance(TICK)
+            self.leader.advance(LOCKSTEP_LOOK_S)
         except LockstepStalled as exc:
             raise RunAborted(f"lock-step time stalled: {exc}") from None
 
