@@ -1,0 +1,70 @@
+"""End to end: lock-step time (``time: lockstep``) flown by ``mrswarm run``'s experiment on real pool
+processes, a real TLS edge router and the runner leading the simulated clock.
+
+What a researcher relies on: one seed gives one flight, to the centimetre and the row, however the
+two pools' processes were scheduled; netem's delays are simulated time; the run says how fast its
+clock went and its records read in simulated time from one epoch.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrswarm.testing import Flight, fly
+from swarmnet.lockstep import LOCKSTEP_EPOCH
+
+ROOT = Path(__file__).resolve().parents[1]
+COVERAGE = ROOT / "scenarios" / "coverage.yaml"
+# six UAVs in two pools (one per core: the pools run side by side and finish their ticks in any order)
+SETS = ["time=lockstep", "fleet.count=6", "duration=25", "mission.strategy=random", "fleet.pool=3"]
+
+pytestmark = pytest.mark.e2e
+
+
+def rows(flight: Flight) -> dict[int, np.ndarray]:
+    return {u: np.column_stack([tr.t, tr.x, tr.y, tr.z, tr.vx, tr.vy]) for u, tr in flight.trajectories.items()}
+
+
+def run_info(flight: Flight) -> dict:
+    return json.loads((flight.run_dir / "run.json").read_text())
+
+
+def test_one_seed_gives_one_flight_in_lockstep_and_another_seed_another(tmp_path: Path) -> None:
+    a = fly(scenario=COVERAGE, out=tmp_path / "a", sets=[*SETS, "seed=3"])
+    b = fly(scenario=COVERAGE, out=tmp_path / "b", sets=[*SETS, "seed=3"])
+    c = fly(scenario=COVERAGE, out=tmp_path / "c", sets=[*SETS, "seed=4"])
+    for f in (a, b, c):
+        assert f.summary.get("aborted") is None, f.summary.get("aborted")
+        assert f.collisions == 0
+        assert len(f.trajectories) == 6
+        info = run_info(f)
+        assert set(info["pools"]) == {"pool1", "pool2"}
+        ls = info["lockstep"]
+        # the clock ran through takeoff and the whole mission, one tick per 0.1 s of simulated time
+        assert ls["pools"] == [1, 2] and ls["ticks"] >= 250 and ls["sim_s"] == pytest.approx(ls["ticks"] * 0.1)
+        assert ls["resends"] == 0 and ls["rejected"] == {}
+        # records in simulated time from the epoch, the mission after the takeoff
+        assert LOCKSTEP_EPOCH < info["takeoff_sent"] < info["mission_start"] < LOCKSTEP_EPOCH + ls["sim_s"]
+        assert all(tr.phase[-1] in ("mission", "done") for tr in f.trajectories.values())
+    ra, rb, rc = rows(a), rows(b), rows(c)
+    assert ra.keys() == rb.keys()
+    for u in ra:  # identical, row for row (the trajectory files hold mm and ms)
+        n = min(len(ra[u]), len(rb[u]))
+        assert n > 200 and abs(len(ra[u]) - len(rb[u])) <= 1, (u, len(ra[u]), len(rb[u]))
+        np.testing.assert_array_equal(ra[u][:n], rb[u][:n], err_msg=f"UAV {u}")
+    moved = [u for u in ra if not np.array_equal(ra[u][: min(len(ra[u]), len(rc[u]))],
+                                                    rc[u][: min(len(ra[u]), len(rc[u]))])]
+    assert moved, "another seed flew the same flight"
+
+
+def test_netem_delays_are_simulated_time_in_lockstep(tmp_path: Path) -> None:
+    f = fly(scenario=COVERAGE, out=tmp_path, sets=[*SETS, "network.netem.preset=lte", "duration=15"])
+    assert f.summary.get("aborted") is None, f.summary.get("aborted")
+    age = f.summary["network"]["transport_age_ms"]
+    # the LTE preset's one-way delay (tens of ms) in simulated time, whatever the wall clock did meanwhile
+    assert 30.0 <= age["p50"] <= 120.0, age
+    assert f.summary["network"]["negative_ages"] == {}
