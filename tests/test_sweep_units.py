@@ -255,6 +255,10 @@ def test_a_second_run_waits_for_room_on_the_machine() -> None:
     cap.measured("c", 3.0)  # a run of that cell used 3 cores: its next one is planned with that (and a margin)
     assert first.cores < 1.0 and cap.need(scn, "c").cores == pytest.approx(3.0 * 1.25)
     assert math.isclose(cap.need(scn, "other").cores, first.cores)
+    # a lock-step run goes as fast as the CPU allows: it needs the whole machine, none flies beside it
+    lockstep = load_scenario(MINI, ["time=lockstep"])
+    assert cap.need(lockstep, "l").cores >= 4.0
+    assert "would need" in cap.admits(cap.need(lockstep, "l"), [small])
 
 
 # ---- a swarm job's wrapper and service ---------------------------------------------------------------------------

@@ -95,6 +95,8 @@ class Capacity:
     def need(self, scn: Scenario, cell: str) -> Need:
         est = estimate(scn)
         cores = est.cores_needed + RUN_BASE_CORES
+        if scn.time == "lockstep":  # as fast as the CPU allows: it takes the whole machine, a second run gains nothing
+            cores = max(cores, float(self.cores))
         seen = self._measured.get(cell)
         if seen is not None:
             cores = max(cores, seen * MEASURED_MARGIN)
