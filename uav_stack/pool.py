@@ -139,6 +139,9 @@ class Pool:
         self.records = RecordHealth()
         self.fcu = PooledFcu(fcu, [u.faults for u in uavs])
         self.errors: dict[int, int] = {}  # UAV id -> exceptions its agent raised (logged, counted, never fatal)
+        self.first_error: dict[int, dict[str, object]] = {}  # UAV id -> {"t", "what", "error"} of its first
+        for u in uavs:  # in each UAV's stats: the summary makes an incident of them (agent_error)
+            u.agent.stats_sources["pool"] = partial(self._errors_of, u.agent.uav)
         self._sel = selectors.DefaultSelector()
         for u in uavs:  # a command or an injected fault wakes the loop, for the UAV it is for
             self._sel.register(u.agent.node.waker.fileno(), selectors.EVENT_READ, u)
@@ -255,10 +258,16 @@ class Pool:
     def _guarded(self, u: VirtualUav, what: str) -> None:
         try:
             getattr(u.agent, what)(self.clock())
-        except Exception:  # noqa: BLE001 - one UAV's failure never takes its pool-mates down
+        except Exception as exc:  # noqa: BLE001 - one UAV's failure never takes its pool-mates down
             n = self.errors[u.agent.uav] = self.errors.get(u.agent.uav, 0) + 1
+            if n == 1:
+                self.first_error[u.agent.uav] = {"t": self.clock(), "what": what,
+                                                 "error": f"{type(exc).__name__}: {exc}"[:300]}
             if n == 1 or n % 100 == 0:
                 log.exception("UAV %d: %s failed (%d so far); the pool flies on", u.agent.uav, what, n)
+
+    def _errors_of(self, uav: int) -> dict[str, object]:
+        return {"agent_errors": self.errors.get(uav, 0), "first_error": self.first_error.get(uav)}
 
     def write_neighbours(self) -> None:
         """Each shared session's per-neighbour pose counters, in the file its UAVs' counters files

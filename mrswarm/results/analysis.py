@@ -42,7 +42,7 @@ from mrswarm.records.summary import (
     Separation,
     Takeoff,
 )
-from mrswarm.results.behaviour_report import behaviour_incidents, behaviour_summary
+from mrswarm.results.behaviour_report import behaviour_incidents, behaviour_summary, pool_agent_incidents
 from mrswarm.results.coverage import coverage, time_to
 from mrswarm.results.degraded import degraded_reasons, recording_report
 from mrswarm.results.fault_report import failsafe_events, fault_table, lost_uavs, record_errors, service_outages, stalls
@@ -581,7 +581,7 @@ def analyse_run(run_dir: Path, scenario: Scenario, info: RunInfo) -> tuple[RunSu
             summary.incidents += find_incidents(u, tr.t, tr.xyz[:, 2], tr.vz, tr.armed, t0)
     summary.incidents += [safety_incident(b.pair, float(grid[b.start] - t0), b.steps / GRID_HZ, b.min,
                                           float(grid[b.min_at] - t0), fl.safety_distance) for b in sep.breaches]
-    summary.incidents += behaviour_incidents(stats, t0)
+    summary.incidents += behaviour_incidents(stats, t0) + pool_agent_incidents(stats, t0)
     summary.incidents.sort(key=lambda i: i.t_s)
     ages: dict[int, dict[str, np.ndarray]] = {}
     age_error = None

@@ -31,6 +31,26 @@ def behaviour_incidents(stats: dict[int, dict[str, Any]], t0: float) -> list[Inc
     return out
 
 
+def pool_agent_incidents(stats: dict[int, dict[str, Any]], t0: float) -> list[Incident]:
+    """A pooled UAV whose agent raised (the pool logged it and flew on), as an incident at its first
+    exception (s after ``t0``): ``agent_error``, with how often and the first exception."""
+    out: list[Incident] = []
+    for uav, s in sorted(stats.items()):
+        p = s.get("pool")
+        if not isinstance(p, dict) or not p.get("agent_errors"):
+            continue
+        got = p.get("first_error")
+        first: dict[str, Any] = got if isinstance(got, dict) else {}
+        try:
+            t_s = round(float(first["t"]) - t0, 2)
+        except (KeyError, TypeError, ValueError):
+            t_s = 0.0
+        out.append(Incident(uav=uav, kind="agent_error", t_s=t_s,
+                            detail=f"its agent raised {p['agent_errors']} times in its pool (first, in "
+                                   f"{first.get('what', '?')}: {str(first.get('error', '?'))[:200]}); the pool flew on"))
+    return out
+
+
 def behaviour_summary(stats: dict[int, dict[str, Any]]) -> BehaviourSummary | None:
     """Faults, steps and messages per topic summed over the UAVs; None if no UAV flew an SDK behaviour."""
     sections = _sections(stats)
