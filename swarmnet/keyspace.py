@@ -113,6 +113,16 @@ class SwarmKeys:
         return f"{self.prefix}/clock/done/pool-{pool}"
 
     @property
+    def clock_world_step(self) -> str:
+        """Lock-step time: the leader's steps for the world service (after the pools' of the tick)."""
+        return f"{self.prefix}/clock/step/world"
+
+    @property
+    def clock_done_world(self) -> str:
+        """Lock-step time: the world service's answers."""
+        return f"{self.prefix}/clock/done/world"
+
+    @property
     def all_clock_done(self) -> str:
         return f"{self.prefix}/clock/done/*"
 

@@ -57,10 +57,14 @@ class ClockStep(msgspec.Struct, array_like=True, forbid_unknown_fields=True, fro
     t: Annotated[float, msgspec.Meta(ge=0.0, lt=2.0**40)]  # the tick's instant, s since the Unix epoch
 
 
-class ClockDone(msgspec.Struct, array_like=True, forbid_unknown_fields=True, frozen=True):
-    """A pool's answer: it ran step ``k``; ``k = -1``: it is ready for the first step."""
+WORLD = 0  # the world service's number among the clock's participants (pools are 1, 2, ...)
 
-    pool: Annotated[int, msgspec.Meta(ge=1, le=65535)]
+
+class ClockDone(msgspec.Struct, array_like=True, forbid_unknown_fields=True, frozen=True):
+    """A participant's answer: it ran step ``k``; ``k = -1``: it is ready for the first step.
+    ``pool``: the pool's number, or :data:`WORLD` for the world service."""
+
+    pool: Annotated[int, msgspec.Meta(ge=0, le=65535)]
     k: Annotated[int, msgspec.Meta(ge=-1, lt=SEQ_MAX)]
 
 
@@ -98,10 +102,15 @@ def decode_done(data: bytes) -> ClockDone:
         raise DecodeError("malformed", f"clock_done: {exc}") from None
 
 
+def participant(number: int) -> str:
+    """The last segment of a participant's answer key: ``pool-<n>``, or ``world``."""
+    return "world" if number == WORLD else f"pool-{number}"
+
+
 def check_done_key(key: str, done: ClockDone) -> None:
     """An answer sits under the pool it names (``key_mismatch``): access control lets a pool put
     only its own ``clock/done/pool-<n>``, so a pool cannot answer for another."""
-    check_key_names(key, f"pool-{done.pool}")
+    check_key_names(key, participant(done.pool))
 
 
 class _Mailbox:
@@ -141,13 +150,15 @@ class _Mailbox:
 
 
 class LockstepFollower:
-    """A pool's end of the clock, on the pool's session."""
+    """A pool's end of the clock, on the pool's session (``pool`` :data:`WORLD`: the world service's,
+    stepped on a key of its own once the pools have run the tick)."""
 
     def __init__(self, session: zenoh.Session, keys: SwarmKeys, pool: int):
         self.pool = pool
         self._box = _Mailbox(decode_step, 64)
-        self._sub = session.declare_subscriber(keys.clock_step, self._box.handler)
-        self._pub = session.declare_publisher(keys.clock_done(pool), **CLOCK_QOS)
+        world = pool == WORLD
+        self._sub = session.declare_subscriber(keys.clock_world_step if world else keys.clock_step, self._box.handler)
+        self._pub = session.declare_publisher(keys.clock_done_world if world else keys.clock_done(pool), **CLOCK_QOS)
         self._pending: deque[ClockStep] = deque()
         self.last: ClockStep | None = None
         self.steps = 0  # steps taken
@@ -196,20 +207,24 @@ class LockstepLeader:
 
     ``period`` is the UAVs' tick (s of simulated time); the first instant is ``epoch`` (s since the
     Unix epoch: :data:`LOCKSTEP_EPOCH` for a run). Each tick waits at most ``step_timeout`` s of
-    wall time for the pools.
+    wall time for the pools. With ``world``, the world service runs each tick after the pools, alone:
+    it sees the swarm as the pools left it at the instant, and what it sends reaches them before the
+    next step.
     """
 
     def __init__(self, session: zenoh.Session, keys: SwarmKeys, pools: Iterable[int], period: float,
-                 epoch: float = LOCKSTEP_EPOCH, step_timeout: float = 20.0):
+                 epoch: float = LOCKSTEP_EPOCH, step_timeout: float = 20.0, world: bool = False):
         self.pools = frozenset(pools)
-        if not self.pools:
-            raise ValueError("a lock-step clock needs at least one pool")
+        if not self.pools or WORLD in self.pools:
+            raise ValueError("a lock-step clock needs at least one pool, numbered from 1")
+        self.world = world
         self.period = period
         self.epoch = epoch
         self.step_timeout = step_timeout
         self._box = _Mailbox(decode_done, 4096, check_done_key)
         self._sub = session.declare_subscriber(keys.all_clock_done, self._box.handler)
         self._pub = session.declare_publisher(keys.clock_step, **CLOCK_QOS)
+        self._world_pub = session.declare_publisher(keys.clock_world_step, **CLOCK_QOS) if world else None
         self.k = -1  # the last tick whose both halves every pool ran
         self.now = epoch  # simulated time: the last step's
         self.wall_started: float | None = None
@@ -230,20 +245,23 @@ class LockstepLeader:
     def wait_ready(self, timeout: float) -> None:
         """Until every pool said it is ready for the first step (LockstepStalled after ``timeout`` s)."""
         ready: set[int] = set()
+        every = self.pools | ({WORLD} if self.world else set())
         deadline = time.monotonic() + timeout
-        while not self.pools <= ready:
+        while not every <= ready:
             left = deadline - time.monotonic()
             if left <= 0.0:
-                missing = self.pools - ready
-                raise LockstepStalled(f"pool(s) {', '.join(map(str, sorted(missing)))} not ready for lock-step time "
-                                      f"within {timeout:g} s", missing)
+                missing = every - ready
+                raise LockstepStalled(f"{_names(missing)} not ready for lock-step time within {timeout:g} s", missing)
             ready.update(d.pool for d in self._box.take(min(left, 0.5)) if d.k == -1)
         self.wall_started = time.monotonic()
 
     def tick(self) -> None:
         """The next tick, every pool's answer awaited."""
         k = self.k + 1
-        self._step(ClockStep(k, self.epoch + k * self.period))
+        step = ClockStep(k, self.epoch + k * self.period)
+        self._step(step, self._pub, self.pools)
+        if self._world_pub is not None:
+            self._step(step, self._world_pub, frozenset({WORLD}))
         self.k = k
 
     def advance(self, seconds: float) -> None:
@@ -252,11 +270,11 @@ class LockstepLeader:
         for _ in range(ticks):
             self.tick()
 
-    def _step(self, step: ClockStep) -> None:
+    def _step(self, step: ClockStep, pub: Any, who: frozenset[int]) -> None:
         self.now = step.t
         payload = _encode(step)
-        self._pub.put(payload)
-        waiting: set[int] = set(self.pools)
+        pub.put(payload)
+        waiting: set[int] = set(who)
         t0 = time.monotonic()
         deadline = t0 + self.step_timeout
         resend = t0 + 1.0
@@ -264,12 +282,11 @@ class LockstepLeader:
             now = time.monotonic()
             if now >= deadline:
                 self.wall_waiting += now - t0
-                raise LockstepStalled(f"tick {step.k}: no answer within "
-                                      f"{self.step_timeout:g} s from pool(s) {', '.join(map(str, sorted(waiting)))}",
+                raise LockstepStalled(f"tick {step.k}: no answer within {self.step_timeout:g} s from {_names(waiting)}",
                                       waiting)
             if now >= resend:  # an answer lost (a pool's session reconnected): ask again, it answers again
                 self.resends += 1
-                self._pub.put(payload)
+                pub.put(payload)
                 resend = now + 1.0
             for d in self._box.take(min(deadline, resend) - now):
                 if d.k == step.k:
@@ -285,11 +302,20 @@ class LockstepLeader:
         sim = self.sim_elapsed()
         return {"ticks": self.k + 1, "sim_s": round(sim, 3), "wall_s": round(wall, 3),
                 "speedup": round(sim / wall, 2) if wall > 0 else None, "waiting_s": round(self.wall_waiting, 3),
-                "resends": self.resends, "rejected": self.rejected, "pools": sorted(self.pools)}
+                "resends": self.resends, "rejected": self.rejected, "pools": sorted(self.pools), "world": self.world}
 
     def close(self) -> None:
-        for x in (self._sub, self._pub):
+        for x in (self._sub, self._pub, self._world_pub):
             try:
-                x.undeclare()
+                if x is not None:
+                    x.undeclare()
             except zenoh.ZError as exc:
                 log.debug("lock-step leader close: %s", exc)
+
+
+def _names(numbers: Iterable[int]) -> str:
+    """``pool(s) 1, 2`` and/or ``the world service``, for messages."""
+    ns = sorted(numbers)
+    pools = [str(n) for n in ns if n != WORLD]
+    parts = ([f"pool(s) {', '.join(pools)}"] if pools else []) + (["the world service"] if WORLD in ns else [])
+    return " and ".join(parts)

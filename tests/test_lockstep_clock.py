@@ -122,13 +122,16 @@ def test_the_wire_structs_round_trip_and_refusals_say_why() -> None:
         with pytest.raises(DecodeError) as ei:
             decode_step(payload)
         assert ei.value.reason == reason and ei.value.detail.startswith("clock_step: "), payload
-    for payload, reason in ((enc([0, 1]), "bad_field"), (enc([65536, 1]), "bad_field"), (enc([1, -2]), "bad_field"),
+    assert decode_done(enc([0, 1])) == ClockDone(0, 1)  # 0: the world service
+    for payload, reason in ((enc([-1, 1]), "bad_field"), (enc([65536, 1]), "bad_field"), (enc([1, -2]), "bad_field"),
                             (b"\x92", "malformed")):
         with pytest.raises(DecodeError) as ei:
             decode_done(payload)
         assert ei.value.reason == reason and ei.value.detail.startswith("clock_done: "), payload
     with pytest.raises(ValueError, match="at least one pool"):
         LockstepLeader(None, KEYS, (), PERIOD)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="numbered from 1"):
+        LockstepLeader(None, KEYS, (0, 1), PERIOD)  # type: ignore[arg-type]
 
 
 def test_the_leader_steps_two_pools_through_fifty_ticks_in_order(sessions: list[zenoh.Session]) -> None:
@@ -280,3 +283,53 @@ def test_an_answer_for_another_pool_under_a_pools_key_is_refused(sessions: list[
         leader.tick()
         pool1.join()
         pool2.join()
+
+
+def test_the_world_service_runs_each_tick_after_every_pool_has(sessions: list[zenoh.Session]) -> None:
+    """With a world, each tick's step reaches the world only once both pools answered it, and the
+    next tick's only once the world did: it sees the swarm as the pools left it at the instant."""
+    from swarmnet.lockstep import WORLD
+
+    leader = LockstepLeader(sessions[0], KEYS, (1, 2), PERIOD, LOCKSTEP_EPOCH, step_timeout=5.0, world=True)
+    followers = [LockstepFollower(sessions[1], KEYS, 1), LockstepFollower(sessions[2], KEYS, 2),
+                 LockstepFollower(sessions[3], KEYS, WORLD)]
+    order: list[tuple[str, int]] = []
+    lock = threading.Lock()
+    done = threading.Event()
+
+    def run(f: LockstepFollower, name: str, slow: float) -> None:
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and not done.is_set():
+            step = f.next_step(0.2)
+            if step is None:
+                continue
+            time.sleep(slow)  # a slow pool: the world still comes after it
+            with lock:
+                order.append((name, step.k))
+            f.done(step)
+
+    threads = [threading.Thread(target=run, args=(f, n, s), daemon=True)
+               for f, n, s in zip(followers, ("pool1", "pool2", "world"), (0.0, 0.01, 0.0), strict=True)]
+    try:
+        for t in threads:
+            t.start()
+        with pytest.raises(LockstepStalled) as ei:  # first without the world's readiness: it is named
+            LockstepLeader(sessions[0], KEYS, (1, 2), PERIOD, world=True).wait_ready(0.0)
+        assert "not ready" in str(ei.value)
+        leader.wait_ready(10.0)
+        for _ in range(10):
+            leader.tick()
+        done.set()
+        for t in threads:
+            t.join(5.0)
+        assert leader.stats()["world"] is True and leader.k == 9
+        for k in range(10):
+            at = {name: order.index((name, k)) for name in ("pool1", "pool2", "world")}
+            assert at["world"] > max(at["pool1"], at["pool2"]), (k, order)
+            if k:
+                assert at["pool1"] > order.index(("world", k - 1)) and at["pool2"] > order.index(("world", k - 1))
+    finally:
+        done.set()
+        leader.close()
+        for f in followers:
+            f.close()

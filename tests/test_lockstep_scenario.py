@@ -62,7 +62,6 @@ REFUSED = [
     pytest.param(scenario(other_swarms=[{"swarm": "beta", "fleet": {"count": 2, "first_id": 10,
                                                                     "spawn": {"center": [200, 200]}}}]),
                  "other_swarms", "second swarm", id="other-swarms"),
-    pytest.param(scenario(world={}), "world", "world service", id="world"),
     pytest.param(scenario(network={"mode": "peer"}), "network.mode", "peer mode", id="peer"),
     pytest.param(scenario(network={"connectivity": "discovery"}), "network.mode", "over discovery", id="discovery"),
     pytest.param(scenario(network={"pose_feed": "edge"}), "network.pose_feed", "edge feed", id="edge-feed"),

@@ -188,6 +188,9 @@ class WorldServiceConfig(Config, frozen=True):
     seed: int = 0
     start: Literal["mission", "now"] = "mission"  # experiment time 0: a UAV's first mission state, or at once
     duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None  # stop after this long
+    # lock-step time (swarmnet/lockstep.py): the simulated time the run's clock starts at, s since the Unix
+    # epoch; the world then steps when the run's leader steps it, once a tick. None: the wall clock
+    lockstep_epoch: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
     def __post_init__(self) -> None:
         if not self.swarms:

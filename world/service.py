@@ -24,17 +24,19 @@ import math
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from groundfloor.process import die_with_parent, setup_logging
 from groundfloor.schema import ConfigError
+from swarmnet.lockstep import WORLD, LockstepFollower
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.security.identity import NodeName
 from swarmnet.sensing import WorldSensing
 from uav_stack.behaviours.plume import ESTIMATE_TOPIC
 from uav_stack.phases import AgentPhase
-from uav_stack.runtime import StopFlag, make_connectivity
+from uav_stack.runtime import SimTime, StopFlag, make_connectivity
 from uav_stack.sdk.sensing import estimate_in
 from world.airspace import TrafficFeed
 from world.config import WorldServiceConfig
@@ -45,6 +47,7 @@ from world.sensing import Track
 log = logging.getLogger(__name__)
 
 WORLD_NODE_ID = 1  # the world's node id among the role "edge" nodes of a swarm
+LOCKSTEP_IDLE_S = 60.0  # wall s without a lock-step step: the leader is gone, the world stops
 
 
 class WorldService:
@@ -54,6 +57,9 @@ class WorldService:
         from world.sensing import SensorServer
 
         self.cfg = cfg
+        # lock-step: every clock of the world reads the simulated time the leader steps (swarmnet/lockstep.py)
+        self.sim = SimTime(cfg.lockstep_epoch) if cfg.lockstep_epoch is not None else None
+        self.clock: Callable[[], float] = time.time if self.sim is None else self.sim
         w = cfg.world
         self.world = World(w)
         self.sensors = SensorServer(self.world, w.sensors, cfg.seed)
@@ -66,25 +72,27 @@ class WorldService:
         self._next_traffic = 0.0
         self._last_step = math.nan
         self._cpu0 = time.process_time()
-        self._wall0 = time.time()
+        self._wall0 = self.clock()
 
     def open(self) -> WorldService:
         try:
             for s in self.cfg.swarms:
                 conn = make_connectivity(s.network, NodeName("edge", 0, s.name))  # the swarm's edge identity if secured
-                node = SwarmNode(NodeIdentity(s.name, WORLD_NODE_ID, role="edge"), conn, netem_control=False).open()
+                # (lock-step: every inlet filled on Zenoh's receive thread, in order with the clock's steps)
+                node = SwarmNode(NodeIdentity(s.name, WORLD_NODE_ID, role="edge"), conn, netem_control=False,
+                                 clock=self.clock, arrival_stamps=self.sim is None).open()
                 self.nodes[s.name] = node
                 self.links[s.name] = WorldSensing(node)
         except BaseException:
             self.close()
             raise
         if self.cfg.start == "now":
-            self.world.start(time.time())
+            self.world.start(self.clock())
         return self
 
     def close(self) -> None:
         if self.recorder is not None:
-            self.recorder.close(self.stats(time.time()))
+            self.recorder.close(self.stats(self.clock()))
             self.recorder = None
         for node in self.nodes.values():
             node.close()
@@ -169,8 +177,38 @@ class WorldService:
                      if self.world.fire is not None else None),
         }
 
+    def run_lockstep(self, stop: StopFlag, idle_timeout: float = LOCKSTEP_IDLE_S) -> None:
+        """Lock-step time: a step of the world each time the run's leader steps it (once a tick, after
+        the pools), at the tick's instant, until stopped, after ``duration`` s of simulated time, or when
+        no step came for ``idle_timeout`` s of wall time (the leader is gone)."""
+        sim = self.sim
+        assert sim is not None
+        first = next(iter(self.nodes.values()))
+        assert first.session is not None
+        follower = LockstepFollower(first.session, first.keys, WORLD)
+        end = sim.now + self.cfg.duration if self.cfg.duration is not None else math.inf
+        waiting = time.monotonic()
+        try:
+            while not stop.stopped and sim.now < end:
+                step = follower.next_step(1.0)
+                if step is None:
+                    if time.monotonic() - waiting > idle_timeout:
+                        log.error("no lock-step step for %.0f s: the run's leader is gone", idle_timeout)
+                        break
+                    continue
+                waiting = time.monotonic()
+                sim.now = step.t
+                self.step(step.t)
+                follower.done(step)
+        finally:
+            follower.close()
+
     def run(self, stop: StopFlag) -> None:
-        """Tick at ``world.tick_hz`` until stopped (or ``duration`` seconds)."""
+        """Tick at ``world.tick_hz`` until stopped (or ``duration`` seconds); in lock-step time when the
+        leader steps it."""
+        if self.sim is not None:
+            self.run_lockstep(stop)
+            return
         period = 1.0 / self.cfg.world.tick_hz
         end = time.monotonic() + self.cfg.duration if self.cfg.duration is not None else math.inf
         next_tick = time.monotonic()

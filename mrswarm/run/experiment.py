@@ -431,8 +431,9 @@ class Experiment:
         assert self.observer is not None and self.observer.node.session is not None
         period = 1.0 / max(tick_hz_for(c.agent) for c in configs)
         self.leader = LockstepLeader(self.observer.node.session, SwarmKeys(self.scn.swarm), range(1, pools + 1), period,
-                                     LOCKSTEP_EPOCH)
-        self.progress.detail = f"waiting for {plural(pools, 'pool')} to take lock-step time"
+                                     LOCKSTEP_EPOCH, world=self.scn.world is not None)
+        self.progress.detail = f"waiting for {plural(pools, 'pool')} to take lock-step time" + (
+            " and the world service" if self.scn.world is not None else "")
         try:
             self.leader.wait_ready(READY_TIMEOUT_BASE + READY_TIMEOUT_PER_UAV * len(configs))
         except LockstepStalled as exc:

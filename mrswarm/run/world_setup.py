@@ -20,6 +20,7 @@ from msgspec.structs import replace
 from groundfloor.files import write_atomic
 from mrswarm.scenario import Scenario
 from swarmnet.connectivity import Connectivity, open_retrying
+from swarmnet.lockstep import LOCKSTEP_EPOCH
 from swarmnet.messages import Command, Pose
 from swarmnet.observer import PendingCommand, SwarmObserver
 from swarmnet.security.credentials import Credentials
@@ -81,7 +82,7 @@ def world_service_config(scn: Scenario, nets: dict[str, NetworkConfig], keys: di
     origin = scn.origin.point()
     swarms = tuple(ServedSwarm(name=s, origin=origin, network=observer_network(n, keys.get(s))) for s, n in nets.items())
     return WorldServiceConfig(world=scn.world, swarms=swarms, record_dir=str(record_dir) if record_dir else None,
-                              seed=scn.seed)
+                              seed=scn.seed, lockstep_epoch=LOCKSTEP_EPOCH if scn.time == "lockstep" else None)
 
 
 def write_world_config(cfg: WorldServiceConfig, run_dir: Path) -> Path:

@@ -571,8 +571,6 @@ class Scenario(Config, kw_only=True, frozen=True):
             raise no("fleet.rtf", f"a target real-time factor ({self.fleet.rtf:g}) paces the FCU on the wall clock")
         if self.other_swarms:
             raise no("other_swarms", "a second swarm has a clock of its own")
-        if self.world is not None:
-            raise no("world", "the world service runs on the wall clock")
         net = self.network
         connectivity, mode, feed = net.topology
         if mode != "client" or connectivity != "rendezvous":

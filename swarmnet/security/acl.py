@@ -96,7 +96,8 @@ def access_control(roster: Roster) -> dict[str, Any]:
     command = [keys.swarm_cmd, keys.cmd("*")]
     rules.append(_rule("gcs.in", ("put", "liveliness_token"), ("ingress",), [*command, keys.alive("gcs", "*")]))
     rules.append(_rule("ctl.in", ("put", "liveliness_token"), ("ingress",),
-                       [*command, keys.netem_set, keys.fault("*"), keys.alive("observer", "*"), keys.clock_step]))
+                       [*command, keys.netem_set, keys.fault("*"), keys.alive("observer", "*"), keys.clock_step,
+                                      keys.clock_world_step]))
     grants = {"gcs": ["declare", "observe", "gcs.in"], "ctl": ["declare", "observe", "ctl.in"], "edge": ["forward"]}
     for role, cns in staff.items():
         if cns:
