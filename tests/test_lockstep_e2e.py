@@ -68,3 +68,28 @@ def test_netem_delays_are_simulated_time_in_lockstep(tmp_path: Path) -> None:
     # the LTE preset's one-way delay (tens of ms) in simulated time, whatever the wall clock did meanwhile
     assert 30.0 <= age["p50"] <= 120.0, age
     assert f.summary["network"]["negative_ages"] == {}
+
+
+def test_the_wildfire_world_in_lockstep_is_one_flight_per_seed_and_puts_fire_out(tmp_path: Path) -> None:
+    """The world service steps with the pools: the fire, the sensors' rates and latencies and the
+    sprays are simulated time, and one seed gives one fire as well as one flight."""
+    sets = ["time=lockstep", "duration=60"]
+    wildfire = ROOT / "scenarios" / "wildfire.yaml"
+    a = fly(scenario=wildfire, out=tmp_path / "a", sets=sets)
+    b = fly(scenario=wildfire, out=tmp_path / "b", sets=sets)
+    for f in (a, b):
+        assert f.summary.get("aborted") is None, f.summary.get("aborted")
+        assert run_info(f)["lockstep"]["world"] is True
+        w = f.summary["world"]
+        assert w["fire"]["actuations"] > 0 and w["fire"]["cells_extinguished"] >= 1, w["fire"]
+        for name, rate in (("fire", 5.0), ("tank", 2.0)):  # each sensor at its rate, no earlier than its latency
+            d = w["sensors"][name]
+            assert d["rate_hz_median"] == pytest.approx(rate, rel=0.1), (name, d)
+            assert d["delay_ms_p50"] >= 1000 * d["latency_s"], (name, d)
+        assert f.collisions == 0
+    assert a.summary["world"]["fire"] == b.summary["world"]["fire"]
+    ra, rb = rows(a), rows(b)
+    for u in ra:
+        n = min(len(ra[u]), len(rb[u]))
+        assert n > 200, (u, n)
+        np.testing.assert_array_equal(ra[u][:n], rb[u][:n], err_msg=f"UAV {u}")
