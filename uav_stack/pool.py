@@ -15,7 +15,9 @@ The loop runs every UAV's tick at the same instants, in two halves as aligned ti
 (:func:`uav_stack.runtime.run_loop`): the FCU's step and every UAV's sense (FCU in, own pose
 out), then, once the poses of the instant have had :data:`ACT_AFTER` of a period to arrive,
 every UAV's act (control, setpoints, reports). A UAV of the pool whose agent raises is logged
-and counted; the others fly on.
+and counted (an ``agent_error`` incident of the run); the others fly on. In lock-step time
+(:meth:`Pool.run_lockstep`) the same two halves run when the run's leader steps the pool, at the
+step's simulated time, which every clock of the pool reads (swarmnet/lockstep.py).
 """
 
 from __future__ import annotations
@@ -80,7 +82,7 @@ class PoolConfig(Config, frozen=True):
     # stop the process after this long (None: until signalled)
     duration: Annotated[float, Meta(gt=0.0, description="s")] | None = None
     # lock-step time (swarmnet/lockstep.py): the simulated time of the first instant, s since the Unix
-    # epoch; the pool runs each half tick when the run's leader steps it. None: real time
+    # epoch; the pool runs each tick when the run's leader steps it. None: real time
     lockstep_epoch: Annotated[float, Meta(gt=0.0, description="s")] | None = None
 
     def __post_init__(self) -> None:
