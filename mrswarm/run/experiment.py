@@ -402,8 +402,10 @@ class Experiment:
             self.run_info.all_airborne_s = self.now() - takeoff.sent_at
             self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
-            self._command("start", ids, set(WORKING))
-            start = self.now()
+            started = self._command("start", ids, set(WORKING))
+            # (lock-step: the runner looks every LOCKSTEP_LOOK_S, so the acknowledgements' time is that coarse;
+            # the command's own is exact, and the UAVs take it at the next tick)
+            start = started.sent_at if self.leader is not None else self.now()
             self.run_info.mission_start = self.progress.mission_start = start
             if scn.faults:
                 self.chaos = Chaos(plan(scn.faults, scn.seed), self._swarm(net), clock=self.now)

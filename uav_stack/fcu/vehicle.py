@@ -100,7 +100,10 @@ class Vehicle:
         unknown = set(stream_rates) - set(self.encoders)
         if unknown:
             raise ValueError(f"stream_rates: {self.flavour.name} sends no {sorted(unknown)}")
-        self.streams = StreamSet(ctx.clock.dt, phase=7 * i, start_at=self._stream_starts())
+        # vehicles on sockets get phases of their own (their sends spread over the period); a pool's
+        # vehicles (in-process links) all send on the ticks' grid: the pool's loop takes every vehicle's
+        # telemetry at the same instants, so a phase would only make a position up to 80 ms older
+        self.streams = StreamSet(ctx.clock.dt, phase=0 if cfg.inproc else 7 * i, start_at=self._stream_starts())
         rates = firmware_rates(self.flavour.name, self.params.get)
         rates.update(stream_rates)
         for name in self.encoders:
