@@ -198,8 +198,8 @@ class Pool:
         (swarmnet/lockstep.py): the FCU steps to :data:`LOCKSTEP_ACT_S` after the last instant and every
         UAV acts on the poses of that instant (as in real time: its setpoints apply from then on), then
         the FCU steps to the new instant and every UAV senses and its pose goes out. A UAV's command
-        or fault is taken in at the start of the step. Ends when stopped, after ``duration`` s of simulated time, or when no step came for
-        ``idle_timeout`` s of wall time (the leader is gone)."""
+        or fault is taken in at the start of the step. Ends when stopped, after ``duration`` s of
+        simulated time, or when no step came for ``idle_timeout`` s of wall time (the leader is gone)."""
         parent = os.getppid()
         loop = LoopStats(period)
         for u in self.uavs:
