@@ -35,7 +35,7 @@ from typing import Annotated, Any
 import msgspec
 import zenoh
 
-from groundfloor.errors import Rejected
+from groundfloor.errors import MrswarmError, Rejected
 from swarmnet.keyspace import SwarmKeys
 from swarmnet.messages import DecodeError, check_key_names
 
@@ -76,7 +76,7 @@ CLOCK_QOS: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.BLOCK
                              "reliability": zenoh.Reliability.RELIABLE, "express": True}
 
 
-class LockstepStalled(RuntimeError):
+class LockstepStalled(RuntimeError, MrswarmError):
     """A wait of the lock-step clock ran out; ``missing`` names who did not answer."""
 
     def __init__(self, message: str, missing: Iterable[int] = ()):

@@ -192,7 +192,7 @@ def test_a_cut_link_in_a_pool_loses_that_vehicles_datagrams_only() -> None:
         faults = [SimFaults(fcu, 0, i) for i in range(2)]
         pooled = PooledFcu(fcu, faults)
         faults[0].link_cut_until = time.time() + 60.0
-        pooled.service()
+        pooled.service(time.time())
         assert faults[0].cut and not faults[1].cut
         for link in links:
             link.service()  # a heartbeat each
