@@ -82,7 +82,8 @@ READY_TIMEOUT_CAP_PER_UAV = 3.0
 TAKEOFF_MARGIN = 30.0  # s to reach "hover", on top of the climb time at the slowest UAV's RTF
 CLIMB_RATE = 1.5  # m/s, the agent's takeoff climb (conservative)
 TICK = 0.1  # s between two polls of the swarm while waiting or flying
-# lock-step time: s of simulated time between two polls (the runner's look between ticks holds every pool)
+# lock-step time: s of simulated time between two polls of the mission loop (the runner's look between ticks
+# holds every pool; waiting for a phase and commands look every TICK, as in real time)
 LOCKSTEP_LOOK_S = 0.5
 REJOIN_EVERY_S = 2.0  # a restarted UAV is sent start (or takeoff) this often until it flies
 # at most this fraction of the virtual UAVs may be late at a stage (not ready, not airborne, not acknowledging in
@@ -412,7 +413,7 @@ class Experiment:
             self._save_info()
             end = start + scn.duration
             while self.now() < end:
-                self._tick()
+                self._tick(LOCKSTEP_LOOK_S)
                 if self.chaos is not None:
                     self.chaos.tick(self.now() - start)
                     if self.chaos.changed:
@@ -641,8 +642,10 @@ class Experiment:
         else:
             self._say(f"external UAVs on the ground after {time.time() - t0:.0f} s")
 
-    def _tick(self) -> None:
-        """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of sleep."""
+    def _tick(self, look: float = TICK) -> None:
+        """One poll of the swarm: stop signals, live metrics, process events, rejoins, the display, then TICK s of
+        sleep (lock-step: ``look`` s of simulated time; the mission loop looks every LOCKSTEP_LOOK_S, the waits for
+        a phase every TICK, as in real time, so that the takeoff and the start come when they would)."""
         assert self.observer is not None
         self.signals.check()
         if self.signals.hangup:
@@ -660,10 +663,10 @@ class Experiment:
         if self.leader is None:
             time.sleep(TICK)
         else:
-            self._step_clock()
+            self._step_clock(look)
 
-    def _step_clock(self) -> None:
-        """Lock-step time: LOCKSTEP_LOOK_S of simulated time, as fast as the pools run them (a pool whose process
+    def _step_clock(self, seconds: float = TICK) -> None:
+        """Lock-step time: ``seconds`` of simulated time, as fast as the pools run them (a pool whose process
         is gone, all its UAVs lost, is not waited for: the others fly on)."""
         assert self.leader is not None
         gone = [int(name.removeprefix("pool")) for name, uavs in self.run_info.pools.items()
@@ -674,7 +677,7 @@ class Experiment:
             if not self.leader.pools:
                 raise RunAborted("lock-step time: every pool has exited")
         try:
-            self.leader.advance(LOCKSTEP_LOOK_S)
+            self.leader.advance(seconds)
         except LockstepStalled as exc:
             raise RunAborted(f"lock-step time stalled: {exc}") from None
 
