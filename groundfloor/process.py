@@ -55,6 +55,11 @@ def _prctl() -> Callable[..., int] | None:
     return fn
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity; the machine's count where there is none)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
     """Ask Linux to send this process ``sig`` when the process that launched it dies."""
     prctl = _prctl()

@@ -18,11 +18,11 @@ available now (psutil).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import psutil
 
+from groundfloor.process import usable_cores
 from mrswarm.scenario import Scenario
 
 CPU_PER_UAV_DIRECT = 0.04  # cores
@@ -62,7 +62,7 @@ def estimate(scn: Scenario) -> ResourceEstimate:
     per_mb = MB_PER_UAV_CONTAINER if scn.runtime == "docker" else MB_PER_UAV_PROCESS
     if scn.pool_size > 1:
         per_core, per_mb = min(per_core, CPU_PER_UAV_POOLED), MB_PER_UAV_POOLED
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cores()
     return ResourceEstimate(uavs=n, cores_needed=n * per_core, cores=cores, memory_mb_needed=MB_BASE + n * per_mb,
                             memory_mb_available=psutil.virtual_memory().available / 2**20)
 

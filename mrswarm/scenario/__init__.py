@@ -29,6 +29,7 @@ from deploy.settings import ContainerSettings
 from discovery.options import DiscoveryService, Key
 from groundfloor import strict_yaml
 from groundfloor.errors import MrswarmError
+from groundfloor.process import usable_cores
 from groundfloor.schema import Config, ConfigError, convert, to_builtins
 from mrswarm.scenario.behaviour_check import check_mission, check_per_uav, uav_behaviour
 from mrswarm.scenario.faults import UAV_PROCESS, FaultSpec, check_against, fit_to_duration
@@ -389,11 +390,6 @@ class Uav(Config, frozen=True):
         return self.realm
 
 
-def _cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def uav_list(fleet: Fleet | None, uavs: tuple[Uav, ...] | None) -> list[Uav]:
     """A swarm's UAVs: the explicit list, or the fleet's spawn points."""
     if uavs is not None:
@@ -542,10 +538,10 @@ class Scenario(Config, kw_only=True, frozen=True):
             return pool
         n = len(self.all_uavs())
         if self.time == "lockstep":  # only pools follow the lock-step clock: one per core
-            return max(2, min(MAX_POOL, math.ceil(n / _cores()))) if n > 1 else 2
+            return max(2, min(MAX_POOL, math.ceil(n / usable_cores())))
         if n <= POOL_ABOVE or self.runtime != "process" or any(f.kind in UAV_PROCESS for f in self.faults):
             return 1
-        return min(MAX_POOL, math.ceil(n / _cores()))
+        return min(MAX_POOL, math.ceil(n / usable_cores()))
 
     def _check_lockstep(self) -> None:
         """``time: lockstep``: what the lock-step clock steps (pools of virtual UAVs of one swarm, through

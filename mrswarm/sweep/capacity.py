@@ -24,13 +24,13 @@ another run: the sweep refuses ``--parallel`` for it (:func:`exclusive_problem`)
 
 from __future__ import annotations
 
-import os
 import time
 from collections import deque
 from dataclasses import dataclass
 
 import psutil
 
+from groundfloor.process import usable_cores
 from mrswarm.run.resources import CPU_SHARE, MEMORY_SHARE, estimate
 from mrswarm.scenario import Scenario
 
@@ -45,10 +45,6 @@ SETTLE_S = 20.0
 class Need:
     cores: float
     memory_mb: float
-
-
-def machine_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def exclusive_problem(scn: Scenario) -> str:
@@ -67,7 +63,7 @@ class Capacity:
 
     def __init__(self, limit: int, cores: int | None = None) -> None:
         self.limit = limit
-        self.cores = cores or machine_cores()
+        self.cores = cores or usable_cores()
         self._load: deque[tuple[float, float]] = deque()  # (monotonic time, busy share 0..1)
         self._measured: dict[str, float] = {}  # cell key -> cores used by its last finished run
         self.last_start = 0.0

@@ -32,11 +32,12 @@ from typing import IO
 from rich.console import Console
 
 from groundfloor.errors import MrswarmError
+from groundfloor.process import usable_cores
 from mrswarm.records.summary import write_atomic
 from mrswarm.run.resources import check_resources
 from mrswarm.run.signals import StopSignals
 from mrswarm.sweep.campaign import Plan, Slot, campaign_yaml
-from mrswarm.sweep.capacity import Capacity, ClusterCapacity, Need, exclusive_problem, machine_cores
+from mrswarm.sweep.capacity import Capacity, ClusterCapacity, Need, exclusive_problem
 from mrswarm.sweep.launch import Flight, Launcher, LocalLauncher, RunOptions
 from mrswarm.sweep.progress import Estimator, SweepProgress, duration
 from mrswarm.sweep.slots import SlotRecord, SlotState, attempt_of, slot_dir, status
@@ -77,7 +78,7 @@ class Sweep:
         self.launcher: Launcher = launcher or LocalLauncher(plan.scenario_path, self.opts)
         self.local = isinstance(self.launcher, LocalLauncher)
         if self.local:
-            self.limit = machine_cores() if parallel == "auto" else int(parallel)
+            self.limit = usable_cores() if parallel == "auto" else int(parallel)
             self.capacity: Capacity = Capacity(self.limit)
         else:
             self.limit = self._cluster_limit() if parallel == "auto" else int(parallel)
