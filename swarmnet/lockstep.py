@@ -29,8 +29,8 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
-from typing import Annotated, Any
+from collections.abc import Callable, Iterable
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 import zenoh
@@ -41,7 +41,9 @@ from swarmnet.messages import DecodeError, check_key_names
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
 SEQ_MAX = 2**62
+IDLE_S = 60.0  # wall s a follower waits without a step before it takes the leader for gone
 # the simulated clock's origin, s since the Unix epoch (2026-01-01 00:00 UTC): one for every run, so that
 # two runs of one seed compute with the same numbers (a float's rounding depends on its magnitude)
 LOCKSTEP_EPOCH = 1_767_225_600.0
@@ -84,22 +86,22 @@ class LockstepStalled(RuntimeError, MrswarmError):
         self.missing = sorted(missing)
 
 
-def decode_step(data: bytes) -> ClockStep:
+def _decoded(decode: Callable[[bytes], T], what: str, data: bytes) -> T:
+    """``decode(data)``, or :class:`DecodeError` (``bad_field``, ``malformed``) naming ``what``."""
     try:
-        return _decode_step(data)
+        return decode(data)
     except msgspec.ValidationError as exc:
-        raise DecodeError("bad_field", f"clock_step: {exc}") from None
+        raise DecodeError("bad_field", f"{what}: {exc}") from None
     except msgspec.DecodeError as exc:
-        raise DecodeError("malformed", f"clock_step: {exc}") from None
+        raise DecodeError("malformed", f"{what}: {exc}") from None
+
+
+def decode_step(data: bytes) -> ClockStep:
+    return _decoded(_decode_step, "clock_step", data)
 
 
 def decode_done(data: bytes) -> ClockDone:
-    try:
-        return _decode_done(data)
-    except msgspec.ValidationError as exc:
-        raise DecodeError("bad_field", f"clock_done: {exc}") from None
-    except msgspec.DecodeError as exc:
-        raise DecodeError("malformed", f"clock_done: {exc}") from None
+    return _decoded(_decode_done, "clock_done", data)
 
 
 def participant(number: int) -> str:

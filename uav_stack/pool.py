@@ -39,6 +39,7 @@ from msgspec import Meta
 
 from groundfloor.schema import Config, ConfigError, decode_json
 from swarmnet.keyspace import SwarmKeys
+from swarmnet.lockstep import IDLE_S as LOCKSTEP_IDLE_S
 from swarmnet.lockstep import LockstepFollower
 from swarmnet.neighbours import neighbour_counters
 from uav_stack.config import MAX_POOL, VirtualUavConfig
@@ -67,7 +68,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-LOCKSTEP_IDLE_S = 60.0  # wall s without a lock-step step: the leader is gone, the pool stops
 LOCKSTEP_POLL_S = 1.0  # wall s between looks at the stop flag and the parent while waiting for a step
 PUT_TOGETHER = 16  # UAVs whose puts of a half tick leave back to back: a pose waits for at most their work
 ACT_AFTER = 0.3  # of a period after the instant: when the pool acts (its UAVs' poses of the instant are in by then)

@@ -30,6 +30,7 @@ from typing import Any
 
 from groundfloor.process import die_with_parent, setup_logging
 from groundfloor.schema import ConfigError
+from swarmnet.lockstep import IDLE_S as LOCKSTEP_IDLE_S
 from swarmnet.lockstep import WORLD, LockstepFollower
 from swarmnet.node import NodeIdentity, SwarmNode
 from swarmnet.security.identity import NodeName
@@ -47,7 +48,6 @@ from world.sensing import Track
 log = logging.getLogger(__name__)
 
 WORLD_NODE_ID = 1  # the world's node id among the role "edge" nodes of a swarm
-LOCKSTEP_IDLE_S = 60.0  # wall s without a lock-step step: the leader is gone, the world stops
 
 
 class WorldService:
