@@ -264,10 +264,15 @@ class SwarmNode:
         self._subscribers.append(subscribe(s, key, into, **options))
         return into
 
+    @property
+    def lockstep(self) -> bool:
+        """In lock-step time (swarmnet/lockstep.py): a member of a pool whose shared session says so."""
+        return self.shared is not None and self.shared.lossless
+
     def _declare_publishers(self, s: zenoh.Session) -> None:
         k, me = self.keys, self.identity.uav
-        # lock-step time (a pool's shared session says so): nothing may be lost, a full queue waits instead
-        lossless = self.shared is not None and self.shared.lossless
+        # lock-step time: nothing may be lost, a full queue waits instead
+        lossless = self.lockstep
         cc = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         # (lock-step: batched with the pool's other puts, not a batch each: the clock's step waits for all of them anyway)
         self._pubs["pose"] = s.declare_publisher(k.pose(me), congestion_control=cc, priority=zenoh.Priority.DATA_HIGH,
@@ -474,7 +479,7 @@ class SwarmNode:
         data = encode_swarm_message(msg, self.max_message_bytes)
         me = self.identity.uav
         key = self.keys.broadcast(me, topic) if to is None else self.keys.unicast(me, to, topic)
-        if self.shared is not None and self.shared.lossless:  # lock-step time: nothing may be lost
+        if self.lockstep:  # nothing may be lost
             self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
         else:
             self.session.put(key, data)
@@ -510,7 +515,7 @@ class SwarmNode:
         if waiting is not None:
             waiting.poke()  # a pose came before its sender's token: the inlet's thread starts now
         self._take_in(self._arrivals(max_samples), now, inbox)
-        if self.shared is not None and self.shared.lossless:
+        if self.lockstep:
             self._hold_early_messages(inbox, now)
         self._track_liveliness(inbox, max_samples)
         if waiting is not None and inbox.joined and self.alive_uavs() - {self.identity.uav}:
@@ -549,7 +554,7 @@ class SwarmNode:
         now = self.clock() if now is None else now
         table = self.neighbours
         out = table.snapshot() if around is None else table.around(*around)
-        if self.shared is not None and self.shared.lossless:  # lock-step time: one order, however the poses arrived
+        if self.lockstep:  # one order, however the poses arrived
             out.sort(key=lambda n: n.pose.uav)
         if isinstance(table, NeighbourView):  # a pool's member: its own first uses
             self.stats.ages.used_many(table.first_uses(out, now))

@@ -11,17 +11,11 @@ import pytest
 
 from groundfloor.schema import ConfigError, convert
 from mrswarm.scenario import Network, Scenario, ScenarioError, load_scenario, parse_scenario
+from tests.test_scenario import BASE as REAL_TIME_BASE
 
 ROOT = Path(__file__).resolve().parents[1]
 
-BASE = """
-name: t
-duration: 10
-origin: {lat: 46.6, lon: 14.2, alt: 440}
-mission: {type: coverage, area: {x_min: 0, x_max: 50, y_min: 0, y_max: 50}}
-fleet: {count: 3}
-time: lockstep
-"""
+BASE = REAL_TIME_BASE + "time: lockstep\n"  # test_scenario's small fleet, in lock-step time
 
 DATA: dict[str, Any] = {
     "name": "t", "duration": 10, "origin": {"lat": 46.6, "lon": 14.2, "alt": 440},

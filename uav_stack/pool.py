@@ -309,7 +309,8 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
         swarms = _by_swarm(cfgs)
         if shares_session(cfgs[0].agent.network):
             for swarm, members in swarms.items():
-                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop, clock=clock)
+                shares[swarm] = open_shared_session([c.agent for c in members], cfg.number, stop, clock=clock,
+                                                    lockstep=sim is not None)
         for i, c in enumerate(cfgs):
             if stop.stopped:
                 return 0

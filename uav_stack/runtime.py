@@ -115,7 +115,8 @@ def shares_session(net: NetworkConfig) -> bool:
 
 
 def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
-                        timeout: float = OPEN_TIMEOUT_S, clock: Callable[[], float] = time.time) -> SharedSession:
+                        timeout: float = OPEN_TIMEOUT_S, clock: Callable[[], float] = time.time,
+                        lockstep: bool = False) -> SharedSession:
     """Pool ``number``'s one session for the UAVs of ``cfgs`` (one swarm, one network), opened: it
     speaks as ``pool-<number>``, whose certificate speaks for those UAVs (docs/security.md)."""
     from swarmnet.shared_session import SharedSession
@@ -124,7 +125,7 @@ def open_shared_session(cfgs: list[AgentConfig], number: int, stop: StopFlag,
     net = first.network
     share = SharedSession(first.swarm, make_connectivity(net, NodeName("pool", number, first.swarm)), pose_feed=net.pose_feed,
                           stale_after=first.stale_after, name=f"pool {number}", number=number, interest=net.interest,
-                          clock=clock, lossless=clock is not time.time)
+                          clock=clock, lossless=lockstep)
     if net.security is None:
         log.warning("plain TCP without access control (network.security: off): anyone who reaches this pool's "
                     "network can command its UAVs and speak for any UAV (docs/security.md)")

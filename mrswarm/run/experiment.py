@@ -404,8 +404,8 @@ class Experiment:
             self.progress.reached(f"all {n} airborne {self.run_info.all_airborne_s:.1f} s after takeoff")
             self.progress.stage = RunStage.MISSION
             started = self._command("start", ids, set(WORKING))
-            # (lock-step: the runner looks every LOCKSTEP_LOOK_S, so the acknowledgements' time is that coarse;
-            # the command's own is exact, and the UAVs take it at the next tick)
+            # (lock-step: the acknowledgements are seen at the runner's next look, a tick later at the earliest;
+            # the command's own time is exact, and the UAVs take it at the next tick)
             start = started.sent_at if self.leader is not None else self.now()
             self.run_info.mission_start = self.progress.mission_start = start
             if scn.faults:
@@ -430,7 +430,7 @@ class Experiment:
 
     def _start_lockstep(self, configs: list[VirtualUavConfig], pools: int) -> None:
         """time: lockstep: the runner leads the clock (swarmnet/lockstep.py) once every pool is ready for
-        it; from then on the run's clock is simulated time, and each of its ticks (TICK) is stepped."""
+        it; from then on the run's clock is simulated time, stepped at each of its looks (_step_clock)."""
         assert self.observer is not None and self.observer.node.session is not None
         period = 1.0 / max(tick_hz_for(c.agent) for c in configs)
         self.leader = LockstepLeader(self.observer.node.session, SwarmKeys(self.scn.swarm), range(1, pools + 1), period,
@@ -617,7 +617,7 @@ class Experiment:
         self.progress.stage = RunStage.STOPPING
         self._say(f"landing UAV{'s' if len(up) > 1 else ''} {', '.join(map(str, up))} (external flight controller) before "
                   "stopping" + (" (stop again to skip)" if self.signals.requested else ""))
-        t0 = self.now()
+        t0 = time.time()  # (external UAVs fly on the wall clock: lock-step refuses them)
         deadline = t0 + self.scn.flight.altitude / LAND_SPEED + LAND_MARGIN_S
         sent: dict[int, float] = {}
         while up and time.time() < deadline and not self.signals.fast:
@@ -669,8 +669,8 @@ class Experiment:
         """Lock-step time: ``seconds`` of simulated time, as fast as the pools run them (a pool whose process
         is gone, all its UAVs lost, is not waited for: the others fly on)."""
         assert self.leader is not None
-        gone = [int(name.removeprefix("pool")) for name, uavs in self.run_info.pools.items()
-                if int(name.removeprefix("pool")) in self.leader.pools and uavs and set(uavs) <= self.lost]
+        numbers = {int(name.removeprefix("pool")): uavs for name, uavs in self.run_info.pools.items()}
+        gone = [k for k, uavs in numbers.items() if k in self.leader.pools and uavs and set(uavs) <= self.lost]
         if gone:
             self.leader.drop(gone)
             self._say(f"[yellow]lock-step time goes on without pool(s) {format_ids(gone)}[/] (their process exited)")
