@@ -93,3 +93,24 @@ def test_the_wildfire_world_in_lockstep_is_one_flight_per_seed_and_puts_fire_out
         n = min(len(ra[u]), len(rb[u]))
         assert n > 200, (u, n)
         np.testing.assert_array_equal(ra[u][:n], rb[u][:n], err_msg=f"UAV {u}")
+
+
+def test_lockstep_flies_the_paths_real_time_flies(tmp_path: Path) -> None:
+    """Lock-step is a faster clock, not another simulation: the same scenario in real time (each UAV its
+    own process) and in lock-step (two pools) puts every UAV within a few decimetres of the same place
+    5 s into its mission, while its neighbours' avoidance bends the paths. (A setpoint taken in a tick
+    late, as lock-step once did, put some UAVs metres away.)"""
+    sets = ["fleet.count=6", "duration=25"]
+    real = fly(scenario=COVERAGE, out=tmp_path / "real", sets=sets)
+    lock = fly(scenario=COVERAGE, out=tmp_path / "lock", sets=[*sets, "time=lockstep", "fleet.pool=3"])
+
+    def five_s_in(tr) -> np.ndarray:
+        t0 = tr.t[tr.phase.index("mission")]
+        return np.array(tr.at(t0 + 5.0)[:2])
+
+    assert set(real.trajectories) == set(lock.trajectories) == set(range(1, 7))
+    moved = {u: float(np.linalg.norm(five_s_in(tr) - np.array([tr.x[0], tr.y[0]]))) for u, tr in lock.trajectories.items()}
+    assert min(moved.values()) > 10.0, moved  # every UAV is under way by then
+    apart = {u: float(np.linalg.norm(five_s_in(real.trajectories[u]) - five_s_in(lock.trajectories[u])))
+             for u in real.trajectories}
+    assert max(apart.values()) < 0.5, apart

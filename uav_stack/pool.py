@@ -26,6 +26,7 @@ import contextlib
 import logging
 import math
 import os
+import random
 import selectors
 import sys
 import time
@@ -224,6 +225,7 @@ class Pool:
                 self._react_woken()
                 self.fcu.poll_io()
                 self._each("act")
+                self.fcu.poll_io()  # the setpoints just sent: taken in at the act's time (as in real time)
             self._instant(step.t)
             sim.now = step.t
             loop.tick(0.0)
@@ -301,7 +303,9 @@ def run_pool(cfg: PoolConfig, stop: StopFlag, tap_zenoh_log: bool = False) -> in
     if sim is None:
         fcu = make_virtual_fcu(cfgs, time.monotonic() - (time.time() % period) - FCU_LEAD_S, inproc=True)
     else:
-        fcu = make_virtual_fcu(cfgs, sim.now - FCU_LEAD_S, inproc=True, clock=sim)
+        # its heartbeats between the ticks, where a real boot's fall, at a phase the seed draws (one seed, one flight)
+        beat = random.Random(f"{cfgs[0].agent.seed}/pool-{cfg.number}").random()
+        fcu = make_virtual_fcu(cfgs, sim.now - FCU_LEAD_S, inproc=True, clock=sim, heartbeat_offset_s=beat)
     clock: Callable[[], float] = time.time if sim is None else sim
     uavs: list[VirtualUav] = []
     shares: dict[str, SharedSession] = {}  # swarm -> the pool's one session for its UAVs of that swarm

@@ -408,12 +408,12 @@ def virtual_stream_rates(cfg: VirtualUavConfig) -> dict[str, float]:
 
 
 def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, inproc: bool = False,
-                     clock: Callable[[], float] | None = None) -> VirtualFcu:
+                     clock: Callable[[], float] | None = None, heartbeat_offset_s: float = 0.0) -> VirtualFcu:
     """One virtual FCU for these virtual UAVs (one vehicle each, stepped together), opened: one
     UDP socket per vehicle on the loopback, or with ``inproc`` (a pool: every agent in this
     process) an in-process channel per vehicle (:mod:`uav_stack.inproc`). They share its physics
     rate and target RTF (the first's); its streams are the first's flavour's, with a ground
-    station's view if any has a MAVLink endpoint."""
+    station's view if any has a MAVLink endpoint. ``heartbeat_offset_s``: :attr:`FcuConfig.heartbeat_offset_s`."""
     from uav_stack.fcu import FcuConfig, VehicleConfig, VirtualFcu  # numpy-heavy, only here
 
     first = cfgs[0]
@@ -427,6 +427,7 @@ def make_virtual_fcu(cfgs: list[VirtualUavConfig], start: float | None = None, i
             target_rtf=first.target_rtf,
             # the loop comes back once per tick: a tick's lateness beyond that drops sim time, not less
             max_catchup_s=FcuConfig.max_catchup_s + 1.0 / tick_hz_for(first.agent),
+            heartbeat_offset_s=heartbeat_offset_s,
         ),
         **({} if clock is None else {"clock": clock}),  # lock-step: simulated time, the Unix clock's origin
     )

@@ -126,7 +126,7 @@ class VirtualFcu:
         n = len(self.vehicles)
         for k, v in enumerate(self.vehicles):  # the first heartbeat when the boot sends it; spread over 1 s
             first = max(0.0, v.boot.at["heartbeat"]) / self.config.target_rtf
-            v.next_hb_wall = now + first + (k / n) * min(1.0, v.hb_interval_wall)
+            v.next_hb_wall = now + first + self.config.heartbeat_offset_s + (k / n) * min(1.0, v.hb_interval_wall)
         self._next_hb_wall = min(v.next_hb_wall for v in self.vehicles)
         self._opened = True
         return addrs
