@@ -28,6 +28,7 @@ symmetric head-on resolves (see the tests).  Coincident positions are split by U
 
 from __future__ import annotations
 
+import heapq
 import math
 import operator
 from collections.abc import Sequence
@@ -58,7 +59,7 @@ class _Constraint:
     oncoming: float  # 0..1: how fast this neighbour itself comes towards us (keep-right weight)
 
 
-_BY_DIST = operator.attrgetter("dist")
+_FIRST = operator.itemgetter(0)
 YIELD_MARGIN = 0.3  # of a zone's margin still kept when the full margin leaves no way to give way to a neighbour
 
 
@@ -221,13 +222,13 @@ class CollisionAvoidance:
         px, py = me.pos
         vax, vay = v_a
 
-        # Every neighbour passes through this loop each tick (up to 49 at N = 50), most of them
-        # out of range: names bound once, and the inflation worked out only for those in range
-        # and, after the loop, for the closest.
+        # Every neighbour passes through this loop each tick (up to 99 at N = 100), most of them
+        # out of range or beyond the nearest max_neighbours: names bound once, and the half-plane
+        # worked out only for the nearest in range (after the loop), the inflation for them and the closest.
         me_uav, forget, in_range, stale = me.uav, self.forget_after, self.neighbour_range, self.stale_after
         isfinite, hypot = math.isfinite, math.hypot
         closest, closest_age, closest_rv = math.inf, 0.0, 0.0
-        cons: list[_Constraint] = []
+        near: list[tuple[float, float, float, float, float, float, NeighbourView]] = []
         for nb in neighbours:
             if nb.uav == me_uav:
                 continue
@@ -243,11 +244,19 @@ class CollisionAvoidance:
             xx = bx + bvx * age - px
             xy = by + bvy * age - py
             d = hypot(xx, xy)
-            rvx, rvy = vax - bvx, vay - bvy
             if d < closest:
-                closest, closest_age, closest_rv = d, age, hypot(rvx, rvy)
-            if d > in_range:
-                continue
+                closest, closest_age, closest_rv = d, age, hypot(vax - bvx, vay - bvy)
+            if d <= in_range:
+                near.append((d, xx, xy, bvx, bvy, age, nb))
+
+        closest_infl = self.inflation(closest_age, closest_rv) if closest < math.inf else 0.0
+        if not near and not hard:
+            return AvoidanceResult(pref, pref != clipped, closest, closest_infl)
+        # the nearest max_neighbours, nearest first (ties in the order given, as a stable sort keeps them)
+        near = heapq.nsmallest(self.max_neighbours, near, key=_FIRST)
+        cons: list[_Constraint] = []
+        for d, xx, xy, bvx, bvy, age, nb in near:
+            rvx, rvy = vax - bvx, vay - bvy
             infl = self.inflation(age, hypot(rvx, rvy))
             share = 0.5 if (nb.reciprocal and age <= stale) else 1.0
             plane = self._half_plane(
@@ -257,13 +266,6 @@ class CollisionAvoidance:
             closing = -(bvx * xx + bvy * xy) / d if d > 1e-9 else 0.0
             oncoming = min(max(closing / (0.2 * self.max_speed), 0.0), 1.0)
             cons.append(_Constraint(d, plane, oncoming))
-
-        closest_infl = self.inflation(closest_age, closest_rv) if closest < math.inf else 0.0
-        if not cons and not hard:
-            return AvoidanceResult(pref, pref != clipped, closest, closest_infl)
-        cons.sort(key=_BY_DIST)
-        if len(cons) > self.max_neighbours:
-            del cons[self.max_neighbours :]
         planes = hard + [c.plane for c in cons]
         v, feasible = solve(planes, self.max_speed, pref, hard=len(hard))
         if not feasible and hard and self.zones is not None and cons:
