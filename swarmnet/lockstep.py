@@ -29,7 +29,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Annotated, Any, TypeVar
 
 import msgspec
@@ -192,6 +192,25 @@ class LockstepFollower:
                 self._pub.put(_encode(ClockDone(self.pool, -1)))
                 left = min(left, 0.5)
             self._pending.extend(self._box.take(left))
+
+    def follow(self, stopped: Callable[[], bool], idle_timeout: float = IDLE_S, poll_s: float = 1.0,
+              gone: Callable[[], bool] = lambda: False) -> Iterator[ClockStep]:
+        """Each step as it comes, until ``stopped()``, or no step came for ``idle_timeout`` s of wall
+        time (the leader is gone: logged), or ``gone()`` says the follower's owner is (looked at every
+        ``poll_s`` s while no step comes). Answer each with :meth:`done`."""
+        waiting = time.monotonic()
+        while not stopped():
+            step = self.next_step(min(poll_s, idle_timeout))
+            if step is None:
+                if time.monotonic() - waiting > idle_timeout:
+                    log.error("no lock-step step for %.0f s: the run's leader is gone; %s stops", idle_timeout,
+                              "the world" if self.pool == WORLD else f"pool {self.pool}")
+                    return
+                if gone():
+                    return
+                continue
+            yield step
+            waiting = time.monotonic()
 
     def done(self, step: ClockStep) -> None:
         self._pub.put(_encode(ClockDone(self.pool, step.k)))

@@ -207,17 +207,8 @@ class Pool:
             u.agent.stats_sources["loop"] = loop.as_dict
         end = math.inf if duration is None else sim.now + duration
         next_counters = time.monotonic() + 1.0
-        waiting = time.monotonic()
-        while not stop.stopped and sim.now < end:
-            step = follower.next_step(min(LOCKSTEP_POLL_S, idle_timeout))
-            if step is None:
-                if time.monotonic() - waiting > idle_timeout:
-                    log.error("no lock-step step for %.0f s: the run's leader is gone; the pool stops", idle_timeout)
-                    break
-                if os.getppid() != parent:
-                    break
-                continue
-            waiting = time.monotonic()
+        for step in follower.follow(lambda: stop.stopped or sim.now >= end, idle_timeout, LOCKSTEP_POLL_S,
+                                   gone=lambda: os.getppid() != parent):
             if step.k > 0:  # the act of the last instant, when it comes in real time: the FCU flies on to it first
                 self._instant(step.t - period)
                 sim.now = t_act = step.t - period + LOCKSTEP_ACT_S
@@ -234,8 +225,8 @@ class Pool:
             self._each("sense")
             self.fcu.poll_io()
             follower.done(step)
-            if waiting >= next_counters:  # (files on the wall clock: a faster run does not write more often)
-                next_counters = waiting + 1.0
+            if (wall := time.monotonic()) >= next_counters:  # (files on the wall clock: a faster run does not write more often)
+                next_counters = wall + 1.0
                 self.write_neighbours()
 
     def _instant(self, t: float) -> None:

@@ -187,16 +187,8 @@ class WorldService:
         assert first.session is not None
         follower = LockstepFollower(first.session, first.keys, WORLD)
         end = sim.now + self.cfg.duration if self.cfg.duration is not None else math.inf
-        waiting = time.monotonic()
         try:
-            while not stop.stopped and sim.now < end:
-                step = follower.next_step(1.0)
-                if step is None:
-                    if time.monotonic() - waiting > idle_timeout:
-                        log.error("no lock-step step for %.0f s: the run's leader is gone", idle_timeout)
-                        break
-                    continue
-                waiting = time.monotonic()
+            for step in follower.follow(lambda: stop.stopped or sim.now >= end, idle_timeout):
                 sim.now = step.t
                 self.step(step.t)
                 follower.done(step)
