@@ -5,7 +5,7 @@ charges one UAV's loop thread to Python functions (3.12 and newer). This one loo
 UAV of a fleet from outside, with any interpreter: ``perf record -e cpu-clock -a`` samples the
 whole machine for ``--seconds`` while ``scale.py`` flies ``--n`` UAVs, and each sample of a UAV
 process is charged to its thread and to the library its instruction was in (the interpreter,
-Zenoh, the kernel, numpy, the compiled paths...).
+Zenoh, the kernel, numpy...).
 
 A UAV process's threads, by role: ``loop`` (the UAV's main thread: virtual FCU, agent, records;
 the Python thread with the most samples), ``inlet`` (its other Python threads: the pose

@@ -9,9 +9,8 @@ Two measurements, one after the other on the same machine:
   CPU per tick of the process's other threads (Zenoh's runtime, the pose inlet's);
 * **warm against paused**: a few of those parts' own work, run in this process back to back
   (warm caches, the cost a micro-benchmark shows) and 100 ms apart (as a UAV's tick runs them,
-  after other processes have run): the FCU's GLOBAL_POSITION_INT and ATTITUDE encoders (and
-  GLOBAL_POSITION_INT's compiled frame, when built), the pose's encoding and the counters
-  file's atomic replace. The ratio is what running once per
+  after other processes have run): the FCU's GLOBAL_POSITION_INT and ATTITUDE encoders, the
+  pose's encoding and the counters file's atomic replace. The ratio is what running once per
   tick costs over running in a loop.
 
     python benchmarks/tick_cost.py --out benchmarks/results   # about 2 minutes

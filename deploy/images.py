@@ -138,10 +138,9 @@ def project_requirements(root: Path = ROOT, full: bool = False) -> list[str]:
 
 
 def source_hash(root: Path = ROOT) -> str:
-    """Hash of what goes into the project wheel (package sources, C included, + pyproject and setup.py)."""
+    """Hash of what goes into the project wheel (package sources + pyproject)."""
     h = hashlib.sha256()
-    files = [root / "pyproject.toml", root / "setup.py"] + sorted(
-        p for pkg in PACKAGES for ext in ("*.py", "*.c") for p in (root / pkg).rglob(ext))
+    files = [root / "pyproject.toml"] + sorted(p for pkg in PACKAGES for p in (root / pkg).rglob("*.py"))
     for f in files:
         h.update(str(f.relative_to(root)).encode())
         h.update(f.read_bytes())
@@ -157,7 +156,7 @@ def _pip(args: list[str], log: Callable[[str], None]) -> None:
 
 # what the wheel's build copy of the checkout leaves out: never a name a package of the wheel has (a
 # "results" pattern once dropped mrswarm/results from the image); benchmarks/ goes whole, results and all;
-# compiled modules (*.so): the wheel builds its own
+# compiled modules (*.so) an older checkout built: the wheel has none
 WHEEL_SOURCE_IGNORE = (".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", "benchmarks",
                        "tests", "*.so")
 

@@ -9,7 +9,6 @@ One copy of each helper the layers above would otherwise write again:
 * :mod:`groundfloor.histogram`: the mergeable log-binned histogram of ages and delays;
 * :mod:`groundfloor.schema` (with :mod:`~groundfloor.schema_errors`) and :mod:`groundfloor.strict_yaml`:
   typed configuration whose errors name the field, and YAML read strictly;
-* :mod:`groundfloor.compiled`: the optional compiled modules, loaded one way;
 * :mod:`groundfloor.net`: ``Addr``, a host and port.
 
 It imports no other package of the project, and this file imports none of its modules, so a

@@ -11,8 +11,6 @@ from uav_stack.fcu import dynamics
 from uav_stack.fcu.dynamics import G, MultirotorArray, MultirotorParams
 
 DT = 0.02
-_NOT_BUILT = ("the compiled step (uav_stack/fcu/_dynamics.c) was not built: install gcc and Python's headers "
-              "(apt: gcc python3-dev), then pip install -e . again")
 
 
 def fly(d: MultirotorArray, seconds: float, n_per_call: int = 5) -> None:
@@ -139,17 +137,12 @@ def _random_scenario(d: MultirotorArray, rng: np.random.Generator, k: int) -> No
         d.armed[: n // 3] = False  # some fall, some rest on the ground
 
 
-@pytest.mark.parametrize("scalar", ["compiled", "python"])
 @pytest.mark.parametrize("n", [1, 7, 100])
-def test_scalar_and_vector_paths_agree(n: int, scalar: str) -> None:
+def test_scalar_and_vector_paths_agree(n: int) -> None:
     rng = np.random.default_rng(n)
     yaw = rng.uniform(-3, 3, n)
     a, b = MultirotorArray(n, yaw=yaw), MultirotorArray(n, yaw=yaw)
     a.scalar_max, b.scalar_max = 0, 10_000  # force vector / scalar
-    if scalar == "python":
-        b.compiled_step = None
-    else:
-        assert b.compiled_step is not None, _NOT_BUILT
     a.armed[:] = b.armed[:] = True
     for k in range(4):
         state = np.random.default_rng(100 + k)
@@ -177,11 +170,12 @@ def test_hundred_vehicles_step_together() -> None:
     assert d.pos.shape == (n, 3) and d.yaw.shape == (n,)
 
 
-def _mission(d: MultirotorArray, seconds: float, n_per_call: int) -> list[np.ndarray]:
-    """Take off, fly a square in wind with yaw targets, land, disarm: every branch of the step."""
+def _mission(d: MultirotorArray, seconds: float, n_per_call: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Take off, fly a square in wind with yaw targets, land, disarm: every branch of the step.
+    The track of the flight, then of the rest after the disarm."""
     d.armed[:] = True
     d.wind[:] = (2.0, -1.0, 0.0)
-    track = []
+    track, rest = [], []
     legs = [(0.0, 0.0, -10.0), (30.0, 0.0, -10.0), (30.0, 30.0, -12.0), (0.0, 30.0, -8.0), (0.0, 0.0, 0.5)]
     per_leg = seconds / len(legs)
     for k, sp in enumerate(legs):
@@ -196,71 +190,60 @@ def _mission(d: MultirotorArray, seconds: float, n_per_call: int) -> list[np.nda
     d.armed[:] = False  # motors off on the ground: it must rest, then stay put
     for _ in range(50):
         d.step(DT, 1)
-        track.append(np.concatenate([d.pos.ravel(), d.vel.ravel(), d.landed.astype(float)]))
-    return track
+        rest.append(np.concatenate([d.pos.ravel(), d.vel.ravel(), d.landed.astype(float)]))
+    return track, rest
 
 
 @pytest.mark.parametrize("n", [1, 3])
-def test_compiled_and_python_steps_fly_the_same_mission(n: int) -> None:
-    """A virtual UAV runs the compiled step when it was built: it must fly as the Python one does."""
+def test_scalar_and_vector_paths_fly_the_same_mission(n: int) -> None:
+    """A virtual UAV takes the scalar path: through every branch of a mission it flies as the vectorised
+    path does; disarmed on the ground it rests and stays put, in the wind too."""
     yaw = np.linspace(-2.0, 2.0, n)
-    c, p = MultirotorArray(n, yaw=yaw), MultirotorArray(n, yaw=yaw)
-    assert c.compiled_step is not None, _NOT_BUILT
-    p.compiled_step = None
-    tc, tp = _mission(c, 80.0, 2), _mission(p, 80.0, 2)
-    assert len(tc) == len(tp) > 1000
-    worst = max(float(np.max(np.abs(a - b))) for a, b in zip(tc, tp, strict=True))
-    assert worst < 1e-9  # the same equations; at most hypot's last bits differ
-    assert c.landed.all() and not c.armed.any() and np.allclose(c.pos[:, 2], 0.0)
-    assert c.battery[0] < 1.0
-
-
-def test_compiled_step_names_a_bad_array() -> None:
-    d = MultirotorArray(2)
-    assert d.compiled_step is not None, _NOT_BUILT
-    d.armed[:] = True
-    d.wind = np.zeros((2, 3), np.float32)  # wrong dtype: a clear error, not a wrong flight
-    with pytest.raises(ValueError, match="MultirotorArray.wind must be a writable C-contiguous float64 array of 2 vehicles"):
-        d.step(DT, 1)
-    d.wind = np.zeros((4, 3))[::2]  # the right shape, but a strided view
-    with pytest.raises(ValueError, match="wind"):
-        d.step(DT, 1)
-    d.wind = np.zeros((2, 3))
-    d.step(DT, 1)
-    assert np.isfinite(d.pos).all()
+    s, v = MultirotorArray(n, yaw=yaw), MultirotorArray(n, yaw=yaw)
+    v.scalar_max = 0  # force the vectorised path
+    (ts, rest), (tv, _) = _mission(s, 80.0, 2), _mission(v, 80.0, 2)
+    assert len(ts) == len(tv) > 1000
+    worst = max(float(np.max(np.abs(a - b))) for a, b in zip(ts, tv, strict=True))
+    assert worst < 1e-9
+    assert s.landed.all() and not s.armed.any() and np.allclose(s.pos[:, 2], 0.0)
+    assert s.battery[0] < 1.0
+    assert all(np.array_equal(r, rest[0]) for r in rest) and not rest[0][3 * n:6 * n].any()
 
 
 @pytest.mark.parametrize("n", [1, 3])
-def test_one_vehicles_values_read_and_targets_written_alike_with_or_without_the_compiled_step(n: int) -> None:
-    """What the FCU's telemetry, setpoints and failsafes read and write of one vehicle: the same
-    through the compiled step's views as through numpy, also after an array was replaced."""
+def test_one_vehicles_values_read_and_targets_written(n: int) -> None:
+    """What the FCU's telemetry, setpoints and failsafes read and write of one vehicle: each field's
+    value with its type (an (x, y, z) tuple of floats, a bool or a float), NaN and infinities as
+    they are, also after an array was replaced; the targets of that vehicle only."""
     rng = np.random.default_rng(7)
-    assert dynamics.DYNAMICS == "compiled"  # scripts/test installs gcc: the compiled views run here
     for _ in range(20):
-        fast, slow = MultirotorArray(n), MultirotorArray(n)
-        slow.compiled_step = None
-        for a in (fast, slow):  # the views made by a step, then any state
-            a.step(0.02, 3)
+        d = MultirotorArray(n)
+        d.step(0.02, 3)
         for name in dynamics.FIELDS:  # any state, NaN and the limits too
-            arr = getattr(fast, name)
+            arr = getattr(d, name)
             vals = rng.random(arr.shape) > 0.5 if arr.dtype == np.bool_ else rng.normal(0.0, 50.0, arr.shape)
             if arr.dtype != np.bool_:
                 vals.flat[rng.integers(vals.size)] = rng.choice([math.nan, math.inf, -0.0, 1e308])
             arr[...] = vals
-            getattr(slow, name)[...] = vals
         for k, name in enumerate(dynamics.FIELDS):
+            arr = getattr(d, name)
             for i in range(n):
-                got, want = fast.get(k, i), slow.get(k, i)
-                assert type(got) is type(want) and np.array_equal(np.asarray(got), np.asarray(want), equal_nan=True), name
-                assert np.array_equal(np.asarray(want), getattr(slow, name)[i], equal_nan=True)
+                got = d.get(k, i)
+                if arr.ndim == 2:
+                    assert type(got) is tuple and len(got) == 3 and all(type(x) is float for x in got), name
+                else:
+                    assert type(got) is (bool if arr.dtype == np.bool_ else float), name
+                assert np.array_equal(np.asarray(got), arr[i], equal_nan=True), name
         i = int(rng.integers(n))
+        before = {name: getattr(d, name).copy() for name in ("pos_sp", "vel_ff", "yaw_sp", "yaw_rate_sp")}
         pos, vel = tuple(rng.normal(0.0, 10.0, 3)), (math.nan, float(rng.normal()), 0.5)
-        for a in (fast, slow):
-            a.set_targets(i, pos, vel, math.nan, 0.25)
-        for name in ("pos_sp", "vel_ff", "yaw_sp", "yaw_rate_sp"):
-            assert np.array_equal(getattr(fast, name), getattr(slow, name), equal_nan=True), name
-    fast.pos = fast.pos.copy()  # another array under the same name: read from it, not the old view
-    fast.pos[0] = (1.0, 2.0, 3.0)
-    assert fast.get(dynamics.POS, 0) == (1.0, 2.0, 3.0)
+        d.set_targets(i, pos, vel, math.nan, 0.25)
+        assert np.array_equal(d.pos_sp[i], pos) and np.array_equal(d.vel_ff[i], vel, equal_nan=True)
+        assert math.isnan(d.yaw_sp[i]) and d.yaw_rate_sp[i] == 0.25
+        for name, was in before.items():
+            assert np.array_equal(np.delete(getattr(d, name), i, axis=0), np.delete(was, i, axis=0), equal_nan=True), name
+    d.pos = d.pos.copy()  # another array under the same name: read from it
+    d.pos[0] = (1.0, 2.0, 3.0)
+    assert d.get(dynamics.POS, 0) == (1.0, 2.0, 3.0)
     with pytest.raises(IndexError):
-        fast.get(dynamics.POS, n)
+        d.get(dynamics.POS, n)

@@ -151,7 +151,7 @@ def test_standalone_agent_flies_a_standalone_fcu(tmp_path: Path, router: str) ->
 
 
 def test_the_velocity_setpoint_leaves_as_pymavlink_frames_it_tick_after_tick() -> None:
-    """What the agent sends its FCU ten times a second, through the compiled framing: exactly the
+    """What the agent sends its FCU ten times a second, through the link's framing: exactly the
     frames pymavlink's own ``set_position_target_local_ned_send`` writes, tick after tick."""
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))

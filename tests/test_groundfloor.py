@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundfloor.compiled import compiled_module
 from groundfloor.errors import MrswarmError, Rejected
 from groundfloor.files import replacing, write_atomic, write_json_atomic
 from groundfloor.histogram import LogHistogram
@@ -259,17 +258,6 @@ def test_percentiles_are_within_one_bin_of_the_exact_ones_and_survive_a_merge_th
         assert exact / width <= merged.centre_percentile(q) <= exact * width
     assert merged.n == 5000 and merged.max == float(ages.max()) and math.isclose(merged.mean, float(ages.mean()))
     assert math.isnan(LogHistogram().percentile(50)) and math.isnan(LogHistogram().centre_percentile(99))
-
-
-# ---- compiled modules --------------------------------------------------------------------------------
-def test_a_compiled_module_loads_unless_absent_or_asked_away(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv("MRSWARM_PURE_PYTHON", raising=False)
-    assert compiled_module("_json") is sys.modules["_json"]  # CPython's own compiled module stands in for ours
-    assert compiled_module("swarmnet._not_built") is None
-    monkeypatch.setenv("MRSWARM_PURE_PYTHON", "1")
-    assert compiled_module("_json") is None
-    monkeypatch.setenv("MRSWARM_PURE_PYTHON", "0")
-    assert compiled_module("_json") is not None
 
 
 # ---- one copy: the helpers above are not written again in a package above ---------------------------

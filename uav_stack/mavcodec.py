@@ -1,7 +1,7 @@
 """MAVLink 2 datagrams of the FCU link, parsed by pymavlink one whole datagram at a time.
 
 Every frame is packed and parsed by pymavlink itself: a compiled pass for the plain messages
-saved less than it cost to keep (docs/performance.md, "The compiled paths").
+saved less than it cost to keep (docs/performance.md, "The compiled path").
 
 * :meth:`MAVLink.parse_datagram` parses one datagram with pymavlink's ``parse_buffer`` after
   resetting its parser, so a bad or cut frame never spills into the next datagram.

@@ -34,7 +34,7 @@ PARTS: tuple[tuple[str, str, str], ...] = (
     ("fcu: datagrams in (and steps due)", "fcu", "poll_io"),
     ("fcu: service (steps, heartbeat, wake-up)", "fcu", "service"),
     ("fcu: steps due (physics, supervisor, telemetry)", "fcu", "_advance"),
-    ("fcu: physics step (compiled)", "fcu.dyn", "step"),
+    ("fcu: physics step", "fcu.dyn", "step"),
     ("fcu: supervisor (failsafes, modes)", "fcu.vehicles[0]", "tick"),
     ("fcu: telemetry encoded and queued", "fcu.vehicles[0]", "send_due_telemetry"),
     ("fcu: a datagram handled (setpoints, commands)", "fcu", "_on_datagram"),

@@ -7,8 +7,8 @@
 # Debian's and Ubuntu's python3 need python3-venv for it, installed with apt-get when missing.
 #
 #   mrswarm_venv EXTRAS   sets PY to ./.venv/bin/python, with the project installed editable with
-#                         EXTRAS ("" or "test"); reinstalls only when pyproject.toml, setup.py, a C
-#                         source, the extras or the base interpreter changed since the last install.
+#                         EXTRAS ("" or "test"); reinstalls only when pyproject.toml, the extras or
+#                         the base interpreter changed since the last install.
 
 _venv_say() { printf '==> %s\n' "$*" >&2; }
 _venv_die() { printf '%s: %s\n' "$(basename "$0")" "$*" >&2; exit 2; }
@@ -43,12 +43,10 @@ mrswarm_venv() {
   fi
   PY="$PWD/.venv/bin/python"
 
-  # the C sources setup.py builds, one module each (uav_stack/fcu/_dynamics.c: uav_stack.fcu._dynamics)
   # The stamp holds the inputs' hash and the extras installed with it: an install with the test
   # extra also serves scripts/mrswarm, one without it does not serve scripts/test.
-  local csrc want have stamp=".venv/.mrswarm-install"
-  mapfile -t csrc < <(find swarmnet uav_stack -name '*.[ch]' | sort)
-  want="$( { echo "$base $PWD"; cat pyproject.toml setup.py "${csrc[@]}"; } | sha256sum | cut -d' ' -f1)"
+  local want have stamp=".venv/.mrswarm-install"
+  want="$( { echo "$base $PWD"; cat pyproject.toml; } | sha256sum | cut -d' ' -f1)"
   have="$(cat "$stamp" 2>/dev/null || true)"
   if [ "${have%% *}" != "$want" ] || { [ -n "$extras" ] && [ "${have#* }" != "$extras" ]; } \
      || ! "$PY" -c 'import mrswarm.cli' >/dev/null 2>&1; then
@@ -57,8 +55,5 @@ mrswarm_venv() {
     _venv_say "installing mrswarm into ./.venv (pip install -e '$spec'; a few minutes the first time)"
     "$PY" -m pip install --disable-pip-version-check -q -e "$spec"
     echo "$want $extras" > "$stamp"
-    local missing
-    missing="$("$PY" -c 'import importlib.util as u, sys; print(" ".join(m for m in (p[:-2].replace("/", ".") for p in sys.argv[1:] if p.endswith(".c")) if u.find_spec(m) is None))' "${csrc[@]}")"
-    [ -z "$missing" ] || _venv_say "not compiled: $missing (no gcc or Python headers; apt-get install gcc python3-dev, then run this again): the same rules run in Python, at more CPU per UAV"
   fi
 }

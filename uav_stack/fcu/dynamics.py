@@ -17,39 +17,27 @@ All state lives in ``(N,)`` or ``(N, 3)`` float arrays; ``step`` advances every 
 fixed number of vectorised numpy operations, independent of N. A NaN in ``pos_sp`` on an
 axis means "no position control on that axis": that axis follows ``vel_ff`` only.
 
-A few vehicles (a virtual UAV has one) take a scalar path instead: compiled
-(``_dynamics.c``, built at install when a C compiler is there) or, without it, the same
-equations in Python. :data:`DYNAMICS` says which this process runs; ``MRSWARM_PURE_PYTHON=1``
-in the environment chooses the Python step (to compare the two).
+A few vehicles (a virtual UAV has one) take a scalar path instead: the same equations on
+Python floats.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
-from groundfloor.compiled import compiled_module
-
 G = 9.80665
 
 
-_COMPILED = compiled_module("uav_stack.fcu._dynamics")
-DYNAMICS = "compiled" if _COMPILED is not None else "python"
-"""Which scalar step this process runs: ``"compiled"`` or ``"python"`` (in a UAV's status file)."""
-
-# The arrays :meth:`MultirotorArray.get` reads, by index (the compiled Stepper's order: its FIELDS).
+# The arrays :meth:`MultirotorArray.get` reads, by index.
 FIELDS = ("pos", "vel", "acc", "pos_sp", "vel_ff", "wind", "armed", "landed", "ground_z", "vxy_max", "vz_up", "vz_dn",
           "acc_hor", "tilt_acc", "yaw_rate_max", "yaw_sp", "yaw_rate_sp", "yaw", "yaw_rate", "roll", "pitch",
           "roll_rate", "pitch_rate", "battery", "endurance_s")
 POS, VEL, LANDED, YAW, YAW_RATE, ROLL, PITCH, ROLL_RATE, PITCH_RATE, BATTERY = (
     FIELDS.index(f) for f in ("pos", "vel", "landed", "yaw", "yaw_rate", "roll", "pitch", "roll_rate", "pitch_rate", "battery"))
-if _COMPILED is not None and tuple(_COMPILED.FIELDS) != FIELDS:  # a stale build: its indices would mislead
-    _COMPILED = None
-    DYNAMICS = "python"
 
 
 @dataclass
@@ -141,28 +129,13 @@ class MultirotorArray:
         self._gcol = np.array([[0.0], [0.0], [G]], f)
         self._bz = 0.5 * min(p.acc_up, p.acc_dn)  # vertical braking deceleration of the profile
         self._2bz = 2.0 * self._bz
-        self._stepper: Any = None  # the compiled step's views of these arrays, made at the first step
-
-    def _compiled(self) -> Any:
-        """The compiled step's Stepper, which keeps views of these arrays (made at first use); None
-        when it was not built or the fleet takes the vectorised path (more than ``scalar_max``)."""
-        if self.compiled_step is None or self.n > self.scalar_max:
-            return None
-        if self._stepper is None:
-            self._stepper = self.compiled_step.Stepper()
-        return self._stepper
 
     # ------------------------------------------------------------------ one vehicle's values
-    # Why: the virtual FCU's steady tick reads and writes a dozen of these (telemetry, the
-    # setpoint, the failsafes), and numpy's indexing, run once per tick with the caches cold,
-    # costs several times the same work on Python floats (docs/benchmarks.md, 2026-11-29): with
-    # the compiled step these go through its views of the arrays instead.
+    # The virtual FCU's steady tick reads and writes a dozen of these (telemetry, the setpoint,
+    # the failsafes) through these two.
     def get(self, k: int, i: int) -> Any:
         """Vehicle ``i``'s value of field ``FIELDS[k]``: a float, a bool (armed, landed) or an
         (x, y, z) tuple of floats (pos, vel, acc, pos_sp, vel_ff, wind), the units of the field."""
-        st = self._compiled()
-        if st is not None:
-            return st.get(self, k, i)
         a = getattr(self, FIELDS[k])
         if a.ndim == 2:
             return tuple(a[i].tolist())
@@ -171,12 +144,6 @@ class MultirotorArray:
     def set_targets(self, i: int, pos: Any, vel: Any, yaw: float, yaw_rate: float) -> None:
         """Vehicle ``i``'s position setpoint (m, NED; NaN: that axis free), velocity feed-forward
         (m/s, NED), yaw setpoint (rad) and yaw-rate setpoint (rad/s; NaN: none)."""
-        st = self._compiled()
-        if st is not None:
-            px, py, pz = pos
-            vx, vy, vz = vel
-            st.set_targets(self, i, px, py, pz, vx, vy, vz, yaw, yaw_rate)
-            return
         self.pos_sp[i] = pos
         self.vel_ff[i] = vel
         self.yaw_sp[i] = yaw
@@ -203,29 +170,20 @@ class MultirotorArray:
 
     # --------------------------------------------------------------------- step
     scalar_max: int = 8
-    compiled_step: ModuleType | None = _COMPILED  # None: the scalar path in Python (tests compare the two)
 
     def step(self, dt: float, n: int = 1) -> None:
         """Advance all vehicles by ``n`` steps of ``dt`` seconds (semi-implicit Euler;
         stable for dt <= ~0.05).
 
         numpy's per-call overhead (~0.6 us) dominates for a handful of vehicles, so small
-        fleets take an equivalent scalar path (same equations on floats): compiled when it was
-        built, else in Python (``math`` on floats, arrays converted once per call). One vehicle,
-        two steps a call, warm: 0.84 us compiled, 10.8 us in Python; in a UAV among 50 others,
-        caches cold, several times that. Tests check that all three paths agree.
+        fleets take an equivalent scalar path (same equations, ``math`` on Python floats, arrays
+        converted once per call). One vehicle, two steps a call, warm: 10.8 us; in a UAV among
+        50 others, caches cold, several times that. Tests check that both paths agree.
         """
         if n < 1:
             return
         if self.n <= self.scalar_max:
-            st = self._compiled()
-            if st is not None:
-                prm = self.params
-                st.step(self, dt, n, prm.kp_xy, prm.kp_z, self._2bz, prm.kp_yaw, prm.tau_vel_xy, prm.tau_vel_z,
-                        prm.drag, prm.acc_up, prm.acc_dn, prm.landed_alt, prm.landed_speed,
-                        prm.battery_idle_fraction, prm.tau_att)
-            else:
-                self._step_scalar(dt, n)
+            self._step_scalar(dt, n)
         else:
             for _ in range(n):
                 self._step_vector(dt)

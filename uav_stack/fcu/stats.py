@@ -5,8 +5,6 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from uav_stack.fcu.dynamics import DYNAMICS
-
 
 @dataclass
 class FcuStats:
@@ -51,5 +49,4 @@ class FcuStats:
             "physics_steps": self.physics_steps,
             "dropped_wall_s": self.dropped_wall_s,
             "failsafes": dict(self.failsafes),
-            "dynamics": DYNAMICS,  # which scalar step this process runs: "compiled" or "python"
         }
