@@ -194,6 +194,8 @@ class MultirotorArray:
         P, V, A = self.pos.T, self.vel.T, self.acc.T
         armed = self.armed
         gz_ = self.ground_z
+        # motors off, resting on the ground: nothing changes (the wind's drag would else move it a hair a step)
+        rest = ~armed & (P[2] >= gz_) & ~(V.any(axis=0) | A.any(axis=0)) & (self.roll == 0.0) & (self.pitch == 0.0)
 
         # position loop: P gain, square-root braking profile sqrt(2*(acc/2)*e), NaN axes off
         psp = self.pos_sp.T
@@ -225,7 +227,7 @@ class MultirotorArray:
 
         # integrate
         V += (A - prm.drag * rel) * dt
-        P += V * dt
+        P += np.where(rest, 0.0, V * dt)
 
         # ground contact
         below = P[2] >= gz_
