@@ -69,7 +69,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-LOCKSTEP_POLL_S = 1.0  # wall s between looks at the stop flag and the parent while waiting for a step
 PUT_TOGETHER = 16  # UAVs whose puts of a half tick leave back to back: a pose waits for at most their work
 ACT_AFTER = 0.3  # of a period after the instant: when the pool acts (its UAVs' poses of the instant are in by then)
 # lock-step time: s of simulated time after the instant at which the pool acts. In real time a pool acts as
@@ -207,7 +206,7 @@ class Pool:
             u.agent.stats_sources["loop"] = loop.as_dict
         end = math.inf if duration is None else sim.now + duration
         next_counters = time.monotonic() + 1.0
-        for step in follower.follow(lambda: stop.stopped or sim.now >= end, idle_timeout, LOCKSTEP_POLL_S,
+        for step in follower.follow(lambda: stop.stopped or sim.now >= end, idle_timeout,
                                    gone=lambda: os.getppid() != parent):
             if step.k > 0:  # the act of the last instant, when it comes in real time: the FCU flies on to it first
                 self._instant(step.t - period)

@@ -51,11 +51,11 @@ class FcuConfig:
     # (uav_stack/fcu/streams.py): as if a companion had sent SET_MESSAGE_INTERVAL before anything else
     stream_rates: dict[str, float] = field(default_factory=dict)
     max_peers: int = 8  # learned UDP peers per vehicle (like mavlink-router server endpoints)
+    peer_timeout_s: float = 30.0  # wall seconds of silence before a learned peer is dropped
     # s (wall, in [0, 1)) by which every vehicle's first heartbeat is later than its boot sends it. A real
     # autopilot boots at an arbitrary moment, so its 1 Hz heartbeat falls anywhere between two agent ticks;
     # a fleet opened on a tick (lock-step time) would otherwise beat exactly on the ticks' grid
     heartbeat_offset_s: float = 0.0
-    peer_timeout_s: float = 30.0  # wall seconds of silence before a learned peer is dropped
 
     def __post_init__(self) -> None:
         if not self.vehicles:
