@@ -191,12 +191,10 @@ def test_a_flown_behaviour_s_values_and_counters_are_channels_of_run_mcap(tmp_pa
             s = channels[f"/uav/{u}/behaviour/{what}"]
             assert s.name == schema and s.encoding == "jsonschema" and json.loads(s.data)["title"] == schema
         # every value the UAV wrote into its behaviour_uav<N>.csv, in order, NaN as null
-        recorded = [(d["t_wall"], name, v) for topic, m in msgs if topic == f"/uav/{u}/behaviour/values"
+        recorded = [(round(d["t_wall"], 3), name, v) for topic, m in msgs if topic == f"/uav/{u}/behaviour/values"
                     for d in [json.loads(m.data)] for name, v in d["values"].items()]
         own = _csv_values(run / f"behaviour_uav{u}.csv")
-        assert [(n, v) for _, n, v in recorded] == [(n, v) for _, n, v in own] and len(own) >= 3 * 10  # >= 10 steps
-        # the same instants: the CSV holds ms, the wire us (a time on a half ms can round either way)
-        assert all(abs(a - b) <= 0.0005 + 2e-6 for (a, _, _), (b, _, _) in zip(recorded, own, strict=True))
+        assert recorded == own and len(own) >= 3 * 10  # step, heard, nothing.yet: at least 10 steps
         assert {n for _, n, _ in own} == {"step", "heard", "nothing.yet"}
         assert all(v is None for _, n, v in own if n == "nothing.yet")
         # the counters: the last report holds what the UAV's stats file says at the end

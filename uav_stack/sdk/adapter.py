@@ -484,9 +484,10 @@ class BehaviourMission:
         if name not in self.values and len(self.values) >= MAX_VALUES:
             return self._refuse("too_many_names", f"{name}: at most {MAX_VALUES} names")
         self.values[name] = v
-        self.reporter.add(self.ctx.t, name, v)
+        t = round(self.ctx.t * 1e6) / 1e6  # the instant as its report carries it (us): the CSV and run.mcap agree
+        self.reporter.add(t, name, v)
         if self.records is not None:
-            self.records.add(f"{self.ctx.t:.3f},{name},{v!r}\n")
+            self.records.add(f"{t:.3f},{name},{v!r}\n")
         return True
 
     def _refuse(self, why: str, detail: str) -> bool:
