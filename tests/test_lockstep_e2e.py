@@ -61,13 +61,24 @@ def test_one_seed_gives_one_flight_in_lockstep_and_another_seed_another(tmp_path
     assert moved, "another seed flew the same flight"
 
 
-def test_netem_delays_are_simulated_time_in_lockstep(tmp_path: Path) -> None:
-    f = fly(scenario=COVERAGE, out=tmp_path, sets=[*SETS, "network.netem.preset=lte", "duration=15"])
+def test_netem_delays_are_simulated_time_in_lockstep_and_so_is_the_recording(tmp_path: Path) -> None:
+    f = fly(scenario=COVERAGE, out=tmp_path, sets=[*SETS, "network.netem.preset=lte", "duration=15"], record=True)
     assert f.summary.get("aborted") is None, f.summary.get("aborted")
     age = f.summary["network"]["transport_age_ms"]
     # the LTE preset's one-way delay (tens of ms) in simulated time, whatever the wall clock did meanwhile
     assert 30.0 <= age["p50"] <= 120.0, age
     assert f.summary["network"]["negative_ages"] == {}
+    # run.mcap plays in the run's time: every record between the epoch and the clock's end, each pose
+    # logged at the instant it was put at (within a tick), not at the wall's date
+    from mrswarm.recorder.reader import read_recording
+
+    sim_s = run_info(f)["lockstep"]["sim_s"]
+    msgs = list(read_recording(f.run_dir / "run.mcap"))
+    assert len(msgs) > 1000
+    assert all(LOCKSTEP_EPOCH * 1e9 <= m.log_time <= (LOCKSTEP_EPOCH + sim_s + 1.0) * 1e9 for m in msgs)
+    lags = [(m.log_time - m.publish_time) / 1e9 for m in msgs if m.topic.endswith("/pose")]
+    assert len(lags) >= 6 * 100 and all(-1e-6 <= lag <= 0.2 for lag in lags), (min(lags), max(lags))
+    assert not any(m.topic.startswith("/raw/clock") for m in msgs)
 
 
 def test_the_wildfire_world_in_lockstep_is_one_flight_per_seed_and_puts_fire_out(tmp_path: Path) -> None:

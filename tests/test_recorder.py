@@ -218,6 +218,40 @@ def test_bad_and_unknown_payloads_are_counted_and_kept_never_raised() -> None:
     assert sum("rejected" in w["message"] for w in warnings) == 2
 
 
+def test_a_lockstep_run_is_recorded_in_its_simulated_time_whatever_the_wall_clock_says() -> None:
+    """The leader's clock steps set the recording's time; they are counted, not recorded. A recorder not told
+    (gcs record without --lockstep) says so in the log and goes over to simulated time at the first step."""
+    from swarmnet.lockstep import LOCKSTEP_EPOCH, ClockDone, ClockStep
+    from swarmnet.lockstep import _encode as encode_clock
+
+    wall = time.time()
+    for told in (True, False):
+        tr = Translator("s", lockstep=told)
+        recs = []
+        for k in range(3):
+            t = LOCKSTEP_EPOCH + 0.1 * k
+            pose = Pose(uav=4, realm=Realm.VIRTUAL, seq=k, t_sim=0.1 * k, t_wall=t, x=1, y=2, z=3, vx=0, vy=0, vz=0, yaw=0)
+            recs += tr.translate([Sample("mrs/s/clock/step", encode_clock(ClockStep(k, t)), wall + k),
+                                  Sample("mrs/s/4/pose", encode_pose(pose), wall + k + 0.5),
+                                  Sample("mrs/s/clock/done/pool-1", encode_clock(ClockDone(1, k)), wall + k + 0.6)])
+        poses = [r for r in recs if r.topic == "/uav/4/pose"]
+        # each pose at the simulated instant it was put at, as the sender stamped it
+        assert [(r.log_time, r.publish_time) for r in poses] == [(int((LOCKSTEP_EPOCH + 0.1 * k) * 1e9),) * 2
+                                                                  for k in range(3)]
+        assert not any(r.topic.startswith("/raw/") for r in recs)
+        assert tr.received["clock_step"] == 3 and tr.received["clock_done"] == 3
+        assert all(LOCKSTEP_EPOCH * 1e9 <= r.log_time < (LOCKSTEP_EPOCH + 1) * 1e9 for r in recs)
+        notes = [json.loads(r.data)["message"] for r in recs if r.schema == "foxglove.Log"]
+        assert any("--lockstep" in n for n in notes) == (not told)
+        assert tr.clock(wall + 10) == LOCKSTEP_EPOCH + 0.2  # the scene and counters too
+        # a pose of the next instant before its step (the clock's messages go at the lowest priority): logged at
+        # its stamp; one stamped far ahead of the clock (a wrong clock, a forgery) at the clock's time
+        early = [Pose(uav=4, realm=Realm.VIRTUAL, seq=9, t_sim=0.3, t_wall=LOCKSTEP_EPOCH + ahead, x=1, y=2, z=3, vx=0,
+                      vy=0, vz=0, yaw=0) for ahead in (0.3, 100.0)]
+        late = [r for p in early for r in tr.translate([Sample("mrs/s/4/pose", encode_pose(p), wall + 20)])]
+        assert [r.log_time for r in late] == [int((LOCKSTEP_EPOCH + 0.3) * 1e9), int((LOCKSTEP_EPOCH + 0.2) * 1e9)]
+
+
 def test_replay_publishes_the_recording_under_its_own_name(router: str, tmp_path: Path) -> None:  # noqa: F811
     path = tmp_path / "r.mcap"
     nodes = _uavs(router, 2)

@@ -95,6 +95,8 @@ def build_parser(prog: str = "mrswarm gcs") -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--mcap", action="store_true", help="write MCAP (docs/recording.md); the default for a FILE ending in .mcap")
     p.add_argument("--die-with-parent", action="store_true", help="finish the file and stop when the parent process exits")
+    p.add_argument("--lockstep", action="store_true",
+                   help="MCAP: a lock-step run (time: lockstep): every record in its simulated time (docs/recording.md)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--status", action="store_true",
@@ -230,7 +232,7 @@ def _record_mcap(obs: Any, args: argparse.Namespace, console: Any) -> int:
         return stop.requested or (parent is not None and os.getppid() != parent)
 
     counts = record_swarm(obs, args.file, duration=args.duration, run_dir=Path(args.run) if args.run else None,
-                          stop=stopped, report=report, status=status)
+                          lockstep=args.lockstep, stop=stopped, report=report, status=status)
     unwritten = counts.pop("unwritten", 0)
     say(f"recorded {sum(counts.values())} messages to {args.file}"
         + (f"; {unwritten} could not be written (the disk refused them)" if unwritten else ""))

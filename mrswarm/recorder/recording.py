@@ -144,13 +144,14 @@ class Stop:
 
 
 def record_swarm(observer: SwarmObserver, path: str | Path, *, duration: float | None = None, run_dir: Path | None = None,
-                 stop: Callable[[], bool] = lambda: False, counters_every: float = COUNTERS_EVERY,
+                 lockstep: bool = False, stop: Callable[[], bool] = lambda: False, counters_every: float = COUNTERS_EVERY,
                  report: Callable[[dict[str, int]], None] | None = None,
                  status: Callable[[dict[str, object]], None] = lambda st: None) -> dict[str, int]:
     """Record ``observer``'s swarm into the MCAP file ``path`` until ``duration`` s pass or ``stop()``; return the counts
-    (with ``unwritten``: records a full or failing disk took none of)."""
+    (with ``unwritten``: records a full or failing disk took none of). ``lockstep``: a lock-step run, recorded in
+    its simulated time (the last clock step's; ``duration`` stays wall s)."""
     capture = SwarmCapture(observer)
-    translator = Translator(observer.keys.swarm)
+    translator = Translator(observer.keys.swarm, lockstep)
 
     def begin(writer: McapWriter) -> None:
         writer.metadata("recording", {"swarm": observer.keys.swarm, "mrswarm": __version__, "started": f"{time.time():.3f}",
@@ -169,7 +170,7 @@ def record_swarm(observer: SwarmObserver, path: str | Path, *, duration: float |
         while time.monotonic() < end and not stop():
             for rec in translator.translate(capture.drain()):
                 files.write(rec)
-            now = time.time()
+            now = translator.clock(time.time())
             scene = translator.scene(now)
             if scene is not None:
                 files.write(scene)
@@ -191,7 +192,7 @@ def record_swarm(observer: SwarmObserver, path: str | Path, *, duration: float |
         try:
             capture.close()
             if run_dir is not None:
-                for rec in counter_records(run_dir, counters_seen, time.time()):
+                for rec in counter_records(run_dir, counters_seen, translator.clock(time.time())):
                     files.write(rec)
                 for pattern in END_GLOBS:
                     for p in sorted(run_dir.glob(pattern)):

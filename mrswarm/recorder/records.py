@@ -2,7 +2,8 @@
 
 :class:`Translator` decodes each sample with the swarm's own decoders (swarmnet.messages), writes
 it on its channel (schemas.py) with the sender's stamp as publish time and the arrival as log
-time, and derives the Foxglove views: a LocationFix per telemetry, a Log line per event (a UAV
+time (in a lock-step run, :class:`Translator` with ``lockstep``, the simulated time of the last clock
+step heard: swarmnet/lockstep.py), and derives the Foxglove views: a LocationFix per telemetry, a Log line per event (a UAV
 joins or leaves, changes phase, yields to a failsafe, gets a command, acknowledges it), and a
 SceneUpdate of the swarm at most :data:`SCENE_PERIOD` apart. A payload that does not decode is
 counted under ``rejected[reason]`` (the swarm's reason names) and logged, never raised.
@@ -20,6 +21,7 @@ import msgpack
 from mrswarm.recorder import schemas as sc
 from mrswarm.recorder.capture import Sample
 from swarmnet.keyspace import uav_from_key
+from swarmnet.lockstep import LOCKSTEP_EPOCH, decode_step
 from swarmnet.messages import (
     AgentState,
     BehaviourReport,
@@ -37,6 +39,7 @@ from swarmnet.netem.control import decode_netem_set
 
 SCENE_PERIOD = 0.2  # s between two SceneUpdates (5 Hz: smooth in Foxglove, a fraction of the pose volume)
 LOG_NAME = "mrswarm"
+STAMP_AHEAD_S = 1.0  # lock-step: s a sender's stamp may be ahead of the last clock step and still be its arrival
 
 
 class Record(NamedTuple):
@@ -44,7 +47,7 @@ class Record(NamedTuple):
 
     topic: str
     schema: str  # a name in schemas.SCHEMAS
-    log_time: int  # ns since the epoch: arrival at the recorder
+    log_time: int  # ns since the epoch: arrival at the recorder (lock-step: the simulated time then)
     publish_time: int  # ns since the epoch: the sender's stamp (the arrival when the message has none)
     sequence: int
     data: bytes  # JSON
@@ -57,9 +60,11 @@ def _ns(t: float) -> int:
 class Translator:
     """Turns samples of one swarm into records; keeps what the derived views need (last states, commands)."""
 
-    def __init__(self, swarm: str):
+    def __init__(self, swarm: str, lockstep: bool = False):
         self.swarm = swarm
         self.prefix = f"mrs/{swarm}/"
+        # a lock-step run's simulated time: the last clock step's (the epoch before the first); None: the wall's
+        self.sim_now: float | None = LOCKSTEP_EPOCH if lockstep else None
         self.states: dict[int, AgentState] = {}
         self.poses: dict[int, Pose] = {}
         self._scene_due: dict[int, Pose] = {}
@@ -68,14 +73,22 @@ class Translator:
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
 
+    def clock(self, wall: float) -> float:
+        """The recording's time for what arrives at ``wall`` (s): the wall clock's, or in a lock-step run
+        the simulated time of the last clock step heard, so that the recording plays in the run's time."""
+        return wall if self.sim_now is None else self.sim_now
+
     # ---- one sample ------------------------------------------------------------------------
     def translate(self, samples: Iterable[Sample]) -> Iterator[Record]:
         for s in samples:
             try:
-                yield from self._one(s)
+                if self.sim_now is None:
+                    yield from self._one(s)
+                else:
+                    yield from self._after_stamp(self._one(s))
             except Rejected as exc:
                 self.rejected[exc.reason] += 1
-                yield self._log(s.arrival, sc.LOG_WARNING, f"rejected {exc.reason} on {s.key}: {exc.detail}"[:300])
+                yield self._log(self.clock(s.arrival), sc.LOG_WARNING, f"rejected {exc.reason} on {s.key}: {exc.detail}"[:300])
 
     def _one(self, s: Sample) -> Iterator[Record]:
         if s.alive is not None:
@@ -85,7 +98,10 @@ class Translator:
         parts = rest.split("/")
         uav = uav_from_key(s.key)
         stream = parts[1] if uav is not None and len(parts) == 2 else None
-        t = s.arrival
+        if parts[0] == "clock":  # the lock-step clock: its time, not a record (10 a second of simulated time)
+            yield from self._clock(s, parts)
+            return
+        t = self.clock(s.arrival)
         if stream == "pose":
             p = accept_pose(s.key, s.payload)
             self.received["pose"] += 1
@@ -142,6 +158,28 @@ class Translator:
             self.received["other"] += 1
             yield Record("/raw/" + rest, "mrswarm.Raw", _ns(t), _ns(t), 0, sc.dumps(raw_json(s.key, s.payload)))
 
+    def _after_stamp(self, records: Iterator[Record]) -> Iterator[Record]:
+        """Lock-step: a record arrives no earlier than its sender stamped it. A pose of the next instant can
+        come before that instant's clock step (the clock's messages travel at the lowest priority); one
+        stamped more than :data:`STAMP_AHEAD_S` ahead of the clock keeps the clock's time."""
+        assert self.sim_now is not None
+        now = _ns(self.sim_now)
+        ahead = _ns(self.sim_now + STAMP_AHEAD_S)
+        for r in records:
+            yield r._replace(log_time=r.publish_time) if now < r.publish_time <= ahead else r
+
+    def _clock(self, s: Sample, parts: list[str]) -> Iterator[Record]:
+        if parts[1:2] != ["step"]:
+            self.received["clock_done"] += 1  # the pools' answers
+            return
+        step = decode_step(s.payload)
+        self.received["clock_step"] += 1
+        if self.sim_now is None:  # a recorder not told (gcs record without --lockstep): simulated time from here on
+            self.sim_now = step.t
+            yield self._log(step.t, sc.LOG_WARNING, "a lock-step run: its records from here on are in simulated time "
+                            "(record it with --lockstep to have them all so)")
+        self.sim_now = max(self.sim_now, step.t)
+
     def _state(self, st: AgentState, t: float) -> Iterator[Record]:
         self.received["state"] += 1
         prev = self.states.get(st.uav)
@@ -170,9 +208,10 @@ class Translator:
         event = "joined" if s.alive else "left"
         self.received[event] += 1
         d = {"key": s.key, "role": role, "id": node, "event": event}
-        yield Record(sc.ALIVE, "mrswarm.Liveliness", _ns(s.arrival), _ns(s.arrival), 0, sc.dumps(d))
+        t = self.clock(s.arrival)
+        yield Record(sc.ALIVE, "mrswarm.Liveliness", _ns(t), _ns(t), 0, sc.dumps(d))
         level = sc.LOG_WARNING if event == "left" and role == "uav" else sc.LOG_INFO
-        yield self._log(s.arrival, level, f"{role} {node} {event}")
+        yield self._log(t, level, f"{role} {node} {event}")
 
     def _log(self, t: float, level: int, message: str) -> Record:
         return Record(sc.LOG, "foxglove.Log", _ns(t), _ns(t), 0, sc.dumps(sc.log_entry(t, level, LOG_NAME, message)))

@@ -53,8 +53,9 @@ STATUS_PREFIX = "recorder-status "  # a line of `gcs record --status`: the recor
 class RunRecorder:
     """The run's recorder process (the current one); :meth:`restart` starts the next, :meth:`stop` finishes its file."""
 
-    def __init__(self, run_dir: Path, path: Path):
+    def __init__(self, run_dir: Path, path: Path, lockstep: bool = False):
         self.run_dir = run_dir
+        self.lockstep = lockstep  # a lock-step run: recorded in its simulated time
         self.first = path  # run.mcap: the later files are named after it
         self.path = path  # the file the current process writes
         self.files: list[str] = []  # every file begun, in order
@@ -72,12 +73,13 @@ class RunRecorder:
         self._reader: threading.Thread | None = None
 
     @classmethod
-    def start(cls, run_dir: Path, timeout: float = START_TIMEOUT) -> RunRecorder:
+    def start(cls, run_dir: Path, timeout: float = START_TIMEOUT, lockstep: bool = False) -> RunRecorder:
         """Start recording the run in ``run_dir`` (its network.json must exist); returns once the file is begun.
+        ``lockstep``: the run's time is lock-step's, and so is the recording's.
 
         Raises RuntimeError if the recorder exits or begins no file within ``timeout`` s.
         """
-        rec = cls(run_dir, run_dir / MCAP_NAME)
+        rec = cls(run_dir, run_dir / MCAP_NAME, lockstep)
         rec._spawn()
         deadline = time.monotonic() + timeout
         while not rec._begun.wait(0.05):
@@ -100,7 +102,7 @@ class RunRecorder:
         except OSError:  # a full or read-only disk: the output is read all the same, and dropped
             self._log = None
         argv = [sys.executable, "-m", "mrswarm", "gcs", "record", str(self.path), "--mcap", "--run", str(self.run_dir),
-                "--quiet", "--status", "--die-with-parent"]
+                "--quiet", "--status", "--die-with-parent", *(["--lockstep"] if self.lockstep else [])]
         self._begun.clear()
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 start_new_session=True)

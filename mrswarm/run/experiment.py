@@ -322,7 +322,7 @@ class Experiment:
         self._save("network.json", json.dumps(network_info).encode())
         if self.record:  # before the first UAV, so its first pose is recorded
             try:
-                self.recorder = RunRecorder.start(self.run_dir)
+                self.recorder = RunRecorder.start(self.run_dir, lockstep=scn.time == "lockstep")
                 self.run_info.recording_files = list(self.recorder.files)
                 self._say(f"flight recording: {self.recorder.path}")
             except (RuntimeError, OSError) as exc:  # a run without its recording still flies
