@@ -3,7 +3,9 @@
 Speed: for each swarm size of ``--sizes`` it flies the coverage scenario (``scenarios/coverage.yaml``,
 ``fleet.count = N``) in lock-step time and reports how fast the simulated clock ran (simulated s per
 wall s over the clock's whole run, takeoff included: ``run.json``'s ``lockstep.speedup``), the wall
-time of the run from start to summary, and the share of the clock's time spent waiting for the pools.
+time of the run from start to summary, the share of the clock's time spent waiting for the pools, and
+where a tick goes: each pool's work, its loop's CPU and its wait per step (ms), and the CPU per UAV and
+tick (us).
 
 Outcome: for ``--seeds`` seeds it flies the same scenario at ``--fidelity-n`` UAVs in real time and in
 lock-step time, alternating (so that both share the machine's load of the moment), and compares
@@ -54,11 +56,27 @@ def row(kind: str, n: int, seed: int, f: Flight, wall: float) -> dict[str, Any]:
     ls = info.get("lockstep") or {}
     cov = f.summary.get("coverage") or {}
     sep = f.summary.get("separation") or {}
+    pools = info.get("pools") or {}
     return {"kind": kind, "n": n, "seed": seed, "aborted": f.summary.get("aborted"), "run_wall_s": round(wall, 1),
             "speedup": ls.get("speedup"), "clock_sim_s": ls.get("sim_s"), "clock_wall_s": ls.get("wall_s"),
             "clock_waiting_share": round(ls["waiting_s"] / ls["wall_s"], 3) if ls.get("wall_s") else None,
-            "t90_s": cov.get("time_to_90_s"), "coverage": cov.get("final"), "min_separation_m": sep.get("min_m"),
-            "collisions": sep.get("collisions"), "run_dir": str(f.run_dir)}
+            **pool_steps(f, pools), "t90_s": cov.get("time_to_90_s"), "coverage": cov.get("final"),
+            "min_separation_m": sep.get("min_m"), "collisions": sep.get("collisions"), "run_dir": str(f.run_dir)}
+
+
+def pool_steps(f: Flight, pools: dict[str, list[int]]) -> dict[str, float | None]:
+    """Where a lock-step tick goes, per step and pool (the mean over pools of their loops' ``loop.lockstep``, ms):
+    its work (step in to answer out), the loop's CPU in it, the wait for the next step; and the CPU per UAV and
+    tick (us): the figure the speed at large N depends on (docs/campaigns.md)."""
+    seen = [(len(uavs), (f.stats.get(uavs[0], {}).get("loop") or {}).get("lockstep")) for uavs in pools.values() if uavs]
+    steps = [(size, st) for size, st in seen if isinstance(st, dict)]
+    if not steps:
+        return {"pool_work_ms": None, "pool_cpu_ms": None, "pool_wait_ms": None, "cpu_us_per_uav_tick": None}
+    mean = statistics.fmean
+    return {"pool_work_ms": round(mean(st["work_ms"] for _, st in steps), 2),
+            "pool_cpu_ms": round(mean(st["cpu_ms"] for _, st in steps), 2),
+            "pool_wait_ms": round(mean(st["wait_ms"] for _, st in steps), 2),
+            "cpu_us_per_uav_tick": round(1000.0 * sum(st["cpu_ms"] for _, st in steps) / sum(s for s, _ in steps), 1)}
 
 
 def interval(values: list[float]) -> tuple[float, float, float]:

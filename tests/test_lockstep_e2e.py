@@ -50,6 +50,11 @@ def test_one_seed_gives_one_flight_in_lockstep_and_another_seed_another(tmp_path
         # records in simulated time from the epoch, the mission after the takeoff
         assert LOCKSTEP_EPOCH < info["takeoff_sent"] < info["mission_start"] < LOCKSTEP_EPOCH + ls["sim_s"]
         assert all(tr.phase[-1] in ("mission", "done") for tr in f.trajectories.values())
+        # where a tick went, in each pool's loop (benchmarks/lockstep.py reports it): every step timed
+        for uavs in info["pools"].values():
+            st = f.stats[uavs[0]]["loop"]["lockstep"]
+            assert ls["ticks"] - 5 <= st["steps"] <= ls["ticks"] and st["work_ms"] > 0.0 and st["wait_ms"] >= 0.0
+            assert 0.0 < st["cpu_ms"] <= st["work_ms"] * 1.05 + 0.5  # the loop thread's CPU within its wall time
     ra, rb, rc = rows(a), rows(b), rows(c)
     assert ra.keys() == rb.keys()
     for u in ra:  # identical, row for row (the trajectory files hold mm and ms)

@@ -206,8 +206,10 @@ class Pool:
             u.agent.stats_sources["loop"] = loop.as_dict
         end = math.inf if duration is None else sim.now + duration
         next_counters = time.monotonic() + 1.0
+        answered: float | None = None  # perf_counter of the last answer (the wait for the next step starts there)
         for step in follower.follow(lambda: stop.stopped or sim.now >= end, idle_timeout,
                                    gone=lambda: os.getppid() != parent):
+            began, cpu = time.perf_counter(), time.thread_time()
             if step.k > 0:  # the act of the last instant, when it comes in real time: the FCU flies on to it first
                 self._instant(step.t - period)
                 sim.now = t_act = step.t - period + LOCKSTEP_ACT_S
@@ -224,6 +226,9 @@ class Pool:
             self._each("sense")
             self.fcu.poll_io()
             follower.done(step)
+            now = time.perf_counter()
+            loop.step(now - began, time.thread_time() - cpu, began - answered if answered is not None else 0.0)
+            answered = now
             if (wall := time.monotonic()) >= next_counters:  # (files on the wall clock: a faster run does not write more often)
                 next_counters = wall + 1.0
                 self.write_neighbours()

@@ -238,6 +238,12 @@ class LoopStats:
     ticks: int = 0
     late: int = 0  # ticks that began more than LATE_AFTER of a period after their time
     worst_late_s: float = 0.0
+    # lock-step time (a pool stepped by the run's leader), summed over its steps: wall s from a step's
+    # arrival to the pool's answer, the loop thread's CPU s in them, and wall s from an answer to the next step
+    steps: int = 0
+    work_s: float = 0.0
+    cpu_s: float = 0.0
+    wait_s: float = 0.0
 
     def tick(self, late_s: float) -> None:
         self.ticks += 1
@@ -245,8 +251,22 @@ class LoopStats:
             self.late += 1
             self.worst_late_s = max(self.worst_late_s, late_s)
 
-    def as_dict(self) -> dict[str, float]:
-        return {"period_s": self.period_s, "ticks": self.ticks, "late": self.late, "worst_late_s": round(self.worst_late_s, 3)}
+    def step(self, work_s: float, cpu_s: float, wait_s: float) -> None:
+        """A lock-step step ran: ``work_s`` wall s (``cpu_s`` of the loop thread's CPU), after ``wait_s`` wall s
+        of waiting for it."""
+        self.steps += 1
+        self.work_s += work_s
+        self.cpu_s += cpu_s
+        self.wait_s += wait_s
+
+    def as_dict(self) -> dict[str, object]:
+        out: dict[str, object] = {"period_s": self.period_s, "ticks": self.ticks, "late": self.late,
+                                  "worst_late_s": round(self.worst_late_s, 3)}
+        if self.steps:  # per step, ms: where a lock-step tick's wall time goes (docs/campaigns.md)
+            n = self.steps
+            out["lockstep"] = {"steps": n, "work_ms": round(1000.0 * self.work_s / n, 3),
+                               "cpu_ms": round(1000.0 * self.cpu_s / n, 3), "wait_ms": round(1000.0 * self.wait_s / n, 3)}
+        return out
 
 
 def run_loop(agent: Agent, stop: StopFlag, fcu: VirtualFcu | None = None, duration: float | None = None,
