@@ -654,6 +654,11 @@ def _us(t: float) -> int:
     return int(round(t * 1e6))
 
 
+def wire_time(t: float) -> float:
+    """``t`` (s since the epoch) as a message's time reads once decoded: whole microseconds, as the wire holds it."""
+    return _us(t) / 1e6
+
+
 def _q(value: float, scale: float, limit: int, name: str) -> int:
     """Quantise to a fixed-point integer, refusing values the wire format cannot hold."""
     q = round(value * scale)  # raises on NaN/inf

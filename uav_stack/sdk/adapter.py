@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 
 from groundfloor.errors import MrswarmError
-from swarmnet.messages import VALUE_NAME_RE, TopicCounts
+from swarmnet.messages import VALUE_NAME_RE, TopicCounts, wire_time
 from uav_stack.behaviours.base import SelfState, Vec2
 from uav_stack.recorder import AppendLog
 from uav_stack.sdk import loader
@@ -484,7 +484,7 @@ class BehaviourMission:
         if name not in self.values and len(self.values) >= MAX_VALUES:
             return self._refuse("too_many_names", f"{name}: at most {MAX_VALUES} names")
         self.values[name] = v
-        t = round(self.ctx.t * 1e6) / 1e6  # the instant as its report carries it (us): the CSV and run.mcap agree
+        t = wire_time(self.ctx.t)  # the instant as its report carries it: the CSV and run.mcap agree
         self.reporter.add(t, name, v)
         if self.records is not None:
             self.records.add(f"{t:.3f},{name},{v!r}\n")
