@@ -227,7 +227,7 @@ class Pool:
             self.fcu.poll_io()
             follower.done(step)
             now = time.perf_counter()
-            loop.step(now - began, time.thread_time() - cpu, began - answered if answered is not None else 0.0)
+            loop.step(now - began, time.thread_time() - cpu, began - answered if answered is not None else None)
             answered = now
             if (wall := time.monotonic()) >= next_counters:  # (files on the wall clock: a faster run does not write more often)
                 next_counters = wall + 1.0

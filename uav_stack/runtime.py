@@ -244,6 +244,7 @@ class LoopStats:
     work_s: float = 0.0
     cpu_s: float = 0.0
     wait_s: float = 0.0
+    waits: int = 0  # steps after an answer (the first step has no wait before it)
 
     def tick(self, late_s: float) -> None:
         self.ticks += 1
@@ -251,13 +252,15 @@ class LoopStats:
             self.late += 1
             self.worst_late_s = max(self.worst_late_s, late_s)
 
-    def step(self, work_s: float, cpu_s: float, wait_s: float) -> None:
+    def step(self, work_s: float, cpu_s: float, wait_s: float | None) -> None:
         """A lock-step step ran: ``work_s`` wall s (``cpu_s`` of the loop thread's CPU), after ``wait_s`` wall s
-        of waiting for it."""
+        of waiting for it since the last answer (None: the first step, nothing answered before it)."""
         self.steps += 1
         self.work_s += work_s
         self.cpu_s += cpu_s
-        self.wait_s += wait_s
+        if wait_s is not None:
+            self.waits += 1
+            self.wait_s += wait_s
 
     def as_dict(self) -> dict[str, object]:
         out: dict[str, object] = {"period_s": self.period_s, "ticks": self.ticks, "late": self.late,
@@ -265,7 +268,8 @@ class LoopStats:
         if self.steps:  # per step, ms: where a lock-step tick's wall time goes (docs/campaigns.md)
             n = self.steps
             out["lockstep"] = {"steps": n, "work_ms": round(1000.0 * self.work_s / n, 3),
-                               "cpu_ms": round(1000.0 * self.cpu_s / n, 3), "wait_ms": round(1000.0 * self.wait_s / n, 3)}
+                               "cpu_ms": round(1000.0 * self.cpu_s / n, 3),
+                               "wait_ms": round(1000.0 * self.wait_s / self.waits, 3) if self.waits else 0.0}
         return out
 
 
